@@ -1,0 +1,40 @@
+# The whole set-up is two commands: `make run` and `make test` (see README.md).
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+VENDOR := static/vendor
+
+.PHONY: install run test lint typecheck pytest clean
+
+install: $(STAMP)
+
+# Everything pinned: Python packages from the lock files, front-end libraries from package-lock.json.
+$(STAMP): requirements.lock requirements-dev.lock pyproject.toml package.json package-lock.json
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements-dev.lock
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
+	npm ci --ignore-scripts --no-audit --no-fund --loglevel=error
+	mkdir -p $(VENDOR)
+	cp node_modules/htmx.org/dist/htmx.min.js node_modules/htmx-ext-sse/dist/sse.min.js \
+	   node_modules/plotly.js-dist-min/plotly.min.js $(VENDOR)/
+	@touch $(STAMP)
+
+run: install
+	$(BIN)/trustlab init
+	$(BIN)/trustlab serve
+
+lint: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: install
+	$(BIN)/mypy
+
+pytest: install
+	$(BIN)/pytest
+
+test: lint typecheck pytest
+
+clean:
+	rm -rf $(VENV) node_modules $(VENDOR)
