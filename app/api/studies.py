@@ -1,0 +1,130 @@
+"""Studies and their participants over JSON."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+from sqlalchemy import select
+
+from app.api.schemas import (
+    ConditionCount,
+    Enrolled,
+    EnrolmentRequest,
+    ParticipantOut,
+    StudyCreate,
+    StudyStatusChange,
+    StudySummary,
+    Withdrawal,
+)
+from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep
+from app.errors import InvalidInput
+from app.protocol import ProtocolError, parse_protocol
+from app.services import enrolment, studies
+from app.services.audit import Actor
+from app.tables import Participant, Study, StudyStatus
+
+router = APIRouter(prefix="/studies", tags=["studies"])
+
+
+def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
+    protocol = studies.protocol_of(study)
+    return StudySummary(
+        name=study.name,
+        title=study.title,
+        status=study.status,
+        created_at=study.created_at,
+        protocol_sha256=study.protocol_sha256,
+        blinded=protocol.study.blinded,
+        enrolment=[
+            ConditionCount(
+                label=enrolment.condition_label(protocol, condition, actor=actor), **by_status
+            )
+            for condition, by_status in studies.enrolment_counts(db, study).items()
+        ],
+    )
+
+
+def _participant(study: Study, participant: Participant, actor: Actor) -> ParticipantOut:
+    protocol = studies.protocol_of(study)
+    return ParticipantOut(
+        code=participant.code,
+        condition=enrolment.condition_label(
+            protocol, participant.allocation.condition, actor=actor
+        ),
+        stratum=participant.stratum,
+        status=participant.status,
+        enrolled_at=participant.enrolled_at,
+        withdrawn_at=participant.withdrawn_at,
+    )
+
+
+@router.get("")
+def list_studies(db: SessionDep, user: CurrentUser) -> list[StudySummary]:
+    """Every study, newest first."""
+    actor = Actor.of_user(user)
+    return [_summary(db, study, actor) for study in studies.list_studies(db)]
+
+
+@router.post("", status_code=status.HTTP_201_CREATED)
+def create_study(body: StudyCreate, db: SessionDep, admin: AdminUser) -> StudySummary:
+    """Create a study from protocol TOML (admin)."""
+    try:
+        loaded = parse_protocol(body.protocol_toml, source="protocol_toml")
+    except ProtocolError as exc:
+        raise InvalidInput(str(exc)) from exc
+    study = studies.create_study(db, name=body.name, loaded=loaded, actor=Actor.of_user(admin))
+    return _summary(db, study, Actor.of_user(admin))
+
+
+@router.get("/{name}")
+def get_study(name: str, db: SessionDep, user: CurrentUser) -> StudySummary:
+    """One study."""
+    return _summary(db, studies.get_study(db, name), Actor.of_user(user))
+
+
+@router.post("/{name}/status")
+def set_status(
+    name: str, body: StudyStatusChange, db: SessionDep, admin: AdminUser
+) -> StudySummary:
+    """Open or close enrolment (admin)."""
+    actor = Actor.of_user(admin)
+    study = studies.set_study_status(db, name=name, status=StudyStatus(body.status), actor=actor)
+    return _summary(db, study, actor)
+
+
+@router.get("/{name}/participants")
+def list_participants(name: str, db: SessionDep, user: CurrentUser) -> list[ParticipantOut]:
+    """Participants in enrolment order."""
+    study = studies.get_study(db, name)
+    actor = Actor.of_user(user)
+    return [_participant(study, p, actor) for p in enrolment.list_participants(db, study)]
+
+
+@router.post("/{name}/participants", status_code=status.HTTP_201_CREATED)
+def enrol(name: str, body: EnrolmentRequest, db: SessionDep, user: ExperimenterUser) -> Enrolled:
+    """Enrol a participant and reveal their allocation (once)."""
+    actor = Actor.of_user(user)
+    result = enrolment.enroll_participant(
+        db, study_name=name, actor=actor, code=body.code, strata=body.strata
+    )
+    protocol = studies.protocol_of(studies.get_study(db, name))
+    replaced = result.allocation.replaces_participant_id
+    replaced_code = db.scalar(select(Participant.code).where(Participant.id == replaced))
+    return Enrolled(
+        code=result.participant.code,
+        condition=enrolment.condition_label(protocol, result.condition, actor=actor),
+        allocation_index=result.allocation.sequence_index,
+        stratum=result.participant.stratum,
+        replaces=replaced_code,
+    )
+
+
+@router.post("/{name}/participants/{code}/withdraw")
+def withdraw(
+    name: str, code: str, body: Withdrawal, db: SessionDep, user: ExperimenterUser
+) -> ParticipantOut:
+    """Withdraw a participant; they keep their allocation and data."""
+    actor = Actor.of_user(user)
+    participant = enrolment.withdraw_participant(
+        db, study_name=name, code=code, actor=actor, reason=body.reason
+    )
+    return _participant(studies.get_study(db, name), participant, actor)

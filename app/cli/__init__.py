@@ -1,0 +1,27 @@
+"""The ``trustlab`` command: set-up, serving, accounts, studies, enrolment and more.
+
+Every sub-command reports a mistake the user can fix as one line ``error: …`` on stderr with a
+non-zero exit status (1: refused by the current state, 2: bad input), never a traceback.
+"""
+
+from __future__ import annotations
+
+import typer
+
+from app.cli import admin
+from app.cli.errors import ErrorsAsMessages
+
+cli = typer.Typer(
+    name="trustlab",
+    help="Run adaptive-robot trust studies.",
+    cls=ErrorsAsMessages,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+admin.register(cli)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    cli()

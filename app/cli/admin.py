@@ -1,0 +1,283 @@
+"""Set-up and administration commands: init, serve, db, user, study, participant."""
+
+from __future__ import annotations
+
+import json
+import secrets
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from app import schema
+from app.db import Database, describe_url
+from app.errors import InvalidInput
+from app.protocol import default_protocol, load_protocol_file
+from app.services import enrolment, studies, users
+from app.services.audit import Actor
+from app.settings import Settings
+from app.tables import Role
+
+db_cli = typer.Typer(help="Database schema migrations.", no_args_is_help=True)
+user_cli = typer.Typer(help="Dashboard accounts.", no_args_is_help=True)
+study_cli = typer.Typer(help="Studies.", no_args_is_help=True)
+participant_cli = typer.Typer(help="Enrolment and withdrawal.", no_args_is_help=True)
+
+JsonFlag = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
+
+
+def open_database(settings: Settings) -> Database:
+    """The configured database, after checking it answers (DatabaseUnavailable otherwise)."""
+    database = Database(settings.database_url, sqlite_synchronous=settings.sqlite_synchronous)
+    database.ping()
+    return database
+
+
+def require_current_schema(database: Database) -> None:
+    """Refuse to work on a database whose schema is behind (or ahead of) the code."""
+    current, head = schema.current_revision(database), schema.head_revision()
+    if current != head:
+        raise InvalidInput(
+            f"the database schema is at {current or 'nothing'} but this trustlab needs {head}: "
+            "run `trustlab db upgrade` (or `trustlab init`) first"
+        )
+
+
+def emit_json(value: object) -> None:
+    """Print exactly one JSON object."""
+    typer.echo(json.dumps(value, default=str, sort_keys=True))
+
+
+def register(cli: typer.Typer) -> None:
+    """Attach these commands to the top-level ``trustlab`` command."""
+    cli.command("init")(init)
+    cli.command("serve")(serve)
+    cli.add_typer(db_cli, name="db")
+    cli.add_typer(user_cli, name="user")
+    cli.add_typer(study_cli, name="study")
+    cli.add_typer(participant_cli, name="participant")
+
+
+def init() -> None:
+    """Migrate the database, create the default study and, on first start, the admin account."""
+    settings = Settings()
+    database = open_database(settings)
+    before = schema.current_revision(database)
+    schema.upgrade(database)
+    after = schema.current_revision(database)
+    typer.echo(
+        f"database {describe_url(settings.database_url)}: schema at {after}"
+        + ("" if before == after else f" (was {before or 'empty'})")
+    )
+    actor = Actor.system("trustlab init")
+    with database.writing() as db:
+        if studies.count_studies(db) == 0:
+            study = studies.create_study(
+                db, name=studies.DEFAULT_STUDY_NAME, loaded=default_protocol(), actor=actor
+            )
+            typer.echo(f"created the default study {study.name!r}: {study.title}")
+        if users.count_users(db) == 0:
+            given = settings.admin_password
+            password = given.get_secret_value() if given else secrets.token_urlsafe(12)
+            users.create_user(
+                db,
+                username=settings.admin_username,
+                role=Role.ADMIN,
+                password=password,
+                actor=actor,
+            )
+            typer.echo(f"created the admin account {settings.admin_username!r}")
+            if given is None:
+                typer.echo(f"  password: {password}")
+                typer.echo("  (shown only this once: write it down, then add personal accounts)")
+    database.dispose()
+
+
+def serve(
+    host: Annotated[str | None, typer.Option(help="Interface to listen on.")] = None,
+    port: Annotated[int | None, typer.Option(help="Port to listen on.")] = None,
+    workers: Annotated[int, typer.Option(min=1, help="Worker processes (PostgreSQL for >1).")] = 1,
+) -> None:
+    """Serve the dashboard, the tablet pages and the API."""
+    import uvicorn
+
+    settings = Settings()
+    database = open_database(settings)
+    require_current_schema(database)
+    database.dispose()
+    if workers > 1 and settings.is_sqlite:
+        raise InvalidInput("several workers need PostgreSQL; SQLite serves from one process")
+    host = host or settings.host
+    port = port or settings.port
+    typer.echo(f"trustlab serving on http://{host}:{port} (Ctrl-C stops)")
+    uvicorn.run(
+        "app.main:create_app",
+        factory=True,
+        host=host,
+        port=port,
+        workers=workers,
+        proxy_headers=True,
+        log_level="info",
+    )
+
+
+@db_cli.command("upgrade")
+def db_upgrade(revision: Annotated[str, typer.Argument(help="Target revision.")] = "head") -> None:
+    """Apply migrations (to the newest by default)."""
+    database = open_database(Settings())
+    schema.upgrade(database, revision)
+    typer.echo(f"schema at {schema.current_revision(database)}")
+
+
+@db_cli.command("downgrade")
+def db_downgrade(
+    revision: Annotated[str, typer.Argument(help="Target revision ('base' removes everything).")],
+) -> None:
+    """Revert migrations down to a revision."""
+    database = open_database(Settings())
+    schema.downgrade(database, revision)
+    typer.echo(f"schema at {schema.current_revision(database) or 'base (empty)'}")
+
+
+@db_cli.command("current")
+def db_current() -> None:
+    """Show the database's schema revision and the code's."""
+    database = open_database(Settings())
+    current, head = schema.current_revision(database), schema.head_revision()
+    state = (
+        "up to date" if current == head else f"behind: run `trustlab db upgrade` to reach {head}"
+    )
+    typer.echo(f"{current or 'base (empty)'} ({state})")
+
+
+@user_cli.command("create")
+def user_create(
+    username: Annotated[str, typer.Option(help="Login name (case-insensitive).")],
+    role: Annotated[Role, typer.Option(help="admin, experimenter or analyst.")],
+    password_stdin: Annotated[
+        bool, typer.Option("--password-stdin", help="Read the password from standard input.")
+    ] = False,
+) -> None:
+    """Create a dashboard account."""
+    if not password_stdin:
+        raise InvalidInput("give the password on standard input with --password-stdin")
+    password = sys.stdin.readline().rstrip("\r\n")
+    settings = Settings()
+    database = open_database(settings)
+    require_current_schema(database)
+    with database.writing() as db:
+        user = users.create_user(
+            db, username=username, role=role, password=password, actor=Actor.command_line()
+        )
+        typer.echo(f"created {user.role} {user.username!r}")
+
+
+@study_cli.command("create")
+def study_create(
+    protocol: Annotated[Path, typer.Option(help="Protocol TOML file.")],
+    name: Annotated[str, typer.Option(help="Short unique name, e.g. pilot-2026.")],
+    as_json: JsonFlag = False,
+) -> None:
+    """Create a study from a protocol file."""
+    loaded = load_protocol_file(protocol)
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.writing() as db:
+        study = studies.create_study(db, name=name, loaded=loaded, actor=Actor.command_line())
+        if as_json:
+            emit_json({"name": study.name, "title": study.title, "sha256": study.protocol_sha256})
+        else:
+            typer.echo(f"created study {study.name!r}: {study.title}")
+
+
+@study_cli.command("list")
+def study_list(as_json: JsonFlag = False) -> None:
+    """List studies with their enrolment per condition."""
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.read_session() as db:
+        rows = [
+            {
+                "name": s.name,
+                "title": s.title,
+                "status": s.status,
+                "created_at": s.created_at.isoformat(),
+                "enrolment": studies.enrolment_counts(db, s),
+            }
+            for s in studies.list_studies(db)
+        ]
+    if as_json:
+        emit_json({"studies": rows})
+        return
+    if not rows:
+        typer.echo("no studies yet: `trustlab init` creates the default one")
+    for row in rows:
+        enrolled: dict[str, dict[str, int]] = row["enrolment"]  # type: ignore[assignment]
+        counts = ", ".join(
+            f"{condition} {by_status['active'] + by_status['completed']}"
+            for condition, by_status in enrolled.items()
+        )
+        typer.echo(f"{row['name']:<24} {row['status']:<7} {counts:<20} {row['title']}")
+
+
+def _parse_strata(pairs: list[str]) -> dict[str, str]:
+    strata = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise InvalidInput(f"--stratum {pair!r}: write it as key=value, e.g. gender=female")
+        strata[key.strip()] = value.strip()
+    return strata
+
+
+@participant_cli.command("enroll")
+def participant_enroll(
+    study: Annotated[str, typer.Option(help="Study name.")],
+    stratum: Annotated[
+        list[str] | None, typer.Option(help="Stratification factor as key=value (repeatable).")
+    ] = None,
+    code: Annotated[
+        str | None, typer.Option(help="Participant code (default P001, P002…).")
+    ] = None,
+    as_json: JsonFlag = False,
+) -> None:
+    """Enrol a participant and reveal their allocation."""
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.writing() as db:
+        result = enrolment.enroll_participant(
+            db,
+            study_name=study,
+            actor=Actor.command_line(),
+            code=code,
+            strata=_parse_strata(stratum or []),
+        )
+        payload = {
+            "code": result.participant.code,
+            "condition": result.condition,
+            "allocation_index": result.allocation.sequence_index,
+        }
+    if as_json:
+        emit_json(payload)
+    else:
+        typer.echo(
+            f"enrolled {payload['code']} in {study!r}: condition {payload['condition']} "
+            f"(allocation {payload['allocation_index']})"
+        )
+
+
+@participant_cli.command("withdraw")
+def participant_withdraw(
+    study: Annotated[str, typer.Option(help="Study name.")],
+    code: Annotated[str, typer.Option(help="Participant code.")],
+    reason: Annotated[str, typer.Option(help="Why (kept in the record).")] = "",
+) -> None:
+    """Withdraw a participant (their allocation and data are kept)."""
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.writing() as db:
+        enrolment.withdraw_participant(
+            db, study_name=study, code=code, actor=Actor.command_line(), reason=reason
+        )
+    typer.echo(f"withdrew {code} from {study!r}")

@@ -1,0 +1,125 @@
+"""Database engines and sessions for SQLite and PostgreSQL.
+
+Two kinds of session exist because SQLite has one writer at a time: a transaction that starts as a
+reader and later writes fails at once (``SQLITE_BUSY``) when another writer committed in between,
+whatever the busy timeout. Requests and commands that write therefore open a *write session*,
+whose transactions start with ``BEGIN IMMEDIATE`` on SQLite and so queue politely for the write
+lock. On PostgreSQL both kinds are ordinary READ COMMITTED transactions; rows that must not change
+under a transaction are locked explicitly (``SELECT … FOR UPDATE``).
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.engine import URL, make_url
+from sqlalchemy.exc import DBAPIError, OperationalError
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.errors import DatabaseUnavailable
+
+WRITE_OPTION = "trustlab_write"
+"""Execution option that marks connections of write sessions (``BEGIN IMMEDIATE`` on SQLite)."""
+
+
+def describe_url(url: str | URL) -> str:
+    """The URL as it may be shown to a person: the password masked."""
+    return make_url(url).render_as_string(hide_password=True)
+
+
+def _configure_sqlite(engine: Engine, synchronous: str) -> None:
+    """WAL, foreign keys, a generous busy timeout, and explicit BEGINs we control."""
+
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_connection: sqlite3.Connection, _record: Any) -> None:
+        # Let SQLAlchemy's "begin" event (below) issue BEGIN instead of the sqlite3 module.
+        dbapi_connection.isolation_level = None
+        cursor = dbapi_connection.cursor()
+        cursor.execute("PRAGMA journal_mode=WAL")
+        cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute("PRAGMA busy_timeout=30000")
+        cursor.execute(f"PRAGMA synchronous={synchronous}")
+        cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(connection: Any) -> None:
+        immediate = connection.get_execution_options().get(WRITE_OPTION, False)
+        connection.exec_driver_sql("BEGIN IMMEDIATE" if immediate else "BEGIN")
+
+
+def create_db_engine(database_url: str, *, sqlite_synchronous: str = "FULL") -> Engine:
+    """An engine for ``database_url`` with trustlab's connection settings applied."""
+    url = make_url(database_url)
+    if url.get_backend_name() == "sqlite":
+        if url.database and url.database != ":memory:":
+            Path(url.database).parent.mkdir(parents=True, exist_ok=True)
+        engine = create_engine(
+            url,
+            connect_args={"check_same_thread": False, "timeout": 30},
+            pool_size=10,
+            max_overflow=30,
+        )
+        _configure_sqlite(engine, sqlite_synchronous)
+        return engine
+    if url.get_backend_name() == "postgresql":
+        return create_engine(
+            url,
+            pool_pre_ping=True,
+            pool_size=10,
+            max_overflow=30,
+            connect_args={"connect_timeout": 5, "application_name": "trustlab"},
+        )
+    raise ValueError(
+        f"unsupported database {describe_url(url)!r}: use sqlite:///FILE or postgresql+psycopg://…"
+    )
+
+
+class Database:
+    """An engine plus the two session factories every caller uses."""
+
+    def __init__(self, database_url: str, *, sqlite_synchronous: str = "FULL") -> None:
+        self.url = database_url
+        self.engine = create_db_engine(database_url, sqlite_synchronous=sqlite_synchronous)
+        self._read = sessionmaker(self.engine, expire_on_commit=False)
+        self._write = sessionmaker(
+            self.engine.execution_options(**{WRITE_OPTION: True}), expire_on_commit=False
+        )
+
+    @property
+    def is_sqlite(self) -> bool:
+        """Whether this is a SQLite database (one writer, one process)."""
+        return self.engine.dialect.name == "sqlite"
+
+    def read_session(self) -> Session:
+        """A session for requests that only read."""
+        return self._read()
+
+    def write_session(self) -> Session:
+        """A session whose transactions may write (BEGIN IMMEDIATE on SQLite)."""
+        return self._write()
+
+    @contextmanager
+    def writing(self) -> Iterator[Session]:
+        """A write session closed afterwards; the caller commits (uncommitted work rolls back)."""
+        with self.write_session() as session:
+            yield session
+
+    def ping(self) -> None:
+        """Raise :class:`DatabaseUnavailable` (one clear sentence) unless the database answers."""
+        try:
+            with self.engine.connect() as connection:
+                connection.execute(text("SELECT 1"))
+        except (OperationalError, DBAPIError) as exc:
+            reason = str(exc.orig).strip().splitlines()[0] if exc.orig else str(exc)
+            raise DatabaseUnavailable(
+                f"cannot reach the database at {describe_url(self.url)}: {reason}"
+            ) from exc
+
+    def dispose(self) -> None:
+        """Close every pooled connection (tests, shutdown, before a restore)."""
+        self.engine.dispose()

@@ -1,0 +1,510 @@
+"""Study protocols: TOML files validated into frozen pydantic models.
+
+A protocol is everything a study fixes in advance: conditions and their learners, the categories
+of robot questions, the session schedule, reply thresholds and texts, the reward map, the
+allocation scheme and the questionnaires. It is stored with the study (as validated JSON and as the
+original text with its SHA-256), so a study keeps the protocol it started with even if the file
+changes later. A bad file is refused with the file name, the key path and the reason, one line per
+problem.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import math
+import tomllib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+
+Key = Annotated[str, StringConstraints(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
+"""Identifiers used as column names in exports: lower snake case, starting with a letter."""
+
+ConditionId = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_-]{0,31}$")]
+Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=2000)]
+
+DEFAULT_PROTOCOL = "fast_adaptation_trust.toml"
+"""The seed paper's protocol, shipped in app/protocols/."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class StudyInfo(_Strict):
+    """What the study is called and what participants are told."""
+
+    title: Text
+    description: str = ""
+    rules: list[Text] = Field(default_factory=list, description="Shown to participants.")
+    blinded: bool = Field(
+        default=False, description="Experimenters see neutral condition labels only."
+    )
+
+
+class LearnerKind(StrEnum):
+    """The adaptation algorithms a condition can use."""
+
+    EXP3 = "exp3"
+    META = "meta"
+
+
+class ConditionSpec(_Strict):
+    """One arm of the trial, e.g. C1 (Exp3) or C2 (meta-learned policy)."""
+
+    id: ConditionId
+    label: Text
+    learner: LearnerKind
+    neutral_label: Text | None = Field(
+        default=None, description="Label shown to blinded roles; 'Group A', 'Group B'… if unset."
+    )
+
+
+class Exp3Settings(_Strict):
+    """Exp3 (Auer et al. 2002) parameters."""
+
+    gamma: float = Field(default=0.1, gt=0.0, le=1.0, description="Exploration rate γ.")
+
+
+class MetaSettings(_Strict):
+    """Meta-learned policy parameters."""
+
+    checkpoint: str = Field(
+        default="shipped",
+        description="'shipped' (the pre-trained checkpoint for the category and K) or a path.",
+    )
+    learning_rate: float | None = Field(
+        default=None, gt=0.0, description="Online step size; the checkpoint's own when unset."
+    )
+
+
+class LearnerSettings(_Strict):
+    """Per-algorithm settings shared by every category."""
+
+    exp3: Exp3Settings = Field(default_factory=Exp3Settings)
+    meta: MetaSettings = Field(default_factory=MetaSettings)
+
+
+class CategorySpec(_Strict):
+    """A mental-activity instance: an independent K-armed bandit over its questions."""
+
+    name: Key
+    title: Text
+    questions: list[Text] = Field(min_length=2, max_length=10)
+    preferred: int | None = Field(
+        default=None,
+        ge=0,
+        description="Index of the question the rules make right (for adaptation curves).",
+    )
+
+
+class ScheduleSpec(_Strict):
+    """How many sessions and runs a participant goes through."""
+
+    sessions: int = Field(default=4, ge=1, le=50)
+    runs_per_session: int = Field(default=3, ge=1, le=50)
+    familiarisation_run: bool = Field(
+        default=True, description="One logged run before session 1 that never adapts."
+    )
+    questionnaire_gates_next_session: bool = Field(
+        default=True, description="Session n+1 cannot start before session n's questionnaire."
+    )
+
+
+class ReplyLevel(_Strict):
+    """A confidence level and what the robot says at it."""
+
+    name: Key
+    text: Text
+
+
+def _default_levels() -> list[ReplyLevel]:
+    return [
+        ReplyLevel(name="low", text="I do not believe it but fine."),
+        ReplyLevel(name="medium_low", text="Is that really so? I am not sure."),
+        ReplyLevel(name="medium", text="I understand now."),
+        ReplyLevel(name="high", text="Awesome, I knew you would say so."),
+    ]
+
+
+class RepliesSpec(_Strict):
+    """The robot's reply by the chosen question's probability: level i if p < thresholds[i]."""
+
+    thresholds: list[float] = Field(default_factory=lambda: [0.5, 0.65, 0.8], min_length=1)
+    levels: list[ReplyLevel] = Field(default_factory=_default_levels)
+
+
+class RewardSpec(_Strict):
+    """How a participant's answer becomes the learner's reward (clipped into [0, 1] by Exp3)."""
+
+    yes: float = 1.0
+    no: float = 0.0
+
+
+class AllocationSpec(_Strict):
+    """Concealed permuted-block randomisation."""
+
+    block_sizes: list[int] = Field(default_factory=lambda: [2, 4], min_length=1)
+    stratify_by: list[Key] = Field(default_factory=list)
+    strata_values: dict[str, list[Text]] = Field(
+        default_factory=dict, description="Allowed values per stratification factor (optional)."
+    )
+    replace_dropouts: bool = Field(
+        default=False, description="A new participant takes a withdrawn one's condition."
+    )
+
+
+class ItemKind(StrEnum):
+    """How an item is answered."""
+
+    LIKERT = "likert"
+    NUMBER = "number"
+    CHOICE = "choice"
+    TEXT = "text"
+
+
+class ResponseScale(_Strict):
+    """A Likert scale: integer points from ``minimum`` to ``maximum`` with labelled anchors."""
+
+    name: Key
+    minimum: int = 1
+    maximum: int = Field(default=5, le=11)
+    labels: list[Text] = Field(
+        default_factory=list, description="One label per point, or just the two end anchors."
+    )
+
+
+class ChoiceOption(_Strict):
+    """One option of a choice item; ``describe`` asks for a self-description in words."""
+
+    value: Key
+    label: Text
+    describe: bool = False
+
+
+class ItemSpec(_Strict):
+    """One question of an instrument."""
+
+    key: Key
+    text: Text
+    kind: ItemKind = ItemKind.LIKERT
+    required: bool = True
+    scale: Key | None = Field(default=None, description="Response scale name (Likert items).")
+    reverse: bool = Field(default=False, description="Reverse-keyed: scored min + max − x.")
+    minimum: int | None = Field(default=None, description="Lowest allowed number (number items).")
+    maximum: int | None = Field(default=None, description="Highest allowed number (number items).")
+    options: list[ChoiceOption] = Field(default_factory=list)
+    max_length: int = Field(default=2000, ge=1, le=20000, description="Text items only.")
+
+
+class InstrumentSpec(_Strict):
+    """A questionnaire page: shown before the study, after every session, or after the last."""
+
+    key: Key
+    title: Text
+    when: Literal["pre", "session", "post"]
+    instructions: str = ""
+    citation: str = ""
+    items: list[ItemSpec] = Field(min_length=1)
+
+
+class ScoreSpec(_Strict):
+    """A scale score computed from raw answers (reverse keys come from the items)."""
+
+    name: Key
+    instrument: Key
+    items: list[Key] = Field(min_length=1)
+    method: Literal["mean", "sum"] = "mean"
+    label: str = ""
+
+
+class ConsentSpec(_Strict):
+    """The consent text participants must accept; its version is stored with the acceptance."""
+
+    version: Text
+    text: Text
+
+
+class QuestionnairesSpec(_Strict):
+    """Every instrument of the study, as data a lab can translate or adapt."""
+
+    consent: ConsentSpec
+    scales: list[ResponseScale] = Field(default_factory=list)
+    instruments: list[InstrumentSpec] = Field(default_factory=list)
+    scores: list[ScoreSpec] = Field(default_factory=list)
+
+
+class Protocol(_Strict):
+    """A whole study protocol."""
+
+    study: StudyInfo
+    conditions: list[ConditionSpec] = Field(min_length=2)
+    categories: list[CategorySpec] = Field(min_length=1)
+    schedule: ScheduleSpec = Field(default_factory=ScheduleSpec)
+    replies: RepliesSpec = Field(default_factory=RepliesSpec)
+    reward: RewardSpec = Field(default_factory=RewardSpec)
+    learners: LearnerSettings = Field(default_factory=LearnerSettings)
+    allocation: AllocationSpec = Field(default_factory=AllocationSpec)
+    questionnaires: QuestionnairesSpec
+
+    def condition(self, condition_id: str) -> ConditionSpec:
+        """The condition with this id (KeyError if the protocol has none)."""
+        for condition in self.conditions:
+            if condition.id == condition_id:
+                return condition
+        raise KeyError(condition_id)
+
+    def neutral_label(self, condition_id: str) -> str:
+        """The blinded label of a condition: its own, or 'Group A', 'Group B'… by position."""
+        for position, condition in enumerate(self.conditions):
+            if condition.id == condition_id:
+                return condition.neutral_label or f"Group {chr(ord('A') + position)}"
+        raise KeyError(condition_id)
+
+    def category(self, name: str) -> CategorySpec:
+        """The category with this name (KeyError if the protocol has none)."""
+        for category in self.categories:
+            if category.name == name:
+                return category
+        raise KeyError(name)
+
+    def instruments_at(self, when: str) -> list[InstrumentSpec]:
+        """The instruments shown at one point of the timeline, in protocol order."""
+        return [i for i in self.questionnaires.instruments if i.when == when]
+
+    def scale(self, name: str) -> ResponseScale:
+        """A named response scale (KeyError if undefined)."""
+        for scale in self.questionnaires.scales:
+            if scale.name == name:
+                return scale
+        raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a protocol: where (a key path) and why."""
+
+    path: str
+    reason: str
+
+
+class ProtocolError(ValueError):
+    """A protocol file that cannot be used; ``str()`` gives one ``file: key: reason`` per line."""
+
+    def __init__(self, source: str, problems: Sequence[Problem]) -> None:
+        self.source = source
+        self.problems = list(problems)
+        lines = [
+            f"{source}: {p.path}: {p.reason}" if p.path else f"{source}: {p.reason}"
+            for p in self.problems
+        ]
+        super().__init__("\n".join(lines))
+
+
+@dataclass(frozen=True)
+class LoadedProtocol:
+    """A validated protocol with the exact text it came from and that text's SHA-256."""
+
+    protocol: Protocol
+    source_text: str
+    sha256: str
+
+
+def _key_path(location: Iterable[int | str]) -> str:
+    path = ""
+    for part in location:
+        path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
+    return path
+
+
+def _unique(values: Sequence[str], path: str, what: str) -> list[Problem]:
+    seen: set[str] = set()
+    problems = []
+    for index, value in enumerate(values):
+        if value in seen:
+            problems.append(Problem(f"{path}[{index}]", f"duplicate {what} {value!r}"))
+        seen.add(value)
+    return problems
+
+
+def _check_replies(replies: RepliesSpec) -> list[Problem]:
+    problems = []
+    thresholds = replies.thresholds
+    if any(not (0.0 < t < 1.0) for t in thresholds):
+        problems.append(
+            Problem("replies.thresholds", "every threshold must lie strictly in (0, 1)")
+        )
+    if any(b <= a for a, b in itertools.pairwise(thresholds)):
+        problems.append(Problem("replies.thresholds", "thresholds must be strictly increasing"))
+    if len(replies.levels) != len(thresholds) + 1:
+        problems.append(
+            Problem(
+                "replies.levels",
+                f"{len(thresholds)} thresholds need {len(thresholds) + 1} levels, "
+                f"found {len(replies.levels)}",
+            )
+        )
+    problems += _unique([level.name for level in replies.levels], "replies.levels", "level")
+    return problems
+
+
+def _check_allocation(protocol: Protocol) -> list[Problem]:
+    allocation = protocol.allocation
+    n = len(protocol.conditions)
+    problems = [
+        Problem(
+            f"allocation.block_sizes[{i}]",
+            f"block size {size} is not a positive multiple of the {n} conditions",
+        )
+        for i, size in enumerate(allocation.block_sizes)
+        if size <= 0 or size % n
+    ]
+    problems += _unique(allocation.stratify_by, "allocation.stratify_by", "factor")
+    problems += [
+        Problem(f"allocation.strata_values.{factor}", "not listed in allocation.stratify_by")
+        for factor in allocation.strata_values
+        if factor not in allocation.stratify_by
+    ]
+    return problems
+
+
+def _check_instruments(questionnaires: QuestionnairesSpec) -> list[Problem]:
+    problems = _unique([s.name for s in questionnaires.scales], "questionnaires.scales", "scale")
+    problems += _unique(
+        [i.key for i in questionnaires.instruments], "questionnaires.instruments", "instrument"
+    )
+    scales = {s.name: s for s in questionnaires.scales}
+    for s_index, scale in enumerate(questionnaires.scales):
+        points = scale.maximum - scale.minimum + 1
+        if points < 2:
+            problems.append(
+                Problem(f"questionnaires.scales[{s_index}]", "maximum must exceed minimum")
+            )
+        elif scale.labels and len(scale.labels) not in (2, points):
+            problems.append(
+                Problem(
+                    f"questionnaires.scales[{s_index}].labels",
+                    f"give 2 end anchors or one label per point ({points}), "
+                    f"found {len(scale.labels)}",
+                )
+            )
+    for i_index, instrument in enumerate(questionnaires.instruments):
+        base = f"questionnaires.instruments[{i_index}]"
+        problems += _unique([item.key for item in instrument.items], f"{base}.items", "item")
+        for t_index, item in enumerate(instrument.items):
+            problems += _check_item(item, f"{base}.items[{t_index}]", scales)
+    return problems + _check_scores(questionnaires)
+
+
+def _check_scores(questionnaires: QuestionnairesSpec) -> list[Problem]:
+    by_key = {i.key: i for i in questionnaires.instruments}
+    problems = _unique([s.name for s in questionnaires.scores], "questionnaires.scores", "score")
+    for s_index, score in enumerate(questionnaires.scores):
+        base = f"questionnaires.scores[{s_index}]"
+        instrument = by_key.get(score.instrument)
+        if instrument is None:
+            problems.append(Problem(f"{base}.instrument", f"no instrument {score.instrument!r}"))
+            continue
+        items = {item.key: item for item in instrument.items}
+        for k_index, key in enumerate(score.items):
+            item = items.get(key)
+            if item is None:
+                problems.append(
+                    Problem(f"{base}.items[{k_index}]", f"{score.instrument!r} has no item {key!r}")
+                )
+            elif item.kind is not ItemKind.LIKERT:
+                problems.append(
+                    Problem(f"{base}.items[{k_index}]", f"item {key!r} is not a Likert item")
+                )
+    return problems
+
+
+def _check_item(item: ItemSpec, path: str, scales: dict[str, ResponseScale]) -> list[Problem]:
+    problems = []
+    if item.kind is ItemKind.LIKERT:
+        if item.scale is None:
+            problems.append(Problem(f"{path}.scale", "a Likert item needs a response scale"))
+        elif item.scale not in scales:
+            problems.append(Problem(f"{path}.scale", f"no response scale named {item.scale!r}"))
+    elif item.reverse:
+        problems.append(Problem(f"{path}.reverse", "only Likert items can be reverse-keyed"))
+    if item.kind is ItemKind.NUMBER:
+        if item.minimum is None or item.maximum is None:
+            problems.append(Problem(path, "a number item needs minimum and maximum"))
+        elif item.minimum > item.maximum:
+            problems.append(Problem(f"{path}.maximum", "maximum is below minimum"))
+    if item.kind is ItemKind.CHOICE:
+        if len(item.options) < 2:
+            problems.append(Problem(f"{path}.options", "a choice item needs at least 2 options"))
+        problems += _unique([o.value for o in item.options], f"{path}.options", "option")
+    elif item.options:
+        problems.append(Problem(f"{path}.options", "only choice items have options"))
+    return problems
+
+
+def check_protocol(protocol: Protocol) -> list[Problem]:
+    """Cross-field checks pydantic's per-field validation cannot express."""
+    problems = _unique([c.id for c in protocol.conditions], "conditions", "condition id")
+    problems += _unique([c.name for c in protocol.categories], "categories", "category")
+    for index, category in enumerate(protocol.categories):
+        if category.preferred is not None and category.preferred >= len(category.questions):
+            problems.append(
+                Problem(
+                    f"categories[{index}].preferred",
+                    f"index {category.preferred} but only {len(category.questions)} questions",
+                )
+            )
+    if not math.isfinite(protocol.reward.yes) or not math.isfinite(protocol.reward.no):
+        problems.append(Problem("reward", "rewards must be finite numbers"))
+    problems += _check_replies(protocol.replies)
+    problems += _check_allocation(protocol)
+    problems += _check_instruments(protocol.questionnaires)
+    return problems
+
+
+def parse_protocol(text: str, *, source: str = "<protocol>") -> LoadedProtocol:
+    """Validate protocol TOML text; raise :class:`ProtocolError` naming every problem."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ProtocolError(source, [Problem("", f"not valid TOML: {exc}")]) from exc
+    protocol = protocol_from_dict(data, source=source)
+    return LoadedProtocol(
+        protocol=protocol,
+        source_text=text,
+        sha256=hashlib.sha256(text.encode()).hexdigest(),
+    )
+
+
+def protocol_from_dict(data: dict[str, Any], *, source: str = "<protocol>") -> Protocol:
+    """Validate an already-parsed protocol (e.g. the JSON stored with a study)."""
+    try:
+        protocol = Protocol.model_validate(data)
+    except ValidationError as exc:
+        problems = [Problem(_key_path(e["loc"]), e["msg"]) for e in exc.errors()]
+        raise ProtocolError(source, problems) from exc
+    problems = check_protocol(protocol)
+    if problems:
+        raise ProtocolError(source, problems)
+    return protocol
+
+
+def load_protocol_file(path: Path) -> LoadedProtocol:
+    """Read and validate a protocol file; unreadable files raise :class:`ProtocolError` too."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProtocolError(str(path), [Problem("", f"cannot read the file: {exc}")]) from exc
+    return parse_protocol(text, source=str(path))
+
+
+def default_protocol() -> LoadedProtocol:
+    """The shipped protocol of the seed paper (Gao et al.)."""
+    text = resources.files("app.protocols").joinpath(DEFAULT_PROTOCOL).read_text(encoding="utf-8")
+    return parse_protocol(text, source=f"app/protocols/{DEFAULT_PROTOCOL}")

@@ -1,0 +1,259 @@
+"""Enrolment with concealed randomisation, and withdrawal.
+
+An allocation is revealed only here, at the moment a participant is enrolled: the study row is
+locked (``SELECT … FOR UPDATE`` on PostgreSQL; SQLite's write transactions are serial anyway), the
+next unrevealed entry of the participant's stratum is computed from the secret seed and stored,
+and the reveal is audited, all in one transaction. ``UNIQUE(study_id, stratum, sequence_index)``
+backs the lock up: no entry can ever be handed out twice.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from sqlalchemy import exists, func, select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session, aliased
+
+from app.errors import Conflict, InvalidInput, NotFound
+from app.protocol import AllocationSpec, Protocol
+from app.randomisation import entry_at, stratum_key
+from app.services import audit
+from app.services.audit import Actor
+from app.services.studies import get_study, protocol_of
+from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
+
+CODE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$")
+STRATUM_VALUE_PATTERN = re.compile(r"^[^;=\s][^;=]{0,63}$")
+
+
+@dataclass(frozen=True)
+class Enrolment:
+    """A newly enrolled participant and the allocation revealed for them."""
+
+    participant: Participant
+    allocation: Allocation
+
+    @property
+    def condition(self) -> str:
+        """The condition id, e.g. ``C1``."""
+        return self.allocation.condition
+
+
+def condition_label(protocol: Protocol, condition_id: str, *, actor: Actor) -> str:
+    """What this actor may see of a condition: its id, or a neutral label in a blinded study."""
+    if protocol.study.blinded and not actor.sees_conditions:
+        return protocol.neutral_label(condition_id)
+    return condition_id
+
+
+def _validate_strata(spec: AllocationSpec, strata: Mapping[str, str]) -> dict[str, str]:
+    declared = set(spec.stratify_by)
+    unknown = sorted(set(strata) - declared)
+    if unknown:
+        expected = ", ".join(spec.stratify_by) or "nothing"
+        raise InvalidInput(
+            f"this study does not stratify by {', '.join(unknown)} (it stratifies by {expected})"
+        )
+    missing = [factor for factor in spec.stratify_by if factor not in strata]
+    if missing:
+        example = " ".join(f"--stratum {factor}=VALUE" for factor in missing)
+        raise InvalidInput(f"this study stratifies by {', '.join(missing)}: give {example}")
+    clean = {}
+    for factor, raw in strata.items():
+        value = str(raw).strip()
+        allowed = spec.strata_values.get(factor)
+        if allowed is not None and value not in allowed:
+            raise InvalidInput(f"{factor}={value!r} is not one of: {', '.join(allowed)}")
+        if not STRATUM_VALUE_PATTERN.match(value):
+            raise InvalidInput(f"{factor}: a value has 1-64 characters and no ';' or '='")
+        clean[factor] = value
+    return clean
+
+
+def _next_code(db: Session, study: Study) -> str:
+    number = (db.scalar(select(func.count()).where(Participant.study_id == study.id)) or 0) + 1
+    while True:
+        code = f"P{number:03d}"
+        if not _code_taken(db, study, code):
+            return code
+        number += 1
+
+
+def _code_taken(db: Session, study: Study, code: str) -> bool:
+    query = select(Participant.id).where(Participant.study_id == study.id, Participant.code == code)
+    return db.scalar(query) is not None
+
+
+def _dropout_to_replace(db: Session, study: Study, stratum: str) -> Participant | None:
+    """The earliest-withdrawn participant of the stratum whom nobody replaces yet."""
+    replacement = aliased(Allocation)
+    return db.scalar(
+        select(Participant)
+        .where(
+            Participant.study_id == study.id,
+            Participant.stratum == stratum,
+            Participant.status == ParticipantStatus.WITHDRAWN,
+            ~exists().where(replacement.replaces_participant_id == Participant.id),
+        )
+        .order_by(Participant.withdrawn_at, Participant.id)
+        .limit(1)
+    )
+
+
+def _next_sequence_index(db: Session, study: Study, stratum: str) -> int:
+    last = db.scalar(
+        select(func.max(Allocation.sequence_index)).where(
+            Allocation.study_id == study.id, Allocation.stratum == stratum
+        )
+    )
+    return 0 if last is None else last + 1
+
+
+def _reveal(db: Session, study: Study, protocol: Protocol, participant: Participant) -> Allocation:
+    if protocol.allocation.replace_dropouts:
+        dropout = _dropout_to_replace(db, study, participant.stratum)
+        if dropout is not None:
+            return Allocation(
+                study_id=study.id,
+                participant_id=participant.id,
+                stratum=participant.stratum,
+                condition=dropout.allocation.condition,
+                replaces_participant_id=dropout.id,
+            )
+    index = _next_sequence_index(db, study, participant.stratum)
+    entry = entry_at(
+        bytes.fromhex(study.allocation_seed),
+        participant.stratum,
+        [condition.id for condition in protocol.conditions],
+        protocol.allocation.block_sizes,
+        index,
+    )
+    return Allocation(
+        study_id=study.id,
+        participant_id=participant.id,
+        stratum=participant.stratum,
+        sequence_index=entry.index,
+        block_number=entry.block_number,
+        block_size=entry.block_size,
+        condition=entry.condition,
+    )
+
+
+def enroll_participant(
+    db: Session,
+    *,
+    study_name: str,
+    actor: Actor,
+    code: str | None = None,
+    strata: Mapping[str, str] | None = None,
+) -> Enrolment:
+    """Enrol a participant and reveal their allocation; commits.
+
+    Raises NotFound for an unknown study, Conflict for a closed study or a taken code, and
+    InvalidInput for a malformed code or strata that do not match the protocol.
+    """
+    study = get_study(db, study_name, for_update=True)
+    if study.status != StudyStatus.OPEN:
+        raise Conflict(f"study {study.name!r} is closed to enrolment; an admin can reopen it")
+    protocol = protocol_of(study)
+    clean_strata = _validate_strata(protocol.allocation, strata or {})
+    if code is not None:
+        code = code.strip()
+        if not CODE_PATTERN.match(code):
+            raise InvalidInput(
+                f"participant code {code!r}: use 1-32 letters, digits, '_' or '-', "
+                "starting with a letter or digit"
+            )
+        if _code_taken(db, study, code):
+            raise Conflict(f"participant code {code!r} is already used in study {study.name!r}")
+    participant = Participant(
+        study_id=study.id,
+        code=code or _next_code(db, study),
+        stratum=stratum_key(clean_strata),
+        strata=clean_strata,
+        enrolled_by=actor.name,
+    )
+    db.add(participant)
+    db.flush()
+    allocation = _reveal(db, study, protocol, participant)
+    db.add(allocation)
+    db.flush()
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.enrolled",
+        study_id=study.id,
+        subject=participant.code,
+        details={"stratum": participant.stratum},
+    )
+    audit.record(
+        db,
+        actor=actor,
+        action="allocation.revealed",
+        study_id=study.id,
+        subject=participant.code,
+        details={
+            "condition": allocation.condition,
+            "sequence_index": allocation.sequence_index,
+            "block_number": allocation.block_number,
+            "block_size": allocation.block_size,
+            "replaces_participant_id": allocation.replaces_participant_id,
+        },
+    )
+    try:
+        db.commit()
+    except IntegrityError as exc:
+        db.rollback()
+        raise Conflict(
+            f"participant code {participant.code!r} or allocation was taken concurrently; retry"
+        ) from exc
+    return Enrolment(participant=participant, allocation=allocation)
+
+
+def get_participant(
+    db: Session, study: Study, code: str, *, for_update: bool = False
+) -> Participant:
+    """A participant of the study by code; NotFound otherwise."""
+    query = select(Participant).where(Participant.study_id == study.id, Participant.code == code)
+    if for_update:
+        query = query.with_for_update()
+    participant = db.scalar(query)
+    if participant is None:
+        raise NotFound(f"study {study.name!r} has no participant {code!r}")
+    return participant
+
+
+def withdraw_participant(
+    db: Session, *, study_name: str, code: str, actor: Actor, reason: str = ""
+) -> Participant:
+    """Mark a participant withdrawn (they keep their allocation and data); commits."""
+    study = get_study(db, study_name)
+    participant = get_participant(db, study, code, for_update=True)
+    if participant.status == ParticipantStatus.WITHDRAWN:
+        raise Conflict(f"participant {code!r} is already withdrawn")
+    participant.status = ParticipantStatus.WITHDRAWN
+    participant.withdrawn_at = utcnow()
+    participant.withdrawal_reason = reason.strip()[:2000]
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.withdrawn",
+        study_id=study.id,
+        subject=code,
+        details={"reason": participant.withdrawal_reason},
+    )
+    db.commit()
+    return participant
+
+
+def list_participants(db: Session, study: Study) -> list[Participant]:
+    """Every participant of the study in enrolment order, allocations loaded."""
+    query = (
+        select(Participant)
+        .where(Participant.study_id == study.id)
+        .order_by(Participant.enrolled_at, Participant.id)
+    )
+    return list(db.scalars(query))

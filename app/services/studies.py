@@ -1,0 +1,122 @@
+"""Studies: creation from a validated protocol, lookup, opening and closing."""
+
+from __future__ import annotations
+
+import re
+import secrets
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.errors import Conflict, InvalidInput, NotFound
+from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
+from app.services import audit
+from app.services.audit import Actor
+from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
+
+STUDY_NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{1,63}$")
+DEFAULT_STUDY_NAME = "default"
+
+
+def create_study(db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor) -> Study:
+    """Create an open study with a fresh secret allocation seed; commits."""
+    if not STUDY_NAME_PATTERN.match(name):
+        raise InvalidInput(
+            f"study name {name!r}: use 2-64 lower-case letters, digits or '-', "
+            "starting with a letter or digit"
+        )
+    if db.scalar(select(Study.id).where(Study.name == name)) is not None:
+        raise Conflict(f"a study named {name!r} already exists")
+    study = Study(
+        name=name,
+        title=loaded.protocol.study.title,
+        protocol=loaded.protocol.model_dump(mode="json"),
+        protocol_source=loaded.source_text,
+        protocol_sha256=loaded.sha256,
+        allocation_seed=secrets.token_hex(32),
+        created_by=actor.name,
+    )
+    db.add(study)
+    db.flush()
+    audit.record(
+        db,
+        actor=actor,
+        action="study.created",
+        study_id=study.id,
+        subject=name,
+        details={"protocol_sha256": loaded.sha256},
+    )
+    db.commit()
+    return study
+
+
+_protocol_cache: dict[tuple[int, str], Protocol] = {}
+
+
+def protocol_of(study: Study) -> Protocol:
+    """The study's validated protocol (parsed once per process and protocol version)."""
+    key = (study.id, study.protocol_sha256)
+    protocol = _protocol_cache.get(key)
+    if protocol is None:
+        protocol = protocol_from_dict(study.protocol, source=f"study {study.name!r}")
+        if len(_protocol_cache) > 256:
+            _protocol_cache.clear()
+        _protocol_cache[key] = protocol
+    return protocol
+
+
+def get_study(db: Session, name: str, *, for_update: bool = False) -> Study:
+    """The study with this name, optionally row-locked; NotFound names the known studies."""
+    query = select(Study).where(Study.name == name)
+    if for_update:
+        query = query.with_for_update()
+    study = db.scalar(query)
+    if study is None:
+        known = db.scalars(select(Study.name).order_by(Study.name).limit(10)).all()
+        hint = f"; known studies: {', '.join(known)}" if known else "; no study exists yet"
+        raise NotFound(f"no study named {name!r}{hint}")
+    return study
+
+
+def list_studies(db: Session) -> list[Study]:
+    """Every study, newest first."""
+    return list(db.scalars(select(Study).order_by(Study.created_at.desc(), Study.id.desc())))
+
+
+def count_studies(db: Session) -> int:
+    """How many studies exist (first start creates the default one when there are none)."""
+    return db.scalar(select(func.count()).select_from(Study)) or 0
+
+
+def enrolment_counts(db: Session, study: Study) -> dict[str, dict[str, int]]:
+    """Participants per condition and status: ``{condition: {status: n}}``."""
+    rows = db.execute(
+        select(Allocation.condition, Participant.status, func.count())
+        .join(Participant, Participant.id == Allocation.participant_id)
+        .where(Allocation.study_id == study.id)
+        .group_by(Allocation.condition, Participant.status)
+    ).all()
+    counts: dict[str, dict[str, int]] = {
+        c.id: dict.fromkeys(ParticipantStatus, 0) for c in protocol_of(study).conditions
+    }
+    for condition, status, n in rows:
+        counts.setdefault(condition, dict.fromkeys(ParticipantStatus, 0))[status] = n
+    return counts
+
+
+def set_study_status(db: Session, *, name: str, status: StudyStatus, actor: Actor) -> Study:
+    """Open or close a study for enrolment; commits."""
+    study = get_study(db, name, for_update=True)
+    if study.status == status:
+        return study
+    study.status = status
+    study.closed_at = utcnow() if status is StudyStatus.CLOSED else None
+    audit.record(
+        db,
+        actor=actor,
+        action=f"study.{'closed' if status is StudyStatus.CLOSED else 'opened'}",
+        study_id=study.id,
+        subject=study.name,
+    )
+    db.commit()
+    return study

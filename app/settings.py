@@ -1,0 +1,98 @@
+"""The one settings object: every knob read from the environment (or ``.env``) lives here.
+
+Nothing else in trustlab reads ``os.environ``; code that needs configuration receives a
+:class:`Settings` (the web app keeps one on ``app.state``, the CLI builds one per command).
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from functools import cached_property
+from pathlib import Path
+
+from pydantic import Field, SecretStr, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+"""The checkout (or image) root: migrations/, templates/ and static/ live beside the packages."""
+
+
+class Settings(BaseSettings):
+    """Deployment configuration, from ``TRUSTLAB_*`` environment variables or ``.env``."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="TRUSTLAB_", env_file=".env", extra="ignore", frozen=True
+    )
+
+    database_url: str = Field(
+        default="sqlite:///var/trustlab.sqlite3",
+        description="SQLAlchemy URL; SQLite (default) or postgresql+psycopg://user@host/db.",
+    )
+    var_dir: Path = Field(
+        default=Path("var"),
+        description="Where the default SQLite file, the generated secret key and backups live.",
+    )
+    secret_key: SecretStr | None = Field(
+        default=None,
+        description="Signs CSRF tokens; generated once into var/secret_key when not given.",
+    )
+    checkpoint_dir: Path | None = Field(
+        default=None,
+        description="Pre-trained meta-policy checkpoints; defaults to the ones shipped in models/.",
+    )
+    admin_username: str = Field(default="admin", description="The account `trustlab init` creates.")
+    admin_password: SecretStr | None = Field(
+        default=None,
+        description="Its password; if unset, a random one is generated and printed once.",
+    )
+    session_hours: float = Field(
+        default=12.0, gt=0, description="An experimenter login expires this long after sign-in."
+    )
+    idle_minutes: float = Field(
+        default=120.0, gt=0, description="A login left unused this long expires early."
+    )
+    cookie_secure: bool | None = Field(
+        default=None,
+        description="Force the Secure cookie flag; by default it follows the request's scheme.",
+    )
+    sqlite_synchronous: str = Field(
+        default="FULL",
+        description="PRAGMA synchronous for SQLite: FULL survives power loss, NORMAL only crashes.",
+    )
+    host: str = Field(default="127.0.0.1", description="Where `trustlab serve` listens.")
+    port: int = Field(default=8000, ge=1, le=65535, description="The port `trustlab serve` uses.")
+
+    @field_validator("sqlite_synchronous")
+    @classmethod
+    def _known_synchronous(cls, value: str) -> str:
+        upper = value.upper()
+        if upper not in {"OFF", "NORMAL", "FULL", "EXTRA"}:
+            raise ValueError("must be one of OFF, NORMAL, FULL, EXTRA")
+        return upper
+
+    @property
+    def is_sqlite(self) -> bool:
+        """Whether the configured database is SQLite (one process, file-based)."""
+        return self.database_url.startswith("sqlite")
+
+    @cached_property
+    def secret(self) -> bytes:
+        """The signing key: the configured one, or one generated once and kept in var/."""
+        if self.secret_key is not None:
+            return self.secret_key.get_secret_value().encode()
+        path = self.var_dir / "secret_key"
+        if not path.exists():
+            # Several workers may start at once: write aside, then link atomically; the loser
+            # of the race simply reads the winner's key.
+            self.var_dir.mkdir(parents=True, exist_ok=True)
+            draft = path.with_name(f"secret_key.{os.getpid()}.tmp")
+            draft.touch(mode=0o600)
+            draft.write_text(secrets.token_urlsafe(48))
+            try:
+                os.link(draft, path)
+            except FileExistsError:
+                pass
+            finally:
+                draft.unlink()
+        return path.read_text().strip().encode()

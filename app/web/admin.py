@@ -1,0 +1,122 @@
+"""Admin pages: accounts, new studies from protocol files, opening and closing studies."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, Request, UploadFile
+from fastapi.responses import Response
+from sqlalchemy import select
+
+from app.deps import AdminUser, SessionDep
+from app.errors import Conflict, InvalidInput
+from app.protocol import ProtocolError, parse_protocol
+from app.services import studies, users
+from app.services.audit import Actor
+from app.tables import Role, StudyStatus, User
+from app.web.templating import redirect_with_notice, render
+
+router = APIRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
+
+MAX_PROTOCOL_BYTES = 512 * 1024
+
+
+def _users_page(
+    request: Request,
+    db: SessionDep,
+    *,
+    error: str = "",
+    values: dict[str, str] | None = None,
+    status_code: int = 200,
+) -> Response:
+    accounts = db.scalars(select(User).order_by(User.username)).all()
+    return render(
+        request,
+        "admin_users.html",
+        {"accounts": accounts, "roles": list(Role), "error": error, "values": values or {}},
+        status_code=status_code,
+    )
+
+
+@router.get("/users")
+def user_list(request: Request, db: SessionDep, admin: AdminUser) -> Response:
+    """Accounts and a form to add one."""
+    return _users_page(request, db)
+
+
+@router.post("/users")
+def create_user(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    username: Annotated[str, Form(max_length=64)],
+    role: Annotated[str, Form(max_length=16)],
+    password: Annotated[str, Form(max_length=1024)],
+) -> Response:
+    """Create an account."""
+    try:
+        users.create_user(
+            db, username=username, role=role, password=password, actor=Actor.of_user(admin)
+        )
+    except (InvalidInput, Conflict) as exc:
+        db.rollback()
+        return _users_page(
+            request,
+            db,
+            error=exc.message,
+            values={"username": username, "role": role},
+            status_code=exc.status_code,
+        )
+    return redirect_with_notice(request, "/admin/users", f"Created {username.strip().lower()}.")
+
+
+@router.get("/studies/new")
+def new_study_form(request: Request, admin: AdminUser) -> Response:
+    """Upload a protocol file to create a study."""
+    return render(request, "admin_new_study.html", {"error": "", "name": ""})
+
+
+@router.post("/studies")
+def create_study(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: Annotated[str, Form(max_length=64)],
+    protocol: Annotated[UploadFile, File()],
+) -> Response:
+    """Create a study from an uploaded protocol TOML file."""
+    raw = protocol.file.read(MAX_PROTOCOL_BYTES + 1)
+    error = ""
+    if len(raw) > MAX_PROTOCOL_BYTES:
+        error = f"the protocol file is larger than {MAX_PROTOCOL_BYTES // 1024} KiB"
+    else:
+        try:
+            loaded = parse_protocol(raw.decode("utf-8"), source=protocol.filename or "protocol")
+        except UnicodeDecodeError:
+            error = "the protocol file is not UTF-8 text"
+        except ProtocolError as exc:
+            error = str(exc)
+    if not error:
+        try:
+            studies.create_study(db, name=name.strip(), loaded=loaded, actor=Actor.of_user(admin))
+        except (InvalidInput, Conflict) as exc:
+            db.rollback()
+            error = exc.message
+    if error:
+        return render(
+            request, "admin_new_study.html", {"error": error, "name": name}, status_code=422
+        )
+    return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")
+
+
+@router.post("/studies/{name}/status")
+def set_status(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    status: Annotated[StudyStatus, Form()],
+) -> Response:
+    """Open or close a study for enrolment."""
+    studies.set_study_status(db, name=name, status=status, actor=Actor.of_user(admin))
+    return redirect_with_notice(request, f"/studies/{name}", f"Study is now {status.value}.")

@@ -1,0 +1,124 @@
+"""Sign-in and sign-out pages.
+
+The sign-in form is protected against cross-site posts by a signed double-submit token: the page
+sets a random nonce cookie and embeds the nonce's HMAC in the form; a post is accepted only when
+the two match. After sign-in, forms use the login's own CSRF token (see app.deps).
+"""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from typing import Annotated
+
+from fastapi import APIRouter, Form, Request
+from fastapi.responses import RedirectResponse, Response
+
+from app.deps import SESSION_COOKIE, CurrentLogin, SessionDep, SettingsDep
+from app.security import new_token, same, sign, unsign
+from app.services import users
+from app.web.templating import render
+
+router = APIRouter(tags=["pages"], include_in_schema=False)
+
+LOGIN_NONCE_COOKIE = "tl_login_nonce"
+INVALID_CREDENTIALS = "Invalid username or password."
+
+
+def _safe_next(target: str | None) -> str:
+    """Only same-site paths may follow sign-in (no open redirects)."""
+    if target and target.startswith("/") and not target.startswith("//") and "\\" not in target:
+        return target
+    return "/"
+
+
+def _login_page(
+    request: Request, *, next_url: str, error: str = "", username: str = "", status_code: int = 200
+) -> Response:
+    nonce = new_token(16)
+    response = render(
+        request,
+        "login.html",
+        {
+            "login_token": sign(request.app.state.settings.secret, nonce),
+            "next_url": next_url,
+            "error": error,
+            "username": username,
+        },
+        status_code=status_code,
+    )
+    response.set_cookie(LOGIN_NONCE_COOKIE, nonce, httponly=True, samesite="strict", max_age=3600)
+    return response
+
+
+def _secure(request: Request, settings: SettingsDep) -> bool:
+    return (
+        settings.cookie_secure
+        if settings.cookie_secure is not None
+        else (request.url.scheme == "https")
+    )
+
+
+@router.get("/login")
+def login_form(request: Request, next: str = "/") -> Response:
+    """The sign-in page."""
+    return _login_page(request, next_url=_safe_next(next))
+
+
+@router.post("/login")
+def login(
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    username: Annotated[str, Form(max_length=200)] = "",
+    password: Annotated[str, Form(max_length=1024)] = "",
+    csrf_token: Annotated[str, Form(max_length=200)] = "",
+    next: Annotated[str, Form(max_length=2000)] = "/",
+) -> Response:
+    """Check the credentials and start a login session."""
+    next_url = _safe_next(next)
+    nonce = request.cookies.get(LOGIN_NONCE_COOKIE, "")
+    signed_nonce = unsign(settings.secret, csrf_token) if csrf_token else None
+    if not nonce or signed_nonce is None or not same(signed_nonce, nonce):
+        return _login_page(
+            request,
+            next_url=next_url,
+            username=username,
+            error="The form expired or did not come from this site; please sign in again.",
+            status_code=403,
+        )
+    user = users.authenticate(db, username=username, password=password)
+    if user is None:
+        return _login_page(
+            request,
+            next_url=next_url,
+            username=username,
+            error=INVALID_CREDENTIALS,
+            status_code=401,
+        )
+    new_login = users.sign_in(
+        db,
+        user=user,
+        lifetime=timedelta(hours=settings.session_hours),
+        user_agent=request.headers.get("user-agent", ""),
+        client_address=request.client.host if request.client else "",
+    )
+    response = RedirectResponse(next_url, status_code=303)
+    response.set_cookie(
+        SESSION_COOKIE,
+        new_login.token,
+        httponly=True,
+        samesite="lax",
+        secure=_secure(request, settings),
+        max_age=int(settings.session_hours * 3600),
+    )
+    response.delete_cookie(LOGIN_NONCE_COOKIE)
+    return response
+
+
+@router.post("/logout")
+def logout(login: CurrentLogin, db: SessionDep) -> Response:
+    """End the login session."""
+    users.sign_out(db, login=login)
+    response = RedirectResponse("/login", status_code=303)
+    response.delete_cookie(SESSION_COOKIE)
+    return response

@@ -1,0 +1,146 @@
+"""Study pages: the list, one study with its participants, enrolment and withdrawal."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Form, Request
+from fastapi.responses import Response
+
+from app.deps import CurrentUser, ExperimenterUser, FormFields, SessionDep
+from app.errors import Conflict, InvalidInput
+from app.services import enrolment, studies
+from app.services.audit import Actor
+from app.tables import Role, User
+from app.web.templating import redirect_with_notice, render
+
+router = APIRouter(tags=["pages"], include_in_schema=False)
+
+STRATUM_FIELD_PREFIX = "stratum_"
+
+
+@router.get("/")
+def study_list(request: Request, db: SessionDep, user: CurrentUser) -> Response:
+    """Every study with its enrolment (per condition where the role may see conditions)."""
+    actor = Actor.of_user(user)
+    rows = []
+    for study in studies.list_studies(db):
+        protocol = studies.protocol_of(study)
+        counts = studies.enrolment_counts(db, study)
+        rows.append(
+            {
+                "study": study,
+                "counts": {
+                    enrolment.condition_label(protocol, condition, actor=actor): by_status
+                    for condition, by_status in counts.items()
+                },
+                "total": sum(sum(by_status.values()) for by_status in counts.values()),
+            }
+        )
+    return render(request, "studies.html", {"rows": rows})
+
+
+def _study_page(
+    request: Request,
+    db: SessionDep,
+    user: User,
+    name: str,
+    *,
+    form_error: str = "",
+    form_values: dict[str, str] | None = None,
+    status_code: int = 200,
+) -> Response:
+    study = studies.get_study(db, name)
+    protocol = studies.protocol_of(study)
+    actor = Actor.of_user(user)
+    participants = [
+        {
+            "participant": p,
+            "label": enrolment.condition_label(protocol, p.allocation.condition, actor=actor),
+        }
+        for p in enrolment.list_participants(db, study)
+    ]
+    return render(
+        request,
+        "study.html",
+        {
+            "study": study,
+            "protocol": protocol,
+            "participants": participants,
+            "can_enrol": user.role in (Role.ADMIN, Role.EXPERIMENTER),
+            "form_error": form_error,
+            "form_values": form_values or {},
+            "stratum_prefix": STRATUM_FIELD_PREFIX,
+        },
+        block="participants",
+        status_code=status_code,
+    )
+
+
+@router.get("/studies/{name}")
+def study_page(request: Request, db: SessionDep, user: CurrentUser, name: str) -> Response:
+    """One study: protocol summary, participants, enrolment form."""
+    return _study_page(request, db, user, name)
+
+
+@router.post("/studies/{name}/participants")
+def enrol(
+    request: Request, db: SessionDep, user: ExperimenterUser, name: str, fields: FormFields
+) -> Response:
+    """Enrol a participant from the form and reveal their allocation once."""
+    strata = {
+        key.removeprefix(STRATUM_FIELD_PREFIX): value
+        for key, value in fields.items()
+        if key.startswith(STRATUM_FIELD_PREFIX)
+    }
+    actor = Actor.of_user(user)
+    try:
+        result = enrolment.enroll_participant(
+            db,
+            study_name=name,
+            actor=actor,
+            code=fields.get("code", "").strip() or None,
+            strata=strata,
+        )
+    except (InvalidInput, Conflict) as exc:
+        db.rollback()
+        return _study_page(
+            request,
+            db,
+            user,
+            name,
+            form_error=exc.message,
+            form_values=fields,
+            status_code=exc.status_code,
+        )
+    protocol = studies.protocol_of(studies.get_study(db, name))
+    label = enrolment.condition_label(protocol, result.condition, actor=actor)
+    return redirect_with_notice(
+        request, f"/studies/{name}", f"Enrolled {result.participant.code}: allocated to {label}."
+    )
+
+
+@router.get("/studies/{name}/participants/{code}/withdraw")
+def withdraw_form(
+    request: Request, db: SessionDep, user: ExperimenterUser, name: str, code: str
+) -> Response:
+    """Ask for confirmation (and a reason) before withdrawing a participant."""
+    study = studies.get_study(db, name)
+    participant = enrolment.get_participant(db, study, code)
+    return render(request, "withdraw.html", {"study": study, "participant": participant})
+
+
+@router.post("/studies/{name}/participants/{code}/withdraw")
+def withdraw(
+    request: Request,
+    db: SessionDep,
+    user: ExperimenterUser,
+    name: str,
+    code: str,
+    reason: Annotated[str, Form(max_length=2000)] = "",
+) -> Response:
+    """Withdraw a participant; they keep their allocation and data."""
+    enrolment.withdraw_participant(
+        db, study_name=name, code=code, actor=Actor.of_user(user), reason=reason
+    )
+    return redirect_with_notice(request, f"/studies/{name}", f"Withdrew {code}.")

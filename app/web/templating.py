@@ -1,0 +1,94 @@
+"""Rendering pages and htmx fragments from one set of templates.
+
+A page template names its swappable regions as Jinja blocks. A normal request gets the whole page;
+an htmx request (``HX-Request`` header) for a route that names a block gets just that block, and
+every such response carries ``Vary: HX-Request`` so caches keep the two apart.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from fastapi import Request
+from fastapi.responses import HTMLResponse, RedirectResponse
+from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
+
+from app.deps import CSRF_FIELD, CSRF_HEADER
+from app.security import sign, unsign
+from app.settings import REPO_ROOT
+
+NOTICE_COOKIE = "tl_notice"
+
+environment = Environment(
+    loader=FileSystemLoader(REPO_ROOT / "templates"),
+    autoescape=select_autoescape(["html"]),
+    undefined=StrictUndefined,
+    trim_blocks=True,
+    lstrip_blocks=True,
+)
+
+
+def _when(value: datetime | None) -> str:
+    return value.strftime("%Y-%m-%d %H:%M UTC") if value else "—"
+
+
+environment.filters["when"] = _when
+
+
+def is_htmx(request: Request) -> bool:
+    """Whether htmx sent this request (and so wants a fragment)."""
+    return request.headers.get("HX-Request") == "true"
+
+
+def _base_context(request: Request) -> dict[str, Any]:
+    login = getattr(request.state, "login", None)
+    return {
+        "request": request,
+        "user": login.user if login else None,
+        "csrf_token": login.csrf_token if login else "",
+        "csrf_field": CSRF_FIELD,
+        "csrf_header": CSRF_HEADER,
+        "notice": _read_notice(request),
+    }
+
+
+def _read_notice(request: Request) -> str:
+    signed = request.cookies.get(NOTICE_COOKIE)
+    if not signed:
+        return ""
+    value = unsign(request.app.state.settings.secret, signed)
+    return value or ""
+
+
+def redirect_with_notice(request: Request, url: str, notice: str) -> RedirectResponse:
+    """A See-Other redirect that shows ``notice`` once on the next page (a signed cookie)."""
+    response = RedirectResponse(url, status_code=303)
+    secret = request.app.state.settings.secret
+    response.set_cookie(
+        NOTICE_COOKIE, sign(secret, notice[:300]), max_age=60, httponly=True, samesite="lax"
+    )
+    return response
+
+
+def render(
+    request: Request,
+    template: str,
+    context: dict[str, Any] | None = None,
+    *,
+    block: str | None = None,
+    status_code: int = 200,
+) -> HTMLResponse:
+    """The page, or only ``block`` of it when htmx asks."""
+    page = environment.get_template(template)
+    values = {**_base_context(request), **(context or {})}
+    if block is not None and is_htmx(request):
+        render_block = page.blocks[block]
+        html = "".join(render_block(page.new_context(values)))
+    else:
+        html = page.render(values)
+    response = HTMLResponse(html, status_code=status_code)
+    response.headers["Vary"] = "HX-Request"
+    if NOTICE_COOKIE in request.cookies:
+        response.delete_cookie(NOTICE_COOKIE)
+    return response

@@ -1,0 +1,124 @@
+"""The studies API: listing, creating, enrolling, withdrawing, blinding and clear errors."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+from sqlalchemy import func, select
+
+from app.db import Database
+from app.main import create_app
+from app.protocol import default_protocol
+from app.settings import Settings
+from app.tables import Participant, Role
+from tests.conftest import UserClientFactory, protocol_text
+
+
+def test_openapi_document_and_local_docs(client: TestClient) -> None:
+    document = client.get("/api/v1/openapi.json").json()
+    assert "/api/v1/studies/{name}/participants" in document["paths"]
+    docs = client.get("/api/v1/docs")
+    assert "/static/vendor/swagger-ui-bundle.js" in docs.text
+    assert "cdn" not in docs.text.lower()
+
+
+def test_healthz_reports_the_database(client: TestClient, settings: Settings) -> None:
+    assert client.get("/healthz").json() == {"status": "ok", "database": "ok"}
+    broken = settings.model_copy(
+        update={"database_url": "postgresql+psycopg://nobody@127.0.0.1:1/none"}
+    )
+    with TestClient(create_app(broken)) as unreachable:
+        response = unreachable.get("/healthz")
+    assert response.status_code == 503
+    assert response.json()["status"] == "unavailable"
+    assert (
+        "cannot reach the database at postgresql+psycopg://nobody@127.0.0.1:1/none"
+        in (response.json()["database"])
+    )
+
+
+def test_enrol_list_and_withdraw(user_client: UserClientFactory, study_name: str) -> None:
+    client = user_client(Role.EXPERIMENTER)
+    base = f"/api/v1/studies/{study_name}/participants"
+    created = client.post(base, json={"code": "P100"})
+    assert created.status_code == 201
+    body = created.json()
+    assert body["code"] == "P100"
+    assert body["condition"] in {"C1", "C2"}
+    assert body["allocation_index"] == 0
+    listed = client.get(base).json()
+    assert [p["code"] for p in listed] == ["P100"]
+    withdrawn = client.post(f"{base}/P100/withdraw", json={"reason": "moved away"})
+    assert withdrawn.json()["status"] == "withdrawn"
+    summary = client.get(f"/api/v1/studies/{study_name}").json()
+    assert sum(c["withdrawn"] for c in summary["enrolment"]) == 1
+
+
+def test_errors_are_clear_and_leave_nothing_behind(
+    user_client: UserClientFactory, study_name: str, database: Database
+) -> None:
+    client = user_client(Role.ADMIN)
+    base = f"/api/v1/studies/{study_name}/participants"
+    assert client.post(base, json={"code": "P1"}).status_code == 201
+    duplicate = client.post(base, json={"code": "P1"})
+    assert duplicate.status_code == 409
+    assert duplicate.json()["detail"] == "participant code 'P1' is already used in study 'default'"
+    unknown = client.post("/api/v1/studies/nope/participants", json={})
+    assert unknown.status_code == 404
+    assert "no study named 'nope'" in unknown.json()["detail"]
+    typo = client.post(base, json={"cod": "P2"})
+    assert typo.status_code == 422
+    assert typo.json()["detail"] == "cod: Extra inputs are not permitted"
+    malformed = client.post(
+        base, content=b"{not json", headers={"content-type": "application/json"}
+    )
+    assert malformed.status_code == 422
+    client.post(f"/api/v1/studies/{study_name}/status", json={"status": "closed"})
+    closed = client.post(base, json={})
+    assert closed.status_code == 409
+    assert "closed to enrolment" in closed.json()["detail"]
+    with database.read_session() as db:
+        assert db.scalar(select(func.count()).select_from(Participant)) == 1
+
+
+def test_admin_creates_a_study_and_bad_protocols_are_explained(
+    user_client: UserClientFactory,
+) -> None:
+    admin = user_client(Role.ADMIN)
+    good = admin.post(
+        "/api/v1/studies",
+        json={"name": "pilot", "protocol_toml": default_protocol().source_text},
+    )
+    assert good.status_code == 201
+    assert good.json()["protocol_sha256"] == default_protocol().sha256
+    bad = admin.post(
+        "/api/v1/studies",
+        json={
+            "name": "pilot-2",
+            "protocol_toml": protocol_text(**{"sessions = 4": "sessions = -1"}),
+        },
+    )
+    assert bad.status_code == 422
+    assert bad.json()["detail"].startswith("protocol_toml: schedule.sessions: ")
+    again = admin.post(
+        "/api/v1/studies",
+        json={"name": "pilot", "protocol_toml": default_protocol().source_text},
+    )
+    assert again.status_code == 409
+
+
+def test_blinded_study_hides_conditions_from_experimenters(
+    user_client: UserClientFactory,
+) -> None:
+    admin = user_client(Role.ADMIN)
+    blinded = protocol_text(**{"blinded = false": "blinded = true"})
+    admin.post("/api/v1/studies", json={"name": "blind", "protocol_toml": blinded})
+    experimenter = user_client(Role.EXPERIMENTER)
+    analyst = user_client(Role.ANALYST)
+    revealed = experimenter.post("/api/v1/studies/blind/participants", json={}).json()
+    assert revealed["condition"] in {"Group A", "Group B"}
+    seen_by_analyst = analyst.get("/api/v1/studies/blind/participants").json()[0]["condition"]
+    assert seen_by_analyst == {"Group A": "C1", "Group B": "C2"}[revealed["condition"]]
+    labels = {c["label"] for c in experimenter.get("/api/v1/studies/blind").json()["enrolment"]}
+    assert labels == {"Group A", "Group B"}
+    page = experimenter.get("/studies/blind").text
+    assert "Exp3" not in page and "C1 —" not in page

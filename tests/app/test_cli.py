@@ -1,0 +1,175 @@
+"""The ``trustlab`` command: init, db, user, study and participant sub-commands."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from app.cli import cli
+from app.db import Database
+from app.services import users
+from tests.conftest import protocol_text
+
+runner = CliRunner()
+
+
+def run(database_url: str, *args: str, stdin: str | None = None) -> tuple[int, str, str]:
+    result = runner.invoke(
+        cli, list(args), input=stdin, env={"TRUSTLAB_DATABASE_URL": database_url}
+    )
+    if result.exception and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+def test_init_migrates_creates_default_study_and_admin_once(blank_database_url: str) -> None:
+    code, out, _ = run(blank_database_url, "init")
+    assert code == 0
+    assert "schema at 0001 (was empty)" in out
+    assert "created the default study 'default'" in out
+    assert "created the admin account 'admin'" in out
+    password = next(line.split(": ", 1)[1] for line in out.splitlines() if "password:" in line)
+    database = Database(blank_database_url)
+    with database.read_session() as db:
+        assert users.authenticate(db, username="admin", password=password) is not None
+    database.dispose()
+    code, out, _ = run(blank_database_url, "init")
+    assert code == 0
+    assert "password" not in out and "created" not in out
+
+
+def test_db_commands(blank_database_url: str) -> None:
+    assert run(blank_database_url, "db", "current")[1].startswith("base (empty) (behind")
+    assert run(blank_database_url, "db", "upgrade")[1].strip() == "schema at 0001"
+    assert run(blank_database_url, "db", "current")[1].strip() == "0001 (up to date)"
+    assert run(blank_database_url, "db", "downgrade", "base")[1].strip() == (
+        "schema at base (empty)"
+    )
+
+
+def test_commands_refuse_an_unmigrated_database(blank_database_url: str) -> None:
+    code, _, err = run(blank_database_url, "study", "list")
+    assert code == 2
+    assert "run `trustlab db upgrade`" in err
+
+
+def test_user_create_reads_the_password_from_stdin(database_url: str) -> None:
+    code, out, _ = run(
+        database_url,
+        "user",
+        "create",
+        "--username",
+        "Grace",
+        "--role",
+        "analyst",
+        "--password-stdin",
+        stdin="a long enough password\n",
+    )
+    assert (code, out.strip()) == (0, "created analyst 'grace'")
+    code, _, err = run(
+        database_url,
+        "user",
+        "create",
+        "--username",
+        "grace",
+        "--role",
+        "analyst",
+        "--password-stdin",
+        stdin="a long enough password\n",
+    )
+    assert (code, err.strip()) == (1, "error: a user named 'grace' already exists")
+    code, _, err = run(
+        database_url,
+        "user",
+        "create",
+        "--username",
+        "linus",
+        "--role",
+        "admin",
+        "--password-stdin",
+        stdin="short\n",
+    )
+    assert (code, err.strip()) == (2, "error: a password needs at least 10 characters")
+    code, _, err = run(database_url, "user", "create", "--username", "x", "--role", "boss")
+    assert code == 2 and "boss" in err
+
+
+def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) -> None:
+    protocol = tmp_path / "lab.toml"
+    protocol.write_text(protocol_text(**{"stratify_by = []": 'stratify_by = ["gender"]'}))
+    code, out, _ = run(
+        database_url, "study", "create", "--protocol", str(protocol), "--name", "lab"
+    )
+    assert (code, out.strip()) == (
+        0,
+        "created study 'lab': Fast adaptation for trust modelling (Gao et al.)",
+    )
+    code, out, _ = run(
+        database_url,
+        "participant",
+        "enroll",
+        "--study",
+        "lab",
+        "--stratum",
+        "gender=female",
+        "--json",
+    )
+    assert code == 0
+    payload = json.loads(out)
+    assert set(payload) == {"code", "condition", "allocation_index"}
+    assert payload["code"] == "P001" and payload["condition"] in {"C1", "C2"}
+    assert payload["allocation_index"] == 0
+    code, _, err = run(database_url, "participant", "enroll", "--study", "lab")
+    assert (code, err.strip()) == (
+        2,
+        "error: this study stratifies by gender: give --stratum gender=VALUE",
+    )
+    code, _, err = run(
+        database_url, "participant", "enroll", "--study", "lab", "--stratum", "gender"
+    )
+    assert code == 2 and "write it as key=value" in err
+    code, out, _ = run(database_url, "participant", "withdraw", "--study", "lab", "--code", "P001")
+    assert (code, out.strip()) == (0, "withdrew P001 from 'lab'")
+    code, out, _ = run(database_url, "study", "list", "--json")
+    listed = json.loads(out)["studies"][0]
+    assert listed["name"] == "lab"
+    assert sum(by["withdrawn"] for by in listed["enrolment"].values()) == 1
+
+
+def test_bad_protocol_file_is_one_line_per_problem(database_url: str, tmp_path: Path) -> None:
+    protocol = tmp_path / "bad.toml"
+    protocol.write_text(protocol_text(**{"runs_per_session = 3": "runs_per_session = 'three'"}))
+    code, _, err = run(database_url, "study", "create", "--protocol", str(protocol), "--name", "x")
+    assert code == 2
+    assert err.strip() == (
+        f"error: {protocol}: schedule.runs_per_session: Input should be a valid integer, "
+        "unable to parse string as an integer"
+    )
+
+
+def test_conflicts_exit_1(database_url: str) -> None:
+    code, _, err = run(database_url, "participant", "withdraw", "--study", "ghost", "--code", "P1")
+    assert code == 1
+    assert err.strip() == "error: no study named 'ghost'; no study exists yet"
+
+
+@pytest.mark.parametrize("command", [["init"], ["serve"], ["study", "list"]])
+def test_unreachable_database_is_one_line_and_nonzero(command: list[str]) -> None:
+    url = "postgresql+psycopg://trustlab@127.0.0.1:1/trustlab"
+    completed = subprocess.run(
+        [sys.executable, "-c", "from app.cli import main; main()", *command],
+        capture_output=True,
+        text=True,
+        env={"TRUSTLAB_DATABASE_URL": url, "PATH": "/usr/bin:/bin"},
+        timeout=60,
+        check=False,
+    )
+    assert completed.returncode == 1
+    lines = completed.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith(f"error: cannot reach the database at {url}: ")

@@ -1,0 +1,131 @@
+"""Protocol files: the shipped default, and bad files refused with file, key path and reason."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from app.protocol import (
+    ProtocolError,
+    default_protocol,
+    load_protocol_file,
+    parse_protocol,
+    protocol_from_dict,
+)
+from tests.conftest import protocol_text
+
+
+def test_default_protocol_is_the_seed_papers() -> None:
+    protocol = default_protocol().protocol
+    assert [c.id for c in protocol.conditions] == ["C1", "C2"]
+    assert [c.learner for c in protocol.conditions] == ["exp3", "meta"]
+    assert [c.name for c in protocol.categories] == ["conation", "affection", "cognition"]
+    assert all(len(c.questions) == 4 for c in protocol.categories)
+    assert protocol.category("cognition").preferred == 1
+    assert (protocol.schedule.sessions, protocol.schedule.runs_per_session) == (4, 3)
+    assert protocol.schedule.familiarisation_run
+    assert protocol.replies.thresholds == [0.5, 0.65, 0.8]
+    assert protocol.replies.levels[-1].text == "Awesome, I knew you would say so."
+    assert protocol.allocation.block_sizes == [2, 4]
+    keys = {i.key: [item.key for item in i.items] for i in protocol.questionnaires.instruments}
+    assert keys["tipi"] == [f"tipi_{n}" for n in range(1, 11)]
+    assert keys["nars"] == [f"nars_{n}" for n in range(1, 15)]
+    assert keys["trust"] == [f"trust_{n}" for n in range(1, 6)]
+    trust = protocol.instruments_at("session")[0]
+    assert [item.reverse for item in trust.items] == [False, False, False, False, True]
+    reverse_nars = {i.key for i in protocol.instruments_at("pre")[3].items if i.reverse}
+    assert reverse_nars == {"nars_3", "nars_5", "nars_6"}
+
+
+def test_validated_protocol_round_trips_through_json() -> None:
+    protocol = default_protocol().protocol
+    assert protocol_from_dict(protocol.model_dump(mode="json")) == protocol
+
+
+def test_protocol_hash_is_of_the_exact_text() -> None:
+    loaded = default_protocol()
+    changed = parse_protocol(loaded.source_text + "\n# a comment\n")
+    assert changed.protocol == loaded.protocol
+    assert changed.sha256 != loaded.sha256
+
+
+def _problems(text: str) -> str:
+    with pytest.raises(ProtocolError) as caught:
+        parse_protocol(text, source="lab.toml")
+    return str(caught.value)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        (
+            '    "Do you come here to stay with me?",\n'
+            '    "Did you come here to bring me something?",\n'
+            '    "Did you come here to look for your friends?",\n',
+            "",
+            "lab.toml: categories[0].questions: List should have at least 2 items",
+        ),
+        (
+            "thresholds = [0.5, 0.65, 0.8]",
+            "thresholds = [0.5, 0.8, 0.65]",
+            "lab.toml: replies.thresholds: thresholds must be strictly increasing",
+        ),
+        (
+            "block_sizes = [2, 4]",
+            "block_sizes = [2, 3]",
+            "lab.toml: allocation.block_sizes[1]: block size 3 is not a positive multiple",
+        ),
+        ("sessions = 4", "sessions = 0", "lab.toml: schedule.sessions: Input should be greater"),
+        (
+            "sessions = 4",
+            "sessions = 4\nsesions = 5",
+            "lab.toml: schedule.sesions: Extra inputs are not permitted",
+        ),
+        ("preferred = 1", "preferred = 9", "lab.toml: categories[2].preferred: index 9"),
+        (
+            'learner = "meta"',
+            'learner = "ucb"',
+            "lab.toml: conditions[1].learner: Input should be 'exp3' or 'meta'",
+        ),
+        ('id = "C2"', 'id = "C1"', "lab.toml: conditions[1]: duplicate condition id 'C1'"),
+        (
+            'text = "I perceive the robot as trustworthy.", scale = "agree5"',
+            'text = "I perceive the robot as trustworthy.", scale = "agree7"',
+            "lab.toml: questionnaires.instruments[4].items[0].scale: "
+            "no response scale named 'agree7'",
+        ),
+        (
+            'items = ["tipi_1", "tipi_6"]',
+            'items = ["tipi_1", "tipi_66"]',
+            "lab.toml: questionnaires.scores[0].items[1]: 'tipi' has no item 'tipi_66'",
+        ),
+        ("gamma = 0.1", "gamma = 0.0", "lab.toml: learners.exp3.gamma: Input should be greater"),
+    ],
+)
+def test_bad_protocol_names_file_key_path_and_reason(old: str, new: str, expected: str) -> None:
+    assert expected in _problems(protocol_text(**{old: new}))
+
+
+def test_every_problem_is_listed_one_per_line() -> None:
+    text = protocol_text(
+        **{"sessions = 4": "sessions = 0", "block_sizes = [2, 4]": "block_sizes = []"}
+    )
+    lines = _problems(text).splitlines()
+    assert len(lines) == 2
+    assert all(line.startswith("lab.toml: ") for line in lines)
+
+
+def test_invalid_toml_reports_the_position() -> None:
+    message = _problems("[study]\ntitle = \n")
+    assert message.startswith("lab.toml: not valid TOML: ")
+    assert "line 2" in message
+
+
+def test_unreadable_file_is_a_protocol_error(tmp_path: Path) -> None:
+    with pytest.raises(ProtocolError, match="cannot read the file"):
+        load_protocol_file(tmp_path / "missing.toml")
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(ProtocolError, match=str(binary)):
+        load_protocol_file(binary)

@@ -1,0 +1,260 @@
+"""Shared fixtures: a fresh, migrated database per test on SQLite and on PostgreSQL.
+
+Every database test runs twice, once per engine. The PostgreSQL variant needs
+TRUSTLAB_TEST_POSTGRES_URL (CI sets it); without it the variant is skipped with a reason, and with
+it an unreachable server fails the run. Migrations run once per engine into a template; each test
+gets a copy (a file copy for SQLite, CREATE DATABASE … TEMPLATE for PostgreSQL), so tests are
+isolated and cheap.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import uuid
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import psycopg
+import pytest
+from argon2 import PasswordHasher
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from sqlalchemy.engine import make_url
+
+from app import schema, security
+from app.db import Database
+from app.main import create_app
+from app.protocol import default_protocol
+from app.services import studies, users
+from app.services.audit import Actor
+from app.settings import Settings
+from app.tables import Role
+
+POSTGRES_URL = os.environ.get("TRUSTLAB_TEST_POSTGRES_URL", "")
+POSTGRES_SKIP_REASON = "PostgreSQL variant: set TRUSTLAB_TEST_POSTGRES_URL to run it"
+PASSWORD = "correct horse battery"
+
+
+def _admin_conninfo() -> str:
+    """A libpq URL for the maintenance database named in TRUSTLAB_TEST_POSTGRES_URL."""
+    url = make_url(POSTGRES_URL).set(drivername="postgresql")
+    return url.render_as_string(hide_password=False)
+
+
+def _postgres_url_for(database: str) -> str:
+    return make_url(POSTGRES_URL).set(database=database).render_as_string(hide_password=False)
+
+
+def _pg_execute(sql: str) -> None:
+    with psycopg.connect(_admin_conninfo(), autocommit=True, connect_timeout=5) as conn:
+        conn.execute(sql)  # type: ignore[arg-type]
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _cheap_password_hashing() -> Iterator[None]:
+    """Argon2id with test-sized cost (production uses RFC 9106 parameters: ~0.4 s a hash here)."""
+    production = security._hasher
+    security._hasher = PasswordHasher(time_cost=1, memory_cost=1024, parallelism=1)
+    yield
+    security._hasher = production
+
+
+@pytest.fixture(scope="session")
+def sqlite_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A SQLite file migrated to head, copied for each test."""
+    path = tmp_path_factory.mktemp("template") / "template.sqlite3"
+    database = Database(f"sqlite:///{path}")
+    schema.upgrade(database)
+    with database.engine.connect() as connection:
+        connection.exec_driver_sql("PRAGMA wal_checkpoint(TRUNCATE)")
+    database.dispose()
+    return path
+
+
+@pytest.fixture(scope="session")
+def postgres_session_database() -> Iterator[str]:
+    """A PostgreSQL database migrated to head for this test session (wiped before each test)."""
+    if not POSTGRES_URL:
+        pytest.skip(POSTGRES_SKIP_REASON)
+    try:
+        _pg_execute("SELECT 1")
+    except psycopg.OperationalError as exc:
+        pytest.fail(
+            f"TRUSTLAB_TEST_POSTGRES_URL is set but PostgreSQL is unreachable: {exc}", pytrace=False
+        )
+    yield from _fresh_postgres(None, migrate=True)
+
+
+def _fresh_postgres(template: str | None, *, migrate: bool = False) -> Iterator[str]:
+    name = f"tl_test_{uuid.uuid4().hex[:12]}"
+    _pg_execute(f'CREATE DATABASE "{name}"' + (f' TEMPLATE "{template}"' if template else ""))
+    url = _postgres_url_for(name)
+    if migrate:
+        database = Database(url)
+        schema.upgrade(database)
+        database.dispose()
+    try:
+        yield url
+    finally:
+        _pg_execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
+def _wipe_postgres(url: str) -> None:
+    """Empty every table (the append-only guards paused for this one statement)."""
+    conninfo = make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
+    with psycopg.connect(conninfo, autocommit=True) as conn:
+        tables = [
+            row[0]
+            for row in conn.execute(
+                "SELECT tablename FROM pg_tables WHERE schemaname = 'public' "
+                "AND tablename <> 'alembic_version'"
+            )
+        ]
+        # Close what earlier tests may have left connected, so nothing holds a lock.
+        conn.execute(
+            "SELECT pg_terminate_backend(pid) FROM pg_stat_activity "
+            "WHERE datname = current_database() AND pid <> pg_backend_pid()"
+        )
+        with conn.transaction():
+            conn.execute("SET LOCAL session_replication_role = replica")
+            if tables:
+                names = ", ".join(f'"{t}"' for t in tables)
+                conn.execute(f"TRUNCATE {names} RESTART IDENTITY CASCADE")  # type: ignore[arg-type]
+
+
+ENGINES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
+
+
+@pytest.fixture(params=ENGINES)
+def engine_name(request: pytest.FixtureRequest) -> str:
+    """Which database engine this variant of the test uses."""
+    name: str = request.param
+    if name == "postgresql" and not POSTGRES_URL:
+        pytest.skip(POSTGRES_SKIP_REASON)
+    return name
+
+
+@pytest.fixture
+def database_url(engine_name: str, request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """The URL of a fresh database, migrated to head."""
+    if engine_name == "sqlite":
+        template: Path = request.getfixturevalue("sqlite_template")
+        path = tmp_path / "trustlab.sqlite3"
+        shutil.copyfile(template, path)
+        yield f"sqlite:///{path}"
+    else:
+        url = request.getfixturevalue("postgres_session_database")
+        _wipe_postgres(url)
+        yield url
+
+
+@pytest.fixture
+def blank_database_url(engine_name: str, tmp_path: Path) -> Iterator[str]:
+    """The URL of an empty, never-migrated database."""
+    if engine_name == "sqlite":
+        yield f"sqlite:///{tmp_path / 'blank.sqlite3'}"
+    else:
+        yield from _fresh_postgres(None)
+
+
+@pytest.fixture
+def database(database_url: str) -> Iterator[Database]:
+    """The test's database."""
+    db = Database(database_url, sqlite_synchronous="NORMAL")
+    yield db
+    db.dispose()
+
+
+@pytest.fixture
+def settings(database_url: str, tmp_path: Path) -> Settings:
+    """Settings pointing at the test's database, ignoring any .env of the developer."""
+    return Settings(
+        _env_file=None,  # type: ignore[call-arg]
+        database_url=database_url,
+        var_dir=tmp_path / "var",
+        secret_key="test-secret-key-test-secret-key-0123456789",
+        sqlite_synchronous="NORMAL",
+    )
+
+
+@pytest.fixture
+def app(settings: Settings) -> FastAPI:
+    """A trustlab application on the test's database."""
+    return create_app(settings)
+
+
+@pytest.fixture
+def client(app: FastAPI) -> Iterator[TestClient]:
+    """An anonymous HTTP client."""
+    with TestClient(app) as test_client:
+        yield test_client
+
+
+def make_user(database: Database, username: str, role: Role) -> None:
+    """Create an account with the shared test password."""
+    with database.writing() as db:
+        users.create_user(db, username=username, role=role, password=PASSWORD, actor=Actor.system())
+
+
+CSRF_INPUT = re.compile(r'name="csrf_token" value="([^"]+)"')
+
+
+def sign_in(client: TestClient, username: str, password: str = PASSWORD) -> str:
+    """Sign ``client`` in through the login form; returns the login's CSRF token."""
+    form = client.get("/login")
+    token = CSRF_INPUT.search(form.text)
+    assert token, "login form has no CSRF token"
+    response = client.post(
+        "/login",
+        data={"username": username, "password": password, "csrf_token": token.group(1)},
+        follow_redirects=False,
+    )
+    assert response.status_code == 303, response.text
+    page = client.get("/")
+    csrf = CSRF_INPUT.search(page.text)
+    assert csrf, "signed-in page has no CSRF token"
+    client.headers["X-CSRF-Token"] = csrf.group(1)
+    return csrf.group(1)
+
+
+UserClientFactory = Callable[..., TestClient]
+
+
+@pytest.fixture
+def user_client(app: FastAPI, database: Database) -> Iterator[UserClientFactory]:
+    """A factory: ``user_client(role)`` gives a signed-in client with the CSRF header set."""
+    clients: list[TestClient] = []
+
+    def factory(role: Role, username: str | None = None) -> TestClient:
+        name = username or f"{role.value}{len(clients)}"
+        make_user(database, name, role)
+        new_client = TestClient(app)
+        new_client.__enter__()
+        clients.append(new_client)
+        sign_in(new_client, name)
+        return new_client
+
+    yield factory
+    for c in clients:
+        c.__exit__(None, None, None)
+
+
+@pytest.fixture
+def study_name(database: Database) -> str:
+    """The shipped default protocol as a study named 'default'."""
+    with database.writing() as db:
+        studies.create_study(
+            db, name="default", loaded=default_protocol(), actor=Actor.system("tests")
+        )
+    return "default"
+
+
+def protocol_text(**replacements: str) -> str:
+    """The shipped protocol's TOML with literal text replacements (for variant protocols)."""
+    text = default_protocol().source_text
+    for old, new in replacements.items():
+        assert old in text, f"{old!r} not in the default protocol"
+        text = text.replace(old, new)
+    return text
