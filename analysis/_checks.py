@@ -25,7 +25,10 @@ def describe_keys(keys: Sequence[Any], limit: int = MAX_LISTED) -> str:
 def _plain_repr(key: Any) -> str:
     if isinstance(key, tuple):
         return "(" + ", ".join(_plain_repr(k) for k in key) + ")"
-    return repr(to_python(key))
+    plain = to_python(key)
+    if isinstance(plain, float) and plain.is_integer():
+        return repr(int(plain))  # 8.0 reads as 8 in a message about a Likert answer
+    return repr(plain)
 
 
 def to_python(value: Any) -> Any:
