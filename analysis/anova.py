@@ -122,7 +122,7 @@ class MixedAnovaResult:
         """The table row of ``"between"``, ``"within"`` or ``"interaction"``."""
         if name not in EFFECTS:
             raise InvalidInputError(f"effect must be one of {EFFECTS}, got {name!r}")
-        return self.table.set_index("effect").loc[name]
+        return self.table.iloc[EFFECTS.index(name)]
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON contract of ``trustlab anova --json`` (plain Python types, no NaN).

@@ -21,6 +21,7 @@ from analysis._checks import (
     require_distinct,
     require_frame,
     require_no_missing,
+    to_python,
 )
 from analysis.design import MixedDesign, prepare_mixed_design
 from analysis.errors import CannotComputeError, InvalidInputError
@@ -92,27 +93,36 @@ def cell_descriptives(
     require_distinct(dv=dv, within=within, between=between)
     require_no_missing(data, [within, between])
     values = numeric_values(data, dv)
-    frame = pd.DataFrame(
-        {between: data[between].to_numpy(), within: data[within].to_numpy(), "_y": values}
-    ).dropna(subset=["_y"])
-    if frame.empty:
+    ok = ~np.isnan(values)
+    if not ok.any():
         raise CannotComputeError("descriptives", f"column {dv!r} has no non-missing value")
-    grouped = frame.groupby([between, within], sort=False)["_y"]
-    out = grouped.agg(n="count", mean="mean", sd="std").reset_index()
-    out = _sort_cells(out, data, between, within)
-    out["n"] = out["n"].astype(int)
-    out["se"] = out["sd"] / np.sqrt(out["n"])
-    out["ci_low"], out["ci_high"] = t_interval(
-        out["mean"].to_numpy(), out["se"].to_numpy(), out["n"].to_numpy() - 1, confidence
+    b_levels = ordered_levels(data[between])
+    w_levels = ordered_levels(data[within])
+    b_codes = pd.Index(b_levels).get_indexer(data[between])[ok]
+    w_codes = pd.Index(w_levels).get_indexer(data[within])[ok]
+    y = values[ok]
+    cell = b_codes.astype(np.int64) * len(w_levels) + w_codes
+    cells, inverse = np.unique(cell, return_inverse=True)
+    n = np.bincount(inverse)
+    mean = np.bincount(inverse, weights=y) / n
+    ss = np.bincount(inverse, weights=(y - mean[inverse]) ** 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sd = np.where(n > 1, np.sqrt(ss / np.maximum(n - 1, 1)), np.nan)
+    se = sd / np.sqrt(n)
+    low, high = t_interval(mean, se, n - 1, confidence)
+    b_index, w_index = np.divmod(cells, len(w_levels))
+    return pd.DataFrame(
+        {
+            between: [to_python(b_levels[i]) for i in b_index],
+            within: [to_python(w_levels[i]) for i in w_index],
+            "n": n.astype(int),
+            "mean": mean,
+            "sd": sd,
+            "se": se,
+            "ci_low": low,
+            "ci_high": high,
+        }
     )
-    return out[[between, within, *CELL_COLUMNS]]
-
-
-def _sort_cells(out: pd.DataFrame, data: pd.DataFrame, between: str, within: str) -> pd.DataFrame:
-    b_rank = {v: i for i, v in enumerate(ordered_levels(data[between]))}
-    w_rank = {v: i for i, v in enumerate(ordered_levels(data[within]))}
-    key = out[between].map(b_rank) * (len(w_rank) + 1) + out[within].map(w_rank)
-    return out.iloc[np.argsort(key.to_numpy(), kind="stable")].reset_index(drop=True)
 
 
 def marginal_means(

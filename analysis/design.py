@@ -19,14 +19,13 @@ from analysis._checks import (
     describe_keys,
     numeric_values,
     ordered_levels,
-    refuse_duplicates,
     require_columns,
     require_distinct,
     require_frame,
     require_no_missing,
     to_python,
 )
-from analysis.errors import InvalidInputError
+from analysis.errors import DuplicateObservationError, InvalidInputError
 
 __all__ = ["EXCLUSION_COLUMNS", "MixedDesign", "prepare_mixed_design"]
 
@@ -139,28 +138,27 @@ def prepare_mixed_design(
     require_distinct(dv=dv, within=within, between=between, subject=subject)
     values = numeric_values(data, dv)
     require_no_missing(data, [subject, between, within])
-    refuse_duplicates(data, [subject, within])
-    _refuse_subjects_in_two_groups(data, subject, between)
 
     levels = list(within_levels) if within_levels is not None else ordered_levels(data[within])
     if len(set(levels)) != len(levels):
         raise InvalidInputError(f"within_levels lists a level twice: {levels}")
-    level_index = pd.Index(levels)
-    level_codes = level_index.get_indexer(data[within])
+    level_codes = pd.Index(levels).get_indexer(data[within])
     if (level_codes < 0).any():
         unknown = list(pd.unique(data[within][level_codes < 0]))
         raise InvalidInputError(
             f"column {within!r} has level(s) {describe_keys(unknown)} outside the declared "
             f"levels {describe_keys(levels)}"
         )
-
     subj_codes, subj_uniques = _factorize(data[subject])
     n_subj = len(subj_uniques)
+    _refuse_duplicate_cells(subj_codes, level_codes, subj_uniques, levels, subject, within)
+    group_codes_row, group_uniques = _factorize(data[between])
+    _refuse_subjects_in_two_groups(subj_codes, group_codes_row, subj_uniques, between)
+
     wide = np.full((n_subj, len(levels)), np.nan)
     wide[subj_codes, level_codes] = values
-
     group_of_subject = np.empty(n_subj, dtype=object)
-    group_of_subject[subj_codes] = data[between].to_numpy(dtype=object)
+    group_of_subject[subj_codes] = group_uniques[group_codes_row]
 
     complete = ~np.isnan(wide).any(axis=1)
     excluded = _exclusions(
@@ -199,13 +197,40 @@ def _factorize(series: pd.Series) -> tuple[np.ndarray, np.ndarray]:
     return codes, np.asarray(uniques, dtype=object)
 
 
-def _refuse_subjects_in_two_groups(data: pd.DataFrame, subject: str, between: str) -> None:
-    n_groups = data.groupby(subject, sort=False)[between].nunique()
-    clash = n_groups[n_groups > 1]
-    if len(clash):
+def _refuse_duplicate_cells(
+    subj_codes: np.ndarray,
+    level_codes: np.ndarray,
+    subjects: np.ndarray,
+    levels: Sequence[Any],
+    subject: str,
+    within: str,
+) -> None:
+    """Refuse two rows for one subject × level (pingouin would silently average them)."""
+    key = subj_codes.astype(np.int64) * len(levels) + level_codes
+    unique, counts = np.unique(key, return_counts=True)
+    repeated = unique[counts > 1]
+    if len(repeated):
+        pairs = [
+            (to_python(subjects[k // len(levels)]), to_python(levels[k % len(levels)]))
+            for k in repeated
+        ]
+        raise DuplicateObservationError(
+            f"data has more than one row per {subject} × {within} for {len(pairs)} "
+            f"combination(s): {describe_keys(pairs)}; keep exactly one row each",
+            pairs,
+        )
+
+
+def _refuse_subjects_in_two_groups(
+    subj_codes: np.ndarray, group_codes: np.ndarray, subjects: np.ndarray, between: str
+) -> None:
+    n_groups = int(group_codes.max(initial=0)) + 1
+    combos = np.unique(subj_codes.astype(np.int64) * n_groups + group_codes)
+    per_subject = np.bincount(combos // n_groups, minlength=len(subjects))
+    if (per_subject > 1).any():
         raise InvalidInputError(
-            f"subject(s) {describe_keys(list(clash.index))} appear in more than one level of "
-            f"{between!r}; a subject belongs to exactly one group"
+            f"subject(s) {describe_keys(list(subjects[per_subject > 1]))} appear in more than "
+            f"one level of {between!r}; a subject belongs to exactly one group"
         )
 
 

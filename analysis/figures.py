@@ -88,6 +88,11 @@ def _rgba(hex_color: str, alpha: float) -> str:
 
 def _json_list(values: Any) -> list[Any]:
     """Plain Python list with NaN/NA as None (JSON has no NaN)."""
+    array = np.asarray(values)
+    if array.dtype.kind in "iub":
+        return array.tolist()
+    if array.dtype.kind == "f":
+        return [None if not math.isfinite(v) else v for v in array.tolist()]
     out = []
     for v in np.asarray(values, dtype=object).tolist():
         plain = to_python(v)
@@ -330,51 +335,59 @@ def trajectories_payload(
     require_columns(data, [dv, within, between, subject])
     require_no_missing(data, [within, between, subject])
     levels = ordered_levels(data[within])
-    pos = {v: i for i, v in enumerate(levels)}
     conditions = ordered_levels(data[between])
     palette = condition_colors(conditions, colors)
-    frame = data[[subject, between, within, dv]].copy()
-    frame["_x"] = frame[within].map(pos)
-    frame = frame.sort_values([between, subject, "_x"], kind="stable")
+    x_all = pd.Index(levels).get_indexer(data[within]).astype(float)
+    y_all = pd.to_numeric(data[dv], errors="coerce").to_numpy(float)
+    subj_codes, _ = pd.factorize(data[subject], sort=True)
+    cond_all = data[between].to_numpy()
     traces: list[dict[str, Any]] = []
     shown: dict[str, int] = {}
     total: dict[str, int] = {}
     for condition in conditions:
-        rows = frame[frame[between] == condition]
-        subjects = list(pd.unique(rows[subject]))
-        total[str(to_python(condition))] = len(subjects)
-        if max_per_condition is not None and len(subjects) > max_per_condition:
-            keep = set(subjects[:max_per_condition])
-            rows = rows[rows[subject].isin(keep)]
-        shown[str(to_python(condition))] = int(rows[subject].nunique())
-        xs: list[Any] = []
-        ys: list[Any] = []
-        for _, one in rows.groupby(subject, sort=False):
-            xs.extend([*one["_x"].tolist(), None])
-            ys.extend([*_json_list(one[dv].to_numpy()), None])
+        member = np.flatnonzero(cond_all == condition)
+        name = str(to_python(condition))
+        subjects_here = np.unique(subj_codes[member])  # sorted codes = sorted participant ids
+        total[name] = len(subjects_here)
+        if max_per_condition is not None and len(subjects_here) > max_per_condition:
+            member = member[np.isin(subj_codes[member], subjects_here[:max_per_condition])]
+        shown[name] = len(np.unique(subj_codes[member]))
+        order = member[np.lexsort((x_all[member], subj_codes[member]))]
+        codes = subj_codes[order]
+        # One polyline per participant, separated by a gap (None) after each participant.
+        ends = np.flatnonzero(np.append(codes[1:] != codes[:-1], True)) + 1
+        xs = np.insert(x_all[order], ends, np.nan)
+        ys = np.insert(y_all[order], ends, np.nan)
         color = palette[condition]
         traces.append(
             {
                 "type": "scatter",
                 "mode": "lines",
-                "name": f"{to_python(condition)} participants",
-                "legendgroup": str(to_python(condition)),
-                "x": xs,
-                "y": ys,
+                "name": f"{name} participants",
+                "legendgroup": name,
+                "x": _json_list(xs),
+                "y": _json_list(ys),
                 "line": {"color": _rgba(color, 0.35), "width": 1},
                 "hoverinfo": "skip",
                 "connectgaps": False,
             }
         )
-        means = frame[frame[between] == condition].groupby("_x")[dv].mean()
+        all_member = np.flatnonzero((cond_all == condition) & ~np.isnan(y_all))
+        sums = np.bincount(
+            x_all[all_member].astype(int), weights=y_all[all_member], minlength=len(levels)
+        )
+        counts = np.bincount(x_all[all_member].astype(int), minlength=len(levels))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = sums / counts
+        present = counts > 0
         traces.append(
             {
                 "type": "scatter",
                 "mode": "lines+markers",
-                "name": f"{to_python(condition)} mean",
-                "legendgroup": str(to_python(condition)),
-                "x": _json_list(means.index.to_numpy()),
-                "y": _json_list(means.to_numpy()),
+                "name": f"{name} mean",
+                "legendgroup": name,
+                "x": _json_list(np.flatnonzero(present)),
+                "y": _json_list(means[present]),
                 "line": {"color": color, "width": 3},
                 "marker": {"color": color, "size": 8},
             }
@@ -482,6 +495,8 @@ def adaptation_payload_from_curves(
         **_BASE_LAYOUT,
         "title": {"text": title or "Adaptation: probability of the preferred question"},
         "yaxis": _axis("p(preferred question)", range=[0, 1], anchor="x"),
+        "legend": {**_BASE_LAYOUT["legend"], "y": -0.3},
+        "margin": {**_BASE_LAYOUT["margin"], "b": 90},
         "annotations": [],
         "hovermode": "closest",
     }

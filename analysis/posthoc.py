@@ -147,109 +147,153 @@ def pairwise_comparisons_from_design(
     if design.n_subjects == 0:
         raise CannotComputeError("post-hoc comparisons", "no participant has complete data")
     y, g = design.values, design.groups
-    rows: list[dict[str, Any]] = []
+    parts: list[dict[str, Any]] = []
+    pairs_within = list(combinations(range(design.n_levels), 2))
+    a_idx = np.array([a for a, _ in pairs_within], dtype=np.intp)
+    b_idx = np.array([b for _, b in pairs_within], dtype=np.intp)
     for k, group in enumerate(design.group_levels):
+        if not pairs_within:
+            break
         block = y[g == k]
-        for a, b in combinations(range(design.n_levels), 2):
-            row = _paired(block[:, a], block[:, b])
-            row.update(
-                family=FAMILY_WITHIN,
-                factor=design.within,
-                at=group,
-                A=design.within_levels[a],
-                B=design.within_levels[b],
-            )
-            rows.append(row)
-    for s, level in enumerate(design.within_levels):
-        for a, b in combinations(range(len(design.group_levels)), 2):
-            row = _independent(y[g == a, s], y[g == b, s])
-            row.update(
-                family=FAMILY_BETWEEN,
-                factor=design.between,
-                at=level,
-                A=design.group_levels[a],
-                B=design.group_levels[b],
-            )
-            rows.append(row)
-    out = pd.DataFrame(rows)
-    if out.empty:
+        part = _paired(block[:, a_idx], block[:, b_idx])
+        part.update(
+            family=FAMILY_WITHIN,
+            factor=design.within,
+            at=[group] * len(pairs_within),
+            A=[design.within_levels[a] for a in a_idx],
+            B=[design.within_levels[b] for b in b_idx],
+        )
+        parts.append(part)
+    pairs_between = list(combinations(range(len(design.group_levels)), 2))
+    between_parts = []
+    for a, b in pairs_between:
+        part = _independent(y[g == a], y[g == b])
+        part.update(
+            family=FAMILY_BETWEEN,
+            factor=design.between,
+            at=list(design.within_levels),
+            A=[design.group_levels[a]] * design.n_levels,
+            B=[design.group_levels[b]] * design.n_levels,
+        )
+        between_parts.append(part)
+    if between_parts:
+        # Order the between family by within level (then pair), as people read it.
+        merged = _concat(between_parts)
+        order = np.argsort(np.tile(np.arange(design.n_levels), len(between_parts)), kind="stable")
+        parts.append(
+            {key: np.asarray(values, dtype=object)[order] for key, values in merged.items()}
+        )
+    if not parts:
         return pd.DataFrame(columns=list(POSTHOC_COLUMNS))
-    out["p_adj"] = np.nan
-    for family in (FAMILY_WITHIN, FAMILY_BETWEEN):
-        mask = out["family"] == family
-        out.loc[mask, "p_adj"] = adjust_pvalues(out.loc[mask, "p_unc"].to_numpy(), padjust)
-    out["p_adjust"] = padjust
-    return out[list(POSTHOC_COLUMNS)]
+    columns = _concat(parts)
+    family = np.asarray(columns["family"], dtype=object)
+    p_unc = np.asarray(columns["p_unc"], dtype=float)
+    p_adj = np.full(len(p_unc), np.nan)
+    for name in (FAMILY_WITHIN, FAMILY_BETWEEN):
+        mask = family == name
+        p_adj[mask] = adjust_pvalues(p_unc[mask], padjust)
+    columns["p_adj"] = p_adj
+    columns["p_adjust"] = padjust
+    out = pd.DataFrame({key: columns[key] for key in POSTHOC_COLUMNS})
+    for key in ("T", "dof", "p_unc", "cohen_d", "mean_A", "mean_B", "mean_diff"):
+        out[key] = out[key].astype(float)
+    for key in ("n_A", "n_B"):
+        out[key] = out[key].astype(int)
+    for key in ("paired", "welch"):
+        out[key] = out[key].astype(bool)
+    return out
+
+
+def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """Concatenate column dicts; scalar entries are broadcast to their part's length."""
+    out: dict[str, list[Any]] = {}
+    for part in parts:
+        length = len(part["T"])
+        for key, value in part.items():
+            values = list(value) if isinstance(value, (list, np.ndarray)) else [value] * length
+            out.setdefault(key, []).extend(values)
+    return out
 
 
 def _paired(x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-    n = len(x)
+    """Paired t tests column by column (x, y: participants × comparisons)."""
+    n, m = x.shape
     diff = x - y
-    row: dict[str, Any] = {
-        "n_A": n,
-        "n_B": n,
-        "mean_A": float(x.mean()),
-        "mean_B": float(y.mean()),
-        "mean_diff": float(diff.mean()),
+    mean_diff = diff.mean(axis=0) if n else np.full(m, np.nan)
+    note = np.full(m, "", dtype=object)
+    t = np.full(m, np.nan)
+    p = np.full(m, np.nan)
+    d = np.full(m, np.nan)
+    if n < 2:
+        note[:] = "needs at least two participants"
+    else:
+        sd_diff = diff.std(axis=0, ddof=1)
+        zero = sd_diff == 0
+        note[zero] = "the differences have zero variance; t is undefined"
+        ok = ~zero
+        t[ok] = mean_diff[ok] / (sd_diff[ok] / np.sqrt(n))
+        p[ok] = 2 * stats.t.sf(np.abs(t[ok]), n - 1)
+        sd_av = np.sqrt((x.var(axis=0, ddof=1) + y.var(axis=0, ddof=1)) / 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = np.where(sd_av > 0, mean_diff / sd_av, np.nan)
+    return {
+        "n_A": np.full(m, n),
+        "n_B": np.full(m, n),
+        "mean_A": x.mean(axis=0) if n else np.full(m, np.nan),
+        "mean_B": y.mean(axis=0) if n else np.full(m, np.nan),
+        "mean_diff": mean_diff,
         "paired": True,
         "welch": False,
-        "T": np.nan,
-        "dof": float(n - 1),
-        "p_unc": np.nan,
-        "cohen_d": np.nan,
-        "note": "",
+        "T": t,
+        "dof": np.full(m, float(n - 1)),
+        "p_unc": p,
+        "cohen_d": d,
+        "note": note,
     }
-    if n < 2:
-        row["note"] = "needs at least two participants"
-        return row
-    sd_diff = float(diff.std(ddof=1))
-    if sd_diff == 0:
-        row["note"] = "the differences have zero variance; t is undefined"
-        return row
-    t = float(diff.mean() / (sd_diff / np.sqrt(n)))
-    row["T"] = t
-    row["p_unc"] = float(2 * stats.t.sf(abs(t), n - 1))
-    sd_av = np.sqrt((x.var(ddof=1) + y.var(ddof=1)) / 2)
-    row["cohen_d"] = float(diff.mean() / sd_av) if sd_av > 0 else np.nan
-    return row
 
 
 def _independent(x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-    nx, ny = len(x), len(y)
+    """Independent t tests column by column (x: n_x × levels, y: n_y × levels)."""
+    nx, ny = x.shape[0], y.shape[0]
+    m = x.shape[1]
     welch = nx != ny
-    row: dict[str, Any] = {
-        "n_A": nx,
-        "n_B": ny,
-        "mean_A": float(x.mean()) if nx else np.nan,
-        "mean_B": float(y.mean()) if ny else np.nan,
-        "mean_diff": float(x.mean() - y.mean()) if nx and ny else np.nan,
+    mean_x = x.mean(axis=0) if nx else np.full(m, np.nan)
+    mean_y = y.mean(axis=0) if ny else np.full(m, np.nan)
+    note = np.full(m, "", dtype=object)
+    t = np.full(m, np.nan)
+    p = np.full(m, np.nan)
+    dof = np.full(m, np.nan)
+    d = np.full(m, np.nan)
+    if nx < 2 or ny < 2:
+        note[:] = "needs at least two participants per group"
+    else:
+        vx, vy = x.var(axis=0, ddof=1), y.var(axis=0, ddof=1)
+        pooled = ((nx - 1) * vx + (ny - 1) * vy) / (nx + ny - 2)
+        zero = pooled == 0
+        note[zero] = "both groups have zero variance; t is undefined"
+        ok = ~zero
+        if welch:
+            se2 = vx / nx + vy / ny
+            with np.errstate(invalid="ignore", divide="ignore"):
+                dof = se2**2 / ((vx / nx) ** 2 / (nx - 1) + (vy / ny) ** 2 / (ny - 1))
+        else:
+            se2 = pooled * (1 / nx + 1 / ny)
+            dof = np.full(m, float(nx + ny - 2))
+        dof = np.where(ok, dof, np.nan)
+        t[ok] = (mean_x[ok] - mean_y[ok]) / np.sqrt(se2[ok])
+        p[ok] = 2 * stats.t.sf(np.abs(t[ok]), dof[ok])
+        d[ok] = (mean_x[ok] - mean_y[ok]) / np.sqrt(pooled[ok])
+    return {
+        "n_A": np.full(m, nx),
+        "n_B": np.full(m, ny),
+        "mean_A": mean_x,
+        "mean_B": mean_y,
+        "mean_diff": mean_x - mean_y,
         "paired": False,
         "welch": welch,
-        "T": np.nan,
-        "dof": np.nan,
-        "p_unc": np.nan,
-        "cohen_d": np.nan,
-        "note": "",
+        "T": t,
+        "dof": dof,
+        "p_unc": p,
+        "cohen_d": d,
+        "note": note,
     }
-    if nx < 2 or ny < 2:
-        row["note"] = "needs at least two participants per group"
-        return row
-    vx, vy = float(x.var(ddof=1)), float(y.var(ddof=1))
-    pooled = ((nx - 1) * vx + (ny - 1) * vy) / (nx + ny - 2)
-    if pooled == 0:
-        row["note"] = "both groups have zero variance; t is undefined"
-        return row
-    if welch:
-        se2 = vx / nx + vy / ny
-        dof = se2**2 / ((vx / nx) ** 2 / (nx - 1) + (vy / ny) ** 2 / (ny - 1))
-    else:
-        se2 = pooled * (1 / nx + 1 / ny)
-        dof = nx + ny - 2
-    t = float((x.mean() - y.mean()) / np.sqrt(se2))
-    row.update(
-        T=t,
-        dof=float(dof),
-        p_unc=float(2 * stats.t.sf(abs(t), dof)),
-        cohen_d=float((x.mean() - y.mean()) / np.sqrt(pooled)),
-    )
-    return row
