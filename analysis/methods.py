@@ -50,7 +50,7 @@ def participants_paragraph(protocol: ProtocolSummary, sample: Mapping[str, Any])
     """Sample size per condition, gender and age, e.g. "N = 24 participants (12 in C1 …)"."""
     labels = {c["code"]: c["label"] for c in protocol["conditions"]}
     by_condition = sample.get("by_condition", {})
-    groups = [f"{by_condition.get(code, 0)} in {code} ({labels[code]})" for code in labels]
+    groups = [f"{code}, {labels[code]}: {by_condition.get(code, 0)}" for code in labels]
     text = f"N = {sample.get('n', 0)} participants were analysed ({'; '.join(groups)})"
     gender = sample.get("gender")
     if gender:

@@ -175,7 +175,7 @@ _STEPS = {
     "run": ("Run within the session", "integer"),
     "iteration": ("Adaptation iteration within participant × category (1..N)", "integer"),
     "action": ("Index of the question asked (0-based arm)", "integer"),
-    "answer": ("Participant answered yes", "boolean"),
+    "answer": ("Participant's answer (1 = yes, 0 = no)", "integer"),
     "reward": ("Reward given to the learner", "numeric"),
     "preferred_arm": ("Protocol's preferred question of the category (0-based arm)", "integer"),
     "p_preferred_before": ("Probability of the preferred question before the answer", "numeric"),

@@ -16,10 +16,10 @@ def spss_name(name: str, taken: set[str] | None = None) -> str:
     """A valid SPSS variable name for ``name``: letters, digits and ``_``, starting with a letter,
     at most 64 bytes, not a reserved word, and not already in ``taken`` (case-insensitive).
     """
-    clean = re.sub(r"[^0-9A-Za-z_]", "_", name.strip()) or "var"
+    clean = re.sub(r"[^0-9A-Za-z_]", "_", name.strip()).strip("_") or "var"
     if not clean[0].isalpha():
         clean = "v_" + clean
-    clean = clean[:64].rstrip("_") or "var"
+    clean = clean[:64].rstrip("_")
     if clean.upper() in SPSS_RESERVED:
         clean += "_"
     if taken is not None:

@@ -193,13 +193,10 @@ def wide_table(dataset: StudyDataset) -> pd.DataFrame:
             data[column.name] = participants[source].to_numpy()
             continue
         values = cells.get((column.source, column.key, column.session or 0))
-        numeric = column.source != "raw" or kinds.get((column.instrument, column.key)) in (
-            "likert",
-            "numeric",
-        )
+        kind = "numeric" if column.source != "raw" else kinds[(column.instrument, column.key)]
         if values is None:
-            values = np.full(n, np.nan) if numeric else np.full(n, None, dtype=object)
-        data[column.name] = _as_column(values, numeric)
+            values = np.full(n, None, dtype=object)
+        data[column.name] = _as_column(values, kind)
     return pd.DataFrame(data)
 
 
@@ -209,13 +206,16 @@ def _column(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
     return out
 
 
-def _as_column(values: np.ndarray, numeric: bool) -> Any:
-    if numeric:
-        return pd.to_numeric(pd.Series(values), errors="coerce").to_numpy(float)
-    converted = pd.to_numeric(pd.Series(values, dtype=object), errors="coerce")
-    if converted.notna().sum() == pd.Series(values, dtype=object).notna().sum():
-        return converted.to_numpy(float)  # categorical codes stored as numbers
-    return np.array([None if v is None or v is pd.NA else str(v) for v in values], dtype=object)
+def _as_column(values: np.ndarray, kind: str) -> Any:
+    """Numbers for numeric items and scores, codes as numbers when they all are, text as str."""
+    series = pd.Series(values, dtype=object)
+    if kind in ("likert", "numeric"):
+        return pd.to_numeric(series, errors="coerce").to_numpy(float)
+    if kind == "categorical":
+        converted = pd.to_numeric(series, errors="coerce")
+        if converted.notna().sum() == series.notna().sum():
+            return converted.to_numpy(float)
+    return np.array([None if pd.isna(v) else str(v) for v in values], dtype=object)
 
 
 def steps_table(dataset: StudyDataset) -> pd.DataFrame:
@@ -250,7 +250,7 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
             "run": steps["run"].to_numpy(),
             "iteration": steps["iteration"].to_numpy(),
             "action": steps["action"].to_numpy(),
-            "answer": steps["answer"].to_numpy(),
+            "answer": steps["answer"].astype(bool).astype(int).to_numpy(),
             "reward": steps["reward"].to_numpy(),
             "preferred_arm": steps["category"].map(preferred).to_numpy(),
         }
