@@ -189,6 +189,7 @@ def _statsmodels_type3_within(df: pd.DataFrame) -> float:
     return ((reduced.ssr - full.ssr) / w.shape[1]) / (full.ssr / full.df_resid)
 
 
+@pytest.mark.filterwarnings("ignore:The inplace keyword")  # pingouin 0.7.0 on pandas 3
 @pytest.mark.parametrize(
     ("sizes", "n_levels", "seed"),
     [((5, 9), 3, 1), ((4, 6, 11), 4, 2), ((12, 3), 5, 3), ((7, 7, 7), 3, 4), ((3, 8), 2, 5)],

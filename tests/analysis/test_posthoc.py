@@ -46,6 +46,7 @@ def test_known_values(dropouts: pd.DataFrame) -> None:
     assert len(out) == 2 * 6 + 4
 
 
+@pytest.mark.filterwarnings("ignore:'str' is not supported as a fill value")  # pingouin 0.7.0
 @pytest.mark.parametrize("within_first", [False, True])
 def test_matches_pingouin_interaction_families(dropouts: pd.DataFrame, within_first: bool) -> None:
     # Cross-check with pingouin 0.7.0 on the ANOVA's complete cases.
