@@ -234,7 +234,7 @@ def mean_ci_payload_from_cells(
             "marker": {"color": palette[condition]},
         }
         if style == "bar":
-            trace.update(type="bar", x=ticktext_for(x, ticktext), opacity=0.9)
+            trace.update(type="bar", x=[ticktext[i] for i in x], opacity=0.9)
         else:
             offset = (k - (n_cond - 1) / 2) * width / 2
             trace.update(
@@ -270,11 +270,6 @@ def mean_ci_payload_from_cells(
         "data": traces,
         "layout": layout,
     }
-
-
-def ticktext_for(positions: Sequence[int], ticktext: Sequence[str]) -> list[str]:
-    """Category labels of integer positions."""
-    return [ticktext[i] for i in positions]
 
 
 def mean_ci_figure(
@@ -621,7 +616,8 @@ def score_distribution_payload(
             "line": {"color": color},
             "boxmean": True,
         }
-        if rows.groupby(scale).size().max() <= BOX_POINTS_LIMIT if len(rows) else True:
+        largest_box = int(rows.groupby(scale).size().max()) if len(rows) else 0
+        if largest_box <= BOX_POINTS_LIMIT:
             trace.update(
                 x=[labels[s] for s in rows[scale]],
                 y=_json_list(rows[score].to_numpy()),

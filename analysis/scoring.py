@@ -277,9 +277,8 @@ def _validated(
 
 def _check_numeric_answers(out: pd.DataFrame, attrs: pd.DataFrame) -> None:
     numeric = attrs["numeric"].to_numpy(dtype=bool)
-    raw = out["value"].to_numpy()
-    values = pd.to_numeric(pd.Series(raw[numeric], dtype=object), errors="coerce").to_numpy(float)
-    raw_numeric = pd.Series(raw[numeric], dtype=object)
+    raw_numeric = pd.Series(out["value"].to_numpy()[numeric], dtype=object)
+    values = pd.to_numeric(raw_numeric, errors="coerce").to_numpy(float)
     bad = np.isnan(values) & raw_numeric.notna().to_numpy()
     items = out["item"].to_numpy()[numeric]
     if bad.any():

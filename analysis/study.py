@@ -131,11 +131,10 @@ class StudyAnalysis:
 
     def exclusions(self) -> pd.DataFrame:
         """Every exclusion: by status (``analysis`` = "all") and per outcome (incomplete data)."""
-        frames = [
-            self.status_exclusions.assign(analysis="all")[list(EXCLUSION_LIST_COLUMNS)]
-            if len(self.status_exclusions)
-            else None
-        ]
+        frames = []
+        if len(self.status_exclusions):
+            status = self.status_exclusions.assign(analysis="all")
+            frames.append(status[list(EXCLUSION_LIST_COLUMNS)])
         for outcome in self.outcomes:
             if outcome.anova is not None and len(outcome.anova.excluded):
                 excluded = outcome.anova.excluded
@@ -149,10 +148,9 @@ class StudyAnalysis:
                         }
                     )
                 )
-        present = [f for f in frames if f is not None]
-        if not present:
+        if not frames:
             return pd.DataFrame(columns=list(EXCLUSION_LIST_COLUMNS))
-        return pd.concat(present, ignore_index=True)
+        return pd.concat(frames, ignore_index=True)
 
 
 def analyse_study(
