@@ -25,7 +25,7 @@ from analysis._checks import (
     to_python,
 )
 from analysis.adaptation import adaptation_curves
-from analysis.descriptives import cell_descriptives
+from analysis.descriptives import CELL_COLUMNS, cell_descriptives
 from analysis.errors import InvalidInputError
 
 __all__ = [
@@ -153,9 +153,17 @@ def mean_ci_payload(
     -------
     dict
         ``{"kind": "mean_ci", "dv", "within", "between", "confidence", "cells": [...],
-        "data": [...], "layout": {...}}``, JSON-serialisable.
+        "data": [...], "layout": {...}}``, JSON-serialisable. With no rows yet, ``cells`` and
+        ``data`` are empty lists (the layout is still complete).
     """
-    cells = cell_descriptives(data, dv=dv, within=within, between=between, confidence=confidence)
+    if isinstance(data, pd.DataFrame) and data.empty:
+        # A study that has not started yet: an empty chart, not an error, for the dashboard.
+        require_columns(data, [dv, within, between])
+        cells = pd.DataFrame(columns=[between, within, *CELL_COLUMNS])
+    else:
+        cells = cell_descriptives(
+            data, dv=dv, within=within, between=between, confidence=confidence
+        )
     return mean_ci_payload_from_cells(
         cells,
         dv=dv,

@@ -9,6 +9,7 @@ import pandas as pd
 import plotly.graph_objects as go
 import pytest
 
+from analysis.dataset import empty_steps
 from analysis.descriptives import cell_descriptives
 from analysis.errors import InvalidInputError
 from analysis.figures import (
@@ -138,3 +139,19 @@ def test_score_distribution_large_ships_quartiles() -> None:
 
 def test_condition_colors() -> None:
     assert condition_colors(["C1", "C2"], {"C2": "#123456"}) == {"C1": PALETTE[0], "C2": "#123456"}
+
+
+def test_payloads_for_a_study_that_has_not_started() -> None:
+    empty = pd.DataFrame({"trust": [], "session": [], "condition": []})
+    payload = mean_ci_payload(empty, **DKW, y_range=(1, 5))
+    assert payload["cells"] == []
+    assert payload["data"] == []
+    assert payload["layout"]["yaxis"]["range"] == [1, 5]
+    json.dumps(payload, allow_nan=False)
+    with pytest.raises(InvalidInputError, match="no column 'trust'"):
+        mean_ci_payload(pd.DataFrame({"session": []}), **DKW)
+    adaptation = adaptation_payload(empty_steps(), PREFERRED)
+    assert adaptation["data"] == []
+    assert adaptation["curves"] == []
+    assert adaptation["categories"] == ["conation", "cognition"]
+    json.dumps(adaptation, allow_nan=False)
