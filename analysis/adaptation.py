@@ -119,7 +119,11 @@ class _Steps:
 
 
 def _factorize(values: pd.Series) -> tuple[np.ndarray, np.ndarray]:
-    codes, uniques = pd.factorize(values)
+    """Integer codes in sorted order of the values (first-seen order if they cannot be sorted)."""
+    try:
+        codes, uniques = pd.factorize(values, sort=True)
+    except TypeError:
+        codes, uniques = pd.factorize(values)
     return codes, np.asarray(uniques, dtype=object)
 
 
@@ -372,7 +376,7 @@ def curves_from_trajectories(
     unknown = sorted(set(trajectories["category"]) - set(categories), key=str)
     if unknown:
         raise InvalidInputError(
-            f"trajectories have category(ies) {describe_keys(unknown)} not ordered"
+            f"trajectories have category(ies) {describe_keys(unknown)} missing from the order"
         )
     return _summarise(
         pd.Index(conditions).get_indexer(trajectories["condition"]),

@@ -6,7 +6,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.adaptation import CURVE_COLUMNS, adaptation_curves, preferred_probability
+from analysis.adaptation import (
+    CURVE_COLUMNS,
+    adaptation_curves,
+    curves_from_trajectories,
+    preferred_probability,
+    validate_steps,
+)
 from analysis.errors import DuplicateObservationError, InvalidInputError
 
 PREFERRED = {"conation": 1, "cognition": 2}
@@ -111,3 +117,18 @@ def test_bad_step_logs_are_refused(steps: pd.DataFrame, mutate, error, message: 
 def test_preferred_arm_must_exist(steps: pd.DataFrame) -> None:
     with pytest.raises(InvalidInputError, match="preferred arm 7"):
         adaptation_curves(steps, {"conation": 7, "cognition": 2})
+
+
+def test_curves_from_trajectories_equal_direct_curves(steps: pd.DataFrame) -> None:
+    direct = adaptation_curves(steps, PREFERRED)
+    via = curves_from_trajectories(preferred_probability(steps, PREFERRED), list(PREFERRED))
+    pd.testing.assert_frame_equal(direct, via)
+    with pytest.raises(InvalidInputError, match="missing from the order"):
+        curves_from_trajectories(preferred_probability(steps, PREFERRED), ["conation"])
+
+
+def test_validate_steps_sorts(steps: pd.DataFrame) -> None:
+    shuffled = steps.iloc[::-1].reset_index(drop=True)
+    ordered = validate_steps(shuffled, PREFERRED)
+    assert ordered["participant"].tolist() == ["P1", "P1", "P2", "P2", "P3", "P3"]
+    assert ordered["iteration"].tolist()[:2] == [1, 2]

@@ -9,7 +9,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from analysis.errors import DuplicateObservationError, InvalidInputError
-from analysis.instruments import DEFAULT_INSTRUMENTS, TRUST, InstrumentSpec, likert_instrument
+from analysis.instruments import (
+    DEFAULT_INSTRUMENTS,
+    TIPI,
+    TRUST,
+    InstrumentSpec,
+    ItemSpec,
+    likert_instrument,
+)
 from analysis.scoring import (
     DEFAULT_SCALES,
     SCALE_SCORE_COLUMNS,
@@ -220,3 +227,22 @@ def test_tipi_properties(values: list[int]) -> None:
     # Flipping every answer (8 − x) mirrors every score around the midpoint 4.
     flipped = score_scales(df.assign(value=8 - df["value"]), TIPI_SCALES).set_index("scale")
     np.testing.assert_allclose(flipped["score"], 8 - out, rtol=0, atol=1e-12)
+
+
+def test_item_and_instrument_specs_are_validated() -> None:
+    with pytest.raises(InvalidInputError, match="needs minimum and maximum"):
+        ItemSpec("x_1", "text", "likert")
+    with pytest.raises(InvalidInputError, match="minimum must be below maximum"):
+        ItemSpec("x_1", "text", "numeric", 5, 1)
+    with pytest.raises(InvalidInputError, match="unknown kind"):
+        ItemSpec("x_1", "text", "slider")  # type: ignore[arg-type]
+    with pytest.raises(InvalidInputError, match="reverse-keyed item 'x_1' needs"):
+        ItemSpec("x_1", "text", "categorical", reverse=True)
+    assert ItemSpec("x_1", "t", "likert", 1, 7, reverse=True).scored(2) == 6
+    assert ItemSpec("x_1", "t", "likert", 1, 7).scored(2) == 2
+    with pytest.raises(InvalidInputError, match="reverse item number"):
+        likert_instrument("x", "X", ["a", "b"], scale_min=1, scale_max=5, reverse=(3,))
+    with pytest.raises(InvalidInputError, match="twice"):
+        InstrumentSpec("x", "X", (ItemSpec("a", "a", "text"), ItemSpec("a", "b", "text")))
+    with pytest.raises(InvalidInputError, match="has no item 'tipi_99'"):
+        TIPI.item("tipi_99")
