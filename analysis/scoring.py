@@ -428,8 +428,8 @@ def score_scales(
     item_codes, item_uniques = pd.factorize(rows["item"])
     item_index = pd.Index(item_uniques)
     # A unit is one participant × session (instruments are separated per scale below).
-    p_codes, _ = pd.factorize(rows["participant"])
-    s_codes, _ = pd.factorize(rows["session"], use_na_sentinel=False)
+    p_codes, _ = pd.factorize(rows["participant"], sort=True)
+    s_codes, _ = pd.factorize(rows["session"], sort=True, use_na_sentinel=False)
     unit_key = p_codes.astype(np.int64) * (int(s_codes.max(initial=0)) + 1) + s_codes
     raw_values = rows["value"].to_numpy()
     numbers = values.to_numpy(float)

@@ -115,8 +115,9 @@ def long_table(dataset: StudyDataset) -> pd.DataFrame:
     """Every stored answer, raw and scored: one row per participant × instrument × session × item.
 
     Columns :data:`LONG_COLUMNS`. ``scored`` applies the reverse key (e.g. ``trust_5``: 6 − x)
-    and is empty for categorical and free-text items. Rows are ordered by participant, then
-    instrument and item in questionnaire order, then session.
+    and is empty for categorical and free-text items. Rows are ordered by participant (as in
+    the participants table), then session (once-only instruments first), then instrument and
+    item in questionnaire order.
     """
     scored = score_responses(dataset.responses, dataset.instruments)
     condition = pd.Series(
@@ -224,8 +225,9 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     Columns :data:`STEP_EXPORT_BASE_COLUMNS`, then ``p_before_0`` … ``p_before_<K−1>`` and
     ``p_after_0`` … (K = the largest number of arms; categories with fewer arms leave the rest
     empty). ``preferred_arm`` is the protocol's preferred question of the row's category and
-    ``p_preferred_before/after`` its probability. Rows ordered by participant, category
-    (protocol order) and iteration. ``condition`` is taken from the participants table.
+    ``p_preferred_before/after`` its probability. Rows are ordered by participant (as in the
+    participants table), category (protocol order) and iteration; ``condition`` is taken from
+    the participants table.
     """
     steps = dataset.steps
     preferred = dataset.protocol["preferred_arms"]

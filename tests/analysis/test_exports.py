@@ -220,3 +220,15 @@ def test_spss_name(name: str, expected: str) -> None:
     assert spss_name(name) == expected
     assert spss_name("x" * 80).__len__() == 64
     assert spss_name("condition", {"Condition"}) == "condition_2"
+
+
+def test_long_table_order(dataset: StudyDataset) -> None:
+    out = long_table(dataset)
+    first = out[out["participant"] == dataset.participants["participant"].iloc[0]]
+    once = first[first["session"].isna()]
+    assert list(once["instrument"].unique()) == ["demographics", "background", "tipi", "nars"]
+    assert once["item"].iloc[:2].tolist() == ["age", "gender"]
+    trust = first[first["session"].notna()]
+    assert trust["session"].is_monotonic_increasing
+    assert trust["item"].iloc[:5].tolist() == [f"trust_{i}" for i in range(1, 6)]
+    assert first.index.max() < out[out["participant"] != first["participant"].iloc[0]].index.min()

@@ -246,3 +246,9 @@ def test_item_and_instrument_specs_are_validated() -> None:
         InstrumentSpec("x", "X", (ItemSpec("a", "a", "text"), ItemSpec("a", "b", "text")))
     with pytest.raises(InvalidInputError, match="has no item 'tipi_99'"):
         TIPI.item("tipi_99")
+
+
+def test_scores_sorted_by_participant_and_session() -> None:
+    rows = _rows("B", "tipi", TIPI_B) + _rows("A", "tipi", TIPI_A)
+    out = score_scales(_frame(rows), TIPI_SCALES[:1])
+    assert out["participant"].tolist() == ["A", "B"]
