@@ -91,7 +91,8 @@ class StudyAnalysis:
     status_exclusions : pandas.DataFrame
         ``participant``, ``condition``, ``status``, ``reason`` of those left out by status.
     scored : pandas.DataFrame
-        Scored responses of the analysed participants (with ``condition``).
+        Scored responses of the analysed participants (with ``condition``; the participant,
+        instrument and item columns are categoricals).
     scale_scores : pandas.DataFrame
         Every scale score (with ``condition``).
     outcomes : tuple of OutcomeAnalysis
@@ -183,6 +184,10 @@ def analyse_study(
     (1..``protocol["sessions"]``) are left out of that outcome's ANOVA, with the reason.
     Every ANOVA p value is computed from its F and degrees of freedom.
     """
+    if ss_type not in (2, 3):
+        raise InvalidInputError(f"ss_type must be 2 or 3, got {ss_type!r}")
+    if not 0 < confidence < 1:
+        raise InvalidInputError(f"confidence must be between 0 and 1, got {confidence!r}")
     participants = dataset.participants
     excluded_mask = participants["status"].isin(dataset.excluded_statuses).to_numpy()
     status_exclusions = pd.DataFrame(

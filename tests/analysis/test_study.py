@@ -162,3 +162,10 @@ def test_empty_steps_give_empty_curves() -> None:
     assert result.adaptation.empty
     assert result.adaptation_problem == ""
     assert isinstance(result.adaptation, pd.DataFrame)
+
+
+def test_settings_are_checked_up_front(dataset: StudyDataset) -> None:
+    with pytest.raises(InvalidInputError, match="ss_type"):
+        analyse_study(dataset, ss_type=1)  # type: ignore[arg-type]
+    with pytest.raises(InvalidInputError, match="confidence"):
+        analyse_study(dataset, confidence=95)
