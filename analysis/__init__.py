@@ -1,0 +1,50 @@
+"""Statistics, scoring, figures, exports and reports for trustlab studies.
+
+Pure data in, data out: this package takes pandas DataFrames (and the small dataclasses of
+:mod:`analysis.dataset`, :mod:`analysis.instruments` and :mod:`analysis.scoring`) and never
+touches the web layer or the database.
+
+The statistics core is importable from here; figures (:mod:`analysis.figures`), the report
+(:mod:`analysis.report`) and the export formats (:mod:`analysis.exports`) live in their own
+modules so that importing the statistics does not load Plotly or pyreadstat.
+"""
+
+from analysis.anova import MixedAnovaResult, Sphericity, mixed_anova
+from analysis.apa import anova_sentences, format_p, sentence_f, sentence_t
+from analysis.descriptives import cell_descriptives, marginal_means
+from analysis.design import MixedDesign, prepare_mixed_design
+from analysis.errors import (
+    AnalysisError,
+    CannotComputeError,
+    DuplicateObservationError,
+    InvalidInputError,
+)
+from analysis.instruments import DEFAULT_INSTRUMENTS, InstrumentSpec, ItemSpec
+from analysis.posthoc import pairwise_comparisons
+from analysis.scoring import DEFAULT_SCALES, ScaleSpec, score_responses, score_scales
+
+__all__ = [
+    "DEFAULT_INSTRUMENTS",
+    "DEFAULT_SCALES",
+    "AnalysisError",
+    "CannotComputeError",
+    "DuplicateObservationError",
+    "InstrumentSpec",
+    "InvalidInputError",
+    "ItemSpec",
+    "MixedAnovaResult",
+    "MixedDesign",
+    "ScaleSpec",
+    "Sphericity",
+    "anova_sentences",
+    "cell_descriptives",
+    "format_p",
+    "marginal_means",
+    "mixed_anova",
+    "pairwise_comparisons",
+    "prepare_mixed_design",
+    "score_responses",
+    "score_scales",
+    "sentence_f",
+    "sentence_t",
+]

@@ -1,0 +1,221 @@
+"""What the app hands to the analysis: one :class:`StudyDataset` per study.
+
+The web layer loads the study from its database into three plain frames plus the protocol
+summary, the instrument specifications and a manifest, and passes them here. Everything the
+report and the exports need is in this one object, so analysis never touches the database.
+
+Frames
+------
+participants
+    One row per enrolled participant. Required columns: ``participant`` (str, the code),
+    ``condition`` (str, e.g. ``"C1"``; neutral labels if the viewer is blinded), ``status``
+    (str, e.g. ``"completed"``, ``"active"``, ``"withdrawn"``). Any further column (e.g. the
+    randomisation strata ``gender``, ``site``) is kept and exported as a participant attribute.
+responses
+    Long raw answers, one row per participant × instrument × session × item: ``participant``
+    (str), ``instrument`` (str), ``session`` (nullable ``Int64``; NA for once-only
+    instruments), ``item`` (str), ``value`` (number; categorical items may be codes or
+    strings, free text is a string). See :mod:`analysis.scoring`.
+steps
+    The adaptation step log (see :mod:`analysis.adaptation` for the columns); may be empty.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, NotRequired, TypedDict
+
+import pandas as pd
+
+from analysis._checks import describe_keys, require_columns
+from analysis.adaptation import STEP_COLUMNS
+from analysis.errors import InvalidInputError
+from analysis.instruments import DEFAULT_INSTRUMENTS, InstrumentSpec
+from analysis.scoring import DEFAULT_SCALES, RESPONSE_COLUMNS, ScaleSpec
+
+__all__ = [
+    "DEFAULT_EXCLUDED_STATUSES",
+    "PARTICIPANT_COLUMNS",
+    "ConditionSummary",
+    "ProtocolSummary",
+    "StudyDataset",
+    "empty_steps",
+    "validate_protocol",
+]
+
+PARTICIPANT_COLUMNS = ("participant", "condition", "status")
+"""Required columns of the participants frame; extra columns are participant attributes."""
+
+DEFAULT_EXCLUDED_STATUSES = frozenset({"withdrawn"})
+"""Participant statuses left out of the statistics (listed as exclusions in the report)."""
+
+
+class ConditionSummary(TypedDict):
+    """One experimental condition as the methods paragraph names it."""
+
+    code: str
+    """Stored condition code, e.g. ``"C1"``."""
+    label: str
+    """Short name, e.g. ``"Exp3 bandit"``."""
+    description: NotRequired[str]
+    """One sentence on what the robot does in this condition."""
+
+
+class ProtocolSummary(TypedDict):
+    """The parts of a study protocol the report describes (a plain JSON-able dict)."""
+
+    study: str
+    """Study name."""
+    conditions: list[ConditionSummary]
+    """Conditions in allocation order."""
+    categories: dict[str, list[str]]
+    """Category key → question texts in arm order (arm index = list position)."""
+    preferred_arms: dict[str, int]
+    """Category key → 0-based index of the question participants are told to prefer."""
+    sessions: int
+    """Number of sessions (the within-subject factor)."""
+    runs_per_session: int
+    """Runs per session; each run prompts every category once."""
+    familiarisation_runs: NotRequired[int]
+    """Runs before session 1 that are not used for adaptation (default 1)."""
+    allocation: NotRequired[str]
+    """How participants were allocated, e.g. "permuted blocks of 2 and 4, stratified by gender"."""
+    feedback: NotRequired[str]
+    """How answers become rewards, e.g. "yes → 1, no → 0"."""
+    version: NotRequired[str]
+    """Protocol version or file hash."""
+
+
+def validate_protocol(protocol: Mapping[str, Any]) -> None:
+    """Refuse a protocol summary that lacks a required key or has a wrong type, naming it."""
+    if not isinstance(protocol, Mapping):
+        raise InvalidInputError("protocol must be a dict")
+    required: dict[str, type | tuple[type, ...]] = {
+        "study": str,
+        "conditions": list,
+        "categories": dict,
+        "preferred_arms": dict,
+        "sessions": int,
+        "runs_per_session": int,
+    }
+    for key, kind in required.items():
+        if key not in protocol:
+            raise InvalidInputError(f"protocol: missing key {key!r}")
+        if not isinstance(protocol[key], kind) or isinstance(protocol[key], bool):
+            raise InvalidInputError(f"protocol.{key}: expected {getattr(kind, '__name__', kind)}")
+    for i, condition in enumerate(protocol["conditions"]):
+        if not isinstance(condition, Mapping) or not {"code", "label"} <= set(condition):
+            raise InvalidInputError(f"protocol.conditions[{i}]: needs 'code' and 'label'")
+    if protocol["sessions"] < 1 or protocol["runs_per_session"] < 1:
+        raise InvalidInputError("protocol: sessions and runs_per_session must be at least 1")
+    for category, arm in protocol["preferred_arms"].items():
+        questions = protocol["categories"].get(category)
+        if questions is None:
+            raise InvalidInputError(f"protocol.preferred_arms.{category}: unknown category")
+        if not isinstance(arm, int) or not 0 <= arm < len(questions):
+            raise InvalidInputError(
+                f"protocol.preferred_arms.{category}: {arm!r} is not an arm index "
+                f"(0–{len(questions) - 1})"
+            )
+    missing = sorted(set(protocol["categories"]) - set(protocol["preferred_arms"]))
+    if missing:
+        raise InvalidInputError(f"protocol.preferred_arms: no preferred arm for {missing}")
+
+
+def empty_steps() -> pd.DataFrame:
+    """A step log with the right columns and no rows (a study that has not started)."""
+    return pd.DataFrame({column: pd.Series(dtype=object) for column in STEP_COLUMNS})
+
+
+@dataclass(frozen=True)
+class StudyDataset:
+    """Everything the analysis, the exports and the report need about one study.
+
+    Attributes
+    ----------
+    participants : pandas.DataFrame
+        See the module docstring (``participant``, ``condition``, ``status`` + attributes).
+    responses : pandas.DataFrame
+        Long raw answers (``participant``, ``instrument``, ``session``, ``item``, ``value``).
+    protocol : ProtocolSummary
+        Conditions, categories, preferred arms, sessions, runs.
+    steps : pandas.DataFrame
+        Adaptation step log; default empty.
+    manifest : mapping
+        Provenance shown verbatim in the report: e.g. ``data_sha256``, ``software``
+        (name → version), ``protocol_sha256``, ``checkpoints`` (name → sha256), ``seeds``,
+        ``exported_at``. JSON-serialisable values.
+    instruments : tuple of InstrumentSpec
+        Specifications of every instrument present in ``responses`` (default: the seed paper's).
+    scales : tuple of ScaleSpec
+        Scores to compute (default: TIPI and NARS).
+    excluded_statuses : frozenset of str
+        Participants with these statuses are left out of the statistics and listed as excluded.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing columns, duplicate participant codes, a participant without a condition, or
+        answers/steps of participants that are not in ``participants``.
+    """
+
+    participants: pd.DataFrame
+    responses: pd.DataFrame
+    protocol: ProtocolSummary
+    steps: pd.DataFrame = field(default_factory=empty_steps)
+    manifest: Mapping[str, Any] = field(default_factory=dict)
+    instruments: tuple[InstrumentSpec, ...] = DEFAULT_INSTRUMENTS
+    scales: tuple[ScaleSpec, ...] = DEFAULT_SCALES
+    excluded_statuses: frozenset[str] = DEFAULT_EXCLUDED_STATUSES
+
+    def __post_init__(self) -> None:
+        for name in ("participants", "responses", "steps"):
+            if not isinstance(getattr(self, name), pd.DataFrame):
+                raise InvalidInputError(f"StudyDataset.{name} must be a pandas DataFrame")
+        require_columns(self.participants, PARTICIPANT_COLUMNS, "participants")
+        require_columns(self.responses, RESPONSE_COLUMNS, "responses")
+        require_columns(self.steps, STEP_COLUMNS, "steps")
+        validate_protocol(self.protocol)
+        codes = self.participants["participant"]
+        if codes.isna().any() or self.participants["condition"].isna().any():
+            raise InvalidInputError(
+                "participants: every row needs a participant code and condition"
+            )
+        duplicated = codes[codes.duplicated()]
+        if len(duplicated):
+            raise InvalidInputError(
+                f"participants: code(s) {describe_keys(list(duplicated))} appear twice"
+            )
+        known = set(codes)
+        for name in ("responses", "steps"):
+            frame: pd.DataFrame = getattr(self, name)
+            strangers = sorted(set(frame["participant"].dropna().unique()) - known, key=str)
+            if strangers:
+                raise InvalidInputError(
+                    f"{name} mention participant(s) {describe_keys(strangers)} that are not in "
+                    "participants"
+                )
+        declared = {c["code"] for c in self.protocol["conditions"]}
+        undeclared = sorted(set(self.participants["condition"]) - declared, key=str)
+        if undeclared:
+            raise InvalidInputError(
+                f"participants: condition(s) {describe_keys(undeclared)} are not in the protocol"
+            )
+
+    @property
+    def attribute_columns(self) -> list[str]:
+        """Participant columns beyond code, condition and status (e.g. strata)."""
+        return [c for c in self.participants.columns if c not in PARTICIPANT_COLUMNS]
+
+    @property
+    def condition_labels(self) -> dict[str, str]:
+        """Condition code → label, from the protocol."""
+        return {c["code"]: c["label"] for c in self.protocol["conditions"]}
+
+    def instrument(self, name: str) -> InstrumentSpec:
+        """The specification of instrument ``name``."""
+        for spec in self.instruments:
+            if spec.name == name:
+                return spec
+        raise InvalidInputError(f"no instrument {name!r} in this dataset")

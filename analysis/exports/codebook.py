@@ -1,0 +1,292 @@
+"""The codebook: what every exported column means, its type, allowed values and source.
+
+Generated from the same specifications that score and export the data, so a translated or
+adapted instrument is documented exactly as it was administered.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pandas as pd
+
+from analysis.dataset import StudyDataset
+from analysis.exports.tables import (
+    LONG_COLUMNS,
+    STEP_EXPORT_BASE_COLUMNS,
+    WideColumn,
+    wide_columns,
+)
+from analysis.instruments import InstrumentSpec, ItemSpec
+from analysis.scoring import ScaleSpec
+
+__all__ = ["CODEBOOK_COLUMNS", "codebook_json", "codebook_table"]
+
+CODEBOOK_COLUMNS = (
+    "file",
+    "column",
+    "label",
+    "type",
+    "measure",
+    "allowed",
+    "value_labels",
+    "reverse_keyed",
+    "instrument",
+    "item",
+    "session",
+    "derivation",
+    "citation",
+)
+"""Columns of :func:`codebook_table`."""
+
+
+def _range(low: float | None, high: float | None) -> str:
+    if low is None or high is None:
+        return ""
+    return f"{low:g}–{high:g}"
+
+
+def _labels_text(item: ItemSpec) -> str:
+    return "; ".join(f"{code}={label}" for code, label in item.value_labels)
+
+
+def _item_entry(
+    column: WideColumn, spec: InstrumentSpec, item: ItemSpec, file: str
+) -> dict[str, Any]:
+    reversed_value = column.source == "reversed"
+    kind = item.kind
+    numeric = kind in ("likert", "numeric") or (
+        kind == "categorical" and all(isinstance(c, int) for c, _ in item.value_labels)
+    )
+    if kind == "categorical":
+        allowed = ", ".join(str(code) for code, _ in item.value_labels) or "any code"
+    elif kind == "text":
+        allowed = "free text"
+    else:
+        allowed = _range(item.minimum, item.maximum)
+    label = item.text if not spec.stem else f"{spec.stem} {item.text}"
+    if reversed_value:
+        label += " (reverse-scored)"
+    if column.session is not None:
+        label += f" [session {column.session}]"
+    reverse = ""
+    if item.reverse and item.minimum is not None and item.maximum is not None:
+        reverse = f"yes: scored {item.minimum + item.maximum:g} − x"
+    return {
+        "file": file,
+        "column": column.name,
+        "label": label,
+        "type": "numeric" if numeric or reversed_value else "string",
+        "measure": {"likert": "ordinal", "numeric": "scale"}.get(kind, "nominal"),
+        "allowed": allowed,
+        # A reversed column's numbers no longer mean the anchors' labels: no value labels.
+        "value_labels": "" if reversed_value else _labels_text(item),
+        "reverse_keyed": reverse,
+        "instrument": spec.name,
+        "item": item.key,
+        "session": column.session,
+        "derivation": (
+            f"{item.minimum:g} + {item.maximum:g} − {item.key}"
+            if reversed_value and item.minimum is not None and item.maximum is not None
+            else ""
+        ),
+        "citation": spec.citation,
+    }
+
+
+def _scale_entry(column: WideColumn, scale: ScaleSpec) -> dict[str, Any]:
+    keyed = [f"{key} (reversed)" if key in scale.reverse else key for key in scale.items]
+    low, high = scale.score_range
+    label = scale.label or scale.name
+    if column.session is not None:
+        label += f" [session {column.session}]"
+    return {
+        "file": "wide",
+        "column": column.name,
+        "label": label,
+        "type": "numeric",
+        "measure": "scale",
+        "allowed": _range(low, high),
+        "value_labels": "",
+        "reverse_keyed": "",
+        "instrument": scale.instrument,
+        "item": "",
+        "session": column.session,
+        "derivation": (
+            f"{scale.method} of {', '.join(keyed)}; reversed items scored "
+            f"{scale.scale_min:g} + {scale.scale_max:g} − x; empty unless every item is answered"
+        ),
+        "citation": scale.citation,
+    }
+
+
+def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> list[dict[str, Any]]:
+    conditions = "; ".join(f"{c['code']}={c['label']}" for c in dataset.protocol["conditions"])
+    fixed = {
+        "participant": ("Participant code", "string", "nominal", "", ""),
+        "condition": ("Experimental condition", "string", "nominal", conditions, ""),
+        "status": ("Participant status at export", "string", "nominal", "", ""),
+    }
+    out = []
+    for column in columns:
+        if column.source != "participant":
+            continue
+        label, kind, measure, labels, allowed = fixed.get(
+            column.name, (f"Participant attribute '{column.key}'", "string", "nominal", "", "")
+        )
+        out.append(
+            {
+                "file": "wide",
+                "column": column.name,
+                "label": label,
+                "type": kind,
+                "measure": measure,
+                "allowed": allowed,
+                "value_labels": labels,
+                "reverse_keyed": "",
+                "instrument": "",
+                "item": "",
+                "session": None,
+                "derivation": "",
+                "citation": "",
+            }
+        )
+    return out
+
+
+_LONG = {
+    "participant": ("Participant code", "string"),
+    "condition": ("Experimental condition", "string"),
+    "instrument": ("Instrument key", "string"),
+    "session": ("Session number (empty for once-only instruments)", "integer"),
+    "item": ("Item key (see the wide file's codebook rows for the wording)", "string"),
+    "value": ("Raw answer as stored", "mixed"),
+    "scored": (
+        "Answer after the reverse key; empty for categorical and free-text items",
+        "numeric",
+    ),
+}
+
+_STEPS = {
+    "participant": ("Participant code", "string"),
+    "condition": ("Experimental condition", "string"),
+    "category": ("Mental-activity category of the question", "string"),
+    "session": ("Session number", "integer"),
+    "run": ("Run within the session", "integer"),
+    "iteration": ("Adaptation iteration within participant × category (1..N)", "integer"),
+    "action": ("Index of the question asked (0-based arm)", "integer"),
+    "answer": ("Participant's answer (1 = yes, 0 = no)", "integer"),
+    "reward": ("Reward given to the learner", "numeric"),
+    "preferred_arm": ("Protocol's preferred question of the category (0-based arm)", "integer"),
+    "p_preferred_before": ("Probability of the preferred question before the answer", "numeric"),
+    "p_preferred_after": ("Probability of the preferred question after the update", "numeric"),
+}
+
+
+def _plain_entry(file: str, column: str, label: str, kind: str) -> dict[str, Any]:
+    return {
+        "file": file,
+        "column": column,
+        "label": label,
+        "type": kind,
+        "measure": "scale" if kind == "numeric" else "nominal",
+        "allowed": "0–1" if column.startswith("p_") else "",
+        "value_labels": "",
+        "reverse_keyed": "",
+        "instrument": "",
+        "item": "",
+        "session": None,
+        "derivation": "",
+        "citation": "",
+    }
+
+
+def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
+    """One row per exported column of the wide, long and steps files.
+
+    Columns :data:`CODEBOOK_COLUMNS`: the file (``wide``, ``long``, ``steps``), column name,
+    label (item wording as administered), type, SPSS measure level, allowed values, value
+    labels (``1=Strongly disagree; …``), reverse key, instrument, item, session, how a derived
+    column is computed, and the instrument's citation.
+    """
+    columns = wide_columns(dataset)
+    specs = {
+        (spec.name, item.key): (spec, item) for spec in dataset.instruments for item in spec.items
+    }
+    scales = {scale.name: scale for scale in dataset.scales}
+    rows = _participant_entries(dataset, columns)
+    for column in columns:
+        if column.source in ("raw", "reversed"):
+            spec, item = specs[(column.instrument, column.key)]
+            rows.append(_item_entry(column, spec, item, "wide"))
+        elif column.source == "scale":
+            rows.append(_scale_entry(column, scales[column.key]))
+    rows += [_plain_entry("long", c, *_LONG[c]) for c in LONG_COLUMNS]
+    rows += [_plain_entry("steps", c, *_STEPS[c]) for c in STEP_EXPORT_BASE_COLUMNS]
+    arms = max((len(q) for q in dataset.protocol["categories"].values()), default=0)
+    for when, text in (("before", "before the answer"), ("after", "after the update")):
+        rows += [
+            _plain_entry("steps", f"p_{when}_{j}", f"Probability of arm {j} {text}", "numeric")
+            for j in range(arms)
+        ]
+    out = pd.DataFrame(rows, columns=list(CODEBOOK_COLUMNS))
+    out["session"] = out["session"].astype("Int64")
+    return out
+
+
+def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
+    """The codebook as a JSON-able dict: study, instruments, and the columns of each file.
+
+    ``{"study", "protocol_version", "instruments": [{"name", "label", "citation", "stem",
+    "per_session", "items": [{"key", "text", "kind", "minimum", "maximum", "reverse",
+    "value_labels": {code: label}}]}], "scales": [...], "files": {"wide": [...], "long": [...],
+    "steps": [...]}}``; file entries have the keys of :data:`CODEBOOK_COLUMNS` (``session``
+    null when not per session).
+    """
+    table = codebook_table(dataset)
+    files: dict[str, list[dict[str, Any]]] = {}
+    for record in table.to_dict("records"):
+        record["session"] = None if pd.isna(record["session"]) else int(record["session"])
+        files.setdefault(record.pop("file"), []).append(record)
+    return {
+        "study": dataset.protocol["study"],
+        "protocol_version": dataset.protocol.get("version", ""),
+        "conditions": [dict(c) for c in dataset.protocol["conditions"]],
+        "instruments": [
+            {
+                "name": spec.name,
+                "label": spec.label,
+                "citation": spec.citation,
+                "stem": spec.stem,
+                "per_session": spec.per_session,
+                "items": [
+                    {
+                        "key": item.key,
+                        "text": item.text,
+                        "kind": item.kind,
+                        "minimum": item.minimum,
+                        "maximum": item.maximum,
+                        "reverse": item.reverse,
+                        "value_labels": {str(code): label for code, label in item.value_labels},
+                    }
+                    for item in spec.items
+                ],
+            }
+            for spec in dataset.instruments
+        ],
+        "scales": [
+            {
+                "name": scale.name,
+                "label": scale.label,
+                "instrument": scale.instrument,
+                "items": list(scale.items),
+                "reverse": sorted(scale.reverse),
+                "scale_min": scale.scale_min,
+                "scale_max": scale.scale_max,
+                "method": scale.method,
+                "citation": scale.citation,
+            }
+            for scale in dataset.scales
+        ],
+        "files": files,
+    }

@@ -1,0 +1,176 @@
+"""Writing the exports to files, and the list of formats the app offers.
+
+The dashboard buttons and ``trustlab export --format F`` map straight onto
+:data:`EXPORT_FORMATS`; :func:`write_export` writes one, :func:`write_all_exports` writes a
+complete bundle (with a ``SHA256SUMS`` file) for archiving.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from analysis.dataset import StudyDataset
+from analysis.errors import InvalidInputError
+from analysis.exports.codebook import codebook_json, codebook_table
+from analysis.exports.spss import write_sav
+from analysis.exports.tables import long_table, steps_table, wide_table
+from analysis.report import write_report
+
+__all__ = [
+    "EXPORT_FORMATS",
+    "ExportFormat",
+    "csv_bytes",
+    "sha256_file",
+    "write_all_exports",
+    "write_csv",
+    "write_export",
+]
+
+
+def csv_bytes(frame: pd.DataFrame) -> bytes:
+    """The exact bytes every CSV export uses: UTF-8, comma, ``\\n``, no index, empty = missing."""
+    return frame.to_csv(index=False, na_rep="", lineterminator="\n").encode("utf-8")
+
+
+def write_csv(frame: pd.DataFrame, path: str | Path) -> Path:
+    """Write ``frame`` with :func:`csv_bytes` and return the path."""
+    target = Path(path)
+    target.write_bytes(csv_bytes(frame))
+    return target
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex SHA-256 of a file (for manifests and ``SHA256SUMS``)."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _json(dataset: StudyDataset, path: Path) -> Path:
+    path.write_text(
+        json.dumps(codebook_json(dataset), indent=2, ensure_ascii=False) + "\n", encoding="utf-8"
+    )
+    return path
+
+
+@dataclass(frozen=True)
+class ExportFormat:
+    """One downloadable export.
+
+    Attributes
+    ----------
+    name : str
+        Identifier used by the app (``--format``).
+    filename : str
+        Suggested file name.
+    media_type : str
+        HTTP content type.
+    description : str
+        One line for the dashboard.
+    write : callable
+        ``write(dataset, path) -> path``.
+    """
+
+    name: str
+    filename: str
+    media_type: str
+    description: str
+    write: Callable[[StudyDataset, Path], Path]
+
+
+EXPORT_FORMATS: Mapping[str, ExportFormat] = {
+    f.name: f
+    for f in (
+        ExportFormat(
+            "long-csv",
+            "answers_long.csv",
+            "text/csv",
+            "Every answer, raw and scored (participant × instrument × session × item)",
+            lambda d, p: write_csv(long_table(d), p),
+        ),
+        ExportFormat(
+            "wide-csv",
+            "participants_wide.csv",
+            "text/csv",
+            "One row per participant, JASP/SPSS-ready (trust_1_s1 … and scale scores)",
+            lambda d, p: write_csv(wide_table(d), p),
+        ),
+        ExportFormat(
+            "steps-csv",
+            "adaptation_steps.csv",
+            "text/csv",
+            "The adaptation step log with every arm's probability before and after",
+            lambda d, p: write_csv(steps_table(d), p),
+        ),
+        ExportFormat(
+            "codebook-csv",
+            "codebook.csv",
+            "text/csv",
+            "What every exported column means (CSV)",
+            lambda d, p: write_csv(codebook_table(d), p),
+        ),
+        ExportFormat(
+            "codebook-json",
+            "codebook.json",
+            "application/json",
+            "Codebook with instruments and scales (JSON)",
+            _json,
+        ),
+        ExportFormat(
+            "sav",
+            "participants_wide.sav",
+            "application/x-spss-sav",
+            "SPSS file of the wide table with variable and value labels",
+            write_sav,
+        ),
+        ExportFormat(
+            "html",
+            "report.html",
+            "text/html",
+            "Self-contained report: methods, ANOVAs, figures, exclusions, manifest (offline)",
+            lambda d, p: write_report(d, p),
+        ),
+    )
+}
+"""Every export the app offers, by name."""
+
+
+def write_export(dataset: StudyDataset, format_name: str, path: str | Path) -> Path:
+    """Write one export format to ``path``.
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown format name (the message lists the known ones).
+    """
+    try:
+        export = EXPORT_FORMATS[format_name]
+    except KeyError:
+        raise InvalidInputError(
+            f"unknown export format {format_name!r}; choose one of {', '.join(EXPORT_FORMATS)}"
+        ) from None
+    return export.write(dataset, Path(path))
+
+
+def write_all_exports(dataset: StudyDataset, directory: str | Path) -> dict[str, Path]:
+    """Write every format into ``directory`` (created if needed) plus ``SHA256SUMS``.
+
+    Returns the path of each format by name.
+    """
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    written = {
+        name: export.write(dataset, folder / export.filename)
+        for name, export in EXPORT_FORMATS.items()
+    }
+    sums = "".join(f"{sha256_file(p)}  {p.name}\n" for p in written.values())
+    (folder / "SHA256SUMS").write_text(sums, encoding="utf-8")
+    return written

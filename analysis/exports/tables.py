@@ -1,0 +1,280 @@
+"""The export tables: long answers, one row per participant, and the step log.
+
+Each builder returns a DataFrame; :mod:`analysis.exports.files` writes them. The wide table's
+column names are valid in SPSS, JASP and R, and its repeated measures follow the
+``<item>_s<session>`` convention (``trust_1_s1`` … ``trust_1_s4``) that JASP's repeated-measures
+ANOVA dialog and SPSS's GLM expect.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from analysis.adaptation import probability_matrix
+from analysis.dataset import PARTICIPANT_COLUMNS, StudyDataset
+from analysis.exports.names import session_column, spss_name
+from analysis.scoring import score_responses, score_scales
+
+__all__ = [
+    "LONG_COLUMNS",
+    "STEP_EXPORT_BASE_COLUMNS",
+    "WideColumn",
+    "long_table",
+    "steps_table",
+    "wide_columns",
+    "wide_table",
+]
+
+LONG_COLUMNS = ("participant", "condition", "instrument", "session", "item", "value", "scored")
+"""Columns of :func:`long_table`."""
+
+STEP_EXPORT_BASE_COLUMNS = (
+    "participant",
+    "condition",
+    "category",
+    "session",
+    "run",
+    "iteration",
+    "action",
+    "answer",
+    "reward",
+    "preferred_arm",
+    "p_preferred_before",
+    "p_preferred_after",
+)
+"""Columns of :func:`steps_table` before the per-arm probabilities ``p_before_<arm>`` /
+``p_after_<arm>`` (0-based arm index, like ``action``)."""
+
+
+@dataclass(frozen=True)
+class WideColumn:
+    """What one column of the wide table holds (the codebook is generated from these).
+
+    ``source`` is ``"participant"`` (code, condition, status, attributes), ``"raw"`` (an
+    answer), ``"reversed"`` (a reverse-keyed answer after scoring), or ``"scale"`` (a score).
+    """
+
+    name: str
+    source: Literal["participant", "raw", "reversed", "scale"]
+    key: str
+    instrument: str = ""
+    session: int | None = None
+
+
+def _sessions(dataset: StudyDataset) -> list[int]:
+    declared = set(range(1, dataset.protocol["sessions"] + 1))
+    observed = {int(s) for s in dataset.responses["session"].dropna().unique()}
+    return sorted(declared | observed)
+
+
+def _attribute_names(dataset: StudyDataset) -> dict[str, str]:
+    taken = set(PARTICIPANT_COLUMNS)
+    names = {}
+    for column in dataset.attribute_columns:
+        name = spss_name(str(column), taken)
+        taken.add(name)
+        names[column] = name
+    return names
+
+
+def wide_columns(dataset: StudyDataset) -> list[WideColumn]:
+    """The wide table's columns in order, with what each holds."""
+    columns = [WideColumn(c, "participant", c) for c in PARTICIPANT_COLUMNS]
+    columns += [WideColumn(n, "participant", c) for c, n in _attribute_names(dataset).items()]
+    sessions = _sessions(dataset)
+    for spec in dataset.instruments:
+        for source in ("raw", "reversed"):
+            for item in spec.items:
+                if source == "reversed" and not item.reverse:
+                    continue
+                base = item.key if source == "raw" else f"{item.key}_r"
+                if spec.per_session:
+                    columns += [
+                        WideColumn(session_column(base, s), source, item.key, spec.name, s)
+                        for s in sessions
+                    ]
+                else:
+                    columns.append(WideColumn(base, source, item.key, spec.name))
+    per_session = {i.name for i in dataset.instruments if i.per_session}
+    for scale in dataset.scales:
+        if scale.instrument in per_session:
+            columns += [
+                WideColumn(session_column(scale.name, s), "scale", scale.name, scale.instrument, s)
+                for s in sessions
+            ]
+        else:
+            columns.append(WideColumn(scale.name, "scale", scale.name, scale.instrument))
+    return columns
+
+
+def long_table(dataset: StudyDataset) -> pd.DataFrame:
+    """Every stored answer, raw and scored: one row per participant × instrument × session × item.
+
+    Columns :data:`LONG_COLUMNS`. ``scored`` applies the reverse key (e.g. ``trust_5``: 6 − x)
+    and is empty for categorical and free-text items. Rows are ordered by participant (as in
+    the participants table), then session (once-only instruments first), then instrument and
+    item in questionnaire order.
+    """
+    scored = score_responses(dataset.responses, dataset.instruments)
+    condition = pd.Series(
+        dataset.participants["condition"].to_numpy(),
+        index=dataset.participants["participant"].to_numpy(),
+    )
+    order_keys = {
+        (spec.name, item.key): (i, j)
+        for i, spec in enumerate(dataset.instruments)
+        for j, item in enumerate(spec.items)
+    }
+    rank = pd.Series(
+        [order_keys[(i, k)][0] * 10_000 + order_keys[(i, k)][1] for i, k in order_keys],
+        index=pd.MultiIndex.from_tuples(list(order_keys)),
+    )
+    item_rank = rank.reindex(pd.MultiIndex.from_arrays([scored["instrument"], scored["item"]]))
+    participant_rank = pd.Index(dataset.participants["participant"]).get_indexer(
+        scored["participant"]
+    )
+    session = scored["session"].to_numpy(dtype="float64", na_value=-1.0)
+    order = np.lexsort((item_rank.to_numpy(), session, participant_rank))
+    out = scored.iloc[order].reset_index(drop=True)
+    out["condition"] = out["participant"].map(condition).to_numpy()
+    return out[list(LONG_COLUMNS)]
+
+
+def wide_table(dataset: StudyDataset) -> pd.DataFrame:
+    """One row per participant: attributes, every answer, reverse-keyed answers and scores.
+
+    Column names (see :func:`wide_columns`): ``participant``, ``condition``, ``status``,
+    participant attributes (SPSS-safe names), once-only answers by item key (``tipi_1``),
+    per-session answers as ``<item>_s<session>`` (``trust_1_s1``), reverse-keyed answers after
+    scoring as ``<item>_r`` / ``<item>_r_s<session>`` (``trust_5_r_s1``), and scale scores by
+    scale name (``tipi_extraversion``, ``nars_s1_sum``). Every declared item and session has a
+    column even when nobody answered it, so files of the same protocol line up.
+    """
+    participants = dataset.participants.reset_index(drop=True)
+    attributes = _attribute_names(dataset)
+    columns = wide_columns(dataset)
+    n = len(participants)
+    scored = score_responses(dataset.responses, dataset.instruments)
+    row = pd.Index(participants["participant"]).get_indexer(scored["participant"])
+    session = scored["session"].to_numpy(dtype="float64", na_value=0.0).astype(np.int64)
+
+    cells: dict[tuple[str, str, int], np.ndarray] = {}
+    key_codes, keys = pd.factorize(scored["item"])
+    combo = key_codes.astype(np.int64) * 10_000 + session
+    order = np.argsort(combo, kind="stable")
+    uniq, starts = np.unique(combo[order], return_index=True)
+    raw = scored["value"].to_numpy(dtype=object)
+    scored_values = scored["scored"].to_numpy(dtype=float)
+    for code, member in zip(uniq, np.split(order, starts[1:]), strict=True):
+        key, sess = str(keys[code // 10_000]), int(code % 10_000)
+        cells[("raw", key, sess)] = _column(n, row[member], raw[member])
+        cells[("reversed", key, sess)] = _column(n, row[member], scored_values[member])
+
+    scores = score_scales(dataset.responses, dataset.scales)
+    score_row = pd.Index(participants["participant"]).get_indexer(scores["participant"])
+    score_session = scores["session"].to_numpy(dtype="float64", na_value=0.0).astype(np.int64)
+    for (name, sess), idx in scores.groupby(
+        [scores["scale"].to_numpy(), score_session], sort=False
+    ).indices.items():
+        cells[("scale", str(name), int(sess))] = _column(
+            n, score_row[idx], scores["score"].to_numpy(float)[idx]
+        )
+
+    kinds = {
+        (spec.name, item.key): item.kind for spec in dataset.instruments for item in spec.items
+    }
+    data: dict[str, Any] = {}
+    for column in columns:
+        if column.source == "participant":
+            source = next((c for c, name in attributes.items() if name == column.name), column.key)
+            data[column.name] = participants[source].to_numpy()
+            continue
+        values = cells.get((column.source, column.key, column.session or 0))
+        kind = "numeric" if column.source != "raw" else kinds[(column.instrument, column.key)]
+        if values is None:
+            values = np.full(n, None, dtype=object)
+        data[column.name] = _as_column(values, kind)
+    return pd.DataFrame(data)
+
+
+def _column(n: int, rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    out = np.full(n, None, dtype=object) if values.dtype == object else np.full(n, np.nan)
+    out[rows] = values
+    return out
+
+
+def _as_column(values: np.ndarray, kind: str) -> Any:
+    """Numbers for numeric items and scores, codes as numbers when they all are, text as str."""
+    series = pd.Series(values, dtype=object)
+    if kind in ("likert", "numeric"):
+        return pd.to_numeric(series, errors="coerce").to_numpy(float)
+    if kind == "categorical":
+        converted = pd.to_numeric(series, errors="coerce")
+        if converted.notna().sum() == series.notna().sum():
+            return converted.to_numpy(float)
+    return np.array([None if pd.isna(v) else str(v) for v in values], dtype=object)
+
+
+def steps_table(dataset: StudyDataset) -> pd.DataFrame:
+    """The adaptation step log with one column per arm probability.
+
+    Columns :data:`STEP_EXPORT_BASE_COLUMNS`, then ``p_before_0`` … ``p_before_<K−1>`` and
+    ``p_after_0`` … (K = the largest number of arms; categories with fewer arms leave the rest
+    empty). ``preferred_arm`` is the protocol's preferred question of the row's category and
+    ``p_preferred_before/after`` its probability. Rows are ordered by participant (as in the
+    participants table), category (protocol order) and iteration; ``condition`` is taken from
+    the participants table.
+    """
+    steps = dataset.steps
+    preferred = dataset.protocol["preferred_arms"]
+    if steps.empty:
+        return pd.DataFrame(columns=list(STEP_EXPORT_BASE_COLUMNS))
+    participant_rank = pd.Index(dataset.participants["participant"]).get_indexer(
+        steps["participant"]
+    )
+    category_rank = pd.Index(list(preferred)).get_indexer(steps["category"])
+    order = np.lexsort((steps["iteration"].to_numpy(), category_rank, participant_rank))
+    steps = steps.iloc[order].reset_index(drop=True)
+    condition = pd.Series(
+        dataset.participants["condition"].to_numpy(),
+        index=dataset.participants["participant"].to_numpy(),
+    )
+    out = pd.DataFrame(
+        {
+            "participant": steps["participant"].to_numpy(),
+            "condition": steps["participant"].map(condition).to_numpy(),
+            "category": steps["category"].to_numpy(),
+            "session": steps["session"].to_numpy(),
+            "run": steps["run"].to_numpy(),
+            "iteration": steps["iteration"].to_numpy(),
+            "action": steps["action"].to_numpy(),
+            "answer": steps["answer"].astype(bool).astype(int).to_numpy(),
+            "reward": steps["reward"].to_numpy(),
+            "preferred_arm": steps["category"].map(preferred).to_numpy(),
+        }
+    )
+    blocks = []
+    categories = steps["category"].to_numpy()
+    for category in pd.unique(categories):
+        rows = np.flatnonzero(categories == category)
+        before = probability_matrix(steps["probs_before"].to_numpy()[rows], "probs_before")
+        after = probability_matrix(steps["probs_after"].to_numpy()[rows], "probs_after")
+        blocks.append((rows, before, after))
+    n_arms = max(before.shape[1] for _, before, _ in blocks)
+    p_before = np.full((len(steps), n_arms), np.nan)
+    p_after = np.full((len(steps), n_arms), np.nan)
+    for rows, before, after in blocks:
+        p_before[rows, : before.shape[1]] = before
+        p_after[rows, : after.shape[1]] = after
+    arm = out["preferred_arm"].to_numpy(dtype=np.int64)
+    out["p_preferred_before"] = p_before[np.arange(len(steps)), arm]
+    out["p_preferred_after"] = p_after[np.arange(len(steps)), arm]
+    for j in range(n_arms):
+        out[f"p_before_{j}"] = p_before[:, j]
+    for j in range(n_arms):
+        out[f"p_after_{j}"] = p_after[:, j]
+    return out

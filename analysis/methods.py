@@ -1,0 +1,151 @@
+"""The methods section of the report, written from the protocol, sample and analysis settings.
+
+A reviewer should be able to read what was done without opening the protocol file, and the
+text must never drift from the numbers: everything here is generated from the same objects the
+statistics use.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from analysis.dataset import ProtocolSummary
+from analysis.instruments import InstrumentSpec
+
+__all__ = ["analysis_paragraph", "design_paragraph", "participants_paragraph"]
+
+_NUMBER_WORDS = {
+    1: "one",
+    2: "two",
+    3: "three",
+    4: "four",
+    5: "five",
+    6: "six",
+    7: "seven",
+    8: "eight",
+    9: "nine",
+}
+
+
+def _count(n: int) -> str:
+    return _NUMBER_WORDS.get(n, str(n))
+
+
+_IRREGULAR = {"category": "categories"}
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{_count(n)} " + (word if n == 1 else _IRREGULAR.get(word, word + "s"))
+
+
+def _join(parts: Sequence[str]) -> str:
+    if len(parts) <= 1:
+        return "".join(parts)
+    return ", ".join(parts[:-1]) + " and " + parts[-1]
+
+
+def participants_paragraph(protocol: ProtocolSummary, sample: Mapping[str, Any]) -> str:
+    """Sample size per condition, gender and age, e.g. "N = 24 participants (12 in C1 …)"."""
+    labels = {c["code"]: c["label"] for c in protocol["conditions"]}
+    by_condition = sample.get("by_condition", {})
+    groups = [f"{code}, {labels[code]}: {by_condition.get(code, 0)}" for code in labels]
+    text = f"N = {sample.get('n', 0)} participants were analysed ({'; '.join(groups)})"
+    gender = sample.get("gender")
+    if gender:
+        text += "; " + ", ".join(f"{n} {label.lower()}" for label, n in gender.items())
+    age = sample.get("age")
+    if age:
+        sd = age["sd"]
+        sd_text = f", SD = {sd:.2f}" if isinstance(sd, float) and math.isfinite(sd) else ""
+        text += (
+            f"; aged {age['min']:g}–{age['max']:g} years (M = {age['mean']:.2f}{sd_text}"
+            + (f", n = {age['n']}" if age["n"] != sample.get("n") else "")
+            + ")"
+        )
+    return text + "."
+
+
+def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[InstrumentSpec]) -> str:
+    """Conditions, allocation, the adaptation schedule and the questionnaires."""
+    conditions = protocol["conditions"]
+    sentences = []
+    allocation = protocol.get("allocation")
+    names = _join([f"{c['code']} ({c['label']})" for c in conditions])
+    sentences.append(
+        f"Participants were allocated to {_plural(len(conditions), 'condition')}, {names}"
+        + (f", by {allocation}" if allocation else "")
+        + "."
+    )
+    described = [f"in {c['code']}, {c['description']}" for c in conditions if c.get("description")]
+    if described:
+        text = "; ".join(described)
+        sentences.append(text[0].upper() + text[1:] + ".")
+    categories = protocol["categories"]
+    arms = sorted({len(q) for q in categories.values()})
+    arms_text = " or ".join(str(a) for a in arms)
+    sessions, runs = protocol["sessions"], protocol["runs_per_session"]
+    familiarisation = protocol.get("familiarisation_runs", 1)
+    schedule = (
+        f"After {_plural(familiarisation, 'familiarisation run')} not used for adaptation, "
+        if familiarisation
+        else ""
+    )
+    sentences.append(
+        f"{schedule}each participant completed {_plural(sessions, 'session')} of "
+        f"{_plural(runs, 'run')}; in every run the robot asked one of {arms_text} questions in "
+        f"each of {_plural(len(categories), 'category')} ({_join(list(categories))}), chosen "
+        f"by a separate learner per category, giving {sessions * runs} adaptation iterations "
+        "per category."
+    )
+    if protocol.get("feedback"):
+        sentences.append(f"Answers were turned into rewards as follows: {protocol['feedback']}.")
+    per_session = [i for i in instruments if i.per_session]
+    once = [i for i in instruments if not i.per_session]
+    for spec in per_session:
+        first = spec.items[0]
+        scale = (
+            f"{first.maximum - first.minimum + 1:g}-point"
+            if first.minimum is not None and first.maximum is not None
+            else ""
+        )
+        reverse = [item.key for item in spec.items if item.reverse]
+        sentences.append(
+            f"After each session participants completed the questionnaire “{spec.label}” "
+            f"({_plural(len(spec.items), 'item')}, {scale} scale"
+            + (f"; reverse-keyed: {', '.join(reverse)}" if reverse else "")
+            + ")."
+        )
+    if once:
+        sentences.append(
+            "Before the study they completed: " + "; ".join(spec.label for spec in once) + "."
+        )
+    return " ".join(sentences)
+
+
+def analysis_paragraph(
+    protocol: ProtocolSummary, n_conditions: int, ss_type: int, confidence: float
+) -> str:
+    """How every statistic was computed (type of sums of squares, sphericity, exclusions)."""
+    level = f"{confidence:.0%}"
+    ss_text = (
+        "type III sums of squares (as SPSS, JASP, jamovi and R's afex report by default)"
+        if ss_type == 3
+        else "type II sums of squares (as pingouin and R's car report by default)"
+    )
+    return (
+        f"Each per-session item and scale was analysed with a {n_conditions} (condition, "
+        f"between subjects) × {protocol['sessions']} (session, within subjects) mixed ANOVA "
+        f"with {ss_text}; reverse-keyed items were reverse-scored first. Participants without a "
+        "value in every session were excluded from that analysis (complete cases), and are "
+        "listed below with the reason. Sphericity was tested with Mauchly's test; when it was "
+        "violated (p < .05) the Greenhouse–Geisser corrected degrees of freedom and p value are "
+        "reported, and both are always given in the tables. Effect sizes are partial η² (ηp²) "
+        "and generalised η² (ηG²). Post-hoc tests compare sessions within each condition "
+        "(paired t tests) and conditions within each session (independent t tests, Welch's "
+        "when group sizes differ), Holm-corrected within each family; Cohen's d uses the pooled "
+        f"SD (independent) or the average SD (paired). Error bars and bands are {level} t "
+        "confidence intervals. Every p value is computed from its test statistic and degrees "
+        "of freedom."
+    )
