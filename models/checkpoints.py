@@ -1,0 +1,352 @@
+"""Meta-policy checkpoints: writing, loading with integrity checks, and finding the shipped ones.
+
+A checkpoint is a directory of four files::
+
+    weights.json     everything a learner needs: the network, the observation, the update rule
+                     and its meta-learned step sizes, baselines and damping (hashed)
+    weights.sha256   "<hex digest>  weights.json", as ``sha256sum`` writes it
+    config.json      the training arguments (provenance; not needed to run the learner)
+    metrics.json     what training measured (validation figures, wall time)
+
+The weights are JSON, not ``.npz``: Python writes every float64 as the shortest text that reads back
+to the same bits, so a checkpoint loads exactly, and the file's bytes depend only on the numbers —
+``np.savez`` stamps the current time into its zip entries, which would make every rerun's hash
+differ. Only ``weights.json`` is hashed: ``metrics.json`` records wall-clock times, which no rerun
+reproduces. A learner's state records the hash, so a participant's learner can never silently
+continue under different weights.
+
+Loading uses numpy only: the web app loads checkpoints on its request path and must not import
+torch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from models.learners.mlp_policy import PARAM_NAMES, Params, UpdateRule, param_shapes
+
+Mode = Literal["online", "paper"]
+MODES: tuple[Mode, Mode] = ("online", "paper")
+
+WEIGHTS_FILE = "weights.json"
+HASH_FILE = "weights.sha256"
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.json"
+FORMAT = "trustlab-meta-policy"
+FORMAT_VERSION = 1
+
+PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
+"""Where the shipped checkpoints live: ``<mode>/<category>-k<K>/`` and ``<mode>/generic-k<K>/``."""
+
+GENERIC = "generic"
+"""The category name of checkpoints trained for any category with K questions."""
+
+OBSERVATION_DIM = 8
+"""Length of the fixed per-category observation vector."""
+
+
+def observation_for(category: str, dim: int = OBSERVATION_DIM) -> np.ndarray:
+    """The fixed observation of ``category``: standard normal entries seeded by its name.
+
+    Derived from the SHA-256 of the name, so the same category always gets the same vector on every
+    machine and Python version (``hash()`` is salted per process and would not). It is non-zero and
+    not constant, so with ``tanh`` units every first-layer weight receives gradient.
+    """
+    if not category:
+        raise ValueError("observation: the category name must not be empty")
+    seed = int.from_bytes(hashlib.sha256(category.encode("utf-8")).digest()[:8], "little")
+    return np.random.default_rng(seed).standard_normal(dim)
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A loaded, verified meta-policy checkpoint.
+
+    Attributes
+    ----------
+    path
+        The checkpoint directory.
+    sha256
+        Hex SHA-256 of ``weights.json``: the identity of these weights.
+    n_arms, category, mode, rule
+        K, the category it was trained for (``"generic"`` for any), ``online`` or ``paper``, and the
+        online update rule (``natural`` or ``gradient``).
+    observation
+        The fixed observation vector the network reads.
+    params
+        The network's weights (read-only arrays).
+    step_sizes, baselines
+        The step size and reward baseline of the 1st, 2nd, … answer's update; answers beyond the
+        trained horizon reuse the last entry.
+    damping
+        λ of the natural-gradient step.
+    config, metrics
+        The training arguments and the figures training measured.
+    """
+
+    path: Path
+    sha256: str
+    n_arms: int
+    category: str
+    mode: str
+    rule: UpdateRule
+    observation: np.ndarray
+    params: Params
+    step_sizes: np.ndarray
+    baselines: np.ndarray
+    damping: float
+    config: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def hidden(self) -> int:
+        """Number of hidden units."""
+        return int(self.params["b1"].shape[0])
+
+    @property
+    def horizon(self) -> int:
+        """How many answers the step sizes were meta-learned for."""
+        return int(self.step_sizes.shape[0])
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _dump(obj: Any) -> bytes:
+    return (json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False) + "\n").encode()
+
+
+def write_checkpoint(
+    directory: Path,
+    *,
+    n_arms: int,
+    category: str,
+    mode: str,
+    rule: UpdateRule,
+    observation: np.ndarray,
+    params: Params,
+    step_sizes: np.ndarray,
+    baselines: np.ndarray,
+    damping: float,
+    config: dict[str, Any],
+    metrics: dict[str, Any],
+) -> Checkpoint:
+    """Write a checkpoint directory (created if needed) and return it loaded back and verified."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    weights: dict[str, Any] = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "n_arms": int(n_arms),
+        "category": category,
+        "mode": mode,
+        "rule": rule,
+        "observation": np.asarray(observation, dtype=np.float64).tolist(),
+        "step_sizes": np.asarray(step_sizes, dtype=np.float64).tolist(),
+        "baselines": np.asarray(baselines, dtype=np.float64).tolist(),
+        "damping": float(damping),
+    }
+    for name in PARAM_NAMES:
+        weights[name] = np.asarray(params[name], dtype=np.float64).tolist()
+    data = _dump(weights)
+    (directory / WEIGHTS_FILE).write_bytes(data)
+    (directory / HASH_FILE).write_text(f"{_digest(data)}  {WEIGHTS_FILE}\n")
+    (directory / CONFIG_FILE).write_text(json.dumps(config, indent=2, sort_keys=True) + "\n")
+    (directory / METRICS_FILE).write_text(json.dumps(metrics, indent=2, sort_keys=True) + "\n")
+    return load_checkpoint(directory, expected_arms=n_arms)
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"checkpoint file {path} is missing") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"checkpoint file {path} is not valid JSON: {exc}") from None
+
+
+def _array(weights: dict[str, Any], key: str, shape: tuple[int, ...], where: Path) -> np.ndarray:
+    try:
+        value = np.asarray(weights[key], dtype=np.float64)
+    except KeyError:
+        raise ValueError(f"checkpoint {where} has no {key!r}") from None
+    except (TypeError, ValueError):
+        raise ValueError(f"checkpoint {where}: {key!r} is not an array of numbers") from None
+    if value.shape != shape:
+        raise ValueError(f"checkpoint {where}: {key!r} has shape {value.shape}, expected {shape}")
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"checkpoint {where}: {key!r} contains NaN or infinite numbers")
+    value.setflags(write=False)
+    return value
+
+
+def _int(weights: dict[str, Any], key: str, where: Path) -> int:
+    value = weights.get(key)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"checkpoint {where}: {key!r} must be an integer, got {value!r}")
+    return value
+
+
+def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Checkpoint:
+    """Load and verify the checkpoint in directory ``path`` (or its ``weights.json``).
+
+    Raises
+    ------
+    ValueError
+        Naming the offending file, if a file is missing or unreadable, the hash does not match,
+        an array has the wrong shape or a non-finite number, or the checkpoint is for another K than
+        ``expected_arms``.
+    """
+    path = Path(path)
+    directory = path.parent if path.name == WEIGHTS_FILE else path
+    if not directory.is_dir():
+        raise ValueError(f"checkpoint {directory} does not exist or is not a directory")
+    weights_path = directory / WEIGHTS_FILE
+    hash_path = directory / HASH_FILE
+    try:
+        data = weights_path.read_bytes()
+    except OSError:
+        raise ValueError(f"checkpoint file {weights_path} is missing or unreadable") from None
+    try:
+        recorded = hash_path.read_text(encoding="utf-8").split()
+    except (OSError, UnicodeDecodeError):
+        raise ValueError(f"checkpoint hash file {hash_path} is missing or unreadable") from None
+    if not recorded or len(recorded[0]) != 64:
+        raise ValueError(f"checkpoint hash file {hash_path} does not hold a SHA-256 digest")
+    digest = _digest(data)
+    if digest != recorded[0].lower():
+        raise ValueError(
+            f"checkpoint file {weights_path} does not match its hash in {hash_path} "
+            f"(sha256 {digest[:12]}…, recorded {recorded[0][:12]}…): corrupted or edited"
+        )
+    try:
+        weights = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"checkpoint file {weights_path} is not valid JSON: {exc}") from None
+    if not isinstance(weights, dict) or weights.get("format") != FORMAT:
+        raise ValueError(f"checkpoint file {weights_path} is not a {FORMAT} file")
+    if weights.get("version") != FORMAT_VERSION:
+        raise ValueError(
+            f"checkpoint file {weights_path} has format version {weights.get('version')!r}, "
+            f"this code reads version {FORMAT_VERSION}"
+        )
+    n_arms = _int(weights, "n_arms", weights_path)
+    if n_arms < 2:
+        raise ValueError(f"checkpoint {weights_path}: n_arms must be at least 2, got {n_arms}")
+    if expected_arms is not None and n_arms != expected_arms:
+        raise ValueError(
+            f"checkpoint {weights_path} is for {n_arms} questions, but this category has "
+            f"{expected_arms}"
+        )
+    rule = weights.get("rule")
+    if rule not in ("natural", "gradient"):
+        raise ValueError(f"checkpoint {weights_path}: unknown update rule {rule!r}")
+    mode = weights.get("mode")
+    if mode not in MODES:
+        raise ValueError(f"checkpoint {weights_path}: unknown mode {mode!r}")
+    category = weights.get("category")
+    if not isinstance(category, str) or not category:
+        raise ValueError(f"checkpoint {weights_path}: missing category name")
+    try:
+        obs_dim = len(weights["observation"])
+        hidden = len(weights["b1"])
+        horizon = len(weights["step_sizes"])
+    except (KeyError, TypeError):
+        raise ValueError(f"checkpoint {weights_path} lacks observation, b1 or step_sizes") from None
+    if horizon < 1:
+        raise ValueError(f"checkpoint {weights_path}: step_sizes is empty")
+    observation = _array(weights, "observation", (obs_dim,), weights_path)
+    params = {
+        name: _array(weights, name, shape, weights_path)
+        for name, shape in param_shapes(obs_dim, hidden, n_arms).items()
+    }
+    step_sizes = _array(weights, "step_sizes", (horizon,), weights_path)
+    baselines = _array(weights, "baselines", (horizon,), weights_path)
+    if np.any(step_sizes <= 0):
+        raise ValueError(f"checkpoint {weights_path}: step sizes must be positive")
+    damping = weights.get("damping")
+    if (
+        isinstance(damping, bool)
+        or not isinstance(damping, int | float)
+        or not math.isfinite(damping)
+        or damping <= 0
+    ):
+        raise ValueError(f"checkpoint {weights_path}: damping must be a positive number")
+    config = _read_json(directory / CONFIG_FILE)
+    metrics = _read_json(directory / METRICS_FILE)
+    if not isinstance(config, dict) or not isinstance(metrics, dict):
+        raise ValueError(f"checkpoint {directory}: config.json and metrics.json must hold objects")
+    return Checkpoint(
+        path=directory,
+        sha256=digest,
+        n_arms=n_arms,
+        category=category,
+        mode=mode,
+        rule=rule,
+        observation=observation,
+        params=params,
+        step_sizes=step_sizes,
+        baselines=baselines,
+        damping=float(damping),
+        config=config,
+        metrics=metrics,
+    )
+
+
+def checkpoint_name(category: str, arms: int) -> str:
+    """The directory name of a checkpoint: ``<category>-k<K>``."""
+    return f"{category}-k{arms}"
+
+
+def available_arms(mode: str = "online", directory: Path | None = None) -> list[int]:
+    """The K for which a generic checkpoint of ``mode`` ships (sorted)."""
+    root = (PRETRAINED_DIR if directory is None else Path(directory)) / mode
+    found = []
+    for candidate in root.glob(f"{GENERIC}-k*"):
+        suffix = candidate.name.removeprefix(f"{GENERIC}-k")
+        if suffix.isdigit() and (candidate / WEIGHTS_FILE).is_file():
+            found.append(int(suffix))
+    return sorted(found)
+
+
+def shipped_checkpoint(
+    arms: int,
+    category: str | None = None,
+    mode: str = "online",
+    directory: Path | None = None,
+) -> Path:
+    """The checkpoint directory to use for ``category`` with ``arms`` questions.
+
+    The category's own checkpoint when one ships for that K (its questions' meta-training), else
+    the generic checkpoint for K. ``directory`` replaces the shipped ``models/pretrained`` (a lab's
+    own retrained set, same layout).
+
+    Raises
+    ------
+    ValueError
+        If ``mode`` is unknown or no checkpoint exists for this K (the message lists those that do).
+    """
+    if mode not in MODES:
+        raise ValueError(f"unknown checkpoint mode {mode!r}: use 'online' or 'paper'")
+    root = (PRETRAINED_DIR if directory is None else Path(directory)) / mode
+    names = [checkpoint_name(category, arms)] if category else []
+    names.append(checkpoint_name(GENERIC, arms))
+    for name in names:
+        if (root / name / WEIGHTS_FILE).is_file():
+            return root / name
+    known = available_arms(mode, directory)
+    listing = ", ".join(str(k) for k in known) if known else "none"
+    raise ValueError(
+        f"no {mode} meta-policy checkpoint for {arms} questions"
+        + (f" (category {category!r})" if category else "")
+        + f" in {root}; generic checkpoints exist for K = {listing}. "
+        "Train one with `trustlab pretrain` and set the protocol's checkpoint path."
+    )

@@ -1,0 +1,220 @@
+"""The meta-learned policy (C2): a pre-trained network that adapts to one participant per answer.
+
+The learner starts from a checkpoint's weights and, after every answer, takes the single
+policy-gradient step that meta-training optimised for (see :mod:`models.learners.mlp_policy`): with
+an ``online`` checkpoint a damped natural-gradient step whose step size, damping and reward baseline
+for the 1st, 2nd, … answer were meta-learned with it. There is no separate learning rate to tune;
+``learning_rate`` exists only to override the learned step sizes for experiments.
+
+Numpy only: the web app builds one of these on every answer's request path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.checkpoints import Checkpoint, load_checkpoint
+from models.learners.base import (
+    check_action,
+    check_reward,
+    check_state_header,
+    sample_index,
+)
+from models.learners.mlp_policy import (
+    PARAM_NAMES,
+    Params,
+    init_params,
+    param_shapes,
+    probabilities,
+    update_params,
+)
+
+_KIND = "meta"
+_VERSION = 1
+
+
+class MetaPolicyLearner:
+    """One participant's copy of a meta-learned policy.
+
+    Parameters
+    ----------
+    checkpoint
+        A verified checkpoint (:func:`models.checkpoints.load_checkpoint`).
+    learning_rate
+        If given, every answer's step size is this instead of the meta-learned ones.
+    params
+        Starting weights; the checkpoint's when omitted (``random_init`` passes a fresh draw).
+    """
+
+    def __init__(
+        self,
+        checkpoint: Checkpoint,
+        *,
+        learning_rate: float | None = None,
+        params: Params | None = None,
+    ) -> None:
+        if learning_rate is not None and not (np.isfinite(learning_rate) and learning_rate > 0):
+            raise ValueError(f"learning_rate must be a positive number, got {learning_rate!r}")
+        self.checkpoint = checkpoint
+        self.n_arms = checkpoint.n_arms
+        self.learning_rate = None if learning_rate is None else float(learning_rate)
+        self._random = params is not None
+        start = checkpoint.params if params is None else params
+        self._initial: Params = {name: np.array(start[name], dtype=np.float64) for name in start}
+        self._params: Params = dict(self._initial)
+        self._answers = 0
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        checkpoint_or_path: Checkpoint | Path | str,
+        expected_arms: int | None = None,
+        *,
+        learning_rate: float | None = None,
+    ) -> MetaPolicyLearner:
+        """A learner at the checkpoint's weights, loading (and verifying) it if given a path."""
+        if isinstance(checkpoint_or_path, Checkpoint):
+            checkpoint = checkpoint_or_path
+            if expected_arms is not None and checkpoint.n_arms != expected_arms:
+                raise ValueError(
+                    f"checkpoint {checkpoint.path} is for {checkpoint.n_arms} questions, "
+                    f"expected {expected_arms}"
+                )
+        else:
+            checkpoint = load_checkpoint(checkpoint_or_path, expected_arms=expected_arms)
+        return cls(checkpoint, learning_rate=learning_rate)
+
+    @classmethod
+    def random_init(cls, checkpoint: Checkpoint, rng: np.random.Generator) -> MetaPolicyLearner:
+        """The same network and update rule as ``checkpoint``, from a random initialisation.
+
+        The Appendix's comparison: what the update rule achieves without meta-learned weights.
+        """
+        params = init_params(
+            rng, checkpoint.observation.shape[0], checkpoint.hidden, checkpoint.n_arms
+        )
+        return cls(checkpoint, params=params)
+
+    @property
+    def answers(self) -> int:
+        """How many answers the learner has adapted to."""
+        return self._answers
+
+    def reset(self) -> None:
+        """Forget every answer: back to the starting weights."""
+        self._params = dict(self._initial)
+        self._answers = 0
+
+    def step_size(self, answer_index: int) -> float:
+        """The step size of the update after answer number ``answer_index`` (0-based)."""
+        if self.learning_rate is not None:
+            return self.learning_rate
+        sizes = self.checkpoint.step_sizes
+        return float(sizes[min(answer_index, len(sizes) - 1)])
+
+    def baseline(self, answer_index: int) -> float:
+        """The reward baseline of the update after answer number ``answer_index`` (0-based)."""
+        baselines = self.checkpoint.baselines
+        return float(baselines[min(answer_index, len(baselines) - 1)])
+
+    def probabilities(self) -> np.ndarray:
+        """The policy's probability of asking each question (float64, sums to one)."""
+        return probabilities(self._params, self.checkpoint.observation)
+
+    def select(self, rng: np.random.Generator) -> int:
+        """Draw the next question from :meth:`probabilities` using one uniform from ``rng``."""
+        return sample_index(self.probabilities(), rng)
+
+    def update(self, action: int, reward: float) -> None:
+        """Take the one-answer policy-gradient step for ``reward`` on question ``action``.
+
+        The reward enters raw (minus the meta-learned baseline), not clipped: meta-training saw the
+        simulated rewards N(μ, σ²) unclipped, and a study's reward map gives 0 or 1.
+
+        Raises
+        ------
+        ValueError
+            If ``action`` is out of range or ``reward`` is NaN or infinite.
+        """
+        a = check_action(action, self.n_arms)
+        r = check_reward(reward)
+        new = update_params(
+            self._params,
+            self.checkpoint.observation,
+            np.asarray(a),
+            np.asarray(r),
+            step_size=self.step_size(self._answers),
+            baseline=self.baseline(self._answers),
+            damping=self.checkpoint.damping,
+            rule=self.checkpoint.rule,
+        )
+        if not all(np.all(np.isfinite(new[name])) for name in PARAM_NAMES):
+            raise ValueError(f"update with reward {r!r} made the policy's weights non-finite")
+        self._params = new
+        self._answers += 1
+
+    def state_dict(self) -> dict[str, Any]:
+        """The learner's weights and answer count as plain JSON, tied to the checkpoint's hash.
+
+        Floats are written as Python floats, whose JSON text reads back to the same bits.
+        """
+        return {
+            "kind": _KIND,
+            "version": _VERSION,
+            "n_arms": self.n_arms,
+            "checkpoint_sha256": self.checkpoint.sha256,
+            "init": "random" if self._random else "checkpoint",
+            "learning_rate": self.learning_rate,
+            "answers": self._answers,
+            "params": {name: self._params[name].tolist() for name in PARAM_NAMES},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a state from :meth:`state_dict` of a learner on the same checkpoint.
+
+        Raises
+        ------
+        ValueError
+            If the state is for another kind of learner, K, checkpoint or learning rate, or its
+            weights have the wrong shape or non-finite numbers.
+        """
+        check_state_header(state, _KIND, self.n_arms)
+        if state.get("version") != _VERSION:
+            raise ValueError(f"meta state version {state.get('version')!r} is not {_VERSION}")
+        recorded = state.get("checkpoint_sha256")
+        if recorded != self.checkpoint.sha256:
+            raise ValueError(
+                f"meta state belongs to checkpoint sha256 {str(recorded)[:12]}…, not to "
+                f"{self.checkpoint.path} (sha256 {self.checkpoint.sha256[:12]}…)"
+            )
+        if state.get("learning_rate") != self.learning_rate:
+            raise ValueError(
+                f"meta state was made with learning_rate={state.get('learning_rate')!r}, this "
+                f"learner has {self.learning_rate!r}"
+            )
+        try:
+            answers = int(state["answers"])
+            raw = state["params"]
+            shapes = param_shapes(
+                self.checkpoint.observation.shape[0], self.checkpoint.hidden, self.n_arms
+            )
+            params = {name: np.asarray(raw[name], dtype=np.float64) for name in PARAM_NAMES}
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"meta state is malformed: {exc}") from None
+        for name, shape in shapes.items():
+            if params[name].shape != shape or not np.all(np.isfinite(params[name])):
+                raise ValueError(f"meta state: {name} must be {shape} finite numbers")
+        if answers < 0:
+            raise ValueError(f"meta state has a negative answer count {answers}")
+        self._params = params
+        self._answers = answers
+        self._random = state.get("init") == "random"
+
+    def __repr__(self) -> str:
+        return (
+            f"MetaPolicyLearner(n_arms={self.n_arms}, checkpoint={self.checkpoint.sha256[:12]}, "
+            f"answers={self._answers})"
+        )

@@ -1,0 +1,143 @@
+"""The C2 policy network and its one-answer update, in numpy, batched over leading dimensions.
+
+The policy is an MLP with one hidden layer over a fixed observation ``x``, one per category::
+
+    h = tanh(W1 x + b1)        logits = W2 h + b2        π = softmax(logits)
+
+Because ``x`` never changes, the network is "just" a parametrisation of a distribution over K
+questions; what matters is how that parametrisation moves under a gradient step, which is what
+meta-training shapes. ``tanh`` (not ReLU) and a non-zero ``x`` keep every weight on the gradient
+path: with a zero or constant-one observation and ReLU units, only the output bias of the
+reference MAML code ever learned.
+
+One answer ``(a, r)`` gives the policy-gradient direction ``g = Jᵀ s`` with ``J = ∂logits/∂θ``
+and ``s = (e_a − π)(r − b)``: raw reward minus a baseline ``b``, since the normalised advantage
+of a single answer is always zero. Two update rules use it:
+
+``natural``
+    ``θ ← θ + α (F + λI)⁻¹ g`` with ``F = Jᵀ (diag π − ππᵀ) J``, the Fisher information of
+    the softmax policy. ``F`` has rank < K, so by the push-through identity
+    ``(JᵀMJ + λI)⁻¹ Jᵀ = Jᵀ (M JJᵀ + λI)⁻¹`` the step costs one K × K solve, and ``JJᵀ`` has
+    a closed form for this network (see :func:`logit_gram`). A natural step moves the
+    *distribution* by an amount that does not depend on how the weights happen to be scaled,
+    which is why a single answer can move it far enough.
+``gradient``
+    ``θ ← θ + α g``: the plain step, used by ``paper``-mode checkpoints (the paper's inner loop).
+
+Everything broadcasts over leading dimensions, so the learner (one participant) and the simulations
+(thousands at once) run the same code. The torch copy used in meta-training lives in
+``models/pretrain.py``; a test checks the two agree.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+Params = dict[str, np.ndarray]
+"""The network's weights: ``W1`` (…, H, D), ``b1`` (…, H), ``W2`` (…, K, H), ``b2`` (…, K)."""
+
+PARAM_NAMES: tuple[str, str, str, str] = ("W1", "b1", "W2", "b2")
+"""The network's weight arrays, in a fixed order (flattening, state dicts, checkpoints)."""
+
+UpdateRule = Literal["natural", "gradient"]
+
+HIDDEN_UNITS = 100
+"""The issue's network: one hidden layer of 100 units."""
+
+
+def param_shapes(obs_dim: int, hidden: int, n_arms: int) -> dict[str, tuple[int, ...]]:
+    """The shape of each weight array for one network (no batch dimensions)."""
+    return {
+        "W1": (hidden, obs_dim),
+        "b1": (hidden,),
+        "W2": (n_arms, hidden),
+        "b2": (n_arms,),
+    }
+
+
+def init_params(rng: np.random.Generator, obs_dim: int, hidden: int, n_arms: int) -> Params:
+    """Draw a network's weights as torch's ``nn.Linear`` does: U(−1/√fan_in, 1/√fan_in).
+
+    Meta-training starts from this draw and ``random_init`` learners use it, so the Appendix's
+    "random initialisation" comparison starts where meta-training started.
+    """
+    params: Params = {}
+    for name, shape in param_shapes(obs_dim, hidden, n_arms).items():
+        fan_in = obs_dim if name in ("W1", "b1") else hidden
+        bound = 1.0 / np.sqrt(fan_in)
+        params[name] = rng.uniform(-bound, bound, size=shape)
+    return params
+
+
+def hidden_and_logits(params: Params, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the hidden activations ``h`` (…, H) and the logits (…, K)."""
+    h = np.tanh(params["W1"] @ obs + params["b1"])
+    logits = (params["W2"] @ h[..., None])[..., 0] + params["b2"]
+    return h, logits
+
+
+def softmax(logits: np.ndarray) -> np.ndarray:
+    """Softmax over the last axis, shifted by the maximum so no exponent overflows."""
+    z = np.exp(logits - logits.max(axis=-1, keepdims=True))
+    return z / z.sum(axis=-1, keepdims=True)
+
+
+def probabilities(params: Params, obs: np.ndarray) -> np.ndarray:
+    """The policy π over the K questions (…, K), float64."""
+    return softmax(hidden_and_logits(params, obs)[1])
+
+
+def logit_gram(params: Params, obs: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``JJᵀ`` (…, K, K) for ``J = ∂logits/∂θ``, in closed form.
+
+    ``∂logit_k/∂W2[k',:] = δ_kk' h``, ``∂logit_k/∂b2 = e_k`` and, through the hidden layer,
+    ``∂logit_k/∂(W1, b1) = (W2[k] ⊙ (1 − h²)) ⊗ (x, 1)``, hence
+    ``JJᵀ = (|h|² + 1) I + (|x|² + 1) · V Vᵀ`` with ``V = W2 ⊙ (1 − h²)``.
+    """
+    n_arms = params["b2"].shape[-1]
+    v = params["W2"] * (1.0 - h * h)[..., None, :]
+    outer = v @ np.swapaxes(v, -1, -2)
+    diagonal = (np.sum(h * h, axis=-1) + 1.0)[..., None, None] * np.eye(n_arms)
+    return diagonal + (float(obs @ obs) + 1.0) * outer
+
+
+def update_params(
+    params: Params,
+    obs: np.ndarray,
+    action: np.ndarray,
+    reward: np.ndarray,
+    *,
+    step_size: np.ndarray | float,
+    baseline: np.ndarray | float,
+    damping: float,
+    rule: UpdateRule,
+) -> Params:
+    """Return the weights after one answer (``action``, ``reward``); ``params`` is not changed.
+
+    ``action`` and ``reward`` have the batch shape of ``params`` (or are scalars for one network).
+    """
+    h, logits = hidden_and_logits(params, obs)
+    pi = softmax(logits)
+    n_arms = pi.shape[-1]
+    onehot = np.asarray(action)[..., None] == np.arange(n_arms)
+    advantage = np.asarray(reward, dtype=np.float64) - baseline
+    s = (onehot - pi) * advantage[..., None]
+    if rule == "natural":
+        fisher = pi[..., :, None] * (np.eye(n_arms) - pi[..., None, :])  # diag π − ππᵀ
+        system = fisher @ logit_gram(params, obs, h) + damping * np.eye(n_arms)
+        y = np.linalg.solve(system, s[..., None])[..., 0]
+    elif rule == "gradient":
+        y = s
+    else:
+        raise ValueError(f"unknown update rule {rule!r}: use 'natural' or 'gradient'")
+    y = y * np.asarray(step_size, dtype=np.float64)[..., None]
+    # θ += Jᵀ y, written out per weight array.
+    d_pre = (np.swapaxes(params["W2"], -1, -2) @ y[..., None])[..., 0] * (1.0 - h * h)
+    return {
+        "W1": params["W1"] + d_pre[..., :, None] * obs,
+        "b1": params["b1"] + d_pre,
+        "W2": params["W2"] + y[..., :, None] * h[..., None, :],
+        "b2": params["b2"] + y,
+    }

@@ -1,0 +1,197 @@
+"""The meta-policy learner (C2): probabilities, the natural-gradient step, state and bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models.checkpoints import Checkpoint
+from models.learners.base import Learner
+from models.learners.meta_policy import MetaPolicyLearner
+from models.learners.mlp_policy import (
+    hidden_and_logits,
+    logit_gram,
+    probabilities,
+    update_params,
+)
+from tests.models.conftest import make_checkpoint
+
+
+def _jacobian(params: dict[str, np.ndarray], obs: np.ndarray) -> np.ndarray:
+    """∂logits/∂θ by central finite differences, θ flattened in PARAM_NAMES order."""
+    names = ("W1", "b1", "W2", "b2")
+    columns = []
+    for name in names:
+        flat = params[name].ravel()
+        for i in range(flat.size):
+            shifted = []
+            for sign in (1.0, -1.0):
+                copy = {k: v.copy() for k, v in params.items()}
+                copy[name].ravel()[i] += sign * 1e-6
+                shifted.append(hidden_and_logits(copy, obs)[1])
+            columns.append((shifted[0] - shifted[1]) / 2e-6)
+    return np.stack(columns, axis=1)
+
+
+def test_natural_step_matches_the_dense_formula() -> None:
+    rng = np.random.default_rng(0)
+    obs = rng.standard_normal(3)
+    from models.learners.mlp_policy import init_params
+
+    params = init_params(rng, 3, 5, 4)
+    J = _jacobian(params, obs)
+    h, _ = hidden_and_logits(params, obs)
+    np.testing.assert_allclose(logit_gram(params, obs, h), J @ J.T, rtol=1e-6, atol=1e-8)
+    pi = probabilities(params, obs)
+    fisher = J.T @ (np.diag(pi) - np.outer(pi, pi)) @ J
+    s = (np.eye(4)[2] - pi) * (0.9 - 0.3)
+    damping, alpha = 0.1, 0.7
+    dense = alpha * np.linalg.solve(fisher + damping * np.eye(J.shape[1]), J.T @ s)
+    new = update_params(
+        params,
+        obs,
+        np.asarray(2),
+        np.asarray(0.9),
+        step_size=alpha,
+        baseline=0.3,
+        damping=damping,
+        rule="natural",
+    )
+    step = np.concatenate([(new[n] - params[n]).ravel() for n in ("W1", "b1", "W2", "b2")])
+    np.testing.assert_allclose(step, dense, rtol=1e-5, atol=1e-9)
+    plain = update_params(
+        params,
+        obs,
+        np.asarray(2),
+        np.asarray(0.9),
+        step_size=alpha,
+        baseline=0.3,
+        damping=damping,
+        rule="gradient",
+    )
+    step = np.concatenate([(plain[n] - params[n]).ravel() for n in ("W1", "b1", "W2", "b2")])
+    np.testing.assert_allclose(step, alpha * J.T @ s, rtol=1e-5, atol=1e-9)
+
+
+def test_batched_update_equals_one_at_a_time(checkpoint: Checkpoint) -> None:
+    rng = np.random.default_rng(1)
+    batch = {
+        k: np.stack([v] * 3) + rng.normal(0, 0.1, (3, *v.shape))
+        for k, v in checkpoint.params.items()
+    }
+    actions, rewards = np.array([0, 3, 1]), np.array([1.1, -0.2, 0.4])
+    together = update_params(
+        batch,
+        checkpoint.observation,
+        actions,
+        rewards,
+        step_size=np.array([1.0, 0.5, 0.2]),
+        baseline=0.25,
+        damping=0.05,
+        rule="natural",
+    )
+    for i in range(3):
+        alone = update_params(
+            {k: v[i] for k, v in batch.items()},
+            checkpoint.observation,
+            actions[i],
+            rewards[i],
+            step_size=[1.0, 0.5, 0.2][i],
+            baseline=0.25,
+            damping=0.05,
+            rule="natural",
+        )
+        for name in alone:
+            np.testing.assert_allclose(together[name][i], alone[name], rtol=1e-12, atol=1e-14)
+
+
+def test_rewarded_question_gains_probability(checkpoint: Checkpoint) -> None:
+    learner = MetaPolicyLearner.from_checkpoint(checkpoint, expected_arms=4)
+    before = learner.probabilities()
+    learner.update(2, 1.0)
+    after = learner.probabilities()
+    assert after[2] > before[2]
+    assert math.isclose(after.sum(), 1.0, abs_tol=1e-12)
+    learner.update(1, 0.0)
+    assert learner.probabilities()[1] < after[1]
+    assert isinstance(learner, Learner)
+
+
+def test_step_sizes_and_baselines_follow_the_answer_index(checkpoint: Checkpoint) -> None:
+    learner = MetaPolicyLearner(checkpoint)
+    assert [learner.step_size(i) for i in range(5)] == [1.0, 0.8, 0.6, 0.6, 0.6]
+    assert [learner.baseline(i) for i in range(4)] == [0.25, 0.3, 0.35, 0.35]
+    assert MetaPolicyLearner(checkpoint, learning_rate=0.3).step_size(1) == 0.3
+
+
+def test_state_round_trip_is_bitwise_and_reset_restarts(checkpoint: Checkpoint) -> None:
+    rng = np.random.default_rng(2)
+    learner = MetaPolicyLearner.from_checkpoint(checkpoint.path)
+    start = learner.probabilities()
+    for _ in range(4):
+        learner.update(learner.select(rng), float(rng.normal(0.5, 0.3)))
+    copy = MetaPolicyLearner.from_checkpoint(checkpoint)
+    copy.load_state_dict(json.loads(json.dumps(learner.state_dict())))
+    for _ in range(6):
+        a, r = int(rng.integers(4)), float(rng.normal())
+        learner.update(a, r)
+        copy.update(a, r)
+        assert learner.probabilities().tobytes() == copy.probabilities().tobytes()
+    assert copy.answers == 10
+    copy.reset()
+    assert copy.answers == 0
+    assert copy.probabilities().tobytes() == start.tobytes()
+
+
+def test_state_of_another_checkpoint_is_refused(checkpoint: Checkpoint, tmp_path: Path) -> None:
+    other = make_checkpoint(tmp_path / "other", seed=5)
+    state = MetaPolicyLearner(checkpoint).state_dict()
+    with pytest.raises(ValueError, match="checkpoint sha256"):
+        MetaPolicyLearner(other).load_state_dict(state)
+    with pytest.raises(ValueError, match="learning_rate"):
+        MetaPolicyLearner(checkpoint, learning_rate=0.1).load_state_dict(state)
+    with pytest.raises(ValueError, match="W1"):
+        MetaPolicyLearner(checkpoint).load_state_dict(
+            {**state, "params": {**state["params"], "W1": [[1.0]]}}
+        )
+
+
+def test_random_init_differs_but_uses_the_same_rule(checkpoint: Checkpoint) -> None:
+    a = MetaPolicyLearner.random_init(checkpoint, np.random.default_rng(7))
+    b = MetaPolicyLearner.random_init(checkpoint, np.random.default_rng(7))
+    assert a.probabilities().tobytes() == b.probabilities().tobytes()
+    assert a.probabilities().tobytes() != MetaPolicyLearner(checkpoint).probabilities().tobytes()
+    a.update(0, 1.0)
+    assert a.probabilities()[0] > b.probabilities()[0]
+    assert a.state_dict()["init"] == "random"
+
+
+def test_bad_input_is_refused(checkpoint: Checkpoint, tmp_path: Path) -> None:
+    learner = MetaPolicyLearner(checkpoint)
+    for reward in (math.nan, math.inf):
+        with pytest.raises(ValueError, match="reward"):
+            learner.update(0, reward)
+    with pytest.raises(ValueError, match="action"):
+        learner.update(4, 1.0)
+    assert learner.answers == 0
+    with pytest.raises(ValueError, match="4 questions"):
+        MetaPolicyLearner.from_checkpoint(checkpoint, expected_arms=5)
+    with pytest.raises(ValueError, match="4 questions"):
+        MetaPolicyLearner.from_checkpoint(checkpoint.path, expected_arms=3)
+    with pytest.raises(ValueError, match="learning_rate"):
+        MetaPolicyLearner(checkpoint, learning_rate=-1.0)
+
+
+def test_learners_do_not_import_torch() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, models.learners.meta_policy, models.checkpoints, models.learners.exp3, "
+        "models.learners.bayes, models.replies; assert 'torch' not in sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
