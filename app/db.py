@@ -10,7 +10,10 @@ under a transaction are locked explicitly (``SELECT … FOR UPDATE``).
 
 from __future__ import annotations
 
+import asyncio
 import sqlite3
+import threading
+import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,8 +25,16 @@ from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import DatabaseUnavailable
+from app.events import EventHub, attach_publishing
 
 WRITE_OPTION = "trustlab_write"
+_HOLDS_WRITER = "trustlab_holds_writer"
+WRITER_WAIT_SECONDS = 30.0
+
+POOL_SIZE, POOL_OVERFLOW = 20, 20
+ADMITTED_REQUESTS = 30
+"""Requests doing database work at once per process: below the connection pool (40) and the
+thread pool (40), so an admitted request always finds both; the rest wait as coroutines."""
 """Execution option that marks connections of write sessions (``BEGIN IMMEDIATE`` on SQLite)."""
 
 
@@ -33,7 +44,14 @@ def describe_url(url: str | URL) -> str:
 
 
 def _configure_sqlite(engine: Engine, synchronous: str) -> None:
-    """WAL, foreign keys, a generous busy timeout, and explicit BEGINs we control."""
+    """WAL, foreign keys, a generous busy timeout, explicit BEGINs, and a fair writer queue.
+
+    SQLite has one writer at a time and its busy handler polls with growing sleeps, so under
+    contention an unlucky writer can starve for seconds. SQLite serves from one process by
+    design, so writers first queue on an in-process lock and only then ``BEGIN IMMEDIATE``: the
+    lock is handed over the moment a write transaction commits or rolls back.
+    """
+    writers = threading.Lock()
 
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection: sqlite3.Connection, _record: Any) -> None:
@@ -48,8 +66,30 @@ def _configure_sqlite(engine: Engine, synchronous: str) -> None:
 
     @event.listens_for(engine, "begin")
     def _on_begin(connection: Any) -> None:
-        immediate = connection.get_execution_options().get(WRITE_OPTION, False)
-        connection.exec_driver_sql("BEGIN IMMEDIATE" if immediate else "BEGIN")
+        if connection.get_execution_options().get(WRITE_OPTION, False):
+            if not writers.acquire(timeout=WRITER_WAIT_SECONDS):
+                raise OperationalError("BEGIN IMMEDIATE", {}, TimeoutError("writer queue full"))
+            connection.info[_HOLDS_WRITER] = True
+            try:
+                connection.exec_driver_sql("BEGIN IMMEDIATE")
+            except BaseException:
+                _release(connection.info)
+                raise
+        else:
+            connection.exec_driver_sql("BEGIN")
+
+    def _release(info: dict[str, Any]) -> None:
+        if info.pop(_HOLDS_WRITER, False):
+            writers.release()
+
+    @event.listens_for(engine, "commit")
+    @event.listens_for(engine, "rollback")
+    def _on_end(connection: Any) -> None:
+        _release(connection.info)
+
+    @event.listens_for(engine.pool, "reset")
+    def _on_reset(_dbapi_connection: Any, record: Any, _reset_state: Any) -> None:
+        _release(record.info)
 
 
 def create_db_engine(database_url: str, *, sqlite_synchronous: str = "FULL") -> Engine:
@@ -61,8 +101,8 @@ def create_db_engine(database_url: str, *, sqlite_synchronous: str = "FULL") -> 
         engine = create_engine(
             url,
             connect_args={"check_same_thread": False, "timeout": 30},
-            pool_size=10,
-            max_overflow=30,
+            pool_size=POOL_SIZE,
+            max_overflow=POOL_OVERFLOW,
         )
         _configure_sqlite(engine, sqlite_synchronous)
         return engine
@@ -70,8 +110,8 @@ def create_db_engine(database_url: str, *, sqlite_synchronous: str = "FULL") -> 
         return create_engine(
             url,
             pool_pre_ping=True,
-            pool_size=10,
-            max_overflow=30,
+            pool_size=POOL_SIZE,
+            max_overflow=POOL_OVERFLOW,
             connect_args={"connect_timeout": 5, "application_name": "trustlab"},
         )
     raise ValueError(
@@ -89,11 +129,25 @@ class Database:
         self._write = sessionmaker(
             self.engine.execution_options(**{WRITE_OPTION: True}), expire_on_commit=False
         )
+        self.hub = EventHub()
+        self._admissions: weakref.WeakKeyDictionary[
+            asyncio.AbstractEventLoop, asyncio.Semaphore
+        ] = weakref.WeakKeyDictionary()
+        for factory in (self._read, self._write):
+            attach_publishing(factory, self.hub, postgres=not self.is_sqlite)
 
     @property
     def is_sqlite(self) -> bool:
         """Whether this is a SQLite database (one writer, one process)."""
         return self.engine.dialect.name == "sqlite"
+
+    def admission(self) -> asyncio.Semaphore:
+        """The running event loop's limit on requests doing database work at once (app.deps)."""
+        loop = asyncio.get_running_loop()
+        limit = self._admissions.get(loop)
+        if limit is None:
+            limit = self._admissions[loop] = asyncio.Semaphore(ADMITTED_REQUESTS)
+        return limit
 
     def read_session(self) -> Session:
         """A session for requests that only read."""

@@ -16,6 +16,11 @@ class TrustlabError(Exception):
         super().__init__(message)
         self.message = message
 
+    @property
+    def extra(self) -> dict[str, object]:
+        """Machine-readable details added to the JSON error body (none by default)."""
+        return {}
+
 
 class InvalidInput(TrustlabError):
     """The request is well-formed but its content is not acceptable."""
@@ -51,3 +56,9 @@ class DatabaseUnavailable(TrustlabError):
     """The database cannot be reached; retrying later may succeed."""
 
     status_code = 503
+
+
+class TooManyAttempts(TrustlabError):
+    """Too many failed attempts in a short time; retry later."""
+
+    status_code = 429

@@ -8,6 +8,7 @@ protection and a referrer policy.
 
 from __future__ import annotations
 
+import json
 import logging
 from typing import Any
 
@@ -58,6 +59,47 @@ class SecurityHeaders:
         await self.app(scope, receive, send_with_headers)
 
 
+class BodyLimit:
+    """Refuse request bodies over ``limit`` bytes with a JSON 413, declared length or not."""
+
+    def __init__(self, app: ASGIApp, limit: int) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        message = f"the request body is larger than {self.limit // 1024} KiB"
+        for name, value in scope.get("headers", []):
+            if name == b"content-length" and value.isdigit() and int(value) > self.limit:
+                body = json.dumps({"detail": message}).encode()
+                await send(
+                    {
+                        "type": "http.response.start",
+                        "status": 413,
+                        "headers": [
+                            (b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()),
+                        ],
+                    }
+                )
+                await send({"type": "http.response.body", "body": body})
+                return
+        received = 0
+
+        async def counting_receive() -> Message:
+            nonlocal received
+            message_ = await receive()
+            if message_["type"] == "http.request":
+                received += len(message_.get("body", b""))
+                if received > self.limit:
+                    raise StarletteHTTPException(413, message)
+            return message_
+
+        await self.app(scope, counting_receive, send)
+
+
 def wants_json(request: Request) -> bool:
     """API paths, and clients that ask for JSON rather than HTML, get JSON errors."""
     if request.url.path.startswith("/api/"):
@@ -66,9 +108,14 @@ def wants_json(request: Request) -> bool:
     return "application/json" in accept and "text/html" not in accept
 
 
-def _error_response(request: Request, status: int, message: str) -> Response:
+TABLET_PATHS = ("/tablet", "/t/", "/k/")
+
+
+def _error_response(
+    request: Request, status: int, message: str, extra: dict[str, object] | None = None
+) -> Response:
     if wants_json(request):
-        return JSONResponse({"detail": message}, status_code=status)
+        return JSONResponse({"detail": message, **(extra or {})}, status_code=status)
     return render(request, "error.html", {"status": status, "message": message}, status_code=status)
 
 
@@ -86,12 +133,13 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(TrustlabError)
     async def domain_error(request: Request, exc: TrustlabError) -> Response:
-        if isinstance(exc, NotAuthenticated) and not wants_json(request):
+        tablet = request.url.path.startswith(TABLET_PATHS)
+        if isinstance(exc, NotAuthenticated) and not wants_json(request) and not tablet:
             target = f"/login?next={request.url.path}"
             if is_htmx(request):
                 return Response(status_code=401, headers={"HX-Redirect": target})
             return RedirectResponse(target, status_code=303)
-        return _error_response(request, exc.status_code, exc.message)
+        return _error_response(request, exc.status_code, exc.message, exc.extra)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError) -> Response:

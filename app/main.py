@@ -12,25 +12,51 @@ from contextlib import asynccontextmanager
 from fastapi import APIRouter, FastAPI
 from fastapi.staticfiles import StaticFiles
 
-from app.api import health
+from app.activity import ActivityRecorder
+from app.api import health, session, station, station_ws, stations, tablet
 from app.api import studies as studies_api
+from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
-from app.http import SecurityHeaders, install_error_handlers
+from app.events import PostgresListener
+from app.http import BodyLimit, SecurityHeaders, install_error_handlers
 from app.settings import REPO_ROOT, Settings
-from app.web import admin, auth, docs
+from app.web import (
+    admin,
+    analysis_pages,
+    audit_pages,
+    auth,
+    dashboard,
+    docs,
+    live,
+    participants,
+    tablet_pages,
+)
+from app.web import stations as station_pages
 from app.web import studies as studies_pages
 
 API_PREFIX = "/api/v1"
+MAX_BODY_BYTES = 1024 * 1024
+"""Largest request body accepted (a protocol upload is at most 512 KiB); larger ones get 413."""
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """A trustlab application for ``settings`` (read from the environment when omitted)."""
     settings = settings or Settings()
     database = Database(settings.database_url, sqlite_synchronous=settings.sqlite_synchronous)
+    activity = ActivityRecorder(database)
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        listener = (
+            None if database.is_sqlite else PostgresListener(settings.database_url, database.hub)
+        )
+        if listener is not None:
+            listener.start()
+        activity.start()
         yield
+        activity.stop()
+        if listener is not None:
+            listener.stop()
         database.dispose()
 
     app = FastAPI(
@@ -44,15 +70,38 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.settings = settings
     app.state.database = database
+    app.state.activity = activity
 
-    api = APIRouter(prefix=API_PREFIX)
-    api.include_router(studies_api.router)
+    api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
+    for resource in (
+        session.router,
+        studies_api.router,
+        stations.router,
+        stations.devices_router,
+        station.router,
+        station_ws.router,
+        tablet.router,
+    ):
+        api.include_router(resource)
     app.include_router(api)
     app.include_router(health.router)
-    for pages in (auth.router, studies_pages.router, admin.router, docs.router):
+    for pages in (
+        auth.router,
+        studies_pages.router,
+        participants.router,
+        dashboard.router,
+        analysis_pages.router,
+        live.router,
+        station_pages.router,
+        admin.router,
+        audit_pages.router,
+        docs.router,
+        tablet_pages.router,
+    ):
         app.include_router(pages)
     app.mount("/static", StaticFiles(directory=REPO_ROOT / "static"), name="static")
 
     install_error_handlers(app)
+    app.add_middleware(BodyLimit, limit=MAX_BODY_BYTES)
     app.add_middleware(SecurityHeaders)
     return app

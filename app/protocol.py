@@ -134,10 +134,16 @@ def _default_levels() -> list[ReplyLevel]:
 
 
 class RepliesSpec(_Strict):
-    """The robot's reply by the chosen question's probability: level i if p < thresholds[i]."""
+    """The robot's reply by the asked question's probability p: the first level whose threshold
+    p is below, else the last (defaults: p < .5 low, < .65 medium-low, < .8 medium, else high)."""
 
     thresholds: list[float] = Field(default_factory=lambda: [0.5, 0.65, 0.8], min_length=1)
     levels: list[ReplyLevel] = Field(default_factory=_default_levels)
+    basis: Literal["chosen", "updated"] = Field(
+        default="chosen",
+        description="p is the probability the question was asked with ('chosen'), or its "
+        "probability after learning from the answer ('updated').",
+    )
 
 
 class RewardSpec(_Strict):

@@ -60,6 +60,9 @@ class Settings(BaseSettings):
         default="FULL",
         description="PRAGMA synchronous for SQLite: FULL survives power loss, NORMAL only crashes.",
     )
+    websocket_heartbeat_seconds: float = Field(
+        default=15.0, gt=0, description="How often robot WebSockets are pinged."
+    )
     host: str = Field(default="127.0.0.1", description="Where `trustlab serve` listens.")
     port: int = Field(default=8000, ge=1, le=65535, description="The port `trustlab serve` uses.")
 

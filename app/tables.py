@@ -25,6 +25,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
@@ -74,6 +75,7 @@ class Base(DeclarativeBase):
     type_annotation_map: ClassVar[dict[Any, Any]] = {
         datetime: UTCDateTime(),
         dict[str, Any]: JSONDocument,
+        list[float]: JSONDocument,
     }
 
 
@@ -146,7 +148,7 @@ class LoginSession(Base):
     user_agent: Mapped[str] = mapped_column(String(255), default="")
     client_address: Mapped[str] = mapped_column(String(64), default="")
 
-    user: Mapped[User] = relationship(lazy="joined")
+    user: Mapped[User] = relationship(lazy="joined", innerjoin=True)
 
 
 class Study(Base):
@@ -159,8 +161,10 @@ class Study(Base):
     name: Mapped[str] = mapped_column(String(64), unique=True)
     title: Mapped[str] = mapped_column(String(200))
     status: Mapped[str] = mapped_column(String(16), default=StudyStatus.OPEN)
-    protocol: Mapped[dict[str, Any]]
-    protocol_source: Mapped[str] = mapped_column(Text)
+    # Deferred: the validated protocol is parsed once per process (services.studies.protocol_of)
+    # and the source text is only for exports, so neither is read with every study row.
+    protocol: Mapped[dict[str, Any]] = mapped_column(deferred=True)
+    protocol_source: Mapped[str] = mapped_column(Text, deferred=True)
     protocol_sha256: Mapped[str] = mapped_column(String(64))
     allocation_seed: Mapped[str] = mapped_column(String(64))
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
@@ -175,6 +179,7 @@ class Participant(Base):
     __table_args__ = (
         UniqueConstraint("study_id", "code"),
         _one_of("status", ParticipantStatus),
+        Index("ix_participant_token_hash", "token_hash", unique=True),
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -187,6 +192,9 @@ class Participant(Base):
     enrolled_by: Mapped[str] = mapped_column(String(64), default="")
     withdrawn_at: Mapped[datetime | None]
     withdrawal_reason: Mapped[str] = mapped_column(Text, default="")
+    locked_at: Mapped[datetime | None]
+    token_hash: Mapped[str | None] = mapped_column(String(64))
+    token_generation: Mapped[int] = mapped_column(default=0, server_default="0")
 
     study: Mapped[Study] = relationship()
     allocation: Mapped[Allocation] = relationship(
@@ -247,3 +255,261 @@ class AuditEvent(Base):
     study_id: Mapped[int | None] = mapped_column(ForeignKey("study.id"))
     subject: Mapped[str] = mapped_column(String(128), default="")
     details: Mapped[dict[str, Any]] = mapped_column(default=dict)
+
+
+class SessionStatus(StrEnum):
+    """Where a study session stands."""
+
+    RUNNING = "running"
+    COMPLETED = "completed"
+    ENDED_EARLY = "ended_early"
+
+
+class RunStatus(StrEnum):
+    """Where a run (each category asked once) stands."""
+
+    RUNNING = "running"
+    COMPLETED = "completed"
+    ENDED_EARLY = "ended_early"
+
+
+class Station(Base):
+    """A place where a robot or mixed-reality client meets the participant assigned to it."""
+
+    __tablename__ = "station"
+    __table_args__ = (Index("ix_station_kiosk_token_hash", "kiosk_token_hash", unique=True),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    participant_id: Mapped[int | None] = mapped_column(ForeignKey("participant.id"), unique=True)
+    assigned_at: Mapped[datetime | None]
+    kiosk_token_hash: Mapped[str | None] = mapped_column(String(64))
+    kiosk_generation: Mapped[int] = mapped_column(default=0, server_default="0")
+
+    participant: Mapped[Participant | None] = relationship()
+
+
+class Device(Base):
+    """A robot client's API key for one station (only the key's SHA-256 is stored)."""
+
+    __tablename__ = "device"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    station_id: Mapped[int] = mapped_column(ForeignKey("station.id"), index=True)
+    label: Mapped[str] = mapped_column(String(64))
+    key_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    key_prefix: Mapped[str] = mapped_column(String(16))
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    created_by: Mapped[str] = mapped_column(String(64), default="")
+    revoked_at: Mapped[datetime | None]
+    last_seen_at: Mapped[datetime | None]
+    connected_at: Mapped[datetime | None]
+    disconnected_at: Mapped[datetime | None]
+
+    station: Mapped[Station] = relationship(lazy="joined", innerjoin=True)
+
+    @property
+    def connected(self) -> bool:
+        """Whether a WebSocket of this device is open (as its last connect/disconnect says)."""
+        return self.connected_at is not None and (
+            self.disconnected_at is None or self.disconnected_at < self.connected_at
+        )
+
+
+class LearnerState(Base):
+    """A participant's learner for one category: its stored state and a version per update."""
+
+    __tablename__ = "learner"
+    __table_args__ = (UniqueConstraint("participant_id", "category"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"))
+    category: Mapped[str] = mapped_column(String(40))
+    kind: Mapped[str] = mapped_column(String(16))
+    n_arms: Mapped[int]
+    config: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    checkpoint_sha256: Mapped[str | None] = mapped_column(String(64))
+    # Deferred: a live learner usually comes from the process's cache (keyed by version), so the
+    # JSON state is read only on a miss; the initial state only by `trustlab verify`.
+    initial_state: Mapped[dict[str, Any]] = mapped_column(deferred=True)
+    state: Mapped[dict[str, Any]] = mapped_column(deferred=True)
+    version: Mapped[int] = mapped_column(default=0)
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class StudySession(Base):
+    """One of a participant's sessions; number 0 is the familiarisation run's session."""
+
+    __tablename__ = "study_session"
+    __table_args__ = (
+        UniqueConstraint("participant_id", "number"),
+        _one_of("status", SessionStatus),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    station_id: Mapped[int] = mapped_column(ForeignKey("station.id"))
+    number: Mapped[int]
+    status: Mapped[str] = mapped_column(String(16), default=SessionStatus.RUNNING)
+    started_at: Mapped[datetime] = mapped_column(default=utcnow)
+    started_by: Mapped[str] = mapped_column(String(64), default="")
+    ended_at: Mapped[datetime | None]
+    ended_by: Mapped[str] = mapped_column(String(64), default="")
+
+
+class Run(Base):
+    """One pass in which each category is prompted once."""
+
+    __tablename__ = "run"
+    __table_args__ = (UniqueConstraint("session_id", "number"), _one_of("status", RunStatus))
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    session_id: Mapped[int] = mapped_column(ForeignKey("study_session.id"), index=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    number: Mapped[int]
+    status: Mapped[str] = mapped_column(String(16), default=RunStatus.RUNNING)
+    started_at: Mapped[datetime] = mapped_column(default=utcnow)
+    ended_at: Mapped[datetime | None]
+
+
+class Prompt(Base):
+    """A question the robot asked: the first half of a step. Append-only.
+
+    ``UNIQUE(run_id, category)`` is the rule "each category once per run"; an unanswered prompt is
+    the category's open prompt, handed out again if the client asks twice.
+    """
+
+    __tablename__ = "prompt"
+    __table_args__ = (UniqueConstraint("run_id", "category"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("run.id"))
+    category: Mapped[str] = mapped_column(String(40))
+    action: Mapped[int]
+    question: Mapped[str] = mapped_column(Text)
+    probabilities: Mapped[list[float]]
+    learner_version: Mapped[int]
+    adapts: Mapped[bool]
+    p_preferred: Mapped[float | None] = mapped_column(
+        doc="Probability of the category's preferred question when asked (live curves)."
+    )
+    prompted_at: Mapped[datetime] = mapped_column(default=utcnow)
+    device_id: Mapped[int | None] = mapped_column(ForeignKey("device.id"))
+    actor: Mapped[str] = mapped_column(String(64), default="")
+
+
+class Answer(Base):
+    """The participant's answer to a prompt and the robot's reply: the second half. Append-only."""
+
+    __tablename__ = "answer"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    prompt_id: Mapped[int] = mapped_column(ForeignKey("prompt.id"), unique=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    answer: Mapped[bool]
+    reward: Mapped[float]
+    probabilities_after: Mapped[list[float]]
+    p_preferred: Mapped[float | None] = mapped_column(
+        doc="Probability of the category's preferred question after the answer (live curves)."
+    )
+    probability: Mapped[float]
+    confidence_level: Mapped[int]
+    confidence: Mapped[str] = mapped_column(String(40))
+    reply: Mapped[str] = mapped_column(Text)
+    learner_version: Mapped[int]
+    idempotency_key: Mapped[str] = mapped_column(String(100))
+    answered_at: Mapped[datetime] = mapped_column(default=utcnow)
+    processing_ms: Mapped[float]
+    device_id: Mapped[int | None] = mapped_column(ForeignKey("device.id"))
+    actor: Mapped[str] = mapped_column(String(64), default="")
+
+
+class Response(Base):
+    """One answer to one questionnaire item, in long format (raw, as given; scores are derived).
+
+    ``session`` is the session number for per-session instruments and NULL otherwise; two partial
+    unique indexes make (participant, instrument, session, item) unique on both engines, NULL
+    session included.
+    """
+
+    __tablename__ = "response"
+    __table_args__ = (
+        Index(
+            "uq_response_session_item",
+            "participant_id",
+            "instrument",
+            "session",
+            "item",
+            unique=True,
+            sqlite_where=text("session IS NOT NULL"),
+            postgresql_where=text("session IS NOT NULL"),
+        ),
+        Index(
+            "uq_response_item",
+            "participant_id",
+            "instrument",
+            "item",
+            unique=True,
+            sqlite_where=text("session IS NULL"),
+            postgresql_where=text("session IS NULL"),
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    instrument: Mapped[str] = mapped_column(String(40))
+    session: Mapped[int | None]
+    item: Mapped[str] = mapped_column(String(80))
+    value: Mapped[str] = mapped_column(Text)
+    answered_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
+class Submission(Base):
+    """A completed questionnaire page (all required items given); revised on edits."""
+
+    __tablename__ = "submission"
+    __table_args__ = (
+        Index(
+            "uq_submission_session",
+            "participant_id",
+            "instrument",
+            "session",
+            unique=True,
+            sqlite_where=text("session IS NOT NULL"),
+            postgresql_where=text("session IS NOT NULL"),
+        ),
+        Index(
+            "uq_submission",
+            "participant_id",
+            "instrument",
+            unique=True,
+            sqlite_where=text("session IS NULL"),
+            postgresql_where=text("session IS NULL"),
+        ),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    instrument: Mapped[str] = mapped_column(String(40))
+    session: Mapped[int | None]
+    submitted_at: Mapped[datetime] = mapped_column(default=utcnow)
+    revision: Mapped[int] = mapped_column(default=1)
+    revised_at: Mapped[datetime | None]
+
+
+class LoginAttempt(Base):
+    """A sign-in attempt, kept to slow down password guessing (per account and per address)."""
+
+    __tablename__ = "login_attempt"
+    __table_args__ = (
+        Index("ix_login_attempt_username_attempted_at", "username", "attempted_at"),
+        Index("ix_login_attempt_client_address_attempted_at", "client_address", "attempted_at"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    username: Mapped[str] = mapped_column(String(64))
+    client_address: Mapped[str] = mapped_column(String(64))
+    succeeded: Mapped[bool]
+    attempted_at: Mapped[datetime] = mapped_column(default=utcnow)

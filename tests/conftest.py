@@ -14,6 +14,7 @@ import re
 import shutil
 import uuid
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import psycopg
@@ -26,7 +27,7 @@ from sqlalchemy.engine import make_url
 from app import schema, security
 from app.db import Database
 from app.main import create_app
-from app.protocol import default_protocol
+from app.protocol import default_protocol, parse_protocol
 from app.services import studies, users
 from app.services.audit import Actor
 from app.settings import Settings
@@ -258,3 +259,140 @@ def protocol_text(**replacements: str) -> str:
         assert old in text, f"{old!r} not in the default protocol"
         text = text.replace(old, new)
     return text
+
+
+EXP3_ONLY = {'learner = "meta"': 'learner = "exp3"'}
+"""Protocol replacement giving both conditions Exp3 (fast, torch-free runtime tests)."""
+
+
+@pytest.fixture
+def exp3_study(database: Database) -> str:
+    """A study named 'rt' whose conditions both use Exp3."""
+    with database.writing() as db:
+        studies.create_study(
+            db, name="rt", loaded=parse_protocol(protocol_text(**EXP3_ONLY)), actor=Actor.system()
+        )
+    return "rt"
+
+
+@dataclass
+class Lab:
+    """A station with a device key and an experimenter, ready to run sessions.
+
+    ``enrol_and_assign(..., questionnaires=True)`` also plays the participant's tablet part
+    (consent, pre-study, and each session's questionnaire before the next session starts), so
+    runtime tests are not blocked by the questionnaire gates.
+    """
+
+    app: FastAPI
+    database: Database
+    study: str
+    station: str
+    key: str
+    experimenter: TestClient
+    robot: TestClient
+    tablets: dict[str, TestClient]
+
+    def enrol_and_assign(self, code: str | None = None, *, questionnaires: bool = True) -> str:
+        enrolled = self.experimenter.post(
+            f"/api/v1/studies/{self.study}/participants", json={"code": code}
+        )
+        assert enrolled.status_code == 201, enrolled.text
+        participant = str(enrolled.json()["code"])
+        seated = self.experimenter.put(
+            f"/api/v1/stations/{self.station}/participant",
+            json={"study": self.study, "code": participant},
+        )
+        assert seated.status_code == 200, seated.text
+        if questionnaires:
+            self.tablets[participant] = tablet_client(self.app, self, participant)
+            fill_pre_study(self.tablets[participant])
+        return participant
+
+    def fill_pending_questionnaires(self) -> None:
+        """Answer whatever session questionnaire the seated participant's tablet shows."""
+        seated = self.robot.get("/api/v1/station").json()["participant"]
+        tablet = self.tablets.get(seated)
+        if tablet is None:
+            return
+        page = tablet.get("/api/v1/tablet").json()
+        while page["kind"] == "questionnaire" and page["instrument"]["when"] == "session":
+            page = tablet.post(
+                f"/api/v1/tablet/questionnaires/{page['instrument']['key']}",
+                json={"session": page["session"], "answers": TRUST_ANSWERS},
+            ).json()
+
+    def start_session(self) -> dict[str, object]:
+        self.fill_pending_questionnaires()
+        response = self.experimenter.post(f"/api/v1/stations/{self.station}/sessions")
+        assert response.status_code == 201, response.text
+        return dict(response.json())
+
+    def prompt(self, category: str) -> dict[str, object]:
+        response = self.robot.post("/api/v1/station/prompts", json={"category": category})
+        assert response.status_code in (200, 201), response.text
+        return dict(response.json())
+
+    def answer(self, step_id: object, answer: str, key: str | None = None) -> dict[str, object]:
+        response = self.robot.post(
+            f"/api/v1/station/steps/{step_id}/answer",
+            json={"answer": answer, "idempotency_key": key or uuid.uuid4().hex},
+        )
+        assert response.status_code == 200, response.text
+        return dict(response.json())
+
+    def run_session(self, preferred: int = 0) -> int:
+        """Answer every run of the started session; yes to arm ``preferred``. Returns steps."""
+        steps = 0
+        expected = self.robot.get("/api/v1/station").json()["expected"]
+        pending = list(expected["categories"]) if expected["action"] == "prompt" else []
+        while pending:
+            step = self.prompt(pending[0])
+            reply = self.answer(step["step_id"], "yes" if step["action"] == preferred else "no")
+            steps += 1
+            expected = reply["expected"]
+            assert isinstance(expected, dict)
+            pending = list(expected["categories"]) if expected["action"] == "prompt" else []
+        return steps
+
+
+@pytest.fixture
+def lab(
+    app: FastAPI, database: Database, exp3_study: str, user_client: UserClientFactory
+) -> Iterator[Lab]:
+    """Station 'lab-1' with a device key, an experimenter client and a robot client."""
+    admin = user_client(Role.ADMIN)
+    assert admin.post("/api/v1/stations", json={"name": "lab-1"}).status_code == 201
+    issued = admin.post("/api/v1/stations/lab-1/devices", json={"label": "pepper"})
+    key = issued.json()["key"]
+    experimenter = user_client(Role.EXPERIMENTER)
+    with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as robot:
+        yield Lab(app, database, exp3_study, "lab-1", key, experimenter, robot, {})
+
+
+PRE_STUDY_ANSWERS = {
+    "demographics": {"age": "27", "gender": "female"},
+    "background": {"bg_robot_experience": "2", "bg_vr_familiarity": "3", "bg_digital_skills": "4"},
+    "tipi": {f"tipi_{n}": str(1 + n % 7) for n in range(1, 11)},
+    "nars": {f"nars_{n}": str(1 + n % 5) for n in range(1, 15)},
+}
+TRUST_ANSWERS = {f"trust_{n}": str(1 + n % 5) for n in range(1, 6)}
+POST_ANSWERS = {"overall_experience": "4", "interaction_quality": "5"}
+
+
+def tablet_client(app: FastAPI, lab: Lab, code: str) -> TestClient:
+    """A JSON tablet client for a participant (issues their link)."""
+    link = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/{code}/link")
+    assert link.status_code == 200, link.text
+    client = TestClient(app, headers={"Authorization": f"Bearer {link.json()['token']}"})
+    return client
+
+
+def fill_pre_study(tablet: TestClient) -> None:
+    """Consent and every pre-study questionnaire, through the JSON tablet API."""
+    assert tablet.post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
+    for instrument, answers in PRE_STUDY_ANSWERS.items():
+        response = tablet.post(
+            f"/api/v1/tablet/questionnaires/{instrument}", json={"answers": answers}
+        )
+        assert response.status_code == 200, response.text

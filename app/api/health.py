@@ -12,6 +12,12 @@ from app.errors import DatabaseUnavailable
 router = APIRouter(tags=["health"])
 
 
+@router.get("/api/v1/ping")
+def ping() -> dict[str, bool]:
+    """A no-op: answers without touching the database (the baseline of bench/api.py)."""
+    return {"pong": True}
+
+
 @router.get("/healthz", response_model=Health, responses={503: {"model": Health}})
 def healthz(database: DatabaseDep) -> JSONResponse:
     """200 when the database answers, 503 with the reason when it does not."""

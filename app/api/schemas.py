@@ -78,6 +78,7 @@ class ParticipantOut(BaseModel):
     status: str
     enrolled_at: datetime
     withdrawn_at: datetime | None
+    locked: bool = False
 
 
 class Withdrawal(RequestBody):
@@ -91,3 +92,45 @@ class Health(BaseModel):
 
     status: Literal["ok", "unavailable"]
     database: str
+
+
+class TabletLink(BaseModel):
+    """A tablet link: open ``url`` on the tablet (or scan its QR code)."""
+
+    token: str | None
+    url: str | None
+
+
+class ErrorOut(BaseModel):
+    """Every refusal: one sentence saying what is wrong and what is expected instead."""
+
+    detail: str
+
+
+class FieldError(BaseModel):
+    """Where a request did not validate, and why."""
+
+    loc: list[str | int]
+    msg: str
+    type: str
+
+
+class ValidationErrorOut(BaseModel):
+    """A request that did not validate: the first problems in one sentence, then all of them."""
+
+    detail: str
+    errors: list[FieldError] = Field(default_factory=list)
+
+
+ERROR_RESPONSES: dict[int | str, dict[str, object]] = {
+    400: {"model": ErrorOut, "description": "Malformed request"},
+    401: {"model": ErrorOut, "description": "Not signed in, or no valid key or token"},
+    403: {"model": ErrorOut, "description": "Not allowed for this role, or a missing CSRF token"},
+    404: {"model": ErrorOut, "description": "No such study, participant, station or step"},
+    409: {"model": ErrorOut, "description": "Not possible in the current state"},
+    413: {"model": ErrorOut, "description": "Request body too large"},
+    422: {"model": ValidationErrorOut, "description": "Invalid content"},
+    429: {"model": ErrorOut, "description": "Too many attempts; retry later"},
+    503: {"model": ErrorOut, "description": "Database unavailable; retry"},
+}
+"""Documented on every API route, so clients (and schemathesis) know every error's shape."""

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from typing import Any
+
+from fastapi import APIRouter, Request, status
 from sqlalchemy import select
 
 from app.api.schemas import (
@@ -13,12 +15,13 @@ from app.api.schemas import (
     StudyCreate,
     StudyStatusChange,
     StudySummary,
+    TabletLink,
     Withdrawal,
 )
-from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep
+from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import enrolment, studies
+from app.services import enrolment, questionnaires, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Participant, Study, StudyStatus
 
@@ -54,6 +57,7 @@ def _participant(study: Study, participant: Participant, actor: Actor) -> Partic
         status=participant.status,
         enrolled_at=participant.enrolled_at,
         withdrawn_at=participant.withdrawn_at,
+        locked=participant.locked_at is not None,
     )
 
 
@@ -79,6 +83,21 @@ def create_study(body: StudyCreate, db: SessionDep, admin: AdminUser) -> StudySu
 def get_study(name: str, db: SessionDep, user: CurrentUser) -> StudySummary:
     """One study."""
     return _summary(db, studies.get_study(db, name), Actor.of_user(user))
+
+
+@router.get("/{name}/protocol")
+def get_protocol(name: str, db: SessionDep, user: CurrentUser) -> dict[str, Any]:
+    """The study's validated protocol; blinded roles see neutral condition labels only."""
+    study = studies.get_study(db, name)
+    protocol = studies.protocol_of(study)
+    data = protocol.model_dump(mode="json")
+    if protocol.study.blinded and not Actor.of_user(user).sees_conditions:
+        data["conditions"] = [
+            {"id": protocol.neutral_label(c.id), "label": protocol.neutral_label(c.id)}
+            for c in protocol.conditions
+        ]
+        data["learners"] = {}
+    return data
 
 
 @router.post("/{name}/status")
@@ -128,3 +147,65 @@ def withdraw(
         db, study_name=name, code=code, actor=actor, reason=body.reason
     )
     return _participant(studies.get_study(db, name), participant, actor)
+
+
+def _link(request: Request, token: str | None, prefix: str) -> TabletLink:
+    base = str(request.base_url).rstrip("/")
+    return TabletLink(token=token, url=f"{base}/{prefix}/{token}" if token else None)
+
+
+@router.get("/{name}/participants/{code}/link")
+def get_link(
+    name: str,
+    code: str,
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    user: ExperimenterUser,
+) -> TabletLink:
+    """The participant's current tablet link (null when none is issued)."""
+    participant = enrolment.get_participant(db, studies.get_study(db, name), code)
+    return _link(request, tablet_tokens.participant_token(settings.secret, participant), "t")
+
+
+@router.post("/{name}/participants/{code}/link")
+def issue_link(
+    name: str,
+    code: str,
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    user: ExperimenterUser,
+) -> TabletLink:
+    """Issue (or reissue) the participant's tablet link; earlier links stop working."""
+    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    token = tablet_tokens.issue_participant_token(
+        db, participant=participant, secret=settings.secret, actor=Actor.of_user(user)
+    )
+    return _link(request, token, "t")
+
+
+@router.delete("/{name}/participants/{code}/link")
+def revoke_link(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> TabletLink:
+    """Revoke the participant's tablet link."""
+    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    tablet_tokens.revoke_participant_token(db, participant=participant, actor=Actor.of_user(user))
+    return TabletLink(token=None, url=None)
+
+
+@router.post("/{name}/participants/{code}/lock")
+def lock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> ParticipantOut:
+    """Lock the participant's answers: no more edits."""
+    study = studies.get_study(db, name)
+    participant = enrolment.get_participant(db, study, code, for_update=True)
+    questionnaires.set_locked(db, participant=participant, locked=True, actor=Actor.of_user(user))
+    return _participant(study, participant, Actor.of_user(user))
+
+
+@router.post("/{name}/participants/{code}/unlock")
+def unlock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> ParticipantOut:
+    """Allow edits again."""
+    study = studies.get_study(db, name)
+    participant = enrolment.get_participant(db, study, code, for_update=True)
+    questionnaires.set_locked(db, participant=participant, locked=False, actor=Actor.of_user(user))
+    return _participant(study, participant, Actor.of_user(user))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from app.cli import admin, analysis
+from app.cli import admin, analysis, exports, robot, runtime
 from app.cli.errors import ErrorsAsMessages
 
 cli = typer.Typer(
@@ -20,7 +20,10 @@ cli = typer.Typer(
     add_completion=False,
 )
 admin.register(cli)
+runtime.register(cli)
+robot.register(cli)
 analysis.register(cli)
+exports.register(cli)
 
 
 def main() -> None:

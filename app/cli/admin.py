@@ -10,11 +10,11 @@ from typing import Annotated
 
 import typer
 
-from app import schema
+from app import backup, schema
 from app.db import Database, describe_url
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
-from app.services import enrolment, studies, users
+from app.services import audit, enrolment, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -149,6 +149,58 @@ def db_current() -> None:
         "up to date" if current == head else f"behind: run `trustlab db upgrade` to reach {head}"
     )
     typer.echo(f"{current or 'base (empty)'} ({state})")
+
+
+@db_cli.command("backup")
+def db_backup(
+    out: Annotated[Path, typer.Option(help="The backup file to create.")],
+) -> None:
+    """Back up the whole database (SQLite online backup; pg_dump for PostgreSQL)."""
+    settings = Settings()
+    database = open_database(settings)
+    database.dispose()
+    written = backup.backup(settings.database_url, out)
+    with open_database(settings).writing() as db:
+        audit.record(
+            db, actor=Actor.command_line(), action="db.backed_up", details={"file": str(written)}
+        )
+        db.commit()
+    typer.echo(
+        f"backed up {describe_url(settings.database_url)} to {written} "
+        f"({written.stat().st_size // 1024} KiB)"
+    )
+
+
+@db_cli.command("restore")
+def db_restore(
+    source: Annotated[Path, typer.Argument(help="A backup made by `trustlab db backup`.")],
+    yes: Annotated[bool, typer.Option("--yes", help="Do not ask for confirmation.")] = False,
+) -> None:
+    """Replace the database's content with a backup (stop the server first)."""
+    settings = Settings()
+    where = describe_url(settings.database_url)
+    if not yes:
+        if not sys.stdin.isatty():
+            raise InvalidInput(f"restoring replaces everything in {where}: add --yes to confirm")
+        typer.confirm(f"Replace everything in {where} with {source}?", abort=True)
+    open_database(settings).dispose()
+    backup.restore(settings.database_url, source)
+    database = open_database(settings)
+    revision = schema.current_revision(database)
+    if revision is None:
+        raise InvalidInput(f"{source} holds no trustlab schema")
+    with database.writing() as db:
+        audit.record(
+            db,
+            actor=Actor.command_line(),
+            action="db.restored",
+            details={"file": str(source), "revision": revision},
+        )
+        db.commit()
+    typer.echo(
+        f"restored {where} from {source}: schema at {revision}; "
+        "run `trustlab verify --study NAME` to check each study"
+    )
 
 
 @user_cli.command("create")

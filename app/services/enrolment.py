@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 from sqlalchemy import exists, func, select
 from sqlalchemy.exc import IntegrityError
@@ -20,10 +21,18 @@ from sqlalchemy.orm import Session, aliased
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
-from app.services import audit
+from app.services import audit, learners
 from app.services.audit import Actor
 from app.services.studies import get_study, protocol_of
-from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
+from app.tables import (
+    Allocation,
+    LearnerState,
+    Participant,
+    ParticipantStatus,
+    Study,
+    StudyStatus,
+    utcnow,
+)
 
 CODE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$")
 STRATUM_VALUE_PATTERN = re.compile(r"^[^;=\s][^;=]{0,63}$")
@@ -142,6 +151,31 @@ def _reveal(db: Session, study: Study, protocol: Protocol, participant: Particip
     )
 
 
+def _create_learners(
+    db: Session,
+    protocol: Protocol,
+    participant: Participant,
+    condition: str,
+    checkpoint_dir: Path | None,
+) -> None:
+    """One learner per category, in its initial state, in the enrolment's transaction."""
+    for category in protocol.categories:
+        spec = learners.learner_spec(protocol, condition, category, checkpoint_dir)
+        initial = learners.build(spec).state_dict()
+        db.add(
+            LearnerState(
+                participant_id=participant.id,
+                category=category.name,
+                kind=spec.kind,
+                n_arms=spec.n_arms,
+                config=spec.config,
+                checkpoint_sha256=spec.checkpoint_sha256,
+                initial_state=initial,
+                state=initial,
+            )
+        )
+
+
 def enroll_participant(
     db: Session,
     *,
@@ -149,6 +183,7 @@ def enroll_participant(
     actor: Actor,
     code: str | None = None,
     strata: Mapping[str, str] | None = None,
+    checkpoint_dir: Path | None = None,
 ) -> Enrolment:
     """Enrol a participant and reveal their allocation; commits.
 
@@ -181,6 +216,7 @@ def enroll_participant(
     allocation = _reveal(db, study, protocol, participant)
     db.add(allocation)
     db.flush()
+    _create_learners(db, protocol, participant, allocation.condition, checkpoint_dir)
     audit.record(
         db,
         actor=actor,

@@ -6,19 +6,16 @@ import re
 from dataclasses import dataclass
 from datetime import timedelta
 
-from sqlalchemy import func, select, update
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict, InvalidInput
+from app.errors import Conflict, InvalidInput, TooManyAttempts
 from app.security import hash_password, new_token, password_problem, token_digest, verify_password
 from app.services import audit
 from app.services.audit import Actor
-from app.tables import LoginSession, Role, User, utcnow
+from app.tables import LoginAttempt, LoginSession, Role, User, utcnow
 
 USERNAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9._-]{1,63}$")
-
-LAST_SEEN_GRANULARITY = timedelta(minutes=1)
-"""A login's last-seen time is written at most this often, so reads stay reads."""
 
 
 def normalise_username(username: str) -> str:
@@ -60,13 +57,54 @@ def count_users(db: Session) -> int:
     return db.scalar(select(func.count()).select_from(User)) or 0
 
 
-def authenticate(db: Session, *, username: str, password: str) -> User | None:
-    """The active user with these credentials, or None (never saying which part was wrong)."""
-    user = db.scalar(select(User).where(User.username == normalise_username(username)))
+THROTTLE_WINDOW = timedelta(minutes=15)
+MAX_FAILURES_PER_ACCOUNT = 5
+MAX_FAILURES_PER_ADDRESS = 20
+
+
+def _throttle(db: Session, *, username: str, client_address: str) -> None:
+    """Refuse (429) while an account or an address has failed too often in the window."""
+    since = utcnow() - THROTTLE_WINDOW
+    for column, value, limit, what in (
+        (LoginAttempt.username, username, MAX_FAILURES_PER_ACCOUNT, "this account"),
+        (LoginAttempt.client_address, client_address, MAX_FAILURES_PER_ADDRESS, "this address"),
+    ):
+        if not value:
+            continue
+        failures = db.scalars(
+            select(LoginAttempt.attempted_at)
+            .where(
+                column == value,
+                LoginAttempt.attempted_at > since,
+                LoginAttempt.succeeded.is_(False),
+            )
+            .order_by(LoginAttempt.attempted_at.desc())
+            .limit(limit)
+        ).all()
+        if len(failures) >= limit:
+            wait = failures[-1] + THROTTLE_WINDOW - utcnow()
+            minutes = max(1, int(wait.total_seconds() // 60) + 1)
+            raise TooManyAttempts(
+                f"too many failed sign-ins from {what}; try again in {minutes} minutes"
+            )
+
+
+def authenticate(
+    db: Session, *, username: str, password: str, client_address: str = ""
+) -> User | None:
+    """The active user with these credentials, or None (never saying which part was wrong).
+
+    Every attempt is recorded (and committed, successful or not); after repeated failures the
+    account or the address is refused with TooManyAttempts before any password is checked.
+    """
+    name = normalise_username(username)[:64]
+    _throttle(db, username=name, client_address=client_address[:64])
+    user = db.scalar(select(User).where(User.username == name))
     valid = verify_password(user.password_hash if user else None, password)
-    if user is None or not valid or not user.is_active:
-        return None
-    return user
+    ok = user is not None and valid and user.is_active
+    db.add(LoginAttempt(username=name, client_address=client_address[:64], succeeded=ok))
+    db.commit()
+    return user if ok else None
 
 
 @dataclass(frozen=True)
@@ -118,19 +156,6 @@ def resolve_login(db: Session, *, token: str, idle_timeout: timedelta) -> LoginS
     ):
         return None
     return login
-
-
-def login_needs_touch(login: LoginSession) -> bool:
-    """Whether the login's last-seen time is stale enough to be written again."""
-    return utcnow() - login.last_seen_at >= LAST_SEEN_GRANULARITY
-
-
-def touch_login(db: Session, *, login_id: int) -> None:
-    """Record activity on a login; commits. Call with a write session of its own."""
-    db.execute(
-        update(LoginSession).where(LoginSession.id == login_id).values(last_seen_at=utcnow())
-    )
-    db.commit()
 
 
 def sign_out(db: Session, *, login: LoginSession) -> None:

@@ -13,7 +13,14 @@ from typing import Annotated
 from fastapi import APIRouter, Form, Request
 from fastapi.responses import RedirectResponse, Response
 
-from app.deps import SESSION_COOKIE, CurrentLogin, SessionDep, SettingsDep
+from app.deps import (
+    SESSION_COOKIE,
+    CurrentLogin,
+    SessionDep,
+    SettingsDep,
+    set_session_cookie,
+)
+from app.errors import TooManyAttempts
 from app.security import new_token, same, sign, unsign
 from app.services import users
 from app.web.templating import render
@@ -50,14 +57,6 @@ def _login_page(
     return response
 
 
-def _secure(request: Request, settings: SettingsDep) -> bool:
-    return (
-        settings.cookie_secure
-        if settings.cookie_secure is not None
-        else (request.url.scheme == "https")
-    )
-
-
 @router.get("/login")
 def login_form(request: Request, next: str = "/") -> Response:
     """The sign-in page."""
@@ -86,7 +85,17 @@ def login(
             error="The form expired or did not come from this site; please sign in again.",
             status_code=403,
         )
-    user = users.authenticate(db, username=username, password=password)
+    try:
+        user = users.authenticate(
+            db,
+            username=username,
+            password=password,
+            client_address=request.client.host if request.client else "",
+        )
+    except TooManyAttempts as exc:
+        return _login_page(
+            request, next_url=next_url, username=username, error=exc.message, status_code=429
+        )
     if user is None:
         return _login_page(
             request,
@@ -103,14 +112,7 @@ def login(
         client_address=request.client.host if request.client else "",
     )
     response = RedirectResponse(next_url, status_code=303)
-    response.set_cookie(
-        SESSION_COOKIE,
-        new_login.token,
-        httponly=True,
-        samesite="lax",
-        secure=_secure(request, settings),
-        max_age=int(settings.session_hours * 3600),
-    )
+    set_session_cookie(response, request, settings, new_login.token)
     response.delete_cookie(LOGIN_NONCE_COOKIE)
     return response
 

@@ -9,10 +9,10 @@ from fastapi.responses import Response
 
 from app.deps import CurrentUser, ExperimenterUser, FormFields, SessionDep
 from app.errors import Conflict, InvalidInput
-from app.services import enrolment, studies
+from app.services import enrolment, overview, studies
 from app.services.audit import Actor
 from app.tables import Role, User
-from app.web.templating import redirect_with_notice, render
+from app.web.templating import is_htmx, redirect_with_notice, render
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
 
@@ -48,31 +48,27 @@ def _study_page(
     *,
     form_error: str = "",
     form_values: dict[str, str] | None = None,
+    revealed: str = "",
     status_code: int = 200,
 ) -> Response:
     study = studies.get_study(db, name)
     protocol = studies.protocol_of(study)
-    actor = Actor.of_user(user)
-    participants = [
-        {
-            "participant": p,
-            "label": enrolment.condition_label(protocol, p.allocation.condition, actor=actor),
-        }
-        for p in enrolment.list_participants(db, study)
-    ]
     return render(
         request,
         "study.html",
         {
             "study": study,
             "protocol": protocol,
-            "participants": participants,
+            "overview": overview.study_overview(db, study=study, actor=Actor.of_user(user)),
             "can_enrol": user.role in (Role.ADMIN, Role.EXPERIMENTER),
             "form_error": form_error,
             "form_values": form_values or {},
+            "revealed": revealed,
             "stratum_prefix": STRATUM_FIELD_PREFIX,
         },
-        block="participants",
+        block="participant_table"
+        if request.query_params.get("block") == "participant_table"
+        else "participants",
         status_code=status_code,
     )
 
@@ -115,9 +111,10 @@ def enrol(
         )
     protocol = studies.protocol_of(studies.get_study(db, name))
     label = enrolment.condition_label(protocol, result.condition, actor=actor)
-    return redirect_with_notice(
-        request, f"/studies/{name}", f"Enrolled {result.participant.code}: allocated to {label}."
-    )
+    revealed = f"Enrolled {result.participant.code}: allocated to {label}."
+    if is_htmx(request):  # the allocation is shown once, inside the part htmx swaps in
+        return _study_page(request, db, user, name, revealed=revealed)
+    return redirect_with_notice(request, f"/studies/{name}", revealed)
 
 
 @router.get("/studies/{name}/participants/{code}/withdraw")

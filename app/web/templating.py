@@ -42,11 +42,11 @@ def is_htmx(request: Request) -> bool:
 
 
 def _base_context(request: Request) -> dict[str, Any]:
-    login = getattr(request.state, "login", None)
+    viewer = getattr(request.state, "viewer", None)
     return {
         "request": request,
-        "user": login.user if login else None,
-        "csrf_token": login.csrf_token if login else "",
+        "user": viewer,
+        "csrf_token": viewer.csrf_token if viewer else "",
         "csrf_field": CSRF_FIELD,
         "csrf_header": CSRF_HEADER,
         "notice": _read_notice(request),

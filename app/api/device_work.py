@@ -1,0 +1,78 @@
+"""A robot's request as one unit of work: authenticate its key, run the operation, commit, close.
+
+All of it happens in a single thread-pool hop, after admission (app.deps), so a request never holds
+a connection or SQLite's write lock while waiting for a thread, and the write lock is held only
+for the transaction itself. The REST routes and the station WebSocket both come through here, so a
+robot gets the same behaviour whichever transport it speaks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Annotated, TypeVar
+
+from fastapi import Depends
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
+from starlette.types import ASGIApp
+
+from app.activity import ActivityRecorder
+from app.db import Database
+from app.errors import NotAuthenticated
+from app.services import stations
+from app.services.audit import Actor
+from app.tables import ActorKind, Device
+
+T = TypeVar("T")
+
+_bearer = HTTPBearer(
+    auto_error=False,
+    scheme_name="DeviceKey",
+    description="A station's device key: `Authorization: Bearer tlk_…`.",
+)
+
+
+async def device_key(
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+) -> str:
+    """The device key of the request (no database work: that happens in :func:`as_device`)."""
+    key = credentials.credentials if credentials is not None else ""
+    # Refused here, before the body is validated, when it cannot be a device key at all: a
+    # participant's or a forged token learns nothing about the route's body from a 422.
+    if not key.startswith(stations.KEY_PREFIX) or len(key) > 200:
+        raise NotAuthenticated("send the device key as the header 'Authorization: Bearer tlk_…'")
+    return key
+
+
+DeviceKey = Annotated[str, Depends(device_key)]
+
+
+def device_actor(device: Device) -> Actor:
+    """How a device appears in the audit log and the step log."""
+    return Actor(ActorKind.DEVICE, f"{device.station.name}/{device.label}"[:64])
+
+
+def _work(
+    database: Database,
+    activity: ActivityRecorder | None,
+    key: str,
+    write: bool,
+    op: Callable[[Session, Device], T],
+) -> T:
+    with database.write_session() if write else database.read_session() as db:
+        device = stations.authenticate_device(db, key=key)
+        if activity is not None:
+            activity.note_device(device.id)
+        return op(db, device)
+
+
+async def as_device(
+    app: ASGIApp, key: str, *, write: bool, op: Callable[[Session, Device], T]
+) -> T:
+    """Run ``op(db, device)`` for the device holding ``key``, as one admitted unit of work."""
+    state = app.state  # type: ignore[attr-defined]
+    database: Database = state.database
+    activity: ActivityRecorder | None = getattr(state, "activity", None)
+    async with database.admission():
+        return await run_in_threadpool(_work, database, activity, key, write, op)

@@ -1,0 +1,144 @@
+"""Bodies of the session-runtime API, shared by the robot routes, the experimenter's
+Wizard-of-Oz routes, the station WebSocket (which carries the same JSON) and app/client.py.
+
+Pure pydantic: importing this module pulls in neither the database nor the adaptation engine."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+from app.api.schemas import RequestBody
+
+
+class PromptRequest(RequestBody):
+    """Ask for the question of one category."""
+
+    category: str = Field(max_length=40, examples=["conation"])
+
+
+class AnswerRequest(RequestBody):
+    """The participant's yes/no answer to a step, with a key that makes retries safe."""
+
+    answer: Literal["yes", "no"]
+    idempotency_key: str = Field(
+        min_length=1, max_length=100, description="Unique per answer; reuse it when retrying."
+    )
+
+
+class Assignment(RequestBody):
+    """Which participant sits at the station."""
+
+    study: str = Field(max_length=64)
+    code: str = Field(max_length=32)
+
+
+class StationCreate(RequestBody):
+    """A new station."""
+
+    name: str = Field(max_length=64, examples=["lab-1"])
+
+
+class DeviceCreate(RequestBody):
+    """A new device key for a station."""
+
+    label: str = Field(default="robot", max_length=64, examples=["pepper"])
+
+
+class ExpectedOut(BaseModel):
+    """What the station should do next."""
+
+    action: Literal["assign", "start_session", "wait", "prompt", "answer", "done", "none"]
+    message: str
+    categories: list[str]
+    step_id: int | None
+    session: int | None
+
+
+class PromptOut(BaseModel):
+    """A step's question: ask it, then post the yes/no answer to ``step_id``."""
+
+    step_id: int
+    category: str
+    action: int = Field(description="Index of the chosen question among the category's K.")
+    question: str
+    probabilities: list[float] = Field(description="The learner's probabilities when choosing.")
+    adapts: bool = Field(description="False in the familiarisation run: answers are not learned.")
+    session: int
+    run: int
+    created: bool = Field(description="False when this is the category's open prompt again.")
+
+
+class AnswerOut(BaseModel):
+    """The robot's reply to an answer, and the learner's updated probabilities."""
+
+    step_id: int
+    category: str
+    answer: Literal["yes", "no"]
+    reply: str
+    confidence_level: int
+    confidence: str
+    probability: float = Field(description="The probability the reply's confidence comes from.")
+    probabilities: list[float] = Field(description="The learner's probabilities after the answer.")
+    replayed: bool = Field(description="True when this answer had been recorded before.")
+    run_completed: bool
+    session_completed: bool
+    expected: ExpectedOut
+
+
+class SessionOut(BaseModel):
+    """The participant's current session."""
+
+    number: int
+    status: str
+    runs: int
+    familiarisation: bool
+
+
+class RunOut(BaseModel):
+    """The current run."""
+
+    number: int
+    status: str
+    answered: list[str]
+    pending: list[str]
+
+
+class StationStateOut(BaseModel):
+    """Where a station stands (participant codes only: conditions are never shown to clients)."""
+
+    station: str
+    participant: str | None
+    study: str | None
+    session: SessionOut | None
+    run: RunOut | None
+    open_prompts: list[PromptOut]
+    expected: ExpectedOut
+
+
+class DeviceOut(BaseModel):
+    """A device key's public facts."""
+
+    id: int
+    station: str
+    label: str
+    key_prefix: str
+    created_at: Any
+    revoked_at: Any | None
+    last_seen_at: Any | None
+
+
+class IssuedDeviceOut(DeviceOut):
+    """A new device and its key, shown this once."""
+
+    key: str
+
+
+class StationOut(BaseModel):
+    """A station, who is assigned and its devices."""
+
+    name: str
+    participant: str | None
+    study: str | None
+    devices: list[DeviceOut]

@@ -1,0 +1,81 @@
+"""Sign-in for API clients (scripts, the bots): the same login session as the pages.
+
+JSON only: a cross-site HTML form cannot send ``application/json``, so this route needs no CSRF
+token of its own; the response hands the client the login's CSRF token for later requests.
+"""
+
+from __future__ import annotations
+
+from datetime import timedelta
+
+from fastapi import APIRouter, Request, Response
+from pydantic import BaseModel, Field
+
+from app.api.schemas import RequestBody
+from app.deps import (
+    SESSION_COOKIE,
+    CurrentLogin,
+    SessionDep,
+    SettingsDep,
+    set_session_cookie,
+)
+from app.errors import InvalidInput, NotAuthenticated
+from app.services import users
+
+router = APIRouter(prefix="/session", tags=["session"])
+
+
+class Credentials(RequestBody):
+    """A username and password."""
+
+    username: str = Field(max_length=200)
+    password: str = Field(max_length=1024)
+
+
+class SignedIn(BaseModel):
+    """Who is signed in, and the token to send as ``X-CSRF-Token`` with unsafe requests."""
+
+    username: str
+    role: str
+    csrf_token: str
+
+
+@router.post("")
+def sign_in(
+    body: Credentials, request: Request, response: Response, db: SessionDep, settings: SettingsDep
+) -> SignedIn:
+    """Sign in; sets the session cookie."""
+    if not request.headers.get("content-type", "").startswith("application/json"):
+        raise InvalidInput("send the credentials as application/json")
+    user = users.authenticate(
+        db,
+        username=body.username,
+        password=body.password,
+        client_address=request.client.host if request.client else "",
+    )
+    if user is None:
+        raise NotAuthenticated("invalid username or password")
+    new_login = users.sign_in(
+        db,
+        user=user,
+        lifetime=timedelta(hours=settings.session_hours),
+        user_agent=request.headers.get("user-agent", ""),
+        client_address=request.client.host if request.client else "",
+    )
+    set_session_cookie(response, request, settings, new_login.token)
+    return SignedIn(username=user.username, role=user.role, csrf_token=new_login.session.csrf_token)
+
+
+@router.get("")
+def whoami(login: CurrentLogin) -> SignedIn:
+    """The signed-in user and the login's CSRF token."""
+    return SignedIn(username=login.user.username, role=login.user.role, csrf_token=login.csrf_token)
+
+
+@router.delete("", status_code=204)
+def sign_out(login: CurrentLogin, db: SessionDep, response: Response) -> Response:
+    """End the login session."""
+    users.sign_out(db, login=login)
+    response.delete_cookie(SESSION_COOKIE)
+    response.status_code = 204
+    return response

@@ -1,0 +1,150 @@
+"""The station operations, once: used by the robot's REST routes, the experimenter's
+Wizard-of-Oz routes and the station WebSocket, so every client goes through the same path."""
+
+from __future__ import annotations
+
+from sqlalchemy.orm import Session
+
+from app.api.runtime_schemas import (
+    AnswerOut,
+    AnswerRequest,
+    DeviceOut,
+    ExpectedOut,
+    PromptOut,
+    PromptRequest,
+    RunOut,
+    SessionOut,
+    StationStateOut,
+)
+from app.services import runtime
+from app.services.audit import Actor
+from app.tables import Device, Prompt, Station
+
+
+def state(db: Session, *, station: str) -> StationStateOut:
+    """The station's state and what is expected next."""
+    return state_out(runtime.station_view(db, station_name=station))
+
+
+def prompt(
+    db: Session, *, station: str, body: PromptRequest, actor: Actor, device_id: int | None
+) -> PromptOut:
+    """Choose a question for a category (or hand out its open one again)."""
+    result = runtime.request_prompt(
+        db, station_name=station, category=body.category, actor=actor, device_id=device_id
+    )
+    return prompt_out(
+        result.prompt, session=result.session_number, run=result.run_number, created=result.created
+    )
+
+
+def answer(
+    db: Session,
+    *,
+    station: str,
+    step_id: int,
+    body: AnswerRequest,
+    actor: Actor,
+    device_id: int | None,
+) -> AnswerOut:
+    """Record an answer exactly once and return the reply."""
+    result = runtime.record_answer(
+        db,
+        station_name=station,
+        step_id=step_id,
+        answer=body.answer == "yes",
+        idempotency_key=body.idempotency_key,
+        actor=actor,
+        device_id=device_id,
+    )
+    return answer_out(result, result.expected)
+
+
+def start_run(db: Session, *, station: str, actor: Actor) -> StationStateOut:
+    """Start the next run of the running session."""
+    runtime.start_run(db, station_name=station, actor=actor)
+    return state(db, station=station)
+
+
+# ------------------------------------------------------------------ service objects → bodies
+
+
+def expected_out(expected: runtime.Expected) -> ExpectedOut:
+    """Serialise an expectation."""
+    return ExpectedOut(
+        action=expected.action,
+        message=expected.message,
+        categories=expected.categories,
+        step_id=expected.step_id,
+        session=expected.session,
+    )
+
+
+def prompt_out(prompt: Prompt, *, session: int, run: int, created: bool) -> PromptOut:
+    """Serialise a prompt."""
+    return PromptOut(
+        step_id=prompt.id,
+        category=prompt.category,
+        action=prompt.action,
+        question=prompt.question,
+        probabilities=prompt.probabilities,
+        adapts=prompt.adapts,
+        session=session,
+        run=run,
+        created=created,
+    )
+
+
+def answer_out(result: runtime.AnswerResult, expected: runtime.Expected) -> AnswerOut:
+    """Serialise an answer with what comes next."""
+    answer = result.answer
+    return AnswerOut(
+        step_id=result.prompt.id,
+        category=result.prompt.category,
+        answer="yes" if answer.answer else "no",
+        reply=answer.reply,
+        confidence_level=answer.confidence_level,
+        confidence=answer.confidence,
+        probability=answer.probability,
+        probabilities=answer.probabilities_after,
+        replayed=result.replayed,
+        run_completed=result.run_completed,
+        session_completed=result.session_completed,
+        expected=expected_out(expected),
+    )
+
+
+def state_out(view: runtime.StationView) -> StationStateOut:
+    """Serialise a station view (open prompts always belong to the current run)."""
+    session = SessionOut(**view.session) if view.session else None
+    run = RunOut(**view.run) if view.run else None
+    return StationStateOut(
+        station=view.station,
+        participant=view.participant,
+        study=view.study,
+        session=session,
+        run=run,
+        open_prompts=[
+            prompt_out(
+                p,
+                session=session.number if session else 0,
+                run=run.number if run else 0,
+                created=False,
+            )
+            for p in view.open_prompts
+        ],
+        expected=expected_out(view.expected),
+    )
+
+
+def device_out(device: Device, station: Station) -> DeviceOut:
+    """Serialise a device (never its key)."""
+    return DeviceOut(
+        id=device.id,
+        station=station.name,
+        label=device.label,
+        key_prefix=device.key_prefix,
+        created_at=device.created_at,
+        revoked_at=device.revoked_at,
+        last_seen_at=device.last_seen_at,
+    )

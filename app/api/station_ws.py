@@ -1,0 +1,328 @@
+"""The station WebSocket: the robot API over one connection, plus server pushes.
+
+Protocol (JSON text frames; docs/robot-integration.md has a transcript):
+
+- Authenticate with the header ``Authorization: Bearer tlk_…``, or, for clients that cannot set
+  headers, with ``{"type": "auth", "key": "tlk_…"}`` as the first message (within 10 s).
+- The server greets with ``{"type": "hello", "station": …, "heartbeat_seconds": …, "state": …}``.
+- Requests carry an ``id`` echoed in the reply: ``state``, ``prompt`` (``category``), ``answer``
+  (``step_id``, ``answer``, ``idempotency_key``), ``start_run``, ``ping``. Replies are
+  ``{"type": "result", "id": …, "op": …, "data": …}`` or
+  ``{"type": "error", "id": …, "status": 4xx, "detail": …}`` with the same bodies and statuses as
+  the REST routes.
+- Pushes: ``{"type": "event", "event": "session_started", "data": …, "state": …}`` whenever the
+  station changes (participant assigned, session/run started or ended, prompt, answer).
+- Heartbeats: the server sends ``{"type": "ping"}`` every ``heartbeat_seconds`` and closes the
+  connection (code 4408) after three intervals without hearing from the client.
+
+A client that reconnects gets the current state (open prompts included) in ``hello``; prompts and
+answers are idempotent, so resuming never duplicates a step.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from sqlalchemy.exc import OperationalError
+from starlette.concurrency import run_in_threadpool
+
+from app.api import station_ops
+from app.api.device_work import as_device, device_actor
+from app.api.runtime_schemas import AnswerRequest, PromptRequest
+from app.db import Database
+from app.errors import NotAuthenticated, TrustlabError
+from app.events import Event
+from app.services import stations
+
+log = logging.getLogger(__name__)
+
+router = APIRouter(tags=["robot"])
+
+AUTH_TIMEOUT_SECONDS = 10.0
+MISSED_HEARTBEATS = 3
+CLOSE_UNAUTHENTICATED = 4401
+CLOSE_HEARTBEAT_TIMEOUT = 4408
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    id: str | int | None = None
+
+
+class StateMessage(_Message):
+    """Ask for the station's state."""
+
+    type: Literal["state"]
+
+
+class PromptMessage(_Message):
+    """Ask for a category's question."""
+
+    type: Literal["prompt"]
+    category: str = Field(max_length=40)
+
+
+class AnswerMessage(_Message):
+    """Record an answer."""
+
+    type: Literal["answer"]
+    step_id: int
+    answer: Literal["yes", "no"]
+    idempotency_key: str = Field(min_length=1, max_length=100)
+
+
+class StartRunMessage(_Message):
+    """Start the next run."""
+
+    type: Literal["start_run"]
+
+
+class PingMessage(_Message):
+    """Liveness check (any message counts as a heartbeat)."""
+
+    type: Literal["ping", "pong"]
+
+
+ClientMessage = Annotated[
+    StateMessage | PromptMessage | AnswerMessage | StartRunMessage | PingMessage,
+    Field(discriminator="type"),
+]
+_parse = TypeAdapter(ClientMessage)
+
+
+@dataclass(frozen=True)
+class _Device:
+    key: str
+    station: str
+    station_id: int
+
+
+def _authenticate(database: Database, key: str) -> _Device:
+    with database.read_session() as db:
+        device = stations.authenticate_device(db, key=key)
+        return _Device(key=key, station=device.station.name, station_id=device.station_id)
+
+
+def _describe(exc: ValidationError) -> str:
+    parts = []
+    for error in exc.errors()[:5]:
+        location = ".".join(str(p) for p in error.get("loc", ()))
+        parts.append(f"{location}: {error['msg']}" if location else error["msg"])
+    return "; ".join(parts)
+
+
+class _Connection:
+    def __init__(
+        self, websocket: WebSocket, database: Database, device: _Device, heartbeat: float
+    ) -> None:
+        self.websocket = websocket
+        self.database = database
+        self.device = device
+        self.heartbeat = heartbeat
+        self._send_lock = asyncio.Lock()
+        self._heard = asyncio.get_running_loop().time()
+
+    async def send(self, message: dict[str, Any]) -> None:
+        async with self._send_lock:
+            await self.websocket.send_text(json.dumps(message, default=str))
+
+    async def state(self) -> dict[str, Any]:
+        out = await as_device(
+            self.websocket.app,
+            self.device.key,
+            write=False,
+            op=lambda db, _device: station_ops.state(db, station=self.device.station),
+        )
+        return out.model_dump(mode="json")
+
+    async def handle(self, raw: str) -> None:
+        request_id: Any = None
+        try:
+            data = json.loads(raw)
+            request_id = data.get("id") if isinstance(data, dict) else None
+            message = _parse.validate_python(data)
+        except json.JSONDecodeError as exc:
+            await self.send(
+                {"type": "error", "id": None, "status": 400, "detail": f"not JSON: {exc.msg}"}
+            )
+            return
+        except ValidationError as exc:
+            await self.send(
+                {"type": "error", "id": request_id, "status": 422, "detail": _describe(exc)}
+            )
+            return
+        if isinstance(message, PingMessage):
+            if message.type == "ping":
+                await self.send({"type": "pong", "id": message.id})
+            return
+        try:
+            result = await self._run(message)
+        except TrustlabError as exc:
+            await self.send(
+                {
+                    "type": "error",
+                    "id": message.id,
+                    "status": exc.status_code,
+                    "detail": exc.message,
+                }
+            )
+            return
+        except OperationalError:
+            await self.send(
+                {
+                    "type": "error",
+                    "id": message.id,
+                    "status": 503,
+                    "detail": "the database is unavailable right now; please retry",
+                }
+            )
+            return
+        await self.send({"type": "result", "id": message.id, "op": message.type, "data": result})
+
+    async def _run(self, message: _Message) -> dict[str, Any]:
+        station = self.device.station
+        if isinstance(message, StateMessage):
+            return await self.state()
+        if isinstance(message, PromptMessage):
+            body = PromptRequest(category=message.category)
+
+            def prompt_op(db: Any, device: Any) -> Any:
+                return station_ops.prompt(
+                    db,
+                    station=station,
+                    body=body,
+                    actor=device_actor(device),
+                    device_id=device.id,
+                )
+
+            out = await as_device(self.websocket.app, self.device.key, write=True, op=prompt_op)
+        elif isinstance(message, AnswerMessage):
+            answer_body = AnswerRequest(
+                answer=message.answer, idempotency_key=message.idempotency_key
+            )
+            step_id = message.step_id
+
+            def answer_op(db: Any, device: Any) -> Any:
+                return station_ops.answer(
+                    db,
+                    station=station,
+                    step_id=step_id,
+                    body=answer_body,
+                    actor=device_actor(device),
+                    device_id=device.id,
+                )
+
+            out = await as_device(self.websocket.app, self.device.key, write=True, op=answer_op)
+        else:
+
+            def run_op(db: Any, device: Any) -> Any:
+                return station_ops.start_run(db, station=station, actor=device_actor(device))
+
+            out = await as_device(self.websocket.app, self.device.key, write=True, op=run_op)
+        result: dict[str, Any] = out.model_dump(mode="json")
+        return result
+
+    async def read_loop(self) -> None:
+        while True:
+            raw = await self.websocket.receive_text()
+            self._heard = asyncio.get_running_loop().time()
+            await self.handle(raw)
+
+    async def push_loop(self) -> None:
+        topic = f"station:{self.device.station_id}"
+        async with self.database.hub.subscribe([topic]) as subscription:
+            while True:
+                event: Event = await subscription.next()
+                try:
+                    state = await self.state()
+                except NotAuthenticated:
+                    await self.websocket.close(CLOSE_UNAUTHENTICATED, "device key revoked")
+                    return
+                await self.send(
+                    {"type": "event", "event": event.type, "data": event.data, "state": state}
+                )
+
+    async def heartbeat_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await asyncio.sleep(self.heartbeat)
+            if loop.time() - self._heard > self.heartbeat * MISSED_HEARTBEATS:
+                await self.websocket.close(CLOSE_HEARTBEAT_TIMEOUT, "no heartbeat from the client")
+                return
+            await self.send({"type": "ping"})
+
+    async def serve(self) -> None:
+        await self.send(
+            {
+                "type": "hello",
+                "station": self.device.station,
+                "heartbeat_seconds": self.heartbeat,
+                "state": await self.state(),
+            }
+        )
+        tasks = [
+            asyncio.create_task(self.read_loop()),
+            asyncio.create_task(self.push_loop()),
+            asyncio.create_task(self.heartbeat_loop()),
+        ]
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in tasks:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
+                    await task
+
+
+async def _key_from_first_message(websocket: WebSocket) -> str:
+    try:
+        raw = await asyncio.wait_for(websocket.receive_text(), AUTH_TIMEOUT_SECONDS)
+        message = json.loads(raw)
+    except (TimeoutError, json.JSONDecodeError):
+        return ""
+    if isinstance(message, dict) and message.get("type") == "auth":
+        return str(message.get("key", ""))
+    return ""
+
+
+@router.websocket("/station/ws")
+async def station_socket(websocket: WebSocket) -> None:
+    """One robot client's connection to its station."""
+    database: Database = websocket.app.state.database
+    heartbeat: float = websocket.app.state.settings.websocket_heartbeat_seconds
+    scheme, _, key = websocket.headers.get("authorization", "").partition(" ")
+    key = key.strip() if scheme.lower() == "bearer" else ""
+    await websocket.accept()
+    if not key:
+        key = await _key_from_first_message(websocket)
+    try:
+        device = await run_in_threadpool(_authenticate, database, key)
+    except NotAuthenticated:
+        await websocket.close(CLOSE_UNAUTHENTICATED, "unknown or revoked device key")
+        return
+    connection = _Connection(websocket, database, device, heartbeat)
+    await _mark(websocket, device.key, connected=True)
+    try:
+        with contextlib.suppress(WebSocketDisconnect):
+            await connection.serve()
+    finally:
+        await _mark(websocket, device.key, connected=False)
+
+
+async def _mark(websocket: WebSocket, key: str, *, connected: bool) -> None:
+    """Remember whether the device is connected (shown on the stations page)."""
+
+    def mark(db: Any, device: Any) -> None:
+        stations.mark_connection(db, device_id=device.id, connected=connected)
+        db.commit()
+
+    with contextlib.suppress(TrustlabError, OperationalError):
+        await as_device(websocket.app, key, write=True, op=mark)

@@ -1,0 +1,165 @@
+"""Stations for experimenters: assignment, session control, devices, and Wizard-of-Oz steps.
+
+The Wizard-of-Oz routes (prompts and answers by an experimenter when no robot client is used) go
+through exactly the same operations as the robot's own routes (app/api/station_ops.py).
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request, Response, status
+from sqlalchemy import select
+
+from app.api import station_ops
+from app.api.runtime_schemas import (
+    AnswerOut,
+    AnswerRequest,
+    Assignment,
+    DeviceCreate,
+    DeviceOut,
+    IssuedDeviceOut,
+    PromptOut,
+    PromptRequest,
+    StationCreate,
+    StationOut,
+    StationStateOut,
+)
+from app.api.schemas import TabletLink
+from app.api.station_ops import device_out
+from app.deps import AdminUser, ExperimenterUser, SessionDep, SettingsDep
+from app.services import enrolment, runtime, stations, studies, tablet_tokens
+from app.services.audit import Actor
+from app.tables import Device, Participant, Study
+
+router = APIRouter(prefix="/stations", tags=["stations"])
+devices_router = APIRouter(prefix="/devices", tags=["stations"])
+
+
+def _station_out(db: SessionDep, station_name: str) -> StationOut:
+    station = stations.get_station(db, station_name)
+    participant = db.get(Participant, station.participant_id) if station.participant_id else None
+    study = db.get(Study, participant.study_id) if participant else None
+    devices = db.scalars(select(Device).where(Device.station_id == station.id).order_by(Device.id))
+    return StationOut(
+        name=station.name,
+        participant=participant.code if participant else None,
+        study=study.name if study else None,
+        devices=[device_out(d, station) for d in devices],
+    )
+
+
+@router.get("")
+def list_stations(db: SessionDep, user: ExperimenterUser) -> list[StationOut]:
+    """Every station, who is assigned and its devices."""
+    return [_station_out(db, s.name) for s in stations.list_stations(db)]
+
+
+@router.post("", status_code=status.HTTP_201_CREATED)
+def create_station(body: StationCreate, db: SessionDep, admin: AdminUser) -> StationOut:
+    """Create a station (admin)."""
+    station = stations.create_station(db, name=body.name, actor=Actor.of_user(admin))
+    return _station_out(db, station.name)
+
+
+@router.get("/{name}/state")
+def get_state(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+    """The station's live state, as its robot sees it."""
+    return station_ops.state(db, station=name)
+
+
+@router.put("/{name}/participant")
+def assign(name: str, body: Assignment, db: SessionDep, user: ExperimenterUser) -> StationOut:
+    """Seat a participant at the station."""
+    study = studies.get_study(db, body.study)
+    participant = enrolment.get_participant(db, study, body.code)
+    stations.assign_participant(
+        db, station_name=name, participant=participant, actor=Actor.of_user(user)
+    )
+    return _station_out(db, name)
+
+
+@router.delete("/{name}/participant")
+def unassign(name: str, db: SessionDep, user: ExperimenterUser) -> StationOut:
+    """Free the station (refused while a session runs)."""
+    stations.unassign(db, station_name=name, actor=Actor.of_user(user))
+    return _station_out(db, name)
+
+
+@router.post("/{name}/sessions", status_code=status.HTTP_201_CREATED)
+def start_session(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+    """Start the assigned participant's next session and its first run."""
+    runtime.start_session(db, station_name=name, actor=Actor.of_user(user))
+    return station_ops.state(db, station=name)
+
+
+@router.post("/{name}/sessions/current/end")
+def end_session(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+    """End the running session early."""
+    runtime.end_session(db, station_name=name, actor=Actor.of_user(user))
+    return station_ops.state(db, station=name)
+
+
+@router.post("/{name}/runs", status_code=status.HTTP_201_CREATED)
+def start_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+    """Start the next run of the running session."""
+    return station_ops.start_run(db, station=name, actor=Actor.of_user(user))
+
+
+@router.post("/{name}/runs/current/end")
+def end_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+    """End the running run early (its unanswered categories stay unanswered)."""
+    runtime.end_run(db, station_name=name, actor=Actor.of_user(user))
+    return station_ops.state(db, station=name)
+
+
+@router.post(
+    "/{name}/prompts",
+    status_code=status.HTTP_201_CREATED,
+    responses={200: {"description": "The category's open prompt, handed out again."}},
+)
+def prompt(
+    name: str, body: PromptRequest, db: SessionDep, user: ExperimenterUser, response: Response
+) -> PromptOut:
+    """Wizard-of-Oz: trigger a category as the robot would."""
+    out = station_ops.prompt(db, station=name, body=body, actor=Actor.of_user(user), device_id=None)
+    if not out.created:
+        response.status_code = status.HTTP_200_OK
+    return out
+
+
+@router.post("/{name}/steps/{step_id}/answer")
+def answer(
+    name: str, step_id: int, body: AnswerRequest, db: SessionDep, user: ExperimenterUser
+) -> AnswerOut:
+    """Wizard-of-Oz: record the participant's yes/no answer as the robot would."""
+    return station_ops.answer(
+        db, station=name, step_id=step_id, body=body, actor=Actor.of_user(user), device_id=None
+    )
+
+
+@router.post("/{name}/devices", status_code=status.HTTP_201_CREATED)
+def issue_key(name: str, body: DeviceCreate, db: SessionDep, admin: AdminUser) -> IssuedDeviceOut:
+    """Create a device key for the station (admin); the key is shown only in this response."""
+    issued = stations.issue_device_key(
+        db, station_name=name, label=body.label, actor=Actor.of_user(admin)
+    )
+    public = device_out(issued.device, issued.device.station)
+    return IssuedDeviceOut(**public.model_dump(), key=issued.key)
+
+
+@devices_router.post("/{device_id}/revoke")
+def revoke_key(device_id: int, db: SessionDep, admin: AdminUser) -> DeviceOut:
+    """Revoke a device key at once (admin)."""
+    device = stations.revoke_device(db, device_id=device_id, actor=Actor.of_user(admin))
+    return device_out(device, device.station)
+
+
+@router.post("/{name}/kiosk")
+def issue_kiosk(
+    name: str, request: Request, db: SessionDep, settings: SettingsDep, admin: AdminUser
+) -> TabletLink:
+    """Issue (or reissue) the station's kiosk link: a tablet that shows whoever is seated here."""
+    station = stations.get_station(db, name, for_update=True)
+    token = tablet_tokens.issue_kiosk_token(
+        db, station=station, secret=settings.secret, actor=Actor.of_user(admin)
+    )
+    return TabletLink(token=token, url=f"{str(request.base_url).rstrip('/')}/k/{token}")

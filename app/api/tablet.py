@@ -1,0 +1,93 @@
+"""The tablet as JSON: for custom tablet apps and the bots. Same flow and rules as the pages.
+
+Authenticate with ``Authorization: Bearer tlp_…`` (a participant's link token) or ``tls_…`` (a
+station kiosk token, which speaks for whoever is assigned to the station).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+from pydantic import BaseModel, Field
+
+from app.api.schemas import RequestBody
+from app.deps import SessionDep
+from app.services import questionnaires
+from app.tablet import BearerTablet, Tablet
+from app.web.tablet_pages import participant_actor
+
+router = APIRouter(prefix="/tablet", tags=["tablet"])
+
+
+class PageOut(BaseModel):
+    """The page the participant should see, with the instrument to fill in if any."""
+
+    participant: str
+    kind: str = Field(description="consent | questionnaire | wait | done | withdrawn")
+    instrument: dict[str, Any] | None = None
+    session: int | None = None
+    consent: dict[str, str] | None = None
+    scales: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class ConsentIn(RequestBody):
+    """Agreement to the consent text."""
+
+    accept: bool
+
+
+class AnswersIn(RequestBody):
+    """One questionnaire page's answers: item key → value (numbers may be sent as numbers)."""
+
+    session: int | None = None
+    answers: dict[str, str | int | float]
+
+
+def _page(db: SessionDep, tablet: Tablet) -> PageOut:
+    page = questionnaires.next_page(db, tablet.participant, tablet.protocol)
+    spec = tablet.protocol.questionnaires
+    return PageOut(
+        participant=tablet.participant.code,
+        kind=page.kind,
+        instrument=page.instrument.model_dump(mode="json") if page.instrument else None,
+        session=page.session,
+        consent={"version": spec.consent.version, "text": spec.consent.text}
+        if page.kind == "consent"
+        else None,
+        scales=[s.model_dump(mode="json") for s in spec.scales] if page.instrument else [],
+    )
+
+
+@router.get("")
+def current_page(db: SessionDep, tablet: BearerTablet) -> PageOut:
+    """Where the participant is in the flow."""
+    return _page(db, tablet)
+
+
+@router.post("/consent")
+def consent(body: ConsentIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
+    """Give consent; returns the next page."""
+    questionnaires.accept_consent(
+        db,
+        participant=tablet.participant,
+        protocol=tablet.protocol,
+        accepted=body.accept,
+        actor=participant_actor(tablet),
+    )
+    return _page(db, tablet)
+
+
+@router.post("/questionnaires/{instrument}", responses={422: {"description": "Per-item errors"}})
+def submit(instrument: str, body: AnswersIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
+    """Submit (or, until locked, revise) one questionnaire page; returns the next page."""
+    questionnaires.submit(
+        db,
+        participant=tablet.participant,
+        protocol=tablet.protocol,
+        instrument_key=instrument,
+        session=body.session,
+        answers={k: str(v) for k, v in body.answers.items()},
+        actor=participant_actor(tablet),
+    )
+    return _page(db, tablet)

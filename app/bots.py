@@ -1,0 +1,343 @@
+"""Simulated participants, driven through the whole protocol over real HTTP and WebSockets.
+
+Each bot is enrolled and randomised like a person, given a tablet link, seated at one of the bot
+stations, and taken through the study:
+
+- its tablet gives consent and fills every questionnaire the flow asks for, answering with a
+  :class:`ResponseModel`;
+- an experimenter client starts each session when the server says one can start;
+- a robot client (the station WebSocket by default, REST optionally) prompts the categories in a
+  fresh random order every run, and the bot answers as the paper's rules say — "yes" to the
+  category's preferred question, "no" to the others — each answer flipped with probability
+  ``noise``.
+
+Used for the demo study of ``make run``, for load tests and the crash test. A failure of one
+participant is counted in the summary and the others carry on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import random
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any, Literal
+
+import httpx
+
+from app.api.runtime_schemas import AnswerOut, PromptOut
+from app.client import ApiError, ExperimenterClient, RobotClient, StationSocket
+
+
+@dataclass(frozen=True)
+class ResponseModel:
+    """Likert answers from a rounded normal, with a condition effect on per-session items.
+
+    A participant of condition ``c`` answers per-session items around
+    ``mean + effect[c] + slope[c] · (session − 1)`` and every other Likert item around ``mean``
+    (in points of a 1-5 scale, rescaled to the item's scale); reverse-keyed items are mirrored;
+    values are clipped to the scale.
+    """
+
+    mean: float = 3.0
+    """Centre of the answers on a 1-5 scale."""
+    sd: float = 0.9
+    """Spread of the answers on a 1-5 scale."""
+    effect: dict[str, float] = field(default_factory=lambda: {"C2": 0.7})
+    """Shift of per-session answers, by condition id."""
+    slope: dict[str, float] = field(default_factory=lambda: {"C2": 0.2})
+    """Change per session of per-session answers, by condition id."""
+
+    def likert(
+        self, rng: random.Random, low: int, high: int, *, reverse: bool, shift: float
+    ) -> int:
+        """One answer on a ``low``..``high`` scale."""
+        span = high - low
+        centre = low + (self.mean - 1.0 + shift) / 4.0 * span
+        value = min(high, max(low, round(rng.gauss(centre, self.sd * span / 4.0))))
+        return low + high - value if reverse else value
+
+
+@dataclass(frozen=True)
+class BotConfig:
+    """How many simulated participants, against which server, answering how."""
+
+    url: str
+    """Base URL of the trustlab server, e.g. http://127.0.0.1:8000."""
+    study: str
+    """Study to enrol the bots in."""
+    participants: int
+    """How many participants to simulate."""
+    username: str
+    """An admin account (bots create their stations and device keys)."""
+    password: str
+    """Its password."""
+    concurrency: int = 4
+    """Participants in progress at once (one bot station each)."""
+    noise: float = 0.0
+    """Probability of answering the robot against the rules."""
+    seed: int = 0
+    """Seeds preferences (where the protocol leaves them open), orders, noise and answers."""
+    transport: Literal["ws", "rest"] = "ws"
+    """How the robot side talks to the server."""
+    station_prefix: str = "bot"
+    """Bot stations are named PREFIX-1 … PREFIX-C."""
+    responses: ResponseModel = field(default_factory=ResponseModel)
+    """How the simulated participants answer the questionnaires."""
+
+
+@dataclass
+class BotSummary:
+    """What the bots did."""
+
+    participants: int = 0
+    completed: int = 0
+    sessions: int = 0
+    steps: int = 0
+    questionnaires: int = 0
+    errors: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        """The summary as one JSON object."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class _Category:
+    name: str
+    arms: int
+    preferred: int | None
+
+
+class _Robot:
+    """Prompt and answer through whichever transport the config chose."""
+
+    def __init__(self, rest: RobotClient | None, socket: StationSocket | None) -> None:
+        self.rest = rest
+        self.socket = socket
+
+    async def prompt(self, category: str) -> PromptOut:
+        if self.socket is not None:
+            return await self.socket.prompt(category)
+        assert self.rest is not None
+        return await self.rest.prompt(category)
+
+    async def answer(self, step_id: int, answer: Literal["yes", "no"]) -> AnswerOut:
+        if self.socket is not None:
+            return await self.socket.answer(step_id, answer)
+        assert self.rest is not None
+        return await self.rest.answer(step_id, answer)
+
+    async def close(self) -> None:
+        if self.socket is not None:
+            await self.socket.close()
+        if self.rest is not None:
+            await self.rest.aclose()
+
+
+def questionnaire_answers(
+    page: dict[str, Any], model: ResponseModel, condition: str, rng: random.Random
+) -> dict[str, Any]:
+    """Valid answers to the questionnaire on a tablet ``page`` (as ``GET /api/v1/tablet`` shows it),
+    drawn from ``model``; session questionnaires shift by the condition's effect and slope."""
+    scales = {s["name"]: s for s in page["scales"]}
+    session = page.get("session")
+    shift = 0.0
+    if session is not None:
+        shift = model.effect.get(condition, 0.0) + model.slope.get(condition, 0.0) * (session - 1)
+    answers: dict[str, Any] = {}
+    for item in page["instrument"]["items"]:
+        if item["kind"] == "likert":
+            scale = scales[item["scale"]]
+            answers[item["key"]] = model.likert(
+                rng, scale["minimum"], scale["maximum"], reverse=item["reverse"], shift=shift
+            )
+        elif item["kind"] == "number":
+            answers[item["key"]] = rng.randint(
+                item["minimum"], max(item["minimum"], min(item["maximum"], 60))
+            )
+        elif item["kind"] == "choice":
+            options = [o["value"] for o in item["options"] if not o["describe"]]
+            answers[item["key"]] = rng.choice(options)
+    return answers
+
+
+class _Tablet:
+    """A participant's tablet over the JSON tablet API."""
+
+    def __init__(
+        self, url: str, token: str, model: ResponseModel, condition: str, rng: random.Random
+    ) -> None:
+        self._client = httpx.AsyncClient(
+            base_url=url.rstrip("/"), timeout=15.0, headers={"Authorization": f"Bearer {token}"}
+        )
+        self.model = model
+        self.condition = condition
+        self.rng = rng
+
+    def _answers(self, page: dict[str, Any]) -> dict[str, Any]:
+        return questionnaire_answers(page, self.model, self.condition, self.rng)
+
+    async def _send(self, method: str, path: str, body: Any = None) -> dict[str, Any]:
+        response = await self._client.request(method, path, json=body)
+        payload: dict[str, Any] = response.json()
+        if response.status_code != 200:
+            raise ApiError(response.status_code, str(payload.get("detail")))
+        return payload
+
+    async def fill(self) -> int:
+        """Answer pages until the tablet says wait or done; returns how many it submitted."""
+        submitted = 0
+        page = await self._send("GET", "/api/v1/tablet")
+        while page["kind"] in ("consent", "questionnaire"):
+            if page["kind"] == "consent":
+                page = await self._send("POST", "/api/v1/tablet/consent", {"accept": True})
+            else:
+                page = await self._send(
+                    "POST",
+                    f"/api/v1/tablet/questionnaires/{page['instrument']['key']}",
+                    {"session": page["session"], "answers": self._answers(page)},
+                )
+            submitted += 1
+        return submitted
+
+    async def aclose(self) -> None:
+        await self._client.aclose()
+
+
+class _Lane:
+    """One bot station, taking participants one after another."""
+
+    def __init__(
+        self,
+        config: BotConfig,
+        station: str,
+        experimenter: ExperimenterClient,
+        robot: _Robot,
+        categories: list[_Category],
+        rng: random.Random,
+        summary: BotSummary,
+        tick: Callable[[], None],
+    ) -> None:
+        self.config = config
+        self.station = station
+        self.experimenter = experimenter
+        self.robot = robot
+        self.categories = categories
+        self.rng = rng
+        self.summary = summary
+        self.tick = tick
+
+    async def run_participant(self) -> None:
+        enrolled = await self.experimenter.enroll(self.config.study)
+        code = str(enrolled["code"])
+        self.summary.participants += 1
+        link = await self.experimenter.call(
+            "POST", f"/studies/{self.config.study}/participants/{code}/link"
+        )
+        tablet = _Tablet(
+            self.config.url,
+            link["token"],
+            self.config.responses,
+            str(enrolled["condition"]),
+            self.rng,
+        )
+        preferred = {
+            c.name: c.preferred if c.preferred is not None else self.rng.randrange(c.arms)
+            for c in self.categories
+        }
+        await self.experimenter.assign(self.station, self.config.study, code)
+        try:
+            while True:
+                submitted = await tablet.fill()  # await first: += would read before the await
+                self.summary.questionnaires += submitted
+                state = await self.experimenter.call("GET", f"/stations/{self.station}/state")
+                expected = state["expected"]
+                if expected["action"] == "done":
+                    self.summary.completed += 1
+                    return
+                if expected["action"] != "start_session":
+                    raise ApiError(409, f"{code}: unexpected state: {expected['message']}")
+                started = await self.experimenter.start_session(self.station)
+                await self._run_session(started.expected.categories, preferred)
+                self.summary.sessions += 1
+        finally:
+            await tablet.aclose()
+            await self.experimenter.unassign(self.station)
+
+    async def _run_session(self, categories: list[str], preferred: dict[str, int]) -> None:
+        """Answer runs until the session is over; each run visits its categories in a new order."""
+        pending = list(categories)
+        while True:
+            order = list(pending)
+            self.rng.shuffle(order)
+            for category in order:
+                step = await self.robot.prompt(category)
+                says_yes = step.action == preferred[category]
+                if self.rng.random() < self.config.noise:
+                    says_yes = not says_yes
+                reply = await self.robot.answer(step.step_id, "yes" if says_yes else "no")
+                self.summary.steps += 1
+                self.tick()
+                if reply.expected.action != "prompt":
+                    return
+                if reply.run_completed:
+                    pending = reply.expected.categories
+                    break
+
+
+async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None) -> BotSummary:
+    """Drive ``config.participants`` simulated participants through the study."""
+    if config.participants < 0 or config.concurrency < 1:
+        raise ValueError("participants must be ≥ 0 and concurrency ≥ 1")
+    if not 0.0 <= config.noise <= 1.0:
+        raise ValueError("noise must lie in [0, 1]")
+    started = time.perf_counter()
+    summary = BotSummary()
+    rng = random.Random(config.seed)
+    async with ExperimenterClient(config.url) as admin:
+        await admin.sign_in(config.username, config.password)
+        protocol = await admin.protocol(config.study)
+        categories = [
+            _Category(c["name"], len(c["questions"]), c.get("preferred"))
+            for c in protocol["categories"]
+        ]
+        queue: asyncio.Queue[int] = asyncio.Queue()
+        for index in range(config.participants):
+            queue.put_nowait(index)
+
+        async def lane_worker(number: int, lane_rng: random.Random) -> None:
+            station = f"{config.station_prefix}-{number}"
+            await admin.ensure_station(station)
+            key = (await admin.issue_key(station, "bots")).key
+            if config.transport == "ws":
+                socket = StationSocket(config.url, key)
+                await socket.open()
+                robot = _Robot(None, socket)
+            else:
+                robot = _Robot(RobotClient(config.url, key), None)
+            lane = _Lane(config, station, admin, robot, categories, lane_rng, summary, tick)
+            try:
+                while not queue.empty():
+                    queue.get_nowait()
+                    try:
+                        await lane.run_participant()
+                    except (
+                        ApiError,
+                        ConnectionError,
+                        TimeoutError,
+                        OSError,
+                        httpx.HTTPError,
+                    ) as exc:
+                        summary.errors.append(f"{station}: {exc}")
+            finally:
+                await robot.close()
+
+        lanes = min(config.concurrency, max(config.participants, 1))
+        await asyncio.gather(
+            *(lane_worker(n, random.Random(rng.random())) for n in range(1, lanes + 1))
+        )
+    summary.seconds = round(time.perf_counter() - started, 3)
+    return summary

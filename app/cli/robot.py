@@ -1,0 +1,146 @@
+"""``trustlab robot`` (a console robot) and ``trustlab bots`` (simulated participants)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+from typing import Annotated, Any, Literal
+
+import typer
+from tqdm import tqdm
+
+from app.bots import BotConfig, run_bots
+from app.cli.admin import JsonFlag, emit_json
+from app.client import ApiError, StationSocket
+from app.errors import InvalidInput
+
+
+def register(cli: typer.Typer) -> None:
+    """Attach these commands to the top-level ``trustlab`` command."""
+    cli.command("robot")(robot)
+    cli.command("bots")(bots)
+
+
+def _show_state(state: dict[str, Any]) -> None:
+    who = state.get("participant") or "nobody"
+    session = state.get("session")
+    run = state.get("run")
+    where = ""
+    if session:
+        where = f", session {session['number']} ({session['status']})"
+        if run:
+            where += f", run {run['number']} ({run['status']})"
+    typer.echo(f"[{state['station']}] {who}{where}")
+    typer.echo(f"  next: {state['expected']['message']}")
+
+
+async def _console(url: str, key: str) -> None:
+    async with StationSocket(url, key) as socket:
+        assert socket.state is not None
+        _show_state(socket.state)
+        while True:
+            state = socket.state or {}
+            expected = state.get("expected", {})
+            categories: list[str] = expected.get("categories") or []
+            if expected.get("action") == "answer" and state.get("open_prompts"):
+                open_prompt = state["open_prompts"][0]
+                await _ask(socket, open_prompt["step_id"], open_prompt["question"])
+                continue
+            if expected.get("action") != "prompt":
+                typer.echo("  waiting for the experimenter… (Ctrl-C quits)")
+                event = await socket.next_event()
+                typer.echo(f"  event: {event.get('event', event['type'])}")
+                continue
+            menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
+            choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
+            if choice.lower() in {"q", "quit"}:
+                return
+            name = (
+                categories[int(choice) - 1]
+                if choice.isdigit() and 0 < int(choice) <= len(categories)
+                else choice
+            )
+            try:
+                step = await socket.prompt(name)
+            except ApiError as exc:
+                typer.echo(f"  refused: {exc.detail}")
+                continue
+            await _ask(socket, step.step_id, step.question)
+
+
+async def _ask(socket: StationSocket, step_id: int, question: str) -> None:
+    typer.echo(f"  robot: {question}")
+    while True:
+        said = (await asyncio.to_thread(input, "  participant (y/n)? ")).strip().lower()
+        if said in {"y", "yes", "n", "no"}:
+            break
+    answer: Literal["yes", "no"] = "yes" if said.startswith("y") else "no"
+    reply = await socket.answer(step_id, answer)
+    typer.echo(
+        f"  robot: {reply.reply}  (confidence {reply.confidence}, p = {reply.probability:.2f})"
+    )
+    socket.state = (await socket.current_state()).model_dump(mode="json")
+    typer.echo(f"  next: {reply.expected.message}")
+
+
+def robot(
+    url: Annotated[str, typer.Option(help="trustlab server, e.g. http://127.0.0.1:8000")],
+    station: Annotated[str, typer.Option(help="The station this robot stands at.")],
+    key: Annotated[str, typer.Option(help="The station's device key (tlk_…).")],
+) -> None:
+    """An interactive console robot: pick a category, read the question, type y/n."""
+    del station  # the key identifies the station; the option documents which one is meant
+    try:
+        asyncio.run(_console(url, key))
+    except (KeyboardInterrupt, EOFError):
+        typer.echo("")
+    except OSError as exc:
+        raise InvalidInput(f"cannot reach {url}: {exc}") from exc
+
+
+def bots(
+    url: Annotated[str, typer.Option(help="trustlab server, e.g. http://127.0.0.1:8000")],
+    study: Annotated[str, typer.Option(help="Study to enrol the simulated participants in.")],
+    participants: Annotated[int, typer.Option(min=0, help="How many participants.")],
+    concurrency: Annotated[int, typer.Option(min=1, help="Participants at once.")] = 4,
+    username: Annotated[str, typer.Option(help="An admin account.")] = "admin",
+    password_stdin: Annotated[
+        bool, typer.Option("--password-stdin", help="Read the password from standard input.")
+    ] = False,
+    noise: Annotated[
+        float, typer.Option(min=0.0, max=1.0, help="Chance of answering against the rules.")
+    ] = 0.0,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    transport: Annotated[str, typer.Option(help="ws or rest for the robot side.")] = "ws",
+    as_json: JsonFlag = False,
+) -> None:
+    """Simulated participants driven through the whole protocol over HTTP/WebSocket."""
+    if not password_stdin:
+        raise InvalidInput("give the admin password on standard input with --password-stdin")
+    if transport not in ("ws", "rest"):
+        raise InvalidInput("--transport is ws or rest")
+    config = BotConfig(
+        url=url,
+        study=study,
+        participants=participants,
+        username=username,
+        password=sys.stdin.readline().rstrip("\r\n"),
+        concurrency=concurrency,
+        noise=noise,
+        seed=seed,
+        transport=transport,  # type: ignore[arg-type]
+    )
+    with tqdm(desc="answers", unit="step", file=sys.stderr, disable=as_json) as bar:
+        try:
+            summary = asyncio.run(run_bots(config, tick=lambda: bar.update(1)))
+        except ApiError as exc:
+            raise InvalidInput(f"the server refused: {exc.detail}") from exc
+        except OSError as exc:
+            raise InvalidInput(f"cannot reach {url}: {exc}") from exc
+    if as_json:
+        emit_json(summary.to_json())
+    else:
+        typer.echo(json.dumps(summary.to_json(), indent=2))
+    if summary.errors:
+        raise typer.Exit(1)

@@ -1,0 +1,216 @@
+"""Live events: published inside a transaction, delivered only if it commits, to every worker.
+
+Services call :func:`publish` with the request's database session. The event waits on the
+session until the transaction ends:
+
+- PostgreSQL: just before COMMIT the events become ``pg_notify('trustlab', …)`` calls in the same
+  transaction, so PostgreSQL delivers them exactly when (and only if) the data is visible, to every
+  worker process LISTENing, including this one. One path, whatever the number of workers.
+- SQLite (one process by design): after COMMIT the events go straight to this process's hub.
+
+A rolled-back transaction drops its events. Each process has one :class:`EventHub` that fans events
+out to asyncio subscribers (robot WebSockets, dashboard streams) by topic, e.g. ``station:3``,
+``study:1``, ``participant:42``. Events are small hints ("something changed, here is what"); a
+subscriber that falls behind is told to resynchronise rather than fed an unbounded queue.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import threading
+from collections.abc import AsyncIterator, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import psycopg
+from sqlalchemy import event, text
+from sqlalchemy.engine import make_url
+from sqlalchemy.orm import Session, sessionmaker
+
+log = logging.getLogger(__name__)
+
+CHANNEL = "trustlab"
+PENDING_KEY = "trustlab_pending_events"
+MAX_PAYLOAD_BYTES = 7900  # PostgreSQL refuses NOTIFY payloads of 8000 bytes or more
+QUEUE_SIZE = 256
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that changed: on which topic, what kind of change, and its small payload."""
+
+    topic: str
+    type: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        """The wire form (also the NOTIFY payload)."""
+        return json.dumps({"topic": self.topic, "type": self.type, "data": self.data}, default=str)
+
+    @classmethod
+    def from_json(cls, raw: str) -> Event:
+        """Parse the wire form."""
+        value = json.loads(raw)
+        return cls(topic=value["topic"], type=value["type"], data=value.get("data", {}))
+
+
+RESYNC = Event(topic="*", type="resync")
+"""Sent to a subscriber that missed events: it should fetch the current state again."""
+
+
+def publish(db: Session, *, topics: Iterable[str], type: str, **data: Any) -> None:
+    """Queue an event on ``db``'s transaction for each topic; delivered only on commit."""
+    db.connection()  # make sure a transaction exists, so that its rollback discards the events
+    pending: list[Event] = db.info.setdefault(PENDING_KEY, [])
+    for topic in topics:
+        pending.append(Event(topic=topic, type=type, data=data))
+
+
+class Subscription:
+    """A subscriber's queue, living on the event loop it subscribed from."""
+
+    def __init__(self, topics: frozenset[str]) -> None:
+        self.topics = topics
+        self.loop = asyncio.get_running_loop()
+        self.queue: asyncio.Queue[Event] = asyncio.Queue(maxsize=QUEUE_SIZE)
+        self.lagged = False
+
+    def wants(self, event: Event) -> bool:
+        """Whether this subscriber listens to the event's topic (resyncs go to everyone)."""
+        return event.topic == "*" or event.topic in self.topics
+
+    def offer(self, event: Event) -> None:
+        """Called on the subscriber's loop: enqueue, or flag it to resynchronise."""
+        if self.lagged:
+            return
+        try:
+            self.queue.put_nowait(event)
+        except asyncio.QueueFull:
+            self.lagged = True
+            with contextlib.suppress(asyncio.QueueEmpty):
+                while True:
+                    self.queue.get_nowait()
+            self.queue.put_nowait(RESYNC)
+
+    async def next(self) -> Event:
+        """The next event (a :data:`RESYNC` after falling behind)."""
+        event = await self.queue.get()
+        if event is RESYNC:
+            self.lagged = False
+        return event
+
+
+class EventHub:
+    """One process's fan-out of events to its asyncio subscribers, whatever loop they run on."""
+
+    def __init__(self) -> None:
+        self._subscriptions: set[Subscription] = set()
+        self._lock = threading.Lock()
+
+    def open(self, topics: Iterable[str]) -> Subscription:
+        """Start receiving events of these topics (call from the loop that will read them)."""
+        subscription = Subscription(frozenset(topics))
+        with self._lock:
+            self._subscriptions.add(subscription)
+        return subscription
+
+    def close(self, subscription: Subscription) -> None:
+        """Stop a subscription (idempotent)."""
+        with self._lock:
+            self._subscriptions.discard(subscription)
+
+    @contextlib.asynccontextmanager
+    async def subscribe(self, topics: Iterable[str]) -> AsyncIterator[Subscription]:
+        """Receive events of these topics while the context is open."""
+        subscription = self.open(topics)
+        try:
+            yield subscription
+        finally:
+            self.close(subscription)
+
+    def deliver(self, events: Iterable[Event]) -> None:
+        """Hand events to matching subscribers; safe to call from any thread."""
+        batch = list(events)
+        if not batch:
+            return
+        with self._lock:
+            subscriptions = list(self._subscriptions)
+        for subscription in subscriptions:
+            for item in batch:
+                if subscription.wants(item):
+                    with contextlib.suppress(RuntimeError):  # its loop has closed
+                        subscription.loop.call_soon_threadsafe(subscription.offer, item)
+
+    @property
+    def subscriber_count(self) -> int:
+        """How many subscriptions are open (for tests and the health page)."""
+        with self._lock:
+            return len(self._subscriptions)
+
+
+def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres: bool) -> None:
+    """Make sessions from ``factory`` deliver their pending events on commit."""
+
+    def _drop(session: Session, *_: Any) -> None:
+        session.info.pop(PENDING_KEY, None)
+
+    if postgres:
+
+        @event.listens_for(factory, "before_commit")
+        def _notify(session: Session) -> None:
+            for pending in session.info.pop(PENDING_KEY, []):
+                payload = pending.to_json()
+                if len(payload.encode()) > MAX_PAYLOAD_BYTES:
+                    payload = Event(pending.topic, pending.type, {"truncated": True}).to_json()
+                session.execute(text("SELECT pg_notify(:c, :p)"), {"c": CHANNEL, "p": payload})
+
+    else:
+
+        @event.listens_for(factory, "after_commit")
+        def _deliver(session: Session) -> None:
+            hub.deliver(session.info.pop(PENDING_KEY, []))
+
+    event.listen(factory, "after_rollback", _drop)
+    event.listen(factory, "after_soft_rollback", _drop)
+
+
+class PostgresListener:
+    """A worker thread that LISTENs on PostgreSQL and feeds this process's hub, reconnecting."""
+
+    def __init__(self, database_url: str, hub: EventHub) -> None:
+        url = make_url(database_url).set(drivername="postgresql")
+        self._conninfo = url.render_as_string(hide_password=False)
+        self._hub = hub
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="trustlab-listen", daemon=True)
+
+    def start(self, timeout: float = 5.0) -> None:
+        """Start listening; waits briefly so that events of the next request are not missed."""
+        self._thread.start()
+        self._ready.wait(timeout)
+
+    def stop(self) -> None:
+        """Stop and join the thread."""
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def _run(self) -> None:
+        delay = 0.5
+        while not self._stop.is_set():
+            try:
+                with psycopg.connect(self._conninfo, autocommit=True, connect_timeout=5) as conn:
+                    conn.execute(f"LISTEN {CHANNEL}")
+                    self._ready.set()
+                    delay = 0.5
+                    self._hub.deliver([RESYNC])  # anything may have happened while disconnected
+                    while not self._stop.is_set():
+                        for notice in conn.notifies(timeout=0.5):
+                            self._hub.deliver([Event.from_json(notice.payload)])
+            except psycopg.Error as exc:
+                log.warning("event listener lost PostgreSQL (%s); retrying in %.1fs", exc, delay)
+                self._stop.wait(delay)
+                delay = min(delay * 2, 10.0)

@@ -1,0 +1,132 @@
+"""Between the study protocol and the adaptation engine: building, storing and restoring learners.
+
+Each participant gets one learner per category at enrolment: Exp3 for an ``exp3`` condition, the
+pre-trained meta-policy for a ``meta`` condition (the checkpoint's SHA-256 is recorded). The row
+keeps the initial state, the current state and a version that increments with every update, so
+``trustlab verify`` can replay the step log from the initial state and compare bit for bit.
+
+Restoring a learner from JSON on every answer is the hot path; a small per-process cache keyed by
+``(row id, version)`` skips it. An entry is *taken out* of the cache before the learner is mutated
+and put back (under the new version) only after the transaction commits, so a rolled-back update can
+never leave a learner in the cache that is ahead of the database.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.protocol import CategorySpec, LearnerKind, Protocol
+from app.tables import LearnerState
+from models.learners.base import Learner
+from models.learners.exp3 import Exp3
+
+
+@dataclass(frozen=True)
+class LearnerSpec:
+    """Everything needed to rebuild a learner's structure; its state comes on top."""
+
+    kind: str
+    n_arms: int
+    config: dict[str, Any]
+    checkpoint_sha256: str | None
+
+
+def _checkpoint_path(
+    protocol: Protocol, category: CategorySpec, checkpoint_dir: Path | None
+) -> Path:
+    from models.checkpoints import shipped_checkpoint
+
+    setting = protocol.learners.meta.checkpoint
+    if setting != "shipped":
+        return Path(setting)
+    return shipped_checkpoint(
+        len(category.questions), category=category.name, directory=checkpoint_dir
+    )
+
+
+def learner_spec(
+    protocol: Protocol, condition_id: str, category: CategorySpec, checkpoint_dir: Path | None
+) -> LearnerSpec:
+    """What learner a participant of ``condition_id`` gets for ``category``."""
+    kind = protocol.condition(condition_id).learner
+    n_arms = len(category.questions)
+    if kind is LearnerKind.EXP3:
+        return LearnerSpec("exp3", n_arms, {"gamma": protocol.learners.exp3.gamma}, None)
+    from models.checkpoints import load_checkpoint
+
+    path = _checkpoint_path(protocol, category, checkpoint_dir)
+    checkpoint = load_checkpoint(path, expected_arms=n_arms)
+    config: dict[str, Any] = {"checkpoint": str(path)}
+    if protocol.learners.meta.learning_rate is not None:
+        config["learning_rate"] = protocol.learners.meta.learning_rate
+    return LearnerSpec("meta", n_arms, config, checkpoint.sha256)
+
+
+def build(spec: LearnerSpec) -> Learner:
+    """A fresh learner of this spec (the meta-policy's checkpoint is checked against its hash)."""
+    if spec.kind == "exp3":
+        return Exp3(spec.n_arms, gamma=float(spec.config["gamma"]))
+    if spec.kind == "meta":
+        # Imported here: torch is loaded only by studies that use the meta-policy.
+        from models.checkpoints import load_checkpoint
+        from models.learners.meta_policy import MetaPolicyLearner
+
+        checkpoint = load_checkpoint(Path(spec.config["checkpoint"]), expected_arms=spec.n_arms)
+        if spec.checkpoint_sha256 and checkpoint.sha256 != spec.checkpoint_sha256:
+            raise ValueError(
+                f"checkpoint {checkpoint.path} has changed since the learner was created "
+                f"(sha256 {checkpoint.sha256[:12]}…, recorded {spec.checkpoint_sha256[:12]}…)"
+            )
+        return MetaPolicyLearner.from_checkpoint(
+            checkpoint, learning_rate=spec.config.get("learning_rate")
+        )
+    raise ValueError(f"unknown learner kind {spec.kind!r}")
+
+
+def spec_of(row: LearnerState) -> LearnerSpec:
+    """The spec a stored learner was built from."""
+    return LearnerSpec(row.kind, row.n_arms, dict(row.config), row.checkpoint_sha256)
+
+
+def restore(row: LearnerState, *, initial: bool = False) -> Learner:
+    """The stored learner (or its initial state) as a live object."""
+    learner = build(spec_of(row))
+    learner.load_state_dict(row.initial_state if initial else row.state)
+    return learner
+
+
+def probabilities_list(learner: Learner) -> list[float]:
+    """Probabilities as plain floats for JSON (float64 → float is exact)."""
+    return [float(p) for p in np.asarray(learner.probabilities(), dtype=np.float64)]
+
+
+class LearnerCache:
+    """Live learners keyed by (row id, version); see the module docstring for the protocol."""
+
+    def __init__(self, capacity: int = 2048) -> None:
+        self._entries: OrderedDict[tuple[int, int], Learner] = OrderedDict()
+        self._capacity = capacity
+        self._lock = threading.Lock()
+
+    def take(self, row: LearnerState) -> Learner:
+        """The learner at the row's version, removed from the cache (rebuilt if absent)."""
+        with self._lock:
+            learner = self._entries.pop((row.id, row.version), None)
+        return learner if learner is not None else restore(row)
+
+    def put(self, row_id: int, version: int, learner: Learner) -> None:
+        """Keep a learner known to match the committed row at ``version``."""
+        with self._lock:
+            self._entries[(row_id, version)] = learner
+            self._entries.move_to_end((row_id, version))
+            while len(self._entries) > self._capacity:
+                self._entries.popitem(last=False)
+
+
+cache = LearnerCache()

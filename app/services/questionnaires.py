@@ -1,0 +1,491 @@
+"""Questionnaires: where each participant is in the flow, validation, and all-or-nothing submission.
+
+The participant flow is data (DESIGN.md, after oTree): consent → each pre-study instrument →
+"please wait for the experimenter" → after every session its questionnaire → after the last
+session the post-study instruments → thank you. :func:`next_page` computes the one page a
+participant should see from what is stored, so reloads, back buttons, second tabs and crashed
+tablets always land right.
+
+A submission is validated as a whole against the protocol's instrument (required items, ranges,
+options, lengths, unknown items) and then stored in one transaction: the long-format responses, the
+submission record, audit entries for every changed value (with the old value), and a live event.
+Nothing partial is ever stored. Until the experimenter locks the participant, submitting again
+revises the answers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app import events
+from app.errors import Conflict, InvalidInput, NotFound
+from app.protocol import InstrumentSpec, ItemKind, ItemSpec, Protocol
+from app.services import audit
+from app.services.audit import Actor
+from app.services.stations import participant_topic, station_topic, study_topic
+from app.tables import (
+    Participant,
+    ParticipantStatus,
+    Response,
+    SessionStatus,
+    Station,
+    StudySession,
+    Submission,
+    utcnow,
+)
+
+CONSENT = "consent"
+DESCRIPTION_SUFFIX = "_description"
+DESCRIPTION_MAX = 200
+
+
+@dataclass(frozen=True)
+class Page:
+    """The page a participant should see now."""
+
+    kind: str  # consent | questionnaire | wait | done | withdrawn
+    instrument: InstrumentSpec | None = None
+    session: int | None = None
+
+    @property
+    def path(self) -> str:
+        """Where the tablet shows this page."""
+        if self.kind == "questionnaire" and self.instrument is not None:
+            suffix = f"/{self.session}" if self.session is not None else ""
+            return f"/tablet/q/{self.instrument.key}{suffix}"
+        return f"/tablet/{self.kind}"
+
+
+class QuestionnaireInvalid(InvalidInput):
+    """Some items are missing or invalid; ``errors`` maps item keys to messages for the page."""
+
+    def __init__(self, errors: dict[str, str]) -> None:
+        first = next(iter(errors.items()))
+        super().__init__(
+            f"{len(errors)} item(s) need attention, e.g. {first[0]}: {first[1]}"
+            if len(errors) > 1
+            else f"{first[0]}: {first[1]}"
+        )
+        self.errors = errors
+
+    @property
+    def extra(self) -> dict[str, object]:
+        """The per-item messages for API clients, in the shape of every other 422's ``errors``."""
+        return {
+            "errors": [
+                {"loc": ["body", "answers", item], "msg": message, "type": "questionnaire_item"}
+                for item, message in self.errors.items()
+            ]
+        }
+
+
+def _submitted(db: Session, participant: Participant) -> set[tuple[str, int | None]]:
+    rows = db.execute(
+        select(Submission.instrument, Submission.session).where(
+            Submission.participant_id == participant.id
+        )
+    )
+    return {(instrument, session) for instrument, session in rows}
+
+
+def _closed_sessions(db: Session, participant: Participant) -> list[int]:
+    return list(
+        db.scalars(
+            select(StudySession.number)
+            .where(
+                StudySession.participant_id == participant.id,
+                StudySession.status != SessionStatus.RUNNING,
+            )
+            .order_by(StudySession.number)
+        )
+    )
+
+
+def next_page(db: Session, participant: Participant, protocol: Protocol) -> Page:
+    """The one page this participant should be on."""
+    if participant.status == ParticipantStatus.WITHDRAWN:
+        return Page("withdrawn")
+    done = _submitted(db, participant)
+    if (CONSENT, None) not in done:
+        return Page("consent")
+    for instrument in protocol.instruments_at("pre"):
+        if (instrument.key, None) not in done:
+            return Page("questionnaire", instrument)
+    closed = _closed_sessions(db, participant)
+    for number in closed:
+        if number < 1:
+            continue
+        for instrument in protocol.instruments_at("session"):
+            if (instrument.key, number) not in done:
+                return Page("questionnaire", instrument, number)
+    if protocol.schedule.sessions in closed:
+        for instrument in protocol.instruments_at("post"):
+            if (instrument.key, None) not in done:
+                return Page("questionnaire", instrument)
+        return Page("done")
+    return Page("wait")
+
+
+def session_blocker(db: Session, participant: Participant, protocol: Protocol, number: int) -> str:
+    """Why session ``number`` cannot start yet ('' when it can).
+
+    Consent always comes first. With ``questionnaire_gates_next_session`` the pre-study
+    questionnaires must precede the first session and each session's questionnaire the next one.
+    """
+    done = _submitted(db, participant)
+    code = participant.code
+    if (CONSENT, None) not in done:
+        return f"waiting for {code} to give consent on the tablet"
+    if not protocol.schedule.questionnaire_gates_next_session:
+        return ""
+    first = 0 if protocol.schedule.familiarisation_run else 1
+    if number == first:
+        missing = [i.title for i in protocol.instruments_at("pre") if (i.key, None) not in done]
+        if missing:
+            return f"waiting for {code} to fill in on the tablet: {', '.join(missing)}"
+    previous = number - 1
+    if previous >= 1:
+        missing = [
+            i.title for i in protocol.instruments_at("session") if (i.key, previous) not in done
+        ]
+        if missing:
+            return (
+                f"waiting for {code}'s questionnaire after session {previous}: {', '.join(missing)}"
+            )
+    return ""
+
+
+# ---------------------------------------------------------------------------------- validation
+
+
+def _validate_item(
+    item: ItemSpec, raw: str, protocol: Protocol, answers: Mapping[str, str]
+) -> tuple[dict[str, str], str | None]:
+    """(values to store, error) for one given answer."""
+    if item.kind is ItemKind.LIKERT:
+        assert item.scale is not None
+        scale = protocol.scale(item.scale)
+        try:
+            point = int(raw)
+        except ValueError:
+            return {}, f"choose one of {scale.minimum}-{scale.maximum}"
+        if not scale.minimum <= point <= scale.maximum:
+            return {}, f"choose one of {scale.minimum}-{scale.maximum}"
+        return {item.key: str(point)}, None
+    if item.kind is ItemKind.NUMBER:
+        try:
+            number = int(raw)
+        except ValueError:
+            return {}, "enter a whole number"
+        assert item.minimum is not None and item.maximum is not None
+        if not item.minimum <= number <= item.maximum:
+            return {}, f"enter a number from {item.minimum} to {item.maximum}"
+        return {item.key: str(number)}, None
+    if item.kind is ItemKind.CHOICE:
+        option = next((o for o in item.options if o.value == raw), None)
+        if option is None:
+            return {}, "choose one of the options"
+        values = {item.key: option.value}
+        if option.describe:
+            description = answers.get(item.key + DESCRIPTION_SUFFIX, "").strip()
+            if len(description) > DESCRIPTION_MAX:
+                return {}, f"describe in at most {DESCRIPTION_MAX} characters"
+            if description:
+                values[item.key + DESCRIPTION_SUFFIX] = description
+        return values, None
+    text = raw.strip()
+    if len(text) > item.max_length:
+        return {}, f"write at most {item.max_length} characters"
+    return ({item.key: text} if text else {}), None
+
+
+def validate_answers(
+    instrument: InstrumentSpec, protocol: Protocol, answers: Mapping[str, str]
+) -> dict[str, str]:
+    """The canonical values to store; raises :class:`QuestionnaireInvalid` with per-item errors
+    (missing required items, bad values) and InvalidInput for items the instrument lacks."""
+    known = {item.key for item in instrument.items}
+    known |= {
+        item.key + DESCRIPTION_SUFFIX
+        for item in instrument.items
+        if any(option.describe for option in item.options)
+    }
+    unknown = sorted(set(answers) - known)
+    if unknown:
+        raise InvalidInput(
+            f"{instrument.key} has no item {', '.join(repr(u) for u in unknown)}; "
+            f"its items are {', '.join(i.key for i in instrument.items)}"
+        )
+    values: dict[str, str] = {}
+    errors: dict[str, str] = {}
+    for item in instrument.items:
+        raw = answers.get(item.key, "")
+        if not str(raw).strip():
+            if item.required:
+                errors[item.key] = "Please answer this question."
+            continue
+        stored, error = _validate_item(item, str(raw).strip(), protocol, answers)
+        if error:
+            errors[item.key] = error
+        else:
+            values.update(stored)
+    if errors:
+        raise QuestionnaireInvalid(errors)
+    return values
+
+
+# ---------------------------------------------------------------------------------- submission
+
+
+def _instrument(protocol: Protocol, key: str) -> InstrumentSpec:
+    for instrument in protocol.questionnaires.instruments:
+        if instrument.key == key:
+            return instrument
+    keys = ", ".join(i.key for i in protocol.questionnaires.instruments)
+    raise NotFound(f"no questionnaire {key!r} in this study; its questionnaires are {keys}")
+
+
+def _check_timing(
+    db: Session,
+    participant: Participant,
+    protocol: Protocol,
+    instrument: InstrumentSpec,
+    session: int | None,
+) -> None:
+    if instrument.when == "session":
+        if session is None or not 1 <= session <= protocol.schedule.sessions:
+            raise InvalidInput(
+                f"{instrument.key} is asked after each session: give a session from 1 to "
+                f"{protocol.schedule.sessions}"
+            )
+        if session not in _closed_sessions(db, participant):
+            raise Conflict(
+                f"session {session} of {participant.code} has not finished yet; its "
+                "questionnaire opens when it ends"
+            )
+        return
+    if session is not None:
+        raise InvalidInput(f"{instrument.key} is not asked per session: leave the session out")
+    if instrument.when == "post" and protocol.schedule.sessions not in _closed_sessions(
+        db, participant
+    ):
+        raise Conflict(f"{instrument.key} opens after {participant.code}'s last session")
+    if (CONSENT, None) not in _submitted(db, participant):
+        raise Conflict("consent comes first")
+
+
+@dataclass(frozen=True)
+class SubmitResult:
+    """What a submission changed: whether it was an edit and how many values differ."""
+
+    revision: int
+    changed: int
+
+
+def _store(
+    db: Session,
+    *,
+    participant: Participant,
+    instrument: str,
+    session: int | None,
+    values: Mapping[str, str],
+    actor: Actor,
+    clear_missing: frozenset[str] = frozenset(),
+) -> SubmitResult:
+    existing = {
+        row.item: row
+        for row in db.scalars(
+            select(Response).where(
+                Response.participant_id == participant.id,
+                Response.instrument == instrument,
+                Response.session.is_(None) if session is None else Response.session == session,
+            )
+        )
+    }
+    submission = db.scalar(
+        select(Submission)
+        .where(
+            Submission.participant_id == participant.id,
+            Submission.instrument == instrument,
+            Submission.session.is_(None) if session is None else Submission.session == session,
+        )
+        .with_for_update()
+    )
+    now = utcnow()
+    changed = 0
+    for item, value in values.items():
+        row = existing.get(item)
+        if row is None:
+            db.add(
+                Response(
+                    participant_id=participant.id,
+                    instrument=instrument,
+                    session=session,
+                    item=item,
+                    value=value,
+                    answered_at=now,
+                )
+            )
+            changed += 1 if submission is not None else 0
+        elif row.value != value:
+            audit.record(
+                db,
+                actor=actor,
+                action="questionnaire.edited",
+                study_id=participant.study_id,
+                subject=participant.code,
+                details={
+                    "instrument": instrument,
+                    "session": session,
+                    "item": item,
+                    "old": row.value,
+                    "new": value,
+                },
+            )
+            row.value = value
+            row.answered_at = now
+            changed += 1
+    for item in clear_missing & set(existing) - set(values):
+        row = existing[item]
+        audit.record(
+            db,
+            actor=actor,
+            action="questionnaire.edited",
+            study_id=participant.study_id,
+            subject=participant.code,
+            details={
+                "instrument": instrument,
+                "session": session,
+                "item": item,
+                "old": row.value,
+                "new": None,
+            },
+        )
+        db.delete(row)
+        changed += 1
+    if submission is None:
+        submission = Submission(
+            participant_id=participant.id, instrument=instrument, session=session, submitted_at=now
+        )
+        db.add(submission)
+        revision = 1
+    else:
+        submission.revision += 1
+        submission.revised_at = now
+        revision = submission.revision
+    return SubmitResult(revision=revision, changed=changed)
+
+
+def _publish(db: Session, participant: Participant, instrument: str, session: int | None) -> None:
+    topics = [study_topic(participant.study_id), participant_topic(participant.id)]
+    station = db.scalar(select(Station).where(Station.participant_id == participant.id))
+    if station is not None:
+        topics.append(station_topic(station))
+    events.publish(
+        db,
+        topics=topics,
+        type="questionnaire_submitted",
+        participant=participant.code,
+        instrument=instrument,
+        session=session,
+    )
+
+
+def _refuse_if_locked(participant: Participant) -> None:
+    if participant.locked_at is not None:
+        raise Conflict(f"{participant.code}'s answers are locked; the experimenter can unlock them")
+    if participant.status == ParticipantStatus.WITHDRAWN:
+        raise Conflict(f"{participant.code} has withdrawn")
+
+
+def accept_consent(
+    db: Session, *, participant: Participant, protocol: Protocol, accepted: bool, actor: Actor
+) -> SubmitResult:
+    """Record consent to the protocol's consent text (its version is stored with it); commits."""
+    _refuse_if_locked(participant)
+    if not accepted:
+        raise QuestionnaireInvalid({"accept": "Please tick the box to take part."})
+    result = _store(
+        db,
+        participant=participant,
+        instrument=CONSENT,
+        session=None,
+        values={"accepted": "yes", "version": protocol.questionnaires.consent.version},
+        actor=actor,
+    )
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.consented",
+        study_id=participant.study_id,
+        subject=participant.code,
+        details={"version": protocol.questionnaires.consent.version},
+    )
+    _publish(db, participant, CONSENT, None)
+    db.commit()
+    return result
+
+
+def submit(
+    db: Session,
+    *,
+    participant: Participant,
+    protocol: Protocol,
+    instrument_key: str,
+    session: int | None,
+    answers: Mapping[str, str],
+    actor: Actor,
+) -> SubmitResult:
+    """Validate and store one questionnaire page all-or-nothing; commits."""
+    _refuse_if_locked(participant)
+    instrument = _instrument(protocol, instrument_key)
+    _check_timing(db, participant, protocol, instrument, session)
+    values = validate_answers(instrument, protocol, answers)
+    optional = frozenset(
+        key for item in instrument.items for key in (item.key, item.key + DESCRIPTION_SUFFIX)
+    )
+    result = _store(
+        db,
+        participant=participant,
+        instrument=instrument.key,
+        session=session,
+        values=values,
+        actor=actor,
+        clear_missing=optional,
+    )
+    _publish(db, participant, instrument.key, session)
+    db.commit()
+    return result
+
+
+def set_locked(db: Session, *, participant: Participant, locked: bool, actor: Actor) -> None:
+    """Lock (no more edits) or unlock a participant's answers; commits."""
+    if (participant.locked_at is not None) == locked:
+        return
+    participant.locked_at = utcnow() if locked else None
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.locked" if locked else "participant.unlocked",
+        study_id=participant.study_id,
+        subject=participant.code,
+    )
+    db.commit()
+
+
+def stored_answers(
+    db: Session, participant: Participant, instrument: str, session: int | None
+) -> dict[str, str]:
+    """A page's stored values (to show them again when a participant edits)."""
+    rows = db.scalars(
+        select(Response).where(
+            Response.participant_id == participant.id,
+            Response.instrument == instrument,
+            Response.session.is_(None) if session is None else Response.session == session,
+        )
+    )
+    return {row.item: row.value for row in rows}

@@ -1,0 +1,239 @@
+"""Stations, the device keys of their robot clients, and who is assigned to them.
+
+A robot works against a station, not a participant: the experimenter assigns a participant to the
+station and the robot's key only ever reaches whoever is assigned there. Keys are shown once at
+creation; only their SHA-256 is stored, so a leaked database does not leak working keys.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from sqlalchemy import bindparam, select, update
+from sqlalchemy.orm import Session
+
+from app import events
+from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
+from app.security import new_token, token_digest
+from app.services import audit
+from app.services.audit import Actor
+from app.tables import (
+    Device,
+    Participant,
+    ParticipantStatus,
+    SessionStatus,
+    Station,
+    StudySession,
+    utcnow,
+)
+
+STATION_NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{0,63}$")
+KEY_PREFIX = "tlk_"
+
+
+def station_topic(station: Station) -> str:
+    """The event topic of a station (robot WebSockets and operator consoles listen to it)."""
+    return f"station:{station.id}"
+
+
+def study_topic(study_id: int) -> str:
+    """The event topic of a study (live dashboards listen to it)."""
+    return f"study:{study_id}"
+
+
+def participant_topic(participant_id: int) -> str:
+    """The event topic of a participant (their tablet listens to it)."""
+    return f"participant:{participant_id}"
+
+
+def get_station(db: Session, name: str, *, for_update: bool = False) -> Station:
+    """The station with this name; NotFound names the existing ones."""
+    query = select(Station).where(Station.name == name)
+    if for_update:
+        query = query.with_for_update()
+    station = db.scalar(query)
+    if station is None:
+        known = db.scalars(select(Station.name).order_by(Station.name).limit(10)).all()
+        hint = f"; stations: {', '.join(known)}" if known else "; no station exists yet"
+        raise NotFound(f"no station named {name!r}{hint}")
+    return station
+
+
+def list_stations(db: Session) -> list[Station]:
+    """Every station by name."""
+    return list(db.scalars(select(Station).order_by(Station.name)))
+
+
+def create_station(db: Session, *, name: str, actor: Actor) -> Station:
+    """Create a station; commits."""
+    if not STATION_NAME_PATTERN.match(name):
+        raise InvalidInput(
+            f"station name {name!r}: use 1-64 lower-case letters, digits or '-', "
+            "starting with a letter or digit"
+        )
+    if db.scalar(select(Station.id).where(Station.name == name)) is not None:
+        raise Conflict(f"a station named {name!r} already exists")
+    station = Station(name=name)
+    db.add(station)
+    audit.record(db, actor=actor, action="station.created", subject=name)
+    db.commit()
+    return station
+
+
+@dataclass(frozen=True)
+class IssuedKey:
+    """A new device and its key (shown once, never stored)."""
+
+    device: Device
+    key: str
+
+
+def issue_device_key(db: Session, *, station_name: str, label: str, actor: Actor) -> IssuedKey:
+    """Create a device key for a station; commits."""
+    station = get_station(db, station_name)
+    label = label.strip() or "robot"
+    if len(label) > 64:
+        raise InvalidInput("a device label has at most 64 characters")
+    key = KEY_PREFIX + new_token(32)
+    device = Device(
+        station_id=station.id,
+        label=label,
+        key_hash=token_digest(key),
+        key_prefix=key[: len(KEY_PREFIX) + 6],
+        created_by=actor.name,
+    )
+    db.add(device)
+    db.flush()
+    audit.record(
+        db,
+        actor=actor,
+        action="device.key_issued",
+        subject=f"{station.name}/{label}",
+        details={"device_id": device.id, "key_prefix": device.key_prefix},
+    )
+    db.commit()
+    return IssuedKey(device=device, key=key)
+
+
+def revoke_device(db: Session, *, device_id: int, actor: Actor) -> Device:
+    """Revoke a device key at once; commits."""
+    device = db.get(Device, device_id, with_for_update=True)
+    if device is None:
+        raise NotFound(f"no device with id {device_id}")
+    if device.revoked_at is not None:
+        raise Conflict(f"device {device_id} is already revoked")
+    device.revoked_at = utcnow()
+    audit.record(
+        db,
+        actor=actor,
+        action="device.key_revoked",
+        subject=f"{device.station.name}/{device.label}",
+        details={"device_id": device.id, "key_prefix": device.key_prefix},
+    )
+    db.commit()
+    return device
+
+
+_DEVICE_BY_KEY = select(Device).where(Device.key_hash == bindparam("digest"))
+
+
+def authenticate_device(db: Session, *, key: str) -> Device:
+    """The live device holding this key; NotAuthenticated otherwise (never saying why)."""
+    device = None
+    if key.startswith(KEY_PREFIX) and len(key) < 200:
+        device = db.scalar(_DEVICE_BY_KEY, {"digest": token_digest(key)})
+    if device is None or device.revoked_at is not None:
+        raise NotAuthenticated("unknown or revoked device key")
+    return device
+
+
+def _running_session(db: Session, participant_id: int) -> StudySession | None:
+    return db.scalar(
+        select(StudySession).where(
+            StudySession.participant_id == participant_id,
+            StudySession.status == SessionStatus.RUNNING,
+        )
+    )
+
+
+def assign_participant(
+    db: Session, *, station_name: str, participant: Participant, actor: Actor
+) -> Station:
+    """Seat a participant at a station; commits. One participant per station and vice versa."""
+    station = get_station(db, station_name, for_update=True)
+    if participant.status == ParticipantStatus.WITHDRAWN:
+        raise Conflict(f"participant {participant.code!r} has withdrawn")
+    if station.participant_id == participant.id:
+        return station
+    if station.participant_id is not None:
+        current = db.get(Participant, station.participant_id)
+        if current is not None and _running_session(db, current.id) is not None:
+            raise Conflict(
+                f"station {station.name!r} is running a session with {current.code!r}: "
+                "end that session first"
+            )
+    elsewhere = db.scalar(select(Station).where(Station.participant_id == participant.id))
+    if elsewhere is not None:
+        if _running_session(db, participant.id) is not None:
+            raise Conflict(
+                f"{participant.code!r} is in a session at station {elsewhere.name!r}: end it first"
+            )
+        elsewhere.participant_id = None
+        elsewhere.assigned_at = None
+        db.flush()
+    station.participant_id = participant.id
+    station.assigned_at = utcnow()
+    audit.record(
+        db,
+        actor=actor,
+        action="station.assigned",
+        study_id=participant.study_id,
+        subject=participant.code,
+        details={"station": station.name},
+    )
+    events.publish(
+        db,
+        topics=[station_topic(station), study_topic(participant.study_id)],
+        type="participant_assigned",
+        station=station.name,
+        participant=participant.code,
+    )
+    db.commit()
+    return station
+
+
+def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
+    """Free a station; commits. Refused while its participant is in a session."""
+    station = get_station(db, station_name, for_update=True)
+    if station.participant_id is None:
+        return station
+    participant = db.get(Participant, station.participant_id)
+    assert participant is not None
+    if _running_session(db, participant.id) is not None:
+        raise Conflict(f"{participant.code!r} is in a session: end it before freeing the station")
+    station.participant_id = None
+    station.assigned_at = None
+    audit.record(
+        db,
+        actor=actor,
+        action="station.unassigned",
+        study_id=participant.study_id,
+        subject=participant.code,
+        details={"station": station.name},
+    )
+    events.publish(
+        db,
+        topics=[station_topic(station), study_topic(participant.study_id)],
+        type="participant_unassigned",
+        station=station.name,
+        participant=participant.code,
+    )
+    db.commit()
+    return station
+
+
+def mark_connection(db: Session, *, device_id: int, connected: bool) -> None:
+    """Record that a device's WebSocket opened or closed (the caller commits)."""
+    column = Device.connected_at if connected else Device.disconnected_at
+    db.execute(update(Device).where(Device.id == device_id).values({column: utcnow()}))

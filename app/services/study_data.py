@@ -1,0 +1,313 @@
+"""From the database to the analysis package: one :class:`analysis.dataset.StudyDataset`.
+
+The protocol's instruments, scales and categories are translated into the analysis package's plain
+specifications here, so analysis never sees the database or the protocol model. The manifest says
+exactly what produced an export: a SHA-256 of the data, the protocol's hash, the checkpoints'
+hashes, a commitment to the (still secret) allocation seed, and the software versions.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+from importlib import metadata
+from typing import Any
+
+import pandas as pd
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from analysis.dataset import ProtocolSummary, StudyDataset
+from analysis.instruments import InstrumentSpec as AnalysisInstrument
+from analysis.instruments import ItemSpec as AnalysisItem
+from analysis.scoring import ScaleSpec
+from app.protocol import InstrumentSpec, ItemKind, Protocol
+from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
+from app.services.studies import protocol_of
+from app.tables import (
+    Allocation,
+    Answer,
+    LearnerState,
+    Participant,
+    Prompt,
+    Response,
+    Run,
+    Study,
+    StudySession,
+    utcnow,
+)
+
+SOFTWARE = ("trustlab", "numpy", "pandas", "scipy", "pingouin", "plotly", "sqlalchemy", "torch")
+
+
+def _items(protocol: Protocol, instrument: InstrumentSpec) -> tuple[AnalysisItem, ...]:
+    items: list[AnalysisItem] = []
+    for item in instrument.items:
+        if item.kind is ItemKind.LIKERT:
+            assert item.scale is not None
+            scale = protocol.scale(item.scale)
+            labels: tuple[tuple[int | str, str], ...] = ()
+            if len(scale.labels) == scale.maximum - scale.minimum + 1:
+                labels = tuple(
+                    zip(range(scale.minimum, scale.maximum + 1), scale.labels, strict=True)
+                )
+            elif len(scale.labels) == 2:
+                labels = ((scale.minimum, scale.labels[0]), (scale.maximum, scale.labels[1]))
+            items.append(
+                AnalysisItem(
+                    item.key,
+                    item.text,
+                    "likert",
+                    scale.minimum,
+                    scale.maximum,
+                    labels,
+                    item.reverse,
+                )
+            )
+        elif item.kind is ItemKind.NUMBER:
+            items.append(AnalysisItem(item.key, item.text, "numeric", item.minimum, item.maximum))
+        elif item.kind is ItemKind.CHOICE:
+            items.append(
+                AnalysisItem(
+                    item.key,
+                    item.text,
+                    "categorical",
+                    value_labels=tuple((option.value, option.label) for option in item.options),
+                )
+            )
+            if any(option.describe for option in item.options):
+                items.append(
+                    AnalysisItem(item.key + DESCRIPTION_SUFFIX, f"{item.text} (own words)", "text")
+                )
+        else:
+            items.append(AnalysisItem(item.key, item.text, "text"))
+    return tuple(items)
+
+
+def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
+    """The protocol's instruments (and the consent record) as analysis specifications."""
+    consent = AnalysisInstrument(
+        CONSENT,
+        "Consent",
+        (
+            AnalysisItem(
+                "accepted", "Consent given", "categorical", value_labels=(("yes", "yes"),)
+            ),
+            AnalysisItem("version", "Version of the consent text", "text"),
+        ),
+    )
+    return (
+        consent,
+        *(
+            AnalysisInstrument(
+                instrument.key,
+                instrument.title,
+                _items(protocol, instrument),
+                per_session=instrument.when == "session",
+                citation=instrument.citation,
+                stem=instrument.instructions,
+            )
+            for instrument in protocol.questionnaires.instruments
+        ),
+    )
+
+
+def scales_of(protocol: Protocol) -> tuple[ScaleSpec, ...]:
+    """The protocol's scores as analysis scale specifications (reverse keys from the items)."""
+    by_key = {i.key: i for i in protocol.questionnaires.instruments}
+    scales = []
+    for score in protocol.questionnaires.scores:
+        instrument = by_key[score.instrument]
+        items = {item.key: item for item in instrument.items}
+        first = items[score.items[0]]
+        assert first.scale is not None
+        scale = protocol.scale(first.scale)
+        scales.append(
+            ScaleSpec(
+                name=score.name,
+                instrument=score.instrument,
+                items=tuple(score.items),
+                reverse=frozenset(key for key in score.items if items[key].reverse),
+                scale_min=scale.minimum,
+                scale_max=scale.maximum,
+                method=score.method,
+                label=score.label or score.name,
+                citation=instrument.citation,
+            )
+        )
+    return tuple(scales)
+
+
+def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
+    """What the report's methods paragraph needs to know about the protocol."""
+    with_preferred = [c for c in protocol.categories if c.preferred is not None]
+    summary: ProtocolSummary = {
+        "study": protocol.study.title,
+        "conditions": [{"code": c.id, "label": c.label} for c in protocol.conditions],
+        "categories": {c.name: list(c.questions) for c in with_preferred},
+        "preferred_arms": {c.name: c.preferred for c in with_preferred},  # type: ignore[misc]
+        "sessions": protocol.schedule.sessions,
+        "runs_per_session": protocol.schedule.runs_per_session,
+        "familiarisation_runs": 1 if protocol.schedule.familiarisation_run else 0,
+        "allocation": "permuted blocks of "
+        + " and ".join(str(s) for s in protocol.allocation.block_sizes)
+        + (
+            f", stratified by {', '.join(protocol.allocation.stratify_by)}"
+            if protocol.allocation.stratify_by
+            else ""
+        ),
+        "feedback": f"yes → {protocol.reward.yes:g}, no → {protocol.reward.no:g}",
+        "version": study.protocol_sha256,
+    }
+    return summary
+
+
+def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame:
+    rows = db.execute(
+        select(Participant.code, Allocation.condition, Participant.status, Participant.strata)
+        .join(Allocation, Allocation.participant_id == Participant.id)
+        .where(Participant.study_id == study.id)
+        .order_by(Participant.enrolled_at, Participant.id)
+    ).all()
+    frame = pd.DataFrame(
+        [
+            {
+                "participant": code,
+                "condition": condition,
+                "status": status,
+                **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
+            }
+            for code, condition, status, strata in rows
+        ],
+        columns=["participant", "condition", "status", *protocol.allocation.stratify_by],
+    )
+    return frame
+
+
+def _responses(
+    db: Session, study: Study, instruments: tuple[AnalysisInstrument, ...]
+) -> pd.DataFrame:
+    numeric = {
+        (spec.name, item.key)
+        for spec in instruments
+        for item in spec.items
+        if item.kind in ("likert", "numeric")
+    }
+    rows = db.execute(
+        select(
+            Participant.code, Response.instrument, Response.session, Response.item, Response.value
+        )
+        .join(Participant, Participant.id == Response.participant_id)
+        .where(Participant.study_id == study.id)
+        .order_by(Participant.id, Response.instrument, Response.session, Response.id)
+    ).all()
+    frame = pd.DataFrame(rows, columns=["participant", "instrument", "session", "item", "value"])
+    frame["session"] = frame["session"].astype("Int64")
+    values: list[Any] = [
+        float(value) if (instrument, item) in numeric else value
+        for instrument, item, value in zip(
+            frame["instrument"], frame["item"], frame["value"], strict=True
+        )
+    ]
+    frame["value"] = pd.Series(values, dtype=object)
+    return frame
+
+
+def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
+    rows = db.execute(
+        select(
+            Participant.code,
+            Allocation.condition,
+            Prompt.category,
+            StudySession.number,
+            Run.number,
+            Answer.learner_version,
+            Prompt.action,
+            Prompt.probabilities,
+            Answer.probabilities_after,
+            Answer.answer,
+            Answer.reward,
+        )
+        .join(Prompt, Prompt.id == Answer.prompt_id)
+        .join(Run, Run.id == Prompt.run_id)
+        .join(StudySession, StudySession.id == Run.session_id)
+        .join(Participant, Participant.id == Answer.participant_id)
+        .join(Allocation, Allocation.participant_id == Participant.id)
+        .where(
+            Participant.study_id == study.id,
+            Prompt.adapts.is_(True),
+            Prompt.category.in_(categories),
+        )
+        .order_by(Participant.id, Prompt.category, Answer.learner_version)
+    ).all()
+    return pd.DataFrame(
+        rows,
+        columns=[
+            "participant",
+            "condition",
+            "category",
+            "session",
+            "run",
+            "iteration",
+            "action",
+            "probs_before",
+            "probs_after",
+            "answer",
+            "reward",
+        ],
+    )
+
+
+def _software() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for package in SOFTWARE:
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            continue
+    return versions
+
+
+def _data_sha256(*frames: pd.DataFrame) -> str:
+    digest = hashlib.sha256()
+    for frame in frames:
+        digest.update(frame.to_csv(index=False, lineterminator="\n").encode())
+    return digest.hexdigest()
+
+
+def load_dataset(db: Session, *, study: Study) -> StudyDataset:
+    """The whole study as the analysis package expects it (real condition ids, never blinded:
+    exports are for analysts and admins)."""
+    protocol = protocol_of(study)
+    instruments = instruments_of(protocol)
+    summary = protocol_summary(study, protocol)
+    participants = _participants(db, study, protocol)
+    responses = _responses(db, study, instruments)
+    steps = _steps(db, study, set(summary["categories"]))
+    digests = db.scalars(
+        select(LearnerState.checkpoint_sha256)
+        .join(Participant, Participant.id == LearnerState.participant_id)
+        .where(Participant.study_id == study.id, LearnerState.checkpoint_sha256.is_not(None))
+        .distinct()
+    )
+    checkpoints = sorted(digest for digest in digests if digest)
+    manifest = {
+        "study": study.name,
+        "exported_at": utcnow().isoformat(timespec="seconds"),
+        "data_sha256": _data_sha256(participants, responses, steps),
+        "protocol_sha256": study.protocol_sha256,
+        "checkpoints_sha256": checkpoints,
+        "allocation_seed_sha256": hashlib.sha256(study.allocation_seed.encode()).hexdigest(),
+        "learners": json.loads(json.dumps(protocol.learners.model_dump(mode="json"))),
+        "software": _software(),
+    }
+    return StudyDataset(
+        participants=participants,
+        responses=responses,
+        protocol=summary,
+        steps=steps,
+        manifest=manifest,
+        instruments=instruments,
+        scales=scales_of(protocol),
+    )

@@ -1,0 +1,148 @@
+"""One participant's whole record, in order: questionnaires, sessions, runs and steps."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.protocol import Protocol
+from app.services.studies import protocol_of
+from app.tables import Answer, Participant, Prompt, Response, Run, Study, StudySession, Submission
+
+
+@dataclass(frozen=True)
+class Step:
+    """A prompt and, once given, its answer and the robot's reply."""
+
+    step_id: int
+    category: str
+    question: str
+    probabilities: list[float]
+    prompted_at: datetime
+    actor: str
+    answer: bool | None = None
+    reply: str | None = None
+    confidence: str | None = None
+    probability: float | None = None
+    answered_at: datetime | None = None
+
+
+@dataclass
+class RunRecord:
+    """A run and its steps."""
+
+    number: int
+    status: str
+    steps: list[Step] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class QuestionnaireRecord:
+    """A submitted questionnaire with its stored raw answers."""
+
+    instrument: str
+    title: str
+    session: int | None
+    submitted_at: datetime
+    revision: int
+    answers: list[tuple[str, str]]
+
+
+@dataclass
+class SessionRecord:
+    """A session, its runs and the questionnaire that followed it."""
+
+    number: int
+    status: str
+    started_at: datetime
+    ended_at: datetime | None
+    runs: list[RunRecord] = field(default_factory=list)
+    questionnaires: list[QuestionnaireRecord] = field(default_factory=list)
+
+
+@dataclass
+class Timeline:
+    """A participant's record."""
+
+    before: list[QuestionnaireRecord]
+    sessions: list[SessionRecord]
+    after: list[QuestionnaireRecord]
+
+
+def _questionnaires(
+    db: Session, participant: Participant, protocol: Protocol
+) -> list[QuestionnaireRecord]:
+    titles = {i.key: i.title for i in protocol.questionnaires.instruments} | {"consent": "Consent"}
+    order = {i.key: n for n, i in enumerate(protocol.questionnaires.instruments, start=1)}
+    responses: dict[tuple[str, int | None], list[tuple[str, str]]] = {}
+    for row in db.scalars(
+        select(Response).where(Response.participant_id == participant.id).order_by(Response.id)
+    ):
+        responses.setdefault((row.instrument, row.session), []).append((row.item, row.value))
+    submissions = db.scalars(select(Submission).where(Submission.participant_id == participant.id))
+    records = [
+        QuestionnaireRecord(
+            s.instrument,
+            titles.get(s.instrument, s.instrument),
+            s.session,
+            s.submitted_at,
+            s.revision,
+            responses.get((s.instrument, s.session), []),
+        )
+        for s in submissions
+    ]
+    return sorted(records, key=lambda r: (r.session or 0, order.get(r.instrument, 0)))
+
+
+def participant_timeline(db: Session, *, study: Study, participant: Participant) -> Timeline:
+    """Everything recorded for a participant, oldest first."""
+    protocol = protocol_of(study)
+    questionnaires = _questionnaires(db, participant, protocol)
+    sessions = {
+        s.id: SessionRecord(s.number, s.status, s.started_at, s.ended_at)
+        for s in db.scalars(
+            select(StudySession)
+            .where(StudySession.participant_id == participant.id)
+            .order_by(StudySession.number)
+        )
+    }
+    runs: dict[int, RunRecord] = {}
+    for run in db.scalars(
+        select(Run).where(Run.participant_id == participant.id).order_by(Run.number)
+    ):
+        runs[run.id] = RunRecord(run.number, run.status)
+        sessions[run.session_id].runs.append(runs[run.id])
+    for prompt, answer in db.execute(
+        select(Prompt, Answer)
+        .outerjoin(Answer, Answer.prompt_id == Prompt.id)
+        .where(Prompt.participant_id == participant.id)
+        .order_by(Prompt.id)
+    ):
+        runs[prompt.run_id].steps.append(
+            Step(
+                prompt.id,
+                prompt.category,
+                prompt.question,
+                prompt.probabilities,
+                prompt.prompted_at,
+                prompt.actor,
+                answer.answer if answer else None,
+                answer.reply if answer else None,
+                answer.confidence if answer else None,
+                answer.probability if answer else None,
+                answer.answered_at if answer else None,
+            )
+        )
+    by_number = {s.number: s for s in sessions.values()}
+    for record in questionnaires:
+        if record.session is not None and record.session in by_number:
+            by_number[record.session].questionnaires.append(record)
+    post = {i.key for i in protocol.instruments_at("post")}
+    return Timeline(
+        before=[q for q in questionnaires if q.session is None and q.instrument not in post],
+        sessions=list(sessions.values()),
+        after=[q for q in questionnaires if q.session is None and q.instrument in post],
+    )

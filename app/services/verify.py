@@ -1,0 +1,425 @@
+"""Integrity checks for a study: replay every learner and audit the timeline and allocations.
+
+``trustlab verify`` trusts nothing it can recompute:
+
+- **learners**: each is rebuilt from its stored initial state and fed its answers in version order;
+  the probabilities recorded with every prompt and answer, the learner version of every answer and
+  the final stored state must all match the replay exactly (bit for bit, via JSON);
+- **timeline**: sessions numbered without gaps, at most one running and only the last; runs
+  likewise within a session and never more than the protocol allows; completed runs have every
+  category answered; familiarisation prompts never adapt; each prompt's question is the protocol's
+  text for its action; rewards and replies follow the protocol;
+- **orphans**: answers, runs and learners that point at another participant, categories the
+  protocol does not know, participants without learners or allocation;
+- **allocation**: every sequence allocation is the seed's entry at its index, indices have no gaps,
+  replacements replace a withdrawn participant of the same stratum and take their condition, and
+  the groups stay within half the largest block of each other per stratum.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter, defaultdict
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.protocol import Protocol
+from app.randomisation import entry_at
+from app.services import learners
+from app.services.runtime import FAMILIARISATION, first_session_number, runs_in
+from app.services.studies import get_study, protocol_of
+from app.tables import (
+    Allocation,
+    Answer,
+    LearnerState,
+    Participant,
+    ParticipantStatus,
+    Prompt,
+    Run,
+    RunStatus,
+    SessionStatus,
+    Study,
+    StudySession,
+)
+from models.replies import confidence_level
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One inconsistency: which check, about whom, what exactly."""
+
+    check: str
+    participant: str | None
+    detail: str
+
+
+@dataclass
+class VerifyReport:
+    """What was checked and what was found."""
+
+    study: str
+    participants: int = 0
+    learners: int = 0
+    steps: int = 0
+    answers: int = 0
+    findings: list[Finding] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """Whether nothing was found."""
+        return not self.findings
+
+    def to_json(self) -> dict[str, Any]:
+        """The report as one JSON object."""
+        value = asdict(self)
+        value["ok"] = self.ok
+        return value
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True)
+
+
+class _Study:
+    """Everything of one study loaded once, indexed for the checks."""
+
+    def __init__(self, db: Session, study: Study) -> None:
+        self.study = study
+        self.protocol: Protocol = protocol_of(study)
+        pid_query = select(Participant.id).where(Participant.study_id == study.id)
+        self.participants = {
+            p.id: p for p in db.scalars(select(Participant).where(Participant.study_id == study.id))
+        }
+        self.allocations = list(
+            db.scalars(select(Allocation).where(Allocation.study_id == study.id))
+        )
+        self.learners = list(
+            db.scalars(select(LearnerState).where(LearnerState.participant_id.in_(pid_query)))
+        )
+        self.sessions = list(
+            db.scalars(
+                select(StudySession)
+                .where(StudySession.participant_id.in_(pid_query))
+                .order_by(StudySession.participant_id, StudySession.number)
+            )
+        )
+        session_ids = [s.id for s in self.sessions]
+        self.runs = (
+            list(db.scalars(select(Run).where(Run.session_id.in_(session_ids)).order_by(Run.id)))
+            if session_ids
+            else []
+        )
+        self.prompts = list(
+            db.scalars(
+                select(Prompt).where(Prompt.participant_id.in_(pid_query)).order_by(Prompt.id)
+            )
+        )
+        self.answers = {
+            a.prompt_id: a
+            for a in db.scalars(select(Answer).where(Answer.participant_id.in_(pid_query)))
+        }
+        self.sessions_by_id = {s.id: s for s in self.sessions}
+        self.runs_by_id = {r.id: r for r in self.runs}
+
+    def code(self, participant_id: int) -> str | None:
+        participant = self.participants.get(participant_id)
+        return participant.code if participant else None
+
+
+def _check_learners(data: _Study, report: VerifyReport) -> None:
+    protocol = data.protocol
+    categories = {c.name: c for c in protocol.categories}
+    allocation_of = {a.participant_id: a for a in data.allocations}
+    prompts_by_learner: dict[tuple[int, str], list[Prompt]] = defaultdict(list)
+    for prompt in data.prompts:
+        if prompt.adapts and prompt.id in data.answers:
+            prompts_by_learner[(prompt.participant_id, prompt.category)].append(prompt)
+    seen: set[tuple[int, str]] = set()
+    for row in data.learners:
+        code = data.code(row.participant_id)
+        seen.add((row.participant_id, row.category))
+        report.learners += 1
+        if row.category not in categories:
+            report.findings.append(
+                Finding("orphan", code, f"learner for unknown category {row.category!r}")
+            )
+            continue
+        allocation = allocation_of.get(row.participant_id)
+        if allocation is not None:
+            expected_kind = protocol.condition(allocation.condition).learner
+            if row.kind != expected_kind:
+                report.findings.append(
+                    Finding(
+                        "learner",
+                        code,
+                        f"{row.category}: kind {row.kind} but condition "
+                        f"{allocation.condition} uses {expected_kind}",
+                    )
+                )
+        _replay(data, row, prompts_by_learner[(row.participant_id, row.category)], report)
+    for participant in data.participants.values():
+        for category in categories:
+            if (participant.id, category) not in seen:
+                report.findings.append(
+                    Finding("orphan", participant.code, f"no learner for {category}")
+                )
+
+
+def _replay(data: _Study, row: LearnerState, prompts: list[Prompt], report: VerifyReport) -> None:
+    code = data.code(row.participant_id)
+    where = f"{row.category} learner"
+    try:
+        learner = learners.restore(row, initial=True)
+    except (ValueError, KeyError) as exc:
+        report.findings.append(Finding("learner", code, f"{where}: cannot rebuild: {exc}"))
+        return
+    answers = sorted(
+        ((data.answers[p.id], p) for p in prompts), key=lambda pair: pair[0].learner_version
+    )
+    for version, (answer, prompt) in enumerate(answers, start=1):
+        if prompt.learner_version != version - 1:
+            report.findings.append(
+                Finding(
+                    "replay",
+                    code,
+                    f"{where}: step {prompt.id} was prompted at version "
+                    f"{prompt.learner_version}, replay expects {version - 1}",
+                )
+            )
+            return
+        if prompt.probabilities != learners.probabilities_list(learner):
+            report.findings.append(
+                Finding("replay", code, f"{where}: step {prompt.id} probabilities differ")
+            )
+            return
+        learner.update(prompt.action, answer.reward)
+        if answer.learner_version != version:
+            report.findings.append(
+                Finding(
+                    "replay",
+                    code,
+                    f"{where}: step {prompt.id} answer has version "
+                    f"{answer.learner_version}, replay gives {version}",
+                )
+            )
+            return
+        if answer.probabilities_after != learners.probabilities_list(learner):
+            report.findings.append(
+                Finding("replay", code, f"{where}: step {prompt.id} updated probabilities differ")
+            )
+            return
+    if row.version != len(answers):
+        report.findings.append(
+            Finding(
+                "replay", code, f"{where}: stored version {row.version} but {len(answers)} answers"
+            )
+        )
+    elif _canonical(learner.state_dict()) != _canonical(row.state):
+        report.findings.append(
+            Finding("replay", code, f"{where}: stored state differs from the replayed one")
+        )
+
+
+def _check_steps(data: _Study, report: VerifyReport) -> None:
+    protocol = data.protocol
+    categories = {c.name: c for c in protocol.categories}
+    for prompt in data.prompts:
+        report.steps += 1
+        code = data.code(prompt.participant_id)
+        run = data.runs_by_id.get(prompt.run_id)
+        if run is None or run.participant_id != prompt.participant_id:
+            report.findings.append(
+                Finding("orphan", code, f"step {prompt.id}: run of another participant")
+            )
+            continue
+        session = data.sessions_by_id[run.session_id]
+        if prompt.adapts != (session.number != FAMILIARISATION):
+            report.findings.append(
+                Finding(
+                    "timeline",
+                    code,
+                    f"step {prompt.id}: adapts={prompt.adapts} in session {session.number}",
+                )
+            )
+        category = categories.get(prompt.category)
+        if category is None or not 0 <= prompt.action < len(category.questions):
+            report.findings.append(Finding("step", code, f"step {prompt.id}: unknown question"))
+            continue
+        if prompt.question != category.questions[prompt.action]:
+            report.findings.append(
+                Finding("step", code, f"step {prompt.id}: question text is not the protocol's")
+            )
+        answer = data.answers.get(prompt.id)
+        if answer is None:
+            continue
+        report.answers += 1
+        if answer.participant_id != prompt.participant_id:
+            report.findings.append(
+                Finding("orphan", code, f"answer to step {prompt.id} of another participant")
+            )
+        expected_reward = protocol.reward.yes if answer.answer else protocol.reward.no
+        if answer.reward != expected_reward:
+            report.findings.append(
+                Finding(
+                    "step",
+                    code,
+                    f"step {prompt.id}: reward {answer.reward}, protocol says {expected_reward}",
+                )
+            )
+        level = confidence_level(answer.probability, protocol.replies.thresholds)
+        if level != answer.confidence_level or answer.reply != protocol.replies.levels[level].text:
+            report.findings.append(
+                Finding("step", code, f"step {prompt.id}: reply does not follow the thresholds")
+            )
+
+
+def _check_timeline(data: _Study, report: VerifyReport) -> None:
+    protocol = data.protocol
+    sessions_of: dict[int, list[StudySession]] = defaultdict(list)
+    for session in data.sessions:
+        sessions_of[session.participant_id].append(session)
+    runs_of: dict[int, list[Run]] = defaultdict(list)
+    for run in data.runs:
+        runs_of[run.session_id].append(run)
+    answered_in: dict[int, set[str]] = defaultdict(set)
+    for prompt in data.prompts:
+        if prompt.id in data.answers:
+            answered_in[prompt.run_id].add(prompt.category)
+    all_categories = {c.name for c in protocol.categories}
+    first = first_session_number(protocol)
+    for participant_id, sessions in sessions_of.items():
+        code = data.code(participant_id)
+        numbers = [s.number for s in sessions]
+        if numbers != list(range(first, first + len(numbers))):
+            report.findings.append(Finding("timeline", code, f"sessions out of order: {numbers}"))
+        if numbers and numbers[-1] > protocol.schedule.sessions:
+            report.findings.append(Finding("timeline", code, "more sessions than the protocol has"))
+        for index, session in enumerate(sessions):
+            if session.status == SessionStatus.RUNNING and index != len(sessions) - 1:
+                report.findings.append(
+                    Finding(
+                        "timeline",
+                        code,
+                        f"session {session.number} still running after a later one",
+                    )
+                )
+            if (session.status == SessionStatus.RUNNING) == (session.ended_at is not None):
+                report.findings.append(
+                    Finding(
+                        "timeline", code, f"session {session.number}: status and end time disagree"
+                    )
+                )
+            runs = runs_of.get(session.id, [])
+            run_numbers = [r.number for r in runs]
+            if run_numbers != list(range(1, len(runs) + 1)):
+                report.findings.append(
+                    Finding(
+                        "timeline",
+                        code,
+                        f"session {session.number}: runs out of order {run_numbers}",
+                    )
+                )
+            if len(runs) > runs_in(protocol, session.number):
+                report.findings.append(
+                    Finding("timeline", code, f"session {session.number}: too many runs")
+                )
+            for position, run in enumerate(runs):
+                if run.participant_id != participant_id:
+                    report.findings.append(
+                        Finding("orphan", code, f"run {run.id} of another participant")
+                    )
+                if run.status == RunStatus.RUNNING and (
+                    position != len(runs) - 1 or session.status != SessionStatus.RUNNING
+                ):
+                    report.findings.append(
+                        Finding(
+                            "timeline",
+                            code,
+                            f"session {session.number} run {run.number} is running out of turn",
+                        )
+                    )
+                if run.status == RunStatus.COMPLETED and answered_in[run.id] != all_categories:
+                    missing = sorted(all_categories - answered_in[run.id])
+                    report.findings.append(
+                        Finding(
+                            "timeline",
+                            code,
+                            f"session {session.number} run {run.number} "
+                            f"completed without {', '.join(missing)}",
+                        )
+                    )
+
+
+def _check_allocation(data: _Study, report: VerifyReport) -> None:
+    protocol = data.protocol
+    seed = bytes.fromhex(data.study.allocation_seed)
+    conditions = [c.id for c in protocol.conditions]
+    sizes = protocol.allocation.block_sizes
+    allocated = {a.participant_id for a in data.allocations}
+    for participant in data.participants.values():
+        if participant.id not in allocated:
+            report.findings.append(Finding("allocation", participant.code, "no allocation"))
+    by_stratum: dict[str, list[Allocation]] = defaultdict(list)
+    for allocation in data.allocations:
+        code = data.code(allocation.participant_id)
+        if allocation.sequence_index is None:
+            replaced = data.participants.get(allocation.replaces_participant_id or -1)
+            original = next(
+                (a for a in data.allocations if a.participant_id == getattr(replaced, "id", None)),
+                None,
+            )
+            if (
+                replaced is None
+                or replaced.status != ParticipantStatus.WITHDRAWN
+                or replaced.stratum != allocation.stratum
+                or original is None
+                or original.condition != allocation.condition
+            ):
+                report.findings.append(
+                    Finding(
+                        "allocation", code, "replacement does not match a withdrawn participant"
+                    )
+                )
+            continue
+        by_stratum[allocation.stratum].append(allocation)
+        entry = entry_at(seed, allocation.stratum, conditions, sizes, allocation.sequence_index)
+        if entry.condition != allocation.condition:
+            report.findings.append(
+                Finding(
+                    "allocation",
+                    code,
+                    f"allocation {allocation.sequence_index} is "
+                    f"{allocation.condition} but the seed gives {entry.condition}",
+                )
+            )
+    for stratum, allocations in by_stratum.items():
+        indices = sorted(a.sequence_index or 0 for a in allocations)
+        if indices != list(range(len(indices))):
+            report.findings.append(
+                Finding("allocation", None, f"stratum {stratum or '(all)'}: indices have gaps")
+            )
+        counts = Counter(a.condition for a in allocations)
+        spread = max(counts.get(c, 0) for c in conditions) - min(
+            counts.get(c, 0) for c in conditions
+        )
+        if spread > max(sizes) // len(conditions):
+            report.findings.append(
+                Finding(
+                    "allocation", None, f"stratum {stratum or '(all)'}: groups differ by {spread}"
+                )
+            )
+
+
+def verify_study(db: Session, *, study_name: str) -> VerifyReport:
+    """Run every check on one study."""
+    study = get_study(db, study_name)
+    data = _Study(db, study)
+    report = VerifyReport(study=study.name, participants=len(data.participants))
+    _check_allocation(data, report)
+    _check_timeline(data, report)
+    _check_steps(data, report)
+    _check_learners(data, report)
+    return report

@@ -1,0 +1,87 @@
+"""Who is holding the tablet: a participant's personal link or a station's kiosk link.
+
+Pages identify the tablet by a cookie set when a link is opened; the JSON API by a bearer token.
+Either way the identity resolves to exactly one participant (a kiosk: whoever is assigned to the
+station now), and the tablet can reach only that participant's pages.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, Request
+from sqlalchemy.orm import Session
+
+from app.deps import SessionDep, bearer_key
+from app.errors import Conflict, NotAuthenticated
+from app.protocol import Protocol
+from app.security import sign
+from app.services import tablet_tokens
+from app.services.studies import protocol_of
+from app.tables import Participant, Station, Study
+
+TABLET_COOKIE = "tl_tablet"
+
+
+@dataclass(frozen=True)
+class Tablet:
+    """A resolved tablet: the participant it shows, and the kiosk station when it is one."""
+
+    participant: Participant
+    study: Study
+    protocol: Protocol
+    station: Station | None
+    credential: str
+
+    def topics(self) -> list[str]:
+        """Live topics whose events should refresh this tablet."""
+        topics = [f"participant:{self.participant.id}"]
+        if self.station is not None:
+            topics.append(f"station:{self.station.id}")
+        return topics
+
+
+def resolve(db: Session, credential: str) -> Tablet:
+    """The tablet behind a token (``tlp_…`` personal or ``tls_…`` kiosk)."""
+    station = None
+    if credential.startswith(tablet_tokens.KIOSK_PREFIX):
+        station = tablet_tokens.station_for_kiosk_token(db, credential)
+        if station.participant is None:
+            raise Conflict(
+                f"nobody is at station {station.name!r} yet: the experimenter assigns a participant"
+            )
+        participant = station.participant
+    else:
+        participant = tablet_tokens.participant_for_token(db, credential)
+    study = db.get(Study, participant.study_id)
+    assert study is not None
+    return Tablet(participant, study, protocol_of(study), station, credential)
+
+
+def cookie_tablet(request: Request, db: SessionDep) -> Tablet:
+    """The tablet identified by its cookie (pages)."""
+    credential = request.cookies.get(TABLET_COOKIE, "")
+    if not credential:
+        raise NotAuthenticated(
+            "open the tablet link (or scan the QR code) the experimenter gave you"
+        )
+    return resolve(db, credential)
+
+
+def bearer_tablet(request: Request, db: SessionDep) -> Tablet:
+    """The tablet identified by ``Authorization: Bearer tlp_…|tls_…`` (JSON API)."""
+    credential = bearer_key(request)
+    if not credential:
+        raise NotAuthenticated("send the tablet token as 'Authorization: Bearer tlp_…'")
+    return resolve(db, credential)
+
+
+CookieTablet = Annotated[Tablet, Depends(cookie_tablet)]
+BearerTablet = Annotated[Tablet, Depends(bearer_tablet)]
+
+
+def form_token(secret: bytes, credential: str) -> str:
+    """The CSRF token of a tablet's forms: bound to its (secret) cookie value."""
+    return sign(secret, hashlib.sha256(credential.encode()).hexdigest()[:32])

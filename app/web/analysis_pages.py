@@ -1,0 +1,87 @@
+"""The PI's pages: the analysis of a study in the browser, and the export downloads."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from fastapi import APIRouter, Request
+from fastapi.responses import Response
+from starlette.background import BackgroundTask
+from starlette.responses import FileResponse
+
+from analysis.errors import AnalysisError
+from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
+from analysis.study import analyse_study
+from app.deps import AnalystUser, SessionDep
+from app.errors import InvalidInput, NotFound
+from app.services import audit, studies, study_data
+from app.services.analysis_view import analysis_view
+from app.services.audit import Actor
+from app.web.templating import render
+
+router = APIRouter(tags=["pages"], include_in_schema=False)
+
+
+@router.get("/studies/{name}/analysis")
+def analysis_page(
+    request: Request, db: SessionDep, user: AnalystUser, name: str, ss: int = 3
+) -> Response:
+    """The mixed ANOVA of every per-session measure, computed now from the stored data."""
+    if ss not in (2, 3):
+        raise InvalidInput("ss: the sums of squares are of type 3 (default) or 2")
+    study = studies.get_study(db, name)
+    dataset = study_data.load_dataset(db, study=study)
+    try:
+        view = analysis_view(analyse_study(dataset, ss_type=ss))  # type: ignore[arg-type]
+        error = ""
+    except AnalysisError as exc:
+        view, error = None, str(exc)
+    return render(
+        request,
+        "analysis.html",
+        {
+            "study": study,
+            "view": view,
+            "error": error,
+            "formats": EXPORT_FORMATS.values(),
+            "manifest": dataset.manifest,
+        },
+    )
+
+
+@router.get("/studies/{name}/exports/{export}")
+def download(
+    request: Request, db: SessionDep, user: AnalystUser, name: str, export: str
+) -> Response:
+    """One export file, built now from the stored data (the download is audited)."""
+    spec = EXPORT_FORMATS.get(export)
+    if spec is None:
+        raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
+    study = studies.get_study(db, name)
+    dataset = study_data.load_dataset(db, study=study)
+    folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
+    path = write_export(dataset, export, folder / spec.filename)
+    digest = sha256_file(path)
+    with request.app.state.database.write_session() as writer:
+        audit.record(
+            writer,
+            actor=Actor.of_user(user),
+            action="export.downloaded",
+            study_id=study.id,
+            subject=export,
+            details={"sha256": digest, "data_sha256": dataset.manifest["data_sha256"]},
+        )
+        writer.commit()
+
+    def cleanup() -> None:
+        path.unlink(missing_ok=True)
+        folder.rmdir()
+
+    return FileResponse(
+        path,
+        media_type=spec.media_type,
+        filename=f"{study.name}-{spec.filename}",
+        headers={"X-Content-SHA256": digest, "Cache-Control": "no-store"},
+        background=BackgroundTask(cleanup),
+    )

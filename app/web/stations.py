@@ -1,0 +1,342 @@
+"""Stations, device keys and the operator console (with Wizard-of-Oz).
+
+The console's buttons go through exactly the operations the robot API uses (app/api/station_ops.py
+and app/services/runtime.py): a Wizard-of-Oz prompt or answer is indistinguishable from a robot's,
+apart from who the step log says did it.
+"""
+
+from __future__ import annotations
+
+import uuid
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Form, Request
+from fastapi.responses import Response
+from sqlalchemy import select
+
+from app.api import station_ops
+from app.api.runtime_schemas import AnswerRequest, PromptRequest
+from app.deps import AdminUser, ExperimenterUser, SessionDep, SettingsDep
+from app.errors import TrustlabError
+from app.services import enrolment, learners, runtime, stations, studies, tablet_tokens
+from app.services.audit import Actor
+from app.tables import Device, LearnerState, Participant, ParticipantStatus, Study, User
+from app.web.qr import qr_svg
+from app.web.templating import redirect_with_notice, render
+
+router = APIRouter(tags=["pages"], include_in_schema=False)
+
+
+def _stations_context(
+    request: Request, db: SessionDep, settings: SettingsDep, user: User
+) -> dict[str, Any]:
+    base = str(request.base_url).rstrip("/")
+    rows = []
+    for station in stations.list_stations(db):
+        devices = db.scalars(
+            select(Device).where(Device.station_id == station.id).order_by(Device.id)
+        )
+        kiosk = (
+            tablet_tokens.kiosk_token(settings.secret, station) if user.role == "admin" else None
+        )
+        kiosk_url = f"{base}/k/{kiosk}" if kiosk else None
+        participant = station.participant
+        rows.append(
+            {
+                "station": station,
+                "participant": participant,
+                "study": db.get(Study, participant.study_id) if participant else None,
+                "devices": list(devices),
+                "kiosk_url": kiosk_url,
+                "kiosk_qr": qr_svg(kiosk_url) if kiosk_url else "",
+            }
+        )
+    return {"rows": rows, "new_key": None}
+
+
+@router.get("/stations")
+def station_list(
+    request: Request, db: SessionDep, settings: SettingsDep, user: ExperimenterUser
+) -> Response:
+    """Every station, who is seated there, and its devices."""
+    return render(request, "stations.html", _stations_context(request, db, settings, user))
+
+
+@router.post("/stations")
+def create_station(
+    request: Request, db: SessionDep, admin: AdminUser, name: Annotated[str, Form(max_length=64)]
+) -> Response:
+    """Create a station."""
+    stations.create_station(db, name=name.strip(), actor=Actor.of_user(admin))
+    return redirect_with_notice(request, "/stations", f"Created station {name.strip()}.")
+
+
+@router.post("/stations/{name}/devices")
+def issue_key(
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    admin: AdminUser,
+    name: str,
+    label: Annotated[str, Form(max_length=64)] = "robot",
+) -> Response:
+    """Issue a device key and show it, this once."""
+    issued = stations.issue_device_key(
+        db, station_name=name, label=label, actor=Actor.of_user(admin)
+    )
+    context = _stations_context(request, db, settings, admin)
+    context["new_key"] = {"station": name, "label": issued.device.label, "key": issued.key}
+    response = render(request, "stations.html", context)
+    response.headers["Cache-Control"] = "no-store"
+    return response
+
+
+@router.post("/devices/{device_id}/revoke")
+def revoke_key(request: Request, db: SessionDep, admin: AdminUser, device_id: int) -> Response:
+    """Revoke a device key at once."""
+    device = stations.revoke_device(db, device_id=device_id, actor=Actor.of_user(admin))
+    return redirect_with_notice(
+        request,
+        "/stations",
+        f"Revoked {device.label} ({device.key_prefix}…) at {device.station.name}.",
+    )
+
+
+@router.post("/stations/{name}/kiosk")
+def issue_kiosk(
+    request: Request, db: SessionDep, settings: SettingsDep, admin: AdminUser, name: str
+) -> Response:
+    """Issue (or reissue) the station's kiosk link for a shared tablet."""
+    station = stations.get_station(db, name, for_update=True)
+    tablet_tokens.issue_kiosk_token(
+        db, station=station, secret=settings.secret, actor=Actor.of_user(admin)
+    )
+    return redirect_with_notice(request, "/stations", f"New kiosk link for {name}.")
+
+
+# ------------------------------------------------------------------------------ the console
+
+
+def _probabilities(db: SessionDep, participant: Participant) -> list[dict[str, Any]]:
+    """The participant's current probabilities per category, for the live bars."""
+    study = db.get(Study, participant.study_id)
+    assert study is not None
+    protocol = studies.protocol_of(study)
+    rows = {
+        row.category: row
+        for row in db.scalars(
+            select(LearnerState).where(LearnerState.participant_id == participant.id)
+        )
+    }
+    bars = []
+    for category in protocol.categories:
+        row = rows.get(category.name)
+        values = learners.probabilities_list(learners.restore(row)) if row else []
+        bars.append(
+            {
+                "category": category,
+                "bars": [
+                    {
+                        "question": q,
+                        "p": values[i] if values else 0.0,
+                        "preferred": i == category.preferred,
+                    }
+                    for i, q in enumerate(category.questions)
+                ],
+                "updates": row.version if row else 0,
+            }
+        )
+    return bars
+
+
+def _console(
+    request: Request,
+    db: SessionDep,
+    user: User,
+    name: str,
+    *,
+    error: str = "",
+    status_code: int = 200,
+) -> Response:
+    station = stations.get_station(db, name)
+    view = runtime.station_view(db, station_name=name)
+    participant = station.participant
+    devices = list(
+        db.scalars(
+            select(Device).where(Device.station_id == station.id, Device.revoked_at.is_(None))
+        )
+    )
+    candidates = []
+    for study in studies.list_studies(db):
+        codes = db.scalars(
+            select(Participant.code)
+            .where(
+                Participant.study_id == study.id,
+                Participant.status == ParticipantStatus.ACTIVE,
+            )
+            .order_by(Participant.code)
+        ).all()
+        candidates.append({"study": study.name, "codes": codes})
+    last = runtime.last_step(db, participant_id=participant.id) if participant else None
+    response = render(
+        request,
+        "console.html",
+        {
+            "station": station,
+            "view": view,
+            "participant": participant,
+            "devices": devices,
+            "candidates": candidates,
+            "bars": _probabilities(db, participant) if participant else [],
+            "last": last,
+            "error": error,
+            "answer_key": uuid.uuid4().hex,
+        },
+        block="console",
+        status_code=status_code,
+    )
+    return response
+
+
+@router.get("/stations/{name}")
+def console(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """The operator console of one station."""
+    return _console(request, db, user, name)
+
+
+def _act(
+    request: Request, db: SessionDep, user: User, name: str, action: Any, notice: str = ""
+) -> Response:
+    """Run a console action; show its refusal beside the buttons instead of an error page."""
+    try:
+        action()
+    except TrustlabError as exc:
+        db.rollback()
+        return _console(request, db, user, name, error=exc.message, status_code=exc.status_code)
+    return _console(request, db, user, name)
+
+
+@router.post("/stations/{name}/assign")
+def assign(
+    request: Request,
+    db: SessionDep,
+    user: ExperimenterUser,
+    name: str,
+    study: Annotated[str, Form(max_length=64)],
+    code: Annotated[str, Form(max_length=32)],
+) -> Response:
+    """Seat a participant at the station."""
+
+    def action() -> None:
+        found = studies.get_study(db, study)
+        participant = enrolment.get_participant(db, found, code.strip())
+        stations.assign_participant(
+            db, station_name=name, participant=participant, actor=Actor.of_user(user)
+        )
+
+    return _act(request, db, user, name, action)
+
+
+@router.post("/stations/{name}/unassign")
+def unassign(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """Free the station."""
+    return _act(
+        request,
+        db,
+        user,
+        name,
+        lambda: stations.unassign(db, station_name=name, actor=Actor.of_user(user)),
+    )
+
+
+@router.post("/stations/{name}/session/start")
+def start_session(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """Start the participant's next session."""
+    return _act(
+        request,
+        db,
+        user,
+        name,
+        lambda: runtime.start_session(db, station_name=name, actor=Actor.of_user(user)),
+    )
+
+
+@router.post("/stations/{name}/session/end")
+def end_session(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """End the running session early."""
+    return _act(
+        request,
+        db,
+        user,
+        name,
+        lambda: runtime.end_session(db, station_name=name, actor=Actor.of_user(user)),
+    )
+
+
+@router.post("/stations/{name}/run/start")
+def start_run(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """Start the next run."""
+    return _act(
+        request,
+        db,
+        user,
+        name,
+        lambda: runtime.start_run(db, station_name=name, actor=Actor.of_user(user)),
+    )
+
+
+@router.post("/stations/{name}/run/end")
+def end_run(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """End the running run early."""
+    return _act(
+        request,
+        db,
+        user,
+        name,
+        lambda: runtime.end_run(db, station_name=name, actor=Actor.of_user(user)),
+    )
+
+
+@router.post("/stations/{name}/woz/prompt")
+def woz_prompt(
+    request: Request,
+    db: SessionDep,
+    user: ExperimenterUser,
+    name: str,
+    category: Annotated[str, Form(max_length=40)],
+) -> Response:
+    """Wizard-of-Oz: trigger a category as the robot would."""
+    return _act(
+        request,
+        db,
+        user,
+        name,
+        lambda: station_ops.prompt(
+            db,
+            station=name,
+            body=PromptRequest(category=category),
+            actor=Actor.of_user(user),
+            device_id=None,
+        ),
+    )
+
+
+@router.post("/stations/{name}/woz/answer")
+def woz_answer(
+    request: Request,
+    db: SessionDep,
+    user: ExperimenterUser,
+    name: str,
+    step_id: Annotated[int, Form()],
+    answer: Annotated[Literal["yes", "no"], Form()],
+    idempotency_key: Annotated[str, Form(max_length=100)],
+) -> Response:
+    """Wizard-of-Oz: record the participant's yes/no answer as the robot would."""
+
+    def action() -> None:
+        body = AnswerRequest(answer=answer, idempotency_key=idempotency_key)
+        station_ops.answer(
+            db, station=name, step_id=step_id, body=body, actor=Actor.of_user(user), device_id=None
+        )
+
+    return _act(request, db, user, name, action)

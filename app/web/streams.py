@@ -1,0 +1,44 @@
+"""Server-sent events for pages: 'something changed on these topics'.
+
+Pages listen with EventSource (or htmx's SSE extension) and fetch what they show again; events
+carry only their type, so a page never renders from a push it could not have fetched itself.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator, Iterable
+
+from fastapi.responses import StreamingResponse
+
+from app.events import EventHub
+
+KEEPALIVE_SECONDS = 15.0
+
+
+def event_stream(hub: EventHub, topics: Iterable[str]) -> StreamingResponse:
+    """An endless ``text/event-stream`` of ``changed`` events for ``topics`` (with keep-alives)."""
+    subscribed = list(topics)
+
+    async def stream() -> AsyncIterator[str]:
+        # Registered and released explicitly: a context manager nested in an async generator
+        # breaks when the generator is finalised on an event loop that is shutting down.
+        subscription = hub.open(subscribed)
+        try:
+            yield "retry: 3000\n\n"
+            while True:
+                try:
+                    event = await asyncio.wait_for(subscription.next(), KEEPALIVE_SECONDS)
+                except TimeoutError:
+                    yield ": keepalive\n\n"
+                    continue
+                yield f"event: changed\ndata: {json.dumps({'type': event.type})}\n\n"
+        finally:
+            hub.close(subscription)
+
+    return StreamingResponse(
+        stream(),
+        media_type="text/event-stream",
+        headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
+    )

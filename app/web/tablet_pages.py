@@ -1,0 +1,325 @@
+"""The participant's tablet pages: one instrument per page, the server always decides which.
+
+Every GET of a tablet page that is not the participant's current page redirects to it, and every
+page is sent with ``Cache-Control: no-store``, so the back button, a reload, a second tab or a
+restarted tablet all land on the right page. Answers typed but not submitted are kept in the
+browser (static/js/tablet.js) until the page is submitted.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Form, Request
+from fastapi.responses import RedirectResponse, Response
+from starlette.concurrency import run_in_threadpool
+
+from app.deps import FormFields, SessionDep, SettingsDep
+from app.errors import Conflict, NotAuthenticated, PermissionDenied, TrustlabError
+from app.protocol import InstrumentSpec
+from app.security import same
+from app.services import questionnaires
+from app.services.audit import Actor
+from app.tables import ActorKind
+from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
+from app.web.streams import event_stream
+from app.web.templating import render
+
+router = APIRouter(tags=["tablet"], include_in_schema=False)
+
+
+def participant_actor(tablet: Tablet) -> Actor:
+    """How the participant appears in the audit log."""
+    via = f"kiosk {tablet.station.name}" if tablet.station else "tablet link"
+    return Actor(ActorKind.PARTICIPANT, f"{tablet.participant.code} ({via})"[:64])
+
+
+def _no_store(response: Response) -> Response:
+    response.headers["Cache-Control"] = "no-store"
+    return response
+
+
+def _open_link(token: str, db: SessionDep) -> Response:
+    try:
+        resolve(db, token)
+    except (NotAuthenticated, Conflict) as exc:
+        raise NotAuthenticated(exc.message) from exc
+    response = RedirectResponse("/tablet", status_code=303)
+    response.set_cookie(TABLET_COOKIE, token, httponly=True, samesite="lax", max_age=7 * 86400)
+    return response
+
+
+@router.get("/t/{token}")
+def personal_link(token: str, db: SessionDep) -> Response:
+    """A participant's personal link (from the QR code): remember it on this tablet."""
+    return _open_link(token, db)
+
+
+@router.get("/k/{token}")
+def kiosk_link(token: str, db: SessionDep) -> Response:
+    """A station's kiosk link: this tablet shows whoever is assigned to the station."""
+    return _open_link(token, db)
+
+
+def _context(request: Request, tablet: Tablet, settings: SettingsDep) -> dict[str, Any]:
+    return {
+        "tablet": tablet,
+        "form_token": form_token(settings.secret, tablet.credential),
+        "study_title": tablet.protocol.study.title,
+    }
+
+
+@router.get("/tablet")
+def tablet_home(db: SessionDep, tablet: CookieTablet) -> Response:
+    """Send the tablet to the page its participant should be on."""
+    page = questionnaires.next_page(db, tablet.participant, tablet.protocol)
+    return _no_store(RedirectResponse(page.path, status_code=303))
+
+
+def _current_or_redirect(
+    db: SessionDep,
+    tablet: Tablet,
+    kind: str,
+    instrument: str | None = None,
+    session: int | None = None,
+) -> questionnaires.Page | Response:
+    page = questionnaires.next_page(db, tablet.participant, tablet.protocol)
+    wanted = page.kind == kind and (
+        instrument is None
+        or (
+            page.instrument is not None
+            and page.instrument.key == instrument
+            and page.session == session
+        )
+    )
+    return page if wanted else _no_store(RedirectResponse(page.path, status_code=303))
+
+
+def _check_form_token(tablet: Tablet, settings: SettingsDep, submitted: str) -> None:
+    if not same(submitted, form_token(settings.secret, tablet.credential)):
+        raise PermissionDenied("this form expired; the page will reload with your answers kept")
+
+
+@router.get("/tablet/consent")
+def consent_page(
+    request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep
+) -> Response:
+    """The consent text and the box to tick."""
+    current = _current_or_redirect(db, tablet, "consent")
+    if isinstance(current, Response):
+        return current
+    consent = tablet.protocol.questionnaires.consent
+    return _no_store(
+        render(
+            request,
+            "tablet_consent.html",
+            {
+                **_context(request, tablet, settings),
+                "paragraphs": [p.strip() for p in consent.text.split("\n\n") if p.strip()],
+                "rules": tablet.protocol.study.rules,
+                "error": "",
+            },
+        )
+    )
+
+
+@router.post("/tablet/consent")
+def give_consent(
+    request: Request,
+    db: SessionDep,
+    tablet: CookieTablet,
+    settings: SettingsDep,
+    csrf_token: Annotated[str, Form(max_length=200)] = "",
+    accept: Annotated[str, Form(max_length=10)] = "",
+) -> Response:
+    """Record consent (with the text's version)."""
+    _check_form_token(tablet, settings, csrf_token)
+    try:
+        questionnaires.accept_consent(
+            db,
+            participant=tablet.participant,
+            protocol=tablet.protocol,
+            accepted=accept == "yes",
+            actor=participant_actor(tablet),
+        )
+    except questionnaires.QuestionnaireInvalid as exc:
+        consent = tablet.protocol.questionnaires.consent
+        return _no_store(
+            render(
+                request,
+                "tablet_consent.html",
+                {
+                    **_context(request, tablet, settings),
+                    "paragraphs": [p.strip() for p in consent.text.split("\n\n") if p.strip()],
+                    "rules": tablet.protocol.study.rules,
+                    "error": exc.errors["accept"],
+                },
+                status_code=422,
+            )
+        )
+    return RedirectResponse("/tablet", status_code=303)
+
+
+def _questionnaire(
+    request: Request,
+    tablet: Tablet,
+    settings: SettingsDep,
+    instrument: InstrumentSpec,
+    session: int | None,
+    values: dict[str, str],
+    errors: dict[str, str],
+    status_code: int = 200,
+) -> Response:
+    scales = {s.name: s for s in tablet.protocol.questionnaires.scales}
+    return _no_store(
+        render(
+            request,
+            "tablet_questionnaire.html",
+            {
+                **_context(request, tablet, settings),
+                "instrument": instrument,
+                "session": session,
+                "scales": scales,
+                "values": values,
+                "errors": errors,
+                "description_suffix": questionnaires.DESCRIPTION_SUFFIX,
+                "action": questionnaires.Page("questionnaire", instrument, session).path,
+                "draft_key": hashlib.sha256(
+                    f"{tablet.credential}:{instrument.key}:{session}".encode()
+                ).hexdigest()[:24],
+            },
+            status_code=status_code,
+        )
+    )
+
+
+def _show(
+    request: Request,
+    db: SessionDep,
+    tablet: Tablet,
+    settings: SettingsDep,
+    instrument: str,
+    session: int | None,
+) -> Response:
+    current = _current_or_redirect(db, tablet, "questionnaire", instrument, session)
+    if isinstance(current, Response):
+        return current
+    assert current.instrument is not None
+    stored = questionnaires.stored_answers(db, tablet.participant, instrument, session)
+    return _questionnaire(request, tablet, settings, current.instrument, session, stored, {})
+
+
+def _submit(
+    request: Request,
+    db: SessionDep,
+    tablet: Tablet,
+    settings: SettingsDep,
+    instrument: str,
+    session: int | None,
+    fields: dict[str, str],
+) -> Response:
+    _check_form_token(tablet, settings, fields.pop("csrf_token", ""))
+    answers = dict(fields)
+    try:
+        questionnaires.submit(
+            db,
+            participant=tablet.participant,
+            protocol=tablet.protocol,
+            instrument_key=instrument,
+            session=session,
+            answers=answers,
+            actor=participant_actor(tablet),
+        )
+    except questionnaires.QuestionnaireInvalid as exc:
+        db.rollback()
+        spec = next(i for i in tablet.protocol.questionnaires.instruments if i.key == instrument)
+        return _questionnaire(
+            request, tablet, settings, spec, session, answers, exc.errors, status_code=422
+        )
+    return RedirectResponse("/tablet", status_code=303)
+
+
+@router.get("/tablet/q/{instrument}")
+def questionnaire_page(
+    request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep, instrument: str
+) -> Response:
+    """A pre- or post-study instrument."""
+    return _show(request, db, tablet, settings, instrument, None)
+
+
+@router.get("/tablet/q/{instrument}/{session}")
+def session_questionnaire_page(
+    request: Request,
+    db: SessionDep,
+    tablet: CookieTablet,
+    settings: SettingsDep,
+    instrument: str,
+    session: int,
+) -> Response:
+    """A per-session instrument."""
+    return _show(request, db, tablet, settings, instrument, session)
+
+
+@router.post("/tablet/q/{instrument}")
+def submit_questionnaire(
+    request: Request,
+    db: SessionDep,
+    tablet: CookieTablet,
+    settings: SettingsDep,
+    instrument: str,
+    fields: FormFields,
+) -> Response:
+    """Submit (or revise) a pre- or post-study instrument."""
+    return _submit(request, db, tablet, settings, instrument, None, dict(fields))
+
+
+@router.post("/tablet/q/{instrument}/{session}")
+def submit_session_questionnaire(
+    request: Request,
+    db: SessionDep,
+    tablet: CookieTablet,
+    settings: SettingsDep,
+    instrument: str,
+    session: int,
+    fields: FormFields,
+) -> Response:
+    """Submit (or revise) a per-session instrument."""
+    return _submit(request, db, tablet, settings, instrument, session, dict(fields))
+
+
+def _simple_page(kind: str, template: str) -> Callable[..., Response]:
+    def page(
+        request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep
+    ) -> Response:
+        current = _current_or_redirect(db, tablet, kind)
+        if isinstance(current, Response):
+            return current
+        return _no_store(render(request, template, _context(request, tablet, settings)))
+
+    page.__doc__ = f"The {kind} page."
+    return page
+
+
+router.get("/tablet/wait")(_simple_page("wait", "tablet_wait.html"))
+router.get("/tablet/done")(_simple_page("done", "tablet_done.html"))
+router.get("/tablet/withdrawn")(_simple_page("withdrawn", "tablet_withdrawn.html"))
+
+
+@router.get("/tablet/events")
+async def tablet_events(request: Request) -> Response:
+    """Server-sent events telling the tablet to look for its next page."""
+    database = request.app.state.database
+    credential = request.cookies.get(TABLET_COOKIE, "")
+
+    def topics() -> list[str]:
+        with database.read_session() as db:
+            return resolve(db, credential).topics()
+
+    try:
+        subscribed = await run_in_threadpool(topics)
+    except TrustlabError as exc:
+        return Response(exc.message, status_code=exc.status_code)
+
+    return event_stream(database.hub, subscribed)

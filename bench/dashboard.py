@@ -1,0 +1,117 @@
+"""Server time to render the live study dashboard with 24 and 1,000 participants.
+
+For each size: a study is generated (bench/seed.py), then the dashboard page and its data
+(``dashboard.json``: every trust measure's mean ± CI by session and the adaptation curves) are
+requested in-process through the ASGI app, so the figure is the server's time, not the network's.
+The study overview page (the participants table) is measured too. Targets: p95 ≤ 100 ms at 24
+participants and ≤ 500 ms at 1,000, on SQLite and PostgreSQL.
+
+    .venv/bin/python bench/dashboard.py
+    .venv/bin/python bench/dashboard.py --postgres postgresql+psycopg://postgres@127.0.0.1:5432/test
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from app import schema  # noqa: E402
+from app.db import Database  # noqa: E402
+from app.main import create_app  # noqa: E402
+from app.services import users  # noqa: E402
+from app.settings import Settings  # noqa: E402
+from app.tables import Role  # noqa: E402
+from bench.api import fresh_postgres  # noqa: E402
+from bench.seed import SYSTEM, seed_study  # noqa: E402
+
+PASSWORD = "benchmark password"
+PAGES = {
+    "dashboard page": "/studies/{study}/dashboard",
+    "dashboard data": "/studies/{study}/dashboard.json",
+    "overview page": "/studies/{study}",
+}
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return 1000.0 * ordered[min(len(ordered) - 1, max(0, round(q * len(ordered)) - 1))]
+
+
+async def measure(url: str, study: str, repeats: int) -> dict[str, dict[str, float]]:
+    app = create_app(Settings(_env_file=None, database_url=url, secret_key="b" * 40))
+    results: dict[str, dict[str, float]] = {}
+    async with app.router.lifespan_context(app):
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://bench") as client:
+            signed = await client.post(
+                "/api/v1/session", json={"username": "bench", "password": PASSWORD}
+            )
+            assert signed.status_code == 200, signed.text
+            for label, path in PAGES.items():
+                target = path.format(study=study)
+                await client.get(target)  # warm caches, as a dashboard left open would be
+                times = []
+                for _ in range(repeats):
+                    start = time.perf_counter()
+                    response = await client.get(target)
+                    times.append(time.perf_counter() - start)
+                    assert response.status_code == 200, (target, response.status_code)
+                results[label] = {
+                    "p50_ms": round(percentile(times, 0.5), 1),
+                    "p95_ms": round(percentile(times, 0.95), 1),
+                    "bytes": len(response.content),
+                }
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--postgres", help="maintenance URL; benchmarks PostgreSQL instead")
+    parser.add_argument("--sizes", default="24,1000")
+    parser.add_argument("--repeats", type=int, default=40)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    report: dict[int, dict[str, object]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/d.sqlite3"
+        database = Database(url)
+        schema.upgrade(database)
+        with database.writing() as db:
+            users.create_user(
+                db, username="bench", role=Role.ANALYST, password=PASSWORD, actor=SYSTEM
+            )
+        for size in (int(s) for s in args.sizes.split(",")):
+            started = time.perf_counter()
+            seed_study(database, name=f"s{size}", participants=size, seed=size)
+            seeded = time.perf_counter() - started
+            report[size] = {
+                **asyncio.run(measure(url, f"s{size}", args.repeats)),
+                "seeded_s": round(seeded, 1),
+            }
+        database.dispose()
+    engine = "postgresql" if args.postgres else "sqlite"
+    if args.json:
+        print(json.dumps({"engine": engine, "sizes": report}))
+        return
+    print(f"engine={engine} repeats={args.repeats}")
+    for size, pages in report.items():
+        for label, figures in pages.items():
+            if isinstance(figures, dict):
+                print(
+                    f"{size:>6} participants  {label:<15} p50 {figures['p50_ms']:>7} ms  "
+                    f"p95 {figures['p95_ms']:>7} ms  {figures['bytes']:>8} bytes"
+                )
+
+
+if __name__ == "__main__":
+    main()

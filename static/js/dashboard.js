@@ -1,0 +1,72 @@
+// The live study dashboard: draws the payloads of dashboard.json with Plotly, and draws them again
+// whenever the server says the study changed (server-sent events), at most every 300 ms.
+(() => {
+  const root = document.getElementById("dashboard");
+  if (!root || typeof Plotly === "undefined") return;
+  const status = document.getElementById("dashboard-status");
+  const charts = document.getElementById("measures");
+  const config = { displaylogo: false, responsive: true };
+  let latest = null;
+  let pending = false;
+
+  const selected = () =>
+    Array.from(root.querySelectorAll('input[name="measure"]:checked')).map((box) => box.value);
+
+  function draw() {
+    if (!latest) return;
+    const wanted = selected();
+    for (const measure of latest.measures) {
+      const id = `measure-${measure.item}`;
+      let card = document.getElementById(id);
+      if (!wanted.includes(measure.item)) {
+        if (card) card.remove();
+        continue;
+      }
+      if (!card) {
+        card = document.createElement("div");
+        card.id = id;
+        card.className = "card";
+        card.dataset.testid = `measure-${measure.item}`;
+        const plot = document.createElement("div");
+        plot.className = "chart";
+        const empty = document.createElement("p");
+        empty.className = "muted small chart-empty";
+        empty.textContent = "No answers yet: this fills in as participants complete the " +
+          "questionnaire after each session.";
+        card.append(plot, empty);
+        charts.appendChild(card);
+      }
+      const hasPoints = measure.payload.data.some((trace) => (trace.y || []).length > 0);
+      card.querySelector(".chart-empty").hidden = hasPoints;
+      Plotly.react(card.querySelector(".chart"), measure.payload.data, measure.payload.layout,
+        config);
+    }
+    Plotly.react("adaptation", latest.adaptation.data, latest.adaptation.layout, config);
+    root.dataset.answers = String(latest.answers);
+    root.dataset.questionnaires = String(latest.questionnaires);
+    status.textContent = `${latest.answers} answers learned and ${latest.questionnaires} ` +
+      `questionnaire answers so far · updated ${new Date().toLocaleTimeString()}`;
+  }
+
+  async function refresh() {
+    pending = false;
+    try {
+      const response = await fetch(root.dataset.source, { headers: { Accept: "application/json" } });
+      if (!response.ok) throw new Error(`${response.status}`);
+      latest = await response.json();
+      draw();
+    } catch (error) {
+      status.textContent = `Could not load the data (${error.message}); retrying.`;
+      setTimeout(refresh, 3000);
+    }
+  }
+
+  root.addEventListener("change", draw);
+  const events = new EventSource(root.dataset.events);
+  events.addEventListener("changed", () => {
+    if (pending) return;
+    pending = true;
+    setTimeout(refresh, 300);
+  });
+  refresh();
+})();

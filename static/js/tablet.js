@@ -1,0 +1,48 @@
+// The participant's tablet: keep answers typed but not yet sent across reloads and crashes, and
+// move on by itself when the server has a new page (a session ended, a participant was seated).
+(() => {
+  const SUBMITTED = "trustlab:submitted";
+  const form = document.querySelector("form[data-draft-key]");
+  const draftKey = form ? "trustlab:draft:" + form.dataset.draftKey : null;
+
+  // A draft whose page was submitted is no longer needed once we are on another page.
+  const submitted = sessionStorage.getItem(SUBMITTED);
+  if (submitted && submitted !== draftKey) {
+    localStorage.removeItem(submitted);
+    sessionStorage.removeItem(SUBMITTED);
+  }
+
+  if (form) {
+    const fields = () => Array.from(form.elements).filter((el) => el.name && el.name !== "csrf_token");
+    const saved = JSON.parse(localStorage.getItem(draftKey) || "null");
+    if (saved) {
+      for (const el of fields()) {
+        if (!(el.name in saved)) continue;
+        if (el.type === "radio" || el.type === "checkbox") {
+          if (!form.querySelector(`[name="${el.name}"]:checked`)) el.checked = saved[el.name] === el.value;
+        } else if (!el.value) {
+          el.value = saved[el.name];
+        }
+      }
+    }
+    const save = () => {
+      const draft = {};
+      for (const el of fields()) {
+        if ((el.type === "radio" || el.type === "checkbox") && !el.checked) continue;
+        if (el.value !== "") draft[el.name] = el.value;
+      }
+      localStorage.setItem(draftKey, JSON.stringify(draft));
+    };
+    form.addEventListener("input", save);
+    form.addEventListener("change", save);
+    form.addEventListener("submit", () => sessionStorage.setItem(SUBMITTED, draftKey));
+  }
+
+  const stream = document.body.dataset.events;
+  if (stream) {
+    const source = new EventSource(stream);
+    source.addEventListener("changed", () => window.location.replace("/tablet"));
+    // Belt and braces: look again once a minute even if the event stream is down.
+    setInterval(() => window.location.replace("/tablet"), 60000);
+  }
+})();

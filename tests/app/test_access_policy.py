@@ -1,0 +1,335 @@
+"""Every route × every principal, against the policy table in app/access.py.
+
+The routes are enumerated from the running app, so a route added without a policy fails here.
+Each cell sends one request with that principal's credentials (a fresh client each time) and
+checks that it is let through or refused as the table says. Probes are chosen so that the roles
+allowed through cannot change anything (unknown names, incomplete bodies, a step already being
+answered), except where the check itself needs a real resource (a robot answering its own step).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+from fastapi import FastAPI
+from fastapi.routing import _IncludedRouter
+from fastapi.testclient import TestClient
+from starlette.routing import Mount
+from starlette.websockets import WebSocketDisconnect
+
+from app.access import POLICY, Principal
+from app.db import Database
+from app.tablet import form_token
+from tests.app.lab_world import World, build_world, client_for
+from tests.conftest import CSRF_INPUT
+
+
+def app_routes(app: FastAPI) -> set[tuple[str, str]]:
+    """(method, path) of every route the app serves (HEAD folded into GET)."""
+    found: set[tuple[str, str]] = set()
+
+    def add(methods: set[str] | None, path: str, websocket: bool) -> None:
+        if websocket:
+            found.add(("WS", path))
+            return
+        for method in methods or set():
+            if method != "HEAD":
+                found.add((method, path))
+
+    for route in app.routes:
+        if isinstance(route, _IncludedRouter):
+            for context in route.effective_route_contexts():
+                original = context.original_route
+                is_ws = type(original).__name__.endswith("WebSocketRoute")
+                # a WebSocket's prefixed path lives on the Starlette route it was compiled to
+                path = context.path or getattr(context.starlette_route, "path", original.path)
+                add(context.methods, path, is_ws)
+        elif isinstance(route, Mount):
+            found.add(("GET", route.path))
+        else:
+            add(getattr(route, "methods", None), route.path, False)
+    return found
+
+
+@pytest.fixture
+def engine_name() -> str:
+    """The policy does not depend on the engine; one is enough."""
+    return "sqlite"
+
+
+@pytest.fixture
+def world(app: FastAPI, database: Database, exp3_study: str) -> World:
+    return build_world(app, database, exp3_study)
+
+
+def _tablet_form(world: World, principal: Principal) -> dict[str, str]:
+    if principal is Principal.PARTICIPANT_OWN:
+        return {"csrf_token": form_token(world.secret, world.tokens["P001"])}
+    if principal is Principal.PARTICIPANT_OTHER:
+        return {"csrf_token": form_token(world.secret, world.tokens["P002"])}
+    return {}
+
+
+def _login_probe(client: TestClient, world: World, principal: Principal) -> Any:
+    token = CSRF_INPUT.search(client.get("/login").text)
+    assert token
+    return client.post(
+        "/login",
+        data={
+            "username": "throwaway",
+            "password": "correct horse battery",
+            "csrf_token": token.group(1),
+        },
+        follow_redirects=False,
+    )
+
+
+Probe = Callable[[TestClient, World, Principal], Any]
+
+
+def get(path: str) -> Probe:
+    return lambda client, world, principal: client.get(
+        path.format(**_names(world)), follow_redirects=False
+    )
+
+
+def send(method: str, path: str, **kwargs: Any) -> Probe:
+    def probe(client: TestClient, world: World, principal: Principal) -> Any:
+        extra = dict(kwargs)
+        if extra.pop("tablet_form", False):
+            extra["data"] = {**extra.get("data", {}), **_tablet_form(world, principal)}
+        return client.request(method, path.format(**_names(world)), follow_redirects=False, **extra)
+
+    return probe
+
+
+def stream(path: str) -> Probe:
+    def probe(client: TestClient, world: World, principal: Principal) -> Any:
+        with client.stream("GET", path.format(**_names(world)), follow_redirects=False) as response:
+            return response
+
+    return probe
+
+
+def _names(world: World) -> dict[str, Any]:
+    return {"token": world.tokens["P001"], "kiosk": world.kiosk, "step": world.step}
+
+
+ANSWER = {"answer": "yes", "idempotency_key": "policy-probe"}
+PROBES: dict[tuple[str, str], Probe] = {
+    ("GET", "/healthz"): get("/healthz"),
+    ("GET", "/api/v1/ping"): get("/api/v1/ping"),
+    ("GET", "/api/v1/openapi.json"): get("/api/v1/openapi.json"),
+    ("GET", "/api/v1/docs"): get("/api/v1/docs"),
+    ("GET", "/static"): get("/static/css/app.css"),
+    ("GET", "/login"): get("/login"),
+    ("POST", "/login"): _login_probe,
+    ("POST", "/api/v1/session"): send(
+        "POST",
+        "/api/v1/session",
+        json={"username": "throwaway", "password": "correct horse battery"},
+    ),
+    ("GET", "/t/{token}"): get("/t/{token}"),
+    ("GET", "/k/{token}"): get("/k/{kiosk}"),
+    ("POST", "/logout"): send("POST", "/logout"),
+    ("GET", "/api/v1/session"): get("/api/v1/session"),
+    ("DELETE", "/api/v1/session"): send("DELETE", "/api/v1/session"),
+    ("GET", "/"): get("/"),
+    ("GET", "/api/v1/studies"): get("/api/v1/studies"),
+    ("GET", "/api/v1/studies/{name}"): get("/api/v1/studies/rt"),
+    ("GET", "/api/v1/studies/{name}/protocol"): get("/api/v1/studies/rt/protocol"),
+    ("GET", "/api/v1/studies/{name}/participants"): get("/api/v1/studies/rt/participants"),
+    ("GET", "/studies/{name}"): get("/studies/rt"),
+    ("GET", "/studies/{name}/dashboard"): get("/studies/rt/dashboard"),
+    ("GET", "/studies/{name}/dashboard.json"): get("/studies/rt/dashboard.json"),
+    ("GET", "/studies/{name}/events"): stream("/studies/rt/events"),
+    ("GET", "/studies/{name}/participants/{code}"): get("/studies/rt/participants/P001"),
+    ("GET", "/api/v1/stations"): get("/api/v1/stations"),
+    ("GET", "/api/v1/stations/{name}/state"): get("/api/v1/stations/lab-1/state"),
+    ("GET", "/stations/{name}/events"): stream("/stations/lab-1/events"),
+    ("POST", "/api/v1/studies/{name}/participants"): send(
+        "POST", "/api/v1/studies/ghost/participants", json={}
+    ),
+    ("POST", "/api/v1/studies/{name}/participants/{code}/withdraw"): send(
+        "POST", "/api/v1/studies/rt/participants/NOPE/withdraw", json={}
+    ),
+    ("GET", "/api/v1/studies/{name}/participants/{code}/link"): get(
+        "/api/v1/studies/rt/participants/NOPE/link"
+    ),
+    ("POST", "/api/v1/studies/{name}/participants/{code}/link"): send(
+        "POST", "/api/v1/studies/rt/participants/NOPE/link"
+    ),
+    ("DELETE", "/api/v1/studies/{name}/participants/{code}/link"): send(
+        "DELETE", "/api/v1/studies/rt/participants/NOPE/link"
+    ),
+    ("POST", "/api/v1/studies/{name}/participants/{code}/lock"): send(
+        "POST", "/api/v1/studies/rt/participants/NOPE/lock"
+    ),
+    ("POST", "/api/v1/studies/{name}/participants/{code}/unlock"): send(
+        "POST", "/api/v1/studies/rt/participants/NOPE/unlock"
+    ),
+    ("POST", "/studies/{name}/participants"): send(
+        "POST", "/studies/ghost/participants", data={"code": "X"}
+    ),
+    ("GET", "/studies/{name}/participants/{code}/withdraw"): get(
+        "/studies/rt/participants/NOPE/withdraw"
+    ),
+    ("POST", "/studies/{name}/participants/{code}/withdraw"): send(
+        "POST", "/studies/rt/participants/NOPE/withdraw", data={}
+    ),
+    ("POST", "/studies/{name}/participants/{code}/link"): send(
+        "POST", "/studies/rt/participants/NOPE/link", data={}
+    ),
+    ("POST", "/studies/{name}/participants/{code}/link/revoke"): send(
+        "POST", "/studies/rt/participants/NOPE/link/revoke", data={}
+    ),
+    ("POST", "/studies/{name}/participants/{code}/lock"): send(
+        "POST", "/studies/rt/participants/NOPE/lock", data={}
+    ),
+    ("POST", "/studies/{name}/participants/{code}/unlock"): send(
+        "POST", "/studies/rt/participants/NOPE/unlock", data={}
+    ),
+    ("PUT", "/api/v1/stations/{name}/participant"): send(
+        "PUT", "/api/v1/stations/ghost/participant", json={"study": "rt", "code": "P001"}
+    ),
+    ("DELETE", "/api/v1/stations/{name}/participant"): send(
+        "DELETE", "/api/v1/stations/ghost/participant"
+    ),
+    ("POST", "/api/v1/stations/{name}/sessions"): send("POST", "/api/v1/stations/ghost/sessions"),
+    ("POST", "/api/v1/stations/{name}/sessions/current/end"): send(
+        "POST", "/api/v1/stations/ghost/sessions/current/end"
+    ),
+    ("POST", "/api/v1/stations/{name}/runs"): send("POST", "/api/v1/stations/ghost/runs"),
+    ("POST", "/api/v1/stations/{name}/runs/current/end"): send(
+        "POST", "/api/v1/stations/ghost/runs/current/end"
+    ),
+    ("POST", "/api/v1/stations/{name}/prompts"): send(
+        "POST", "/api/v1/stations/ghost/prompts", json={"category": "conation"}
+    ),
+    ("POST", "/api/v1/stations/{name}/steps/{step_id}/answer"): send(
+        "POST", "/api/v1/stations/ghost/steps/{step}/answer", json=ANSWER
+    ),
+    ("GET", "/stations"): get("/stations"),
+    ("GET", "/stations/{name}"): get("/stations/lab-1"),
+    **{
+        ("POST", f"/stations/{{name}}/{action}"): send(
+            "POST", f"/stations/ghost/{action}", data=data
+        )
+        for action, data in {
+            "assign": {"study": "rt", "code": "P001"},
+            "unassign": {},
+            "session/start": {},
+            "session/end": {},
+            "run/start": {},
+            "run/end": {},
+            "woz/prompt": {"category": "conation"},
+            "woz/answer": {"step_id": "1", "answer": "yes", "idempotency_key": "k"},
+        }.items()
+    },
+    ("GET", "/studies/{name}/analysis"): get("/studies/ghost/analysis"),
+    ("GET", "/studies/{name}/exports/{export}"): get("/studies/rt/exports/nope"),
+    ("POST", "/api/v1/studies"): send("POST", "/api/v1/studies", json={}),
+    ("POST", "/api/v1/studies/{name}/status"): send(
+        "POST", "/api/v1/studies/ghost/status", json={"status": "open"}
+    ),
+    ("POST", "/api/v1/stations"): send("POST", "/api/v1/stations", json={}),
+    ("POST", "/api/v1/stations/{name}/devices"): send(
+        "POST", "/api/v1/stations/ghost/devices", json={}
+    ),
+    ("POST", "/api/v1/stations/{name}/kiosk"): send("POST", "/api/v1/stations/ghost/kiosk"),
+    ("POST", "/api/v1/devices/{device_id}/revoke"): send("POST", "/api/v1/devices/999999/revoke"),
+    ("GET", "/admin/users"): get("/admin/users"),
+    ("POST", "/admin/users"): send("POST", "/admin/users", data={}),
+    ("GET", "/admin/studies/new"): get("/admin/studies/new"),
+    ("POST", "/admin/studies"): send("POST", "/admin/studies", data={}),
+    ("POST", "/admin/studies/{name}/status"): send(
+        "POST", "/admin/studies/ghost/status", data={"status": "open"}
+    ),
+    ("GET", "/admin/audit"): get("/admin/audit"),
+    ("GET", "/admin/audit.csv"): get("/admin/audit.csv?action=none"),
+    ("POST", "/stations"): send("POST", "/stations", data={}),
+    ("POST", "/stations/{name}/devices"): send("POST", "/stations/ghost/devices", data={}),
+    ("POST", "/stations/{name}/kiosk"): send("POST", "/stations/ghost/kiosk", data={}),
+    ("POST", "/devices/{device_id}/revoke"): send("POST", "/devices/999999/revoke", data={}),
+    ("GET", "/api/v1/station"): get("/api/v1/station"),
+    ("POST", "/api/v1/station/prompts"): send("POST", "/api/v1/station/prompts", json={}),
+    ("POST", "/api/v1/station/runs"): send("POST", "/api/v1/station/runs"),
+    ("POST", "/api/v1/station/steps/{step_id}/answer"): send(
+        "POST", "/api/v1/station/steps/{step}/answer", json=ANSWER
+    ),
+    ("GET", "/api/v1/tablet"): get("/api/v1/tablet"),
+    ("POST", "/api/v1/tablet/consent"): send("POST", "/api/v1/tablet/consent", json={}),
+    ("POST", "/api/v1/tablet/questionnaires/{instrument}"): send(
+        "POST", "/api/v1/tablet/questionnaires/nope", json={"answers": {}}
+    ),
+    ("GET", "/tablet"): get("/tablet"),
+    ("GET", "/tablet/consent"): get("/tablet/consent"),
+    ("POST", "/tablet/consent"): send("POST", "/tablet/consent", tablet_form=True),
+    ("GET", "/tablet/q/{instrument}"): get("/tablet/q/nope"),
+    ("POST", "/tablet/q/{instrument}"): send("POST", "/tablet/q/nope", tablet_form=True),
+    ("GET", "/tablet/q/{instrument}/{session}"): get("/tablet/q/nope/1"),
+    ("POST", "/tablet/q/{instrument}/{session}"): send(
+        "POST", "/tablet/q/nope/1", tablet_form=True
+    ),
+    ("GET", "/tablet/wait"): get("/tablet/wait"),
+    ("GET", "/tablet/done"): get("/tablet/done"),
+    ("GET", "/tablet/withdrawn"): get("/tablet/withdrawn"),
+    ("GET", "/tablet/events"): stream("/tablet/events"),
+}
+OWNERSHIP_CHECKED = {("POST", "/api/v1/station/steps/{step_id}/answer")}
+"""Routes that refuse another station's robot with 404 (the step is not its to see)."""
+
+
+def refused(route: tuple[str, str], response: Any) -> bool:
+    """Whether the response is a refusal of the caller (not of the request's content).
+
+    A browser page refuses an anonymous caller with a redirect to ``/login?next=…``; signing out
+    succeeds with a plain redirect to ``/login``, which is therefore not a refusal.
+    """
+    if response.status_code in (401, 403):
+        return True
+    if response.status_code == 303 and response.headers["location"].startswith("/login?next="):
+        return True
+    return route in OWNERSHIP_CHECKED and response.status_code == 404
+
+
+def test_every_route_has_a_policy_and_a_probe(app: FastAPI) -> None:
+    routes = app_routes(app)
+    assert routes - set(POLICY) == set(), "routes without a policy in app/access.py"
+    assert set(POLICY) - routes == set(), "policies of routes that no longer exist"
+    assert set(PROBES) | {("WS", "/api/v1/station/ws")} == set(POLICY)
+
+
+def _cells() -> Iterator[tuple[tuple[str, str], Principal]]:
+    for route in sorted(PROBES):
+        for principal in Principal:
+            yield route, principal
+
+
+def test_every_cell(world: World) -> None:
+    wrong = []
+    for route, principal in _cells():
+        client = client_for(world, principal)
+        response = PROBES[route](client, world, principal)
+        allowed = principal in POLICY[route]
+        if allowed == refused(route, response):
+            wrong.append(
+                f"{route[0]} {route[1]} as {principal}: {response.status_code} "
+                f"(policy: {'allow' if allowed else 'deny'})"
+            )
+    assert wrong == [], "\n".join(wrong)
+
+
+def test_the_station_socket_admits_devices_only(world: World) -> None:
+    for principal in Principal:
+        client = client_for(world, principal)
+        allowed = principal in POLICY[("WS", "/api/v1/station/ws")]
+        with client.websocket_connect("/api/v1/station/ws") as ws:
+            if allowed:
+                assert ws.receive_json()["type"] == "hello"
+            else:
+                with pytest.raises(WebSocketDisconnect) as closed:
+                    ws.receive_json()
+                assert closed.value.code == 4401

@@ -1,0 +1,168 @@
+"""The PI's side in the app: analysis page, downloads, ``trustlab export``, and the mapping of the
+protocol onto the analysis package's specifications."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+from pathlib import Path
+
+import pytest
+from sqlalchemy import select
+from typer.testing import CliRunner
+
+from analysis.exports import EXPORT_FORMATS
+from analysis.scoring import TIPI_SCALES, nars_scales
+from app.cli import cli
+from app.db import Database
+from app.protocol import default_protocol
+from app.services import study_data
+from app.tables import AuditEvent, Role
+from bench.seed import seed_study
+from tests.conftest import UserClientFactory
+
+
+@pytest.fixture
+def seeded(database: Database) -> str:
+    """A study of 24 complete participants (bulk-generated)."""
+    seed_study(database, name="seeded", participants=24, seed=3)
+    return "seeded"
+
+
+def test_protocol_scales_match_the_published_keys() -> None:
+    scales = {s.name: s for s in study_data.scales_of(default_protocol().protocol)}
+    for published in TIPI_SCALES:
+        ours = scales[published.name]
+        assert (set(ours.items), ours.reverse) == (set(published.items), published.reverse)
+        assert (ours.scale_min, ours.scale_max, ours.method) == (1, 7, "mean")
+    nars = {s.name: s for s in nars_scales("sum")}
+    for name in ("nars_s1", "nars_s2", "nars_s3", "nars_total"):
+        assert set(scales[name].items) == set(nars[f"{name}_sum"].items)
+        assert scales[name].reverse == nars[f"{name}_sum"].reverse
+    assert scales["nars_s3"].reverse == frozenset({"nars_3", "nars_5", "nars_6"})
+
+
+def test_instruments_cover_every_stored_item() -> None:
+    instruments = {i.name: i for i in study_data.instruments_of(default_protocol().protocol)}
+    assert set(instruments) == {
+        "consent",
+        "demographics",
+        "background",
+        "tipi",
+        "nars",
+        "trust",
+        "overall",
+    }
+    assert instruments["trust"].per_session and not instruments["tipi"].per_session
+    demographics = {item.key: item for item in instruments["demographics"].items}
+    assert demographics["gender"].kind == "categorical"
+    assert demographics["gender_description"].kind == "text"
+    assert {item.key for item in instruments["trust"].items if item.reverse} == {"trust_5"}
+
+
+def test_analysis_page_shows_each_measure(seeded: str, user_client: UserClientFactory) -> None:
+    analyst = user_client(Role.ANALYST)
+    page = analyst.get(f"/studies/{seeded}/analysis")
+    assert page.status_code == 200
+    assert "24 participants analysed · type 3 sums of squares" in page.text
+    assert page.text.count('class="card outcome"') == 5
+    assert "condition: F(1, 22) = " in page.text
+    assert 'type="application/json" id="figure-trust_1"' in page.text
+    assert "<script>" not in page.text  # figures are data blocks, drawn by a static script
+    type2 = analyst.get(f"/studies/{seeded}/analysis?ss=2")
+    assert "type 2 sums of squares" in type2.text
+    assert analyst.get(f"/studies/{seeded}/analysis?ss=1").status_code == 422
+    experimenter = user_client(Role.EXPERIMENTER)
+    assert experimenter.get(f"/studies/{seeded}/analysis").status_code == 403
+
+
+def test_a_young_study_says_what_cannot_be_computed(
+    database: Database, exp3_study: str, user_client: UserClientFactory
+) -> None:
+    analyst = user_client(Role.ANALYST)
+    page = analyst.get(f"/studies/{exp3_study}/analysis")
+    assert page.status_code == 200
+    assert "Nothing to analyse yet" in page.text
+
+
+@pytest.mark.parametrize("export", list(EXPORT_FORMATS))
+def test_every_download(
+    seeded: str, user_client: UserClientFactory, database: Database, export: str
+) -> None:
+    admin = user_client(Role.ADMIN)
+    response = admin.get(f"/studies/{seeded}/exports/{export}")
+    assert response.status_code == 200
+    spec = EXPORT_FORMATS[export]
+    assert response.headers["content-disposition"] == (
+        f'attachment; filename="{seeded}-{spec.filename}"'
+    )
+    assert response.headers["x-content-sha256"] == hashlib.sha256(response.content).hexdigest()
+    if export == "wide-csv":
+        rows = list(csv.DictReader(io.StringIO(response.text)))
+        assert len(rows) == 24
+        assert {"trust_1_s1", "trust_2_s4", "tipi_extraversion"} <= set(rows[0])
+    with database.read_session() as db:
+        event = db.scalars(select(AuditEvent).where(AuditEvent.action == "export.downloaded")).one()
+    assert event.subject == export and event.actor.startswith("admin")
+
+
+def test_unknown_download_and_roles(seeded: str, user_client: UserClientFactory) -> None:
+    analyst = user_client(Role.ANALYST)
+    missing = analyst.get(f"/studies/{seeded}/exports/xlsx")
+    assert missing.status_code == 404
+    assert "choose one of long-csv" in missing.text
+    assert (
+        user_client(Role.EXPERIMENTER).get(f"/studies/{seeded}/exports/long-csv").status_code == 403
+    )
+
+
+def test_export_command(seeded: str, database_url: str, tmp_path: Path) -> None:
+    runner = CliRunner()
+    env = {"TRUSTLAB_DATABASE_URL": database_url}
+    one = runner.invoke(
+        cli,
+        [
+            "export",
+            "--study",
+            seeded,
+            "--format",
+            "steps-csv",
+            "--out",
+            str(tmp_path / "steps.csv"),
+            "--json",
+        ],
+        env=env,
+    )
+    assert one.exit_code == 0, one.output
+    result = json.loads(one.stdout)
+    written = Path(result["files"]["steps-csv"]["path"])
+    assert (
+        hashlib.sha256(written.read_bytes()).hexdigest() == result["files"]["steps-csv"]["sha256"]
+    )
+    assert written.read_text().count("\n") == 1 + 24 * 3 * 12  # header + adapting steps
+    bundle = runner.invoke(
+        cli,
+        ["export", "--study", seeded, "--format", "all", "--out", str(tmp_path / "bundle")],
+        env=env,
+    )
+    assert bundle.exit_code == 0, bundle.output
+    sums = (tmp_path / "bundle" / "SHA256SUMS").read_text()
+    assert "report.html" in sums and "participants_wide.sav" in sums
+    wrong = runner.invoke(
+        cli,
+        ["export", "--study", seeded, "--format", "xlsx", "--out", str(tmp_path / "x")],
+        env=env,
+    )
+    assert wrong.exit_code == 2
+    assert wrong.stderr.startswith("error: --format 'xlsx': choose one of long-csv")
+
+
+def test_degenerate_data_is_explained_not_crashed(
+    database: Database, user_client: UserClientFactory
+) -> None:
+    seed_study(database, name="tiny", participants=2, seed=5)
+    page = user_client(Role.ANALYST).get("/studies/tiny/analysis")
+    assert page.status_code == 200
+    assert "cannot be computed because" in page.text

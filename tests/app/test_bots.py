@@ -1,0 +1,116 @@
+"""The bots drive whole participants through a real server over HTTP and WebSockets."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import pytest
+from sqlalchemy import func, select
+from typer.testing import CliRunner
+
+from app.bots import BotConfig, ResponseModel, run_bots
+from app.cli import cli
+from app.db import Database
+from app.services import verify
+from app.tables import Answer, Response, Role
+from tests.conftest import PASSWORD, make_user
+from tests.servers import ServerProcess
+
+
+@pytest.fixture
+def server(database: Database, database_url: str, tmp_path: Path) -> ServerProcess:
+    make_user(database, "botmaster", Role.ADMIN)
+    process = ServerProcess(database_url, tmp_path / "var")
+    process.start()
+    yield process  # type: ignore[misc]
+    process.stop()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("transport", ["ws", "rest"])
+def test_bots_complete_the_protocol(
+    server: ServerProcess, database: Database, exp3_study: str, transport: str
+) -> None:
+    config = BotConfig(
+        url=server.url,
+        study=exp3_study,
+        participants=3,
+        username="botmaster",
+        password=PASSWORD,
+        concurrency=2,
+        noise=0.1,
+        seed=7,
+        transport=transport,  # type: ignore[arg-type]
+    )
+    ticks: list[int] = []
+    summary = asyncio.run(run_bots(config, tick=lambda: ticks.append(1)))
+    assert summary.errors == []
+    assert (summary.participants, summary.completed, summary.sessions) == (3, 3, 15)
+    assert summary.steps == len(ticks) == 3 * 39
+    assert summary.questionnaires == 3 * 10
+    with database.read_session() as db:
+        assert db.scalar(select(func.count()).select_from(Answer)) == 3 * 39
+        report = verify.verify_study(db, study_name=exp3_study)
+        trust = db.scalars(select(Response.value).where(Response.instrument == "trust")).all()
+    assert report.ok, report.findings
+    assert len(trust) == 3 * 4 * 5
+
+
+def test_response_model_shifts_and_mirrors() -> None:
+    import random
+
+    model = ResponseModel(mean=3.0, sd=0.0, effect={"C2": 1.0}, slope={})
+    rng = random.Random(1)
+    assert model.likert(rng, 1, 5, reverse=False, shift=0.0) == 3
+    assert model.likert(rng, 1, 5, reverse=False, shift=1.0) == 4
+    assert model.likert(rng, 1, 5, reverse=True, shift=1.0) == 2
+    assert model.likert(rng, 1, 7, reverse=False, shift=0.0) == 4
+    assert model.likert(rng, 1, 5, reverse=False, shift=9.0) == 5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("engine_name", ["sqlite"])  # the command's plumbing is engine-free
+def test_bots_command_prints_one_json_summary(
+    server: ServerProcess, database_url: str, exp3_study: str, engine_name: str
+) -> None:
+    result = CliRunner().invoke(
+        cli,
+        [
+            "bots",
+            "--url",
+            server.url,
+            "--study",
+            exp3_study,
+            "--participants",
+            "1",
+            "--username",
+            "botmaster",
+            "--password-stdin",
+            "--json",
+        ],
+        input=PASSWORD + "\n",
+        env={"TRUSTLAB_DATABASE_URL": database_url},
+    )
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert summary["completed"] == 1 and summary["errors"] == []
+    refused = CliRunner().invoke(
+        cli,
+        [
+            "bots",
+            "--url",
+            server.url,
+            "--study",
+            "nope",
+            "--participants",
+            "1",
+            "--username",
+            "botmaster",
+            "--password-stdin",
+        ],
+        input=PASSWORD + "\n",
+    )
+    assert refused.exit_code == 2
+    assert "error: the server refused: no study named 'nope'" in refused.stderr

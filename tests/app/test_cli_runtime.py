@@ -1,0 +1,60 @@
+"""``trustlab station|device|verify`` against a real database."""
+
+from __future__ import annotations
+
+import json
+
+from sqlalchemy import select, update
+
+from app.tables import LearnerState
+from tests.app.test_cli import run
+from tests.conftest import Lab
+
+
+def test_device_create_makes_the_station_and_prints_one_json_object(database_url: str) -> None:
+    code, out, _ = run(database_url, "device", "create", "--station", "lab-9", "--json")
+    assert code == 0
+    issued = json.loads(out)
+    assert issued["station"] == "lab-9" and issued["station_created"] is True
+    assert issued["key"].startswith("tlk_")
+    code, out, _ = run(
+        database_url, "device", "create", "--station", "lab-9", "--label", "hololens"
+    )
+    assert code == 0
+    assert "created station" not in out and "tlk_" in out
+    code, out, _ = run(database_url, "station", "list", "--json")
+    assert json.loads(out) == {"stations": [{"name": "lab-9", "participant": None}]}
+    code, out, _ = run(database_url, "device", "revoke", str(issued["device_id"]))
+    assert (code, out.strip()) == (0, f"revoked device {issued['device_id']}")
+    code, _, err = run(database_url, "device", "revoke", str(issued["device_id"]))
+    assert (code, err.strip()) == (1, f"error: device {issued['device_id']} is already revoked")
+    code, _, err = run(database_url, "station", "create", "Bad Name")
+    assert code == 2 and "station name 'Bad Name'" in err
+
+
+def test_verify_is_clean_then_flags_tampering(lab: Lab, database_url: str) -> None:
+    lab.enrol_and_assign()
+    lab.start_session()
+    lab.run_session()
+    lab.start_session()
+    lab.run_session()
+    code, out, _ = run(database_url, "verify", "--study", lab.study, "--json")
+    assert code == 0
+    report = json.loads(out)
+    assert report["ok"] is True and report["answers"] == 12 and report["findings"] == []
+    code, out, _ = run(database_url, "verify", "--study", lab.study)
+    assert code == 0 and out.strip().endswith("ok: every learner matches its replay")
+    with lab.database.writing() as db:
+        db.execute(
+            update(LearnerState).where(LearnerState.category == "conation").values(version=7)
+        )
+        db.commit()
+    code, out, _ = run(database_url, "verify", "--study", lab.study, "--json")
+    assert code == 1
+    findings = json.loads(out)["findings"]
+    assert findings[0]["check"] == "replay"
+    assert "stored version 7 but 3 answers" in findings[0]["detail"]
+    with lab.database.read_session() as db:
+        assert (
+            db.scalar(select(LearnerState.version).where(LearnerState.category == "affection")) == 3
+        )

@@ -1,0 +1,73 @@
+"""Events are delivered after commit only, to matching subscribers, without unbounded queues."""
+
+from __future__ import annotations
+
+import asyncio
+
+from app import events
+from app.db import Database
+from app.events import RESYNC, Event, EventHub
+
+
+def test_committed_events_reach_subscribers_and_rolled_back_ones_do_not(
+    database: Database,
+) -> None:
+    async def scenario() -> list[Event]:
+        hub = database.hub
+        listener = None
+        if not database.is_sqlite:
+            listener = events.PostgresListener(database.url, hub)
+            listener.start()
+        received: list[Event] = []
+        try:
+            async with hub.subscribe(["study:1"]) as subscription:
+
+                def publish_twice() -> None:
+                    with database.write_session() as db:
+                        events.publish(db, topics=["study:1"], type="dropped", n=1)
+                        db.rollback()
+                        events.publish(db, topics=["study:1", "study:2"], type="kept", n=2)
+                        db.commit()
+
+                await asyncio.to_thread(publish_twice)
+                while True:
+                    event = await asyncio.wait_for(subscription.next(), 5)
+                    if event is not RESYNC:
+                        received.append(event)
+                        break
+        finally:
+            if listener is not None:
+                listener.stop()
+        return received
+
+    received = asyncio.run(scenario())
+    assert received == [Event(topic="study:1", type="kept", data={"n": 2})]
+
+
+def test_a_slow_subscriber_is_told_to_resync() -> None:
+    async def scenario() -> list[Event]:
+        hub = EventHub()
+        async with hub.subscribe(["t"]) as subscription:
+            hub.deliver([Event("t", "x", {"i": i}) for i in range(events.QUEUE_SIZE + 10)])
+            await asyncio.sleep(0.05)
+            first = await subscription.next()
+            hub.deliver([Event("t", "after")])
+            await asyncio.sleep(0.05)
+            second = await subscription.next()
+            return [first, second]
+
+    first, second = asyncio.run(scenario())
+    assert first is RESYNC
+    assert second.type == "after"
+
+
+def test_topics_are_filtered() -> None:
+    async def scenario() -> int:
+        hub = EventHub()
+        async with hub.subscribe(["a"]) as subscription:
+            hub.deliver([Event("b", "x"), Event("a", "y")])
+            await asyncio.sleep(0.05)
+            assert hub.subscriber_count == 1
+            return subscription.queue.qsize()
+
+    assert asyncio.run(scenario()) == 1

@@ -1,0 +1,68 @@
+"""Browser tests: Debian's Chromium driven by Playwright against a real trustlab server.
+
+They run on SQLite only (the database layer is covered on both engines elsewhere) and save a
+screenshot of every page they visit under test-artifacts/ for people to look at.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import Browser, Playwright, sync_playwright
+
+from app.db import Database
+from app.settings import REPO_ROOT
+from tests.servers import ServerProcess
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+]
+ARTIFACTS = REPO_ROOT / "test-artifacts"
+SECRET = b"subprocess-test-secret-0123456789abcdef"
+
+
+@pytest.fixture
+def engine_name() -> str:
+    """Browser tests use SQLite."""
+    return "sqlite"
+
+
+@pytest.fixture(scope="session")
+def playwright() -> Iterator[Playwright]:
+    """Playwright's driver."""
+    if not Path(CHROMIUM).exists():
+        pytest.fail(f"{CHROMIUM} is missing: install Debian's chromium (.ci/run does)")
+    with sync_playwright() as driver:
+        yield driver
+
+
+@pytest.fixture(scope="session")
+def browser(playwright: Playwright) -> Iterator[Browser]:
+    """One headless Chromium for the session."""
+    chromium = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+    yield chromium
+    chromium.close()
+
+
+@pytest.fixture
+def live_server(database: Database, database_url: str, tmp_path: Path) -> Iterator[ServerProcess]:
+    """A trustlab server on the test's database."""
+    server = ServerProcess(database_url, tmp_path / "var")
+    server.start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def artifacts(request: pytest.FixtureRequest) -> Path:
+    """Where this test's screenshots go."""
+    folder = ARTIFACTS / request.node.name.replace("/", "_").replace("[", "-").rstrip("]")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
