@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import secrets
 import sys
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -12,6 +13,7 @@ import typer
 
 from app import backup, schema
 from app.db import Database, describe_url
+from app.demo import pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
 from app.services import audit, enrolment, studies, users
@@ -59,7 +61,16 @@ def register(cli: typer.Typer) -> None:
     cli.add_typer(participant_cli, name="participant")
 
 
-def init() -> None:
+def init(
+    demo: Annotated[
+        bool,
+        typer.Option(
+            "--demo/--no-demo",
+            help="On an empty database, also create a demo study that the first "
+            "`trustlab serve` fills with simulated participants.",
+        ),
+    ] = True,
+) -> None:
     """Migrate the database, create the default study and, on first start, the admin account."""
     settings = Settings()
     database = open_database(settings)
@@ -72,7 +83,8 @@ def init() -> None:
     )
     actor = Actor.system("trustlab init")
     with database.writing() as db:
-        if studies.count_studies(db) == 0:
+        empty = studies.count_studies(db) == 0
+        if empty:
             study = studies.create_study(
                 db, name=studies.DEFAULT_STUDY_NAME, loaded=default_protocol(), actor=actor
             )
@@ -91,6 +103,12 @@ def init() -> None:
             if given is None:
                 typer.echo(f"  password: {password}")
                 typer.echo("  (shown only this once: write it down, then add personal accounts)")
+        if empty and demo:
+            plan = plan_demo(db, settings, actor)
+            typer.echo(
+                f"created the demo study {plan.study!r}: the first `trustlab serve` fills it "
+                f"with {plan.participants} simulated participants"
+            )
     database.dispose()
 
 
@@ -111,6 +129,15 @@ def serve(
     host = host or settings.host
     port = port or settings.port
     typer.echo(f"trustlab serving on http://{host}:{port} (Ctrl-C stops)")
+    plan = pending_demo(settings)
+    if plan is not None:
+        local = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+        threading.Thread(
+            target=run_demo,
+            args=(plan, f"http://{local}:{port}", settings, typer.echo),
+            name="demo-bots",
+            daemon=True,
+        ).start()
     uvicorn.run(
         "app.main:create_app",
         factory=True,

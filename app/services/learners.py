@@ -13,6 +13,7 @@ never leave a learner in the cache that is ahead of the database.
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -23,8 +24,10 @@ import numpy as np
 
 from app.protocol import CategorySpec, LearnerKind, Protocol
 from app.tables import LearnerState
+from models.checkpoints import WEIGHTS_FILE, Checkpoint, load_checkpoint, shipped_checkpoint
 from models.learners.base import Learner
 from models.learners.exp3 import Exp3
+from models.learners.meta_policy import MetaPolicyLearner
 
 
 @dataclass(frozen=True)
@@ -37,11 +40,25 @@ class LearnerSpec:
     checkpoint_sha256: str | None
 
 
+@functools.lru_cache(maxsize=64)
+def _verified_checkpoint(path: str, modified_ns: int, size: int, n_arms: int) -> Checkpoint:
+    """A checkpoint loaded and hash-checked once per process (and again if its file changes)."""
+    return load_checkpoint(Path(path), expected_arms=n_arms)
+
+
+def checkpoint_at(path: Path, n_arms: int) -> Checkpoint:
+    """The verified checkpoint at ``path``: rebuilding a learner must not re-hash its weights."""
+    weights = Path(path) / WEIGHTS_FILE
+    try:
+        stat = weights.stat()
+    except OSError:
+        return load_checkpoint(path, expected_arms=n_arms)  # raises the loader's clear error
+    return _verified_checkpoint(str(path), stat.st_mtime_ns, stat.st_size, n_arms)
+
+
 def _checkpoint_path(
     protocol: Protocol, category: CategorySpec, checkpoint_dir: Path | None
 ) -> Path:
-    from models.checkpoints import shipped_checkpoint
-
     setting = protocol.learners.meta.checkpoint
     if setting != "shipped":
         return Path(setting)
@@ -58,10 +75,8 @@ def learner_spec(
     n_arms = len(category.questions)
     if kind is LearnerKind.EXP3:
         return LearnerSpec("exp3", n_arms, {"gamma": protocol.learners.exp3.gamma}, None)
-    from models.checkpoints import load_checkpoint
-
     path = _checkpoint_path(protocol, category, checkpoint_dir)
-    checkpoint = load_checkpoint(path, expected_arms=n_arms)
+    checkpoint = checkpoint_at(path, n_arms)
     config: dict[str, Any] = {"checkpoint": str(path)}
     if protocol.learners.meta.learning_rate is not None:
         config["learning_rate"] = protocol.learners.meta.learning_rate
@@ -73,11 +88,7 @@ def build(spec: LearnerSpec) -> Learner:
     if spec.kind == "exp3":
         return Exp3(spec.n_arms, gamma=float(spec.config["gamma"]))
     if spec.kind == "meta":
-        # Imported here: torch is loaded only by studies that use the meta-policy.
-        from models.checkpoints import load_checkpoint
-        from models.learners.meta_policy import MetaPolicyLearner
-
-        checkpoint = load_checkpoint(Path(spec.config["checkpoint"]), expected_arms=spec.n_arms)
+        checkpoint = checkpoint_at(Path(spec.config["checkpoint"]), spec.n_arms)
         if spec.checkpoint_sha256 and checkpoint.sha256 != spec.checkpoint_sha256:
             raise ValueError(
                 f"checkpoint {checkpoint.path} has changed since the learner was created "

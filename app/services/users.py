@@ -6,10 +6,10 @@ import re
 from dataclasses import dataclass
 from datetime import timedelta
 
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict, InvalidInput, TooManyAttempts
+from app.errors import Conflict, InvalidInput, NotFound, TooManyAttempts
 from app.security import hash_password, new_token, password_problem, token_digest, verify_password
 from app.services import audit
 from app.services.audit import Actor
@@ -48,6 +48,23 @@ def create_user(
     db.add(user)
     db.flush()
     audit.record(db, actor=actor, action="user.created", subject=name, details={"role": role})
+    db.commit()
+    return user
+
+
+def deactivate_user(db: Session, *, username: str, actor: Actor) -> User:
+    """Stop an account from signing in (its history stays); commits."""
+    name = normalise_username(username)
+    user = db.scalar(select(User).where(User.username == name))
+    if user is None:
+        raise NotFound(f"no user named {name!r}")
+    user.is_active = False
+    db.execute(
+        update(LoginSession)
+        .where(LoginSession.user_id == user.id, LoginSession.revoked_at.is_(None))
+        .values(revoked_at=utcnow())
+    )
+    audit.record(db, actor=actor, action="user.deactivated", subject=name, details={})
     db.commit()
     return user
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,10 +11,13 @@ import pytest
 from sqlalchemy import func, select
 from typer.testing import CliRunner
 
+from app import demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
 from app.db import Database
-from app.services import verify
+from app.services import users, verify
+from app.services.audit import Actor
+from app.settings import Settings
 from app.tables import Answer, Response, Role
 from tests.conftest import PASSWORD, make_user
 from tests.servers import ServerProcess
@@ -114,3 +118,29 @@ def test_bots_command_prints_one_json_summary(
     )
     assert refused.exit_code == 2
     assert "error: the server refused: no study named 'nope'" in refused.stderr
+
+
+@pytest.mark.slow
+def test_the_demo_fills_its_study_once_then_retires_its_account(
+    database: Database, database_url: str, exp3_study: str, tmp_path: Path
+) -> None:
+    settings = Settings(database_url=database_url, var_dir=tmp_path / "var")
+    with database.writing() as db:
+        plan = demo.plan_demo(db, settings, Actor.system("test"))
+    assert demo.pending_demo(settings) == plan
+    # The demo study is the shipped protocol; fill the Exp3 test study instead to stay fast.
+    plan = dataclasses.replace(plan, study=exp3_study, participants=2)
+    server = ServerProcess(database_url, tmp_path / "server")
+    server.start()
+    said: list[str] = []
+    try:
+        summary = demo.run_demo(plan, server.url, settings, said.append)
+    finally:
+        server.stop()
+    assert summary is not None and summary.errors == []
+    assert summary.completed == 2
+    assert said[-1].startswith("demo: done in") and "2 participants" in said[-1]
+    assert demo.pending_demo(settings) is None, "the demo must run only once"
+    with database.read_session() as db:
+        assert users.authenticate(db, username=demo.DEMO_ACCOUNT, password=plan.password) is None
+        assert db.scalar(select(func.count()).select_from(Answer)) == 2 * 39

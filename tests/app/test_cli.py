@@ -10,38 +10,54 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from app import schema
+from app import demo, schema
 from app.cli import cli
 from app.db import Database
 from app.services import users
+from app.settings import Settings
 from tests.conftest import protocol_text
 
 runner = CliRunner()
 
 
-def run(database_url: str, *args: str, stdin: str | None = None) -> tuple[int, str, str]:
-    result = runner.invoke(
-        cli, list(args), input=stdin, env={"TRUSTLAB_DATABASE_URL": database_url}
-    )
+def run(
+    database_url: str, *args: str, stdin: str | None = None, var_dir: Path | None = None
+) -> tuple[int, str, str]:
+    env = {"TRUSTLAB_DATABASE_URL": database_url}
+    if var_dir is not None:
+        env["TRUSTLAB_VAR_DIR"] = str(var_dir)
+    result = runner.invoke(cli, list(args), input=stdin, env=env)
     if result.exception and not isinstance(result.exception, SystemExit):
         raise result.exception
     return result.exit_code, result.stdout, result.stderr
 
 
-def test_init_migrates_creates_default_study_and_admin_once(blank_database_url: str) -> None:
-    code, out, _ = run(blank_database_url, "init")
+def test_init_migrates_creates_default_study_and_admin_once(
+    blank_database_url: str, tmp_path: Path
+) -> None:
+    code, out, _ = run(blank_database_url, "init", var_dir=tmp_path)
     assert code == 0
     assert f"schema at {schema.head_revision()} (was empty)" in out
     assert "created the default study 'default'" in out
     assert "created the admin account 'admin'" in out
+    assert "created the demo study 'demo'" in out
+    plan = demo.pending_demo(Settings(var_dir=tmp_path, database_url=blank_database_url))
+    assert plan is not None and plan.study == "demo"
+    assert (tmp_path / demo.PLAN_FILE).stat().st_mode & 0o077 == 0, "the plan holds a password"
     password = next(line.split(": ", 1)[1] for line in out.splitlines() if "password:" in line)
     database = Database(blank_database_url)
     with database.read_session() as db:
         assert users.authenticate(db, username="admin", password=password) is not None
     database.dispose()
-    code, out, _ = run(blank_database_url, "init")
+    code, out, _ = run(blank_database_url, "init", var_dir=tmp_path)
     assert code == 0
     assert "password" not in out and "created" not in out
+
+
+def test_init_without_demo(blank_database_url: str, tmp_path: Path) -> None:
+    code, out, _ = run(blank_database_url, "init", "--no-demo", var_dir=tmp_path)
+    assert code == 0 and "demo study" not in out
+    assert not (tmp_path / demo.PLAN_FILE).exists()
 
 
 def test_db_commands(blank_database_url: str) -> None:

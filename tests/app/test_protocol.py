@@ -100,7 +100,7 @@ def _problems(text: str) -> str:
             'items = ["tipi_1", "tipi_66"]',
             "lab.toml: questionnaires.scores[0].items[1]: 'tipi' has no item 'tipi_66'",
         ),
-        ("gamma = 0.1", "gamma = 0.0", "lab.toml: learners.exp3.gamma: Input should be greater"),
+        ("gamma = 0.5", "gamma = 0.0", "lab.toml: learners.exp3.gamma: Input should be greater"),
     ],
 )
 def test_bad_protocol_names_file_key_path_and_reason(old: str, new: str, expected: str) -> None:

@@ -1,0 +1,124 @@
+"""The demo study that ``make run`` fills with simulated participants on first start.
+
+A lab trying trustlab should see a dashboard with data before running a single session. On an
+empty database, ``trustlab init`` creates a second study, ``demo``, from the shipped protocol and
+an internal admin account for the bots, and leaves a plan in ``var/demo-pending.json`` (readable
+by the owner only). The next ``trustlab serve`` sees the plan, waits until the server answers, runs
+:func:`app.bots.run_bots` against itself over real HTTP and WebSockets, then deactivates the bots'
+account and deletes the plan, so the demo happens once. ``trustlab init --no-demo`` skips it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import secrets
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+from sqlalchemy.orm import Session
+
+from app.bots import BotConfig, BotSummary, run_bots
+from app.db import Database
+from app.protocol import default_protocol
+from app.services import studies, users
+from app.services.audit import Actor
+from app.settings import Settings
+from app.tables import Role
+
+DEMO_STUDY = "demo"
+DEMO_ACCOUNT = "demo-bots"
+DEMO_PARTICIPANTS = 8
+PLAN_FILE = "demo-pending.json"
+
+
+@dataclass(frozen=True)
+class DemoPlan:
+    """What the first ``trustlab serve`` has to do."""
+
+    study: str
+    username: str
+    password: str
+    participants: int
+
+
+def plan_path(settings: Settings) -> Path:
+    return settings.var_dir / PLAN_FILE
+
+
+def plan_demo(db: Session, settings: Settings, actor: Actor) -> DemoPlan:
+    """Create the demo study and the bots' account; write the plan for ``trustlab serve``."""
+    studies.create_study(db, name=DEMO_STUDY, loaded=default_protocol(), actor=actor)
+    password = secrets.token_urlsafe(18)
+    users.create_user(db, username=DEMO_ACCOUNT, role=Role.ADMIN, password=password, actor=actor)
+    plan = DemoPlan(DEMO_STUDY, DEMO_ACCOUNT, password, DEMO_PARTICIPANTS)
+    path = plan_path(settings)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(descriptor, "w", encoding="utf-8") as out:
+        json.dump(plan.__dict__, out)
+    return plan
+
+
+def pending_demo(settings: Settings) -> DemoPlan | None:
+    """The plan left by ``trustlab init``, if the demo has not run yet."""
+    try:
+        return DemoPlan(**json.loads(plan_path(settings).read_text(encoding="utf-8")))
+    except (FileNotFoundError, json.JSONDecodeError, TypeError):
+        return None
+
+
+def wait_until_up(url: str, timeout: float = 60.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(f"{url}/healthz", timeout=2.0).status_code == 200:
+                return True
+        except httpx.TransportError:
+            pass
+        time.sleep(0.25)
+    return False
+
+
+def run_demo(
+    plan: DemoPlan, url: str, settings: Settings, echo: Callable[[str], None]
+) -> BotSummary | None:
+    """Fill the demo study through the running server at ``url``; then retire the plan."""
+    if not wait_until_up(url):
+        echo("demo: the server did not come up; the demo study stays empty (restart to retry)")
+        return None
+    echo(f"demo: {plan.participants} simulated participants are filling the '{plan.study}' study…")
+    summary = asyncio.run(
+        run_bots(
+            BotConfig(
+                url=url,
+                study=plan.study,
+                participants=plan.participants,
+                username=plan.username,
+                password=plan.password,
+                concurrency=4,
+                noise=0.1,
+                seed=1,
+                station_prefix="demo",
+            )
+        )
+    )
+    database = Database(settings.database_url)
+    try:
+        with database.writing() as db:
+            users.deactivate_user(db, username=plan.username, actor=Actor.system("demo"))
+    finally:
+        database.dispose()
+    plan_path(settings).unlink(missing_ok=True)
+    problems = ""
+    if summary.errors:
+        problems = f", {len(summary.errors)} errors (first: {summary.errors[0]})"
+    echo(
+        f"demo: done in {summary.seconds:.0f} s: {summary.completed} participants, "
+        f"{summary.steps} answers, {summary.questionnaires} questionnaires{problems}"
+    )
+    return summary
