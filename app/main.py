@@ -19,6 +19,7 @@ from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
 from app.events import PostgresListener
 from app.http import BodyLimit, SecurityHeaders, install_error_handlers
+from app.services.freshness import FreshnessCache
 from app.settings import REPO_ROOT, Settings
 from app.web import (
     admin,
@@ -36,6 +37,9 @@ from app.web import studies as studies_pages
 
 API_PREFIX = "/api/v1"
 MAX_BODY_BYTES = 1024 * 1024
+DASHBOARD_DATA_MAX_AGE = 0.25
+"""Seconds for which live dashboards share one computation of their data: below the 300 ms the
+page waits after a change event before refetching, so a refetch always includes that change."""
 """Largest request body accepted (a protocol upload is at most 512 KiB); larger ones get 413."""
 
 
@@ -71,6 +75,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.database = database
     app.state.activity = activity
+    app.state.dashboard_data = FreshnessCache(max_age=DASHBOARD_DATA_MAX_AGE)
 
     api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
     for resource in (

@@ -73,7 +73,7 @@ class Exp3Settings(_Strict):
         default=0.5,
         gt=0.0,
         le=1.0,
-        description="Exploration rate γ (0.5: Exp3's best adaptation over 12 answers, docs/engine.md).",
+        description="Exploration rate γ (0.5 adapts best over 12 answers: docs/engine.md).",
     )
 
 

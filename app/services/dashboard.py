@@ -171,6 +171,12 @@ def _labels(protocol: Protocol, actor: Actor) -> dict[str, str]:
     return {c.id: condition_label(protocol, c.id, actor=actor) for c in protocol.conditions}
 
 
+def data_key(study: Study, actor: Actor) -> tuple[int, tuple[tuple[str, str], ...]]:
+    """What :func:`dashboard_data` depends on besides the data: the study and the labels the
+    actor may see (blinded roles get neutral ones)."""
+    return study.id, tuple(sorted(_labels(protocol_of(study), actor).items()))
+
+
 def json_safe(value: Any) -> Any:
     """Plotly payloads as strict JSON (NaN → null)."""
     if isinstance(value, float):

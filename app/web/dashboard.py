@@ -10,6 +10,7 @@ from fastapi.responses import Response
 from app.deps import CurrentUser, SessionDep
 from app.services import dashboard, studies
 from app.services.audit import Actor
+from app.services.freshness import FreshnessCache
 from app.web.templating import render
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
@@ -31,7 +32,18 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
 
 
 @router.get("/studies/{name}/dashboard.json")
-def dashboard_data(db: SessionDep, user: CurrentUser, name: str) -> dict[str, Any]:
-    """The figures' data (Plotly payloads), blinded for roles that may not see conditions."""
+def dashboard_data(
+    request: Request, db: SessionDep, user: CurrentUser, name: str
+) -> dict[str, Any]:
+    """The figures' data (Plotly payloads), blinded for roles that may not see conditions.
+
+    Dashboards asking at nearly the same moment share one computation (``DASHBOARD_DATA_MAX_AGE``
+    in app/main.py; app/services/freshness.py says why that never hides a change).
+    """
     study = studies.get_study(db, name)
-    return dashboard.dashboard_data(db, study=study, actor=Actor.of_user(user))
+    actor = Actor.of_user(user)
+    shared: FreshnessCache[dict[str, Any]] = request.app.state.dashboard_data
+    return shared.get(
+        dashboard.data_key(study, actor),
+        lambda: dashboard.dashboard_data(db, study=study, actor=actor),
+    )

@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from app.cli import cli
 from app.db import Database
-from app.tables import AuditEvent, Participant, Role
+from app.tables import AuditEvent, Participant, Role, Study
 from tests.conftest import CSRF_INPUT, PASSWORD, TRUST_ANSWERS, Lab, UserClientFactory, make_user
 
 
@@ -34,6 +34,35 @@ def test_oversized_bodies_get_a_json_413(client: TestClient) -> None:
         "/api/v1/session", content=chunks(), headers={"content-type": "application/json"}
     )
     assert streamed.status_code == 413
+
+
+def test_malformed_wrong_typed_unknown_and_overlong_input_get_one_clear_422(
+    user_client: UserClientFactory,
+) -> None:
+    client = user_client("admin", Role.ADMIN)
+    cases = {
+        "malformed JSON": (b'{"name": "x", ', "JSON decode error"),
+        "wrong type": (json.dumps({"name": 7, "protocol_toml": "x"}).encode(), "name: "),
+        "unknown field": (
+            json.dumps({"name": "x", "protocol_toml": "x", "colour": "red"}).encode(),
+            "colour: Extra inputs are not permitted",
+        ),
+        "text too long": (
+            json.dumps({"name": "n" * 65, "protocol_toml": "x"}).encode(),
+            "name: String should have at most 64 characters",
+        ),
+    }
+    with client.app.state.database.read_session() as db:  # type: ignore[attr-defined]
+        studies_before = db.scalar(select(func.count()).select_from(Study))
+    for case, (body, says) in cases.items():
+        response = client.post(
+            "/api/v1/studies", content=body, headers={"content-type": "application/json"}
+        )
+        assert response.status_code == 422, case
+        detail = response.json()["detail"]
+        assert says in detail and "\n" not in detail, (case, detail)
+    with client.app.state.database.read_session() as db:  # type: ignore[attr-defined]
+        assert db.scalar(select(func.count()).select_from(Study)) == studies_before
 
 
 def _login_form(client: TestClient, username: str, password: str) -> int:
