@@ -1,0 +1,267 @@
+"""MAML's inner loops, differentiable for fixed random draws: ``online`` and ``paper`` modes.
+
+``online``: the deployed protocol itself — T sequential single-answer natural-gradient updates per
+task — with the per-answer objective (log score or expected reward) and a surrogate whose gradient
+also credits *which* questions got asked (score-function terms), since the actions are sampled.
+``paper``: one plain policy-gradient step on 20 pulls per task, then 20 valid pulls, as in the
+paper's configuration.
+
+Every function takes the random draws as data (uniforms and noise), so re-evaluating a candidate
+meta-step sees exactly the same tasks, actions and rewards.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from models.learners.mlp_policy import PARAM_NAMES
+from models.meta_torch import DTYPE, Layout, apply_step, policy_logits
+from models.pretrain_config import PretrainArgs
+
+
+@dataclass(frozen=True)
+class OnlineBatch:
+    """Random draws of one online meta-batch: tasks, action uniforms, reward noise."""
+
+    preferred: torch.Tensor  # (B,) long
+    uniforms: torch.Tensor  # (B, T)
+    noise: torch.Tensor  # (B, T)
+
+
+@dataclass
+class Rollout:
+    """The log-probability tables after 0..T answers and the actions taken."""
+
+    log_probs: list[torch.Tensor]  # T + 1 tensors (B, K)
+    actions: torch.Tensor  # (B, T) long
+
+
+def sample_online_batch(args: PretrainArgs, rng: np.random.Generator) -> OnlineBatch:
+    """Draw tasks and the uniforms and noise that will decide actions and rewards."""
+    assert args.tasks_per_batch is not None
+    b, t = args.tasks_per_batch, args.horizon
+    preferred = args.tasks.sample_preferred(rng, b)
+    return OnlineBatch(
+        torch.as_tensor(preferred, dtype=torch.long),
+        torch.as_tensor(rng.random((b, t)), dtype=DTYPE),
+        torch.as_tensor(rng.standard_normal((b, t)), dtype=DTYPE),
+    )
+
+
+def online_rollout(
+    theta: torch.Tensor,
+    layout: Layout,
+    obs: torch.Tensor,
+    args: PretrainArgs,
+    batch: OnlineBatch,
+    actions: torch.Tensor | None = None,
+) -> Rollout:
+    """Run the deployed protocol on every task: T answers, one natural-gradient step each.
+
+    Actions are drawn from the current policy with the batch's uniforms unless ``actions`` fixes
+    them (re-evaluating the same trajectories at other meta-parameters).
+    """
+    p = layout.unflatten(theta)
+    net = {name: p[name] for name in PARAM_NAMES}
+    damping = p["log_damping"].exp().squeeze()
+    sigma = math.sqrt(args.variance)
+    n_arms = args.arms
+    arange = torch.arange(n_arms)
+    log_probs, taken = [], []
+    for t in range(args.horizon + 1):
+        logp = torch.log_softmax(policy_logits(net, obs), dim=-1)
+        if logp.dim() == 1:
+            logp = logp.expand(batch.preferred.shape[0], n_arms)
+        log_probs.append(logp)
+        if t == args.horizon:
+            break
+        if actions is None:
+            cumulative = torch.cumsum(logp.detach().exp(), dim=-1)
+            u = batch.uniforms[:, t : t + 1] * cumulative[:, -1:]
+            a = torch.clamp((cumulative <= u).sum(-1), max=n_arms - 1)
+        else:
+            a = actions[:, t]
+        taken.append(a)
+        reward = (a == batch.preferred).to(DTYPE) + sigma * batch.noise[:, t]
+        onehot = (a.unsqueeze(-1) == arange).to(DTYPE)
+        s = (onehot - logp.exp()) * (reward - p["baseline"][t]).unsqueeze(-1)
+        net = apply_step(net, obs, s, p["log_step"][t].exp().expand(s.shape[0]), damping)
+    return Rollout(log_probs, torch.stack(taken, dim=1))
+
+
+def objective_terms(rollout: Rollout, batch: OnlineBatch, objective: str) -> torch.Tensor:
+    """(B, T) per-answer objective; column t depends on the actions before it only.
+
+    ``log_score``: log π(preferred) after answers 1..T. ``reward``: the expected reward of
+    answers 1..T, ``Σ_a π_{t−1}(a) μ_a``.
+    """
+    index = batch.preferred.unsqueeze(-1)
+    if objective == "log_score":
+        tables = rollout.log_probs[1:]
+        return torch.stack([lp.gather(-1, index).squeeze(-1) for lp in tables], dim=1)
+    tables = rollout.log_probs[:-1]
+    return torch.stack([lp.exp().gather(-1, index).squeeze(-1) for lp in tables], dim=1)
+
+
+def online_surrogate(
+    rollout: Rollout, batch: OnlineBatch, old: Rollout, advantages: torch.Tensor, objective: str
+) -> torch.Tensor:
+    """Mean per-answer objective plus the score-function term of the sampled actions.
+
+    ``Σ_t f_t + Σ_s (π_s(a_s)/π_s^old(a_s) − 1) Â_s`` with ``Â_s`` the baselined objective of the
+    answers after ``s``: its gradient at the old parameters is the unbiased meta-gradient (the
+    path through the updates *and* through which questions got asked).
+    """
+    f = objective_terms(rollout, batch, objective)
+    actions = old.actions.unsqueeze(-1)
+    score = torch.stack(
+        [
+            (lp.gather(-1, actions[:, s]) - old_lp.gather(-1, actions[:, s])).squeeze(-1)
+            for s, (lp, old_lp) in enumerate(
+                zip(rollout.log_probs[:-1], old.log_probs[:-1], strict=True)
+            )
+        ],
+        dim=1,
+    )
+    per_task = f.sum(1) + ((score.exp() - 1.0) * advantages).sum(1)
+    return per_task.mean() / f.shape[1]
+
+
+def online_advantages(f: torch.Tensor) -> torch.Tensor:
+    """``Â_s = Σ_{t>s} (f_t − mean f_t)``: what asking question ``a_s`` changed later on."""
+    centred = (f - f.mean(0, keepdim=True)).detach()
+    # Column t of f (answers 1..T) depends on actions 0..t, so action s affects columns s..T−1.
+    return torch.flip(torch.cumsum(torch.flip(centred, [1]), 1), [1])
+
+
+def mean_kl(new: Sequence[torch.Tensor], old: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Mean over tables and tasks of KL(old ‖ new) between categorical log-probabilities."""
+    total = [(o.exp() * (o - n)).sum(-1).mean() for n, o in zip(new, old, strict=True)]
+    return torch.stack(total).mean()
+
+
+# Paper mode ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PaperBatch:
+    """Random draws of one paper meta-batch."""
+
+    preferred: torch.Tensor  # (B,)
+    train_uniforms: torch.Tensor  # (B, N)
+    train_noise: torch.Tensor  # (B, N)
+    valid_uniforms: torch.Tensor  # (B, N)
+    valid_noise: torch.Tensor  # (B, N)
+
+
+def sample_paper_batch(args: PretrainArgs, rng: np.random.Generator) -> PaperBatch:
+    """Draw tasks and the uniforms/noise of their inner (train) and outer (valid) pulls."""
+    assert args.tasks_per_batch is not None
+    b, n = args.tasks_per_batch, args.pulls
+
+    def draw(shape: tuple[int, int], normal: bool) -> torch.Tensor:
+        values = rng.standard_normal(shape) if normal else rng.random(shape)
+        return torch.as_tensor(values, dtype=DTYPE)
+
+    preferred = torch.as_tensor(args.tasks.sample_preferred(rng, b), dtype=torch.long)
+    return PaperBatch(
+        preferred, draw((b, n), False), draw((b, n), True), draw((b, n), False), draw((b, n), True)
+    )
+
+
+def pull(
+    logp: torch.Tensor,
+    uniforms: torch.Tensor,
+    noise: torch.Tensor,
+    preferred: torch.Tensor,
+    sigma: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Actions (B, N) drawn from ``logp`` (B, K) with the uniforms, and their rewards."""
+    cumulative = torch.cumsum(logp.detach().exp(), dim=-1).unsqueeze(1)  # (B, 1, K)
+    u = uniforms.unsqueeze(-1) * cumulative[..., -1:]
+    actions = torch.clamp((cumulative <= u).sum(-1), max=logp.shape[-1] - 1)
+    rewards = (actions == preferred.unsqueeze(-1)).to(DTYPE) + sigma * noise
+    return actions, rewards
+
+
+def paper_advantages(rewards: torch.Tensor, discount: float) -> torch.Tensor:
+    """Discounted returns over the pulls, minus the per-pull mean over tasks, normalised per task.
+
+    The batch mean at each pull is the baseline (every task's pre-update policy is the same, so it
+    estimates the expected return there); normalising per task as the reference code does.
+    """
+    returns = torch.zeros_like(rewards)
+    running = torch.zeros_like(rewards[:, 0])
+    for t in range(rewards.shape[1] - 1, -1, -1):
+        running = rewards[:, t] + discount * running
+        returns[:, t] = running
+    advantages = returns - returns.mean(0, keepdim=True)
+    centred = advantages - advantages.mean(1, keepdim=True)
+    return centred / (centred.std(1, keepdim=True) + 1e-8)
+
+
+@dataclass
+class PaperRollout:
+    """Pre- and post-adaptation log-probabilities and the pulls they were computed from."""
+
+    log_probs: list[torch.Tensor]  # [pre (B, K), adapted (B, K)]
+    train_actions: torch.Tensor
+    train_advantages: torch.Tensor
+    valid_actions: torch.Tensor
+    valid_advantages: torch.Tensor
+
+
+def paper_rollout(
+    theta: torch.Tensor,
+    layout: Layout,
+    obs: torch.Tensor,
+    args: PretrainArgs,
+    batch: PaperBatch,
+    fixed: PaperRollout | None = None,
+    first_order: bool = False,
+) -> PaperRollout:
+    """One inner policy-gradient step per task on its train pulls, then the valid pulls.
+
+    The inner gradient ``Jᵀ mean_t (e_{a_t} − π) Â_t`` is exact for a constant observation (every
+    pull sees the same π). With ``fixed``, the pulls (and their advantages) of an earlier rollout
+    are reused, as MAML-TRPO re-adapts on the same train episodes for every candidate step.
+    ``first_order`` treats the inner step as a constant (first-order MAML; the tests use it to
+    show the second-order terms matter).
+    """
+    net = layout.unflatten(theta)
+    sigma = math.sqrt(args.variance)
+    b = batch.preferred.shape[0]
+    logp = torch.log_softmax(policy_logits(net, obs), dim=-1).expand(b, args.arms)
+    if fixed is None:
+        actions, rewards = pull(
+            logp, batch.train_uniforms, batch.train_noise, batch.preferred, sigma
+        )
+        advantages = paper_advantages(rewards, args.discount)
+    else:
+        actions, advantages = fixed.train_actions, fixed.train_advantages
+    onehot = (actions.unsqueeze(-1) == torch.arange(args.arms)).to(DTYPE)  # (B, N, K)
+    s = ((onehot - logp.exp().unsqueeze(1)) * advantages.unsqueeze(-1)).mean(1)
+    adapted = apply_step(net, obs, s, torch.full((b,), args.fast_lr, dtype=DTYPE), None)
+    if first_order:
+        adapted = {k: net[k] + (adapted[k] - net[k]).detach() for k in adapted}
+    adapted_logp = torch.log_softmax(policy_logits(adapted, obs), dim=-1)
+    if fixed is None:
+        valid_actions, valid_rewards = pull(
+            adapted_logp, batch.valid_uniforms, batch.valid_noise, batch.preferred, sigma
+        )
+        valid_advantages = paper_advantages(valid_rewards, args.discount)
+    else:
+        valid_actions, valid_advantages = fixed.valid_actions, fixed.valid_advantages
+    return PaperRollout([logp, adapted_logp], actions, advantages, valid_actions, valid_advantages)
+
+
+def paper_surrogate(rollout: PaperRollout, old: PaperRollout) -> torch.Tensor:
+    """Mean importance-weighted advantage of the valid pulls under the adapted policy."""
+    new_lp = rollout.log_probs[1].gather(-1, old.valid_actions)
+    old_lp = old.log_probs[1].gather(-1, old.valid_actions)
+    return ((new_lp - old_lp).exp() * old.valid_advantages).mean()

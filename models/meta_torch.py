@@ -1,0 +1,119 @@
+"""The C2 policy and its one-answer update in torch, and the flat meta-parameter vector.
+
+A differentiable copy of :mod:`models.learners.mlp_policy` (a test checks they agree): MAML needs
+gradients *through* the update, and TRPO works on one flat vector holding the network and, in
+``online`` mode, the update's own meta-learned step sizes, damping and baselines.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from models.learners.mlp_policy import init_params, param_shapes
+from models.pretrain_config import PretrainArgs
+
+DTYPE = torch.float64
+
+
+def policy_logits(net: dict[str, torch.Tensor], obs: torch.Tensor) -> torch.Tensor:
+    """Logits of the policy network (batched over leading dimensions of the weights)."""
+    h = torch.tanh(net["W1"] @ obs + net["b1"])
+    return (net["W2"] @ h.unsqueeze(-1)).squeeze(-1) + net["b2"]
+
+
+def apply_step(
+    net: dict[str, torch.Tensor],
+    obs: torch.Tensor,
+    s: torch.Tensor,
+    step_size: torch.Tensor,
+    damping: torch.Tensor | None,
+) -> dict[str, torch.Tensor]:
+    """``θ + α Jᵀ y`` with ``y = (M JJᵀ + λI)⁻¹ s`` (natural) or ``y = s`` (``damping=None``).
+
+    ``s`` is the logit-space direction, e.g. ``(e_a − π)(r − b)`` for one answer; differentiable
+    in every argument, so MAML gets exact second-order meta-gradients.
+    """
+    h = torch.tanh(net["W1"] @ obs + net["b1"])
+    n_arms = s.shape[-1]
+    eye = torch.eye(n_arms, dtype=s.dtype)
+    if damping is not None:
+        logits = (net["W2"] @ h.unsqueeze(-1)).squeeze(-1) + net["b2"]
+        pi = torch.softmax(logits, dim=-1)
+        fisher = pi.unsqueeze(-1) * (eye - pi.unsqueeze(-2))
+        v = net["W2"] * (1.0 - h * h).unsqueeze(-2)
+        gram = (h * h).sum(-1).add(1.0)[..., None, None] * eye + (obs @ obs + 1.0) * (
+            v @ v.transpose(-1, -2)
+        )
+        y = torch.linalg.solve(fisher @ gram + damping * eye, s.unsqueeze(-1)).squeeze(-1)
+    else:
+        y = s
+    y = y * step_size.unsqueeze(-1)
+    d_pre = (net["W2"].transpose(-1, -2) @ y.unsqueeze(-1)).squeeze(-1) * (1.0 - h * h)
+    return {
+        "W1": net["W1"] + d_pre.unsqueeze(-1) * obs,
+        "b1": net["b1"] + d_pre,
+        "W2": net["W2"] + y.unsqueeze(-1) * h.unsqueeze(-2),
+        "b2": net["b2"] + y,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Flat parameter vectors (TRPO works on one vector).
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Names and shapes of the meta-parameters packed in one flat vector."""
+
+    shapes: dict[str, tuple[int, ...]]
+
+    @property
+    def size(self) -> int:
+        """Length of the flat vector."""
+        return sum(math.prod(s) for s in self.shapes.values())
+
+    def unflatten(self, theta: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Views of ``theta`` with each parameter's shape."""
+        out, offset = {}, 0
+        for name, shape in self.shapes.items():
+            n = math.prod(shape)
+            out[name] = theta[offset : offset + n].reshape(shape)
+            offset += n
+        return out
+
+    def flatten(self, values: dict[str, np.ndarray]) -> torch.Tensor:
+        """Pack arrays into one float64 vector in layout order."""
+        return torch.cat(
+            [
+                torch.as_tensor(np.asarray(values[n], dtype=np.float64)).reshape(-1)
+                for n in self.shapes
+            ]
+        )
+
+
+def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
+    """The meta-parameters of ``args.mode``: the network, plus the online update's own."""
+    shapes = dict(param_shapes(obs_dim, args.hidden, args.arms))
+    if args.mode == "online":
+        shapes.update(
+            {"log_step": (args.horizon,), "log_damping": (1,), "baseline": (args.horizon,)}
+        )
+    return Layout(shapes)
+
+
+def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) -> torch.Tensor:
+    """Random network weights (as ``random_init`` draws them) and the online update's start."""
+    obs_dim = layout.shapes["W1"][1]
+    values: dict[str, np.ndarray] = dict(init_params(rng, obs_dim, args.hidden, args.arms))
+    if args.mode == "online":
+        values["log_step"] = np.full(args.horizon, math.log(args.init_step_size))
+        values["log_damping"] = np.array([math.log(args.init_damping)])
+        # The expected reward of an answer to a uniformly chosen question.
+        tasks = args.tasks
+        first = (tasks.mu_preferred + (args.arms - 1) * tasks.mu_other) / args.arms
+        values["baseline"] = np.full(args.horizon, first)
+    return layout.flatten(values)

@@ -1,0 +1,290 @@
+"""Meta-training of the C2 policy: second-order MAML with a TRPO outer step, vectorised in torch.
+
+Two inner loops (issue 3):
+
+``online`` (C2's default)
+    The inner loop *is* the deployed protocol: 12 sequential single-answer updates, each the damped
+    natural-gradient step of :mod:`models.learners.mlp_policy`, with actions sampled from the
+    adapting policy. Meta-learned: the network's starting weights and, per answer, the step size,
+    the reward baseline, plus the damping. The default objective is the *log score* of the
+    learner's belief — ``log π_t(preferred)`` after each answer, averaged — because maximising the
+    expected reward (the issue's wording, ``objective="reward"``) made C2 overconfident: it
+    committed after one lucky answer and was confidently wrong for 4.5 % of simulated
+    participants (docs/engine.md, "Deviations").
+``paper``
+    The paper's configuration: one plain policy-gradient inner step (fast lr 0.5) on 20 pulls per
+    task with discounted (0.95), baselined and normalised advantages, 200 meta-batches × 40 tasks.
+    Its trust region covers the pre-update policy (which sampled the inner batch) as well as the
+    adapted one; without it the meta-policy collapsed onto one question.
+
+The outer step is TRPO (Schulman et al. 2015) as pytorch-maml-rl's ``MAMLTRPO`` does it: the
+gradient ``g`` of the surrogate, conjugate gradient (10 iterations, damping 1e-5) on the
+Hessian-vector product of the mean KL between the old and new (adapted) policies, the step
+``s · sqrt(2 δ / sᵀHs)`` for max-KL ``δ``, and a backtracking line search (15 × 0.8) that accepts
+only a step that improves the surrogate and keeps the KL within ``δ``.
+
+Everything runs in one process in float64, vectorised over tasks (and pulls); all randomness comes
+from one seeded numpy generator, so a rerun with the same seed on the same torch build reproduces
+the checkpoint bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from models.checkpoints import Checkpoint, observation_for, write_checkpoint
+from models.inner_loops import (
+    OnlineBatch,
+    PaperBatch,
+    PaperRollout,
+    Rollout,
+    mean_kl,
+    objective_terms,
+    online_advantages,
+    online_rollout,
+    online_surrogate,
+    paper_rollout,
+    paper_surrogate,
+    sample_online_batch,
+    sample_paper_batch,
+)
+from models.learners.mlp_policy import PARAM_NAMES
+from models.meta_torch import DTYPE, Layout, initial_theta, layout_for
+from models.pretrain_config import PretrainArgs
+from models.simulate import mean_p_correct, simulate_learner, summarise
+from models.trpo import trpo_step
+
+__all__ = ["PretrainArgs", "evaluate", "pretrain", "train"]
+
+
+@dataclass
+class TrainResult:
+    """The final meta-parameters and what training measured."""
+
+    theta: torch.Tensor
+    layout: Layout
+    history: list[dict[str, float]] = field(default_factory=list)
+    selected_iteration: int = 0
+    validation: dict[str, Any] = field(default_factory=dict)
+
+
+def checkpoint_values(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -> dict[str, Any]:
+    """The deployed learner's numbers: network, rule, step sizes, baselines, damping.
+
+    A ``paper`` checkpoint is deployed with its own inner update (the plain step, fast lr) from
+    raw reward minus a fixed baseline, the expected reward of the first answer under the prior
+    and the meta-policy (the normalised advantage of one answer would be zero).
+    """
+    values = {k: v.detach().numpy().copy() for k, v in layout.unflatten(theta).items()}
+    params = {name: values[name] for name in PARAM_NAMES}
+    if args.mode == "online":
+        return {
+            "params": params,
+            "rule": "natural",
+            "step_sizes": np.exp(values["log_step"]),
+            "baselines": values["baseline"],
+            "damping": float(np.exp(values["log_damping"][0])),
+        }
+    obs = observation_for(args.category)
+    from models.learners.mlp_policy import probabilities
+
+    first = float(probabilities(params, obs) @ args.tasks.prior)
+    return {
+        "params": params,
+        "rule": "gradient",
+        "step_sizes": np.array([args.fast_lr]),
+        "baselines": np.array([first]),
+        "damping": 1.0,
+    }
+
+
+def as_checkpoint(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -> Checkpoint:
+    """An in-memory checkpoint of ``theta`` (for validation; never written)."""
+    values = checkpoint_values(theta, layout, args)
+    return Checkpoint(
+        path=Path("<training>"),
+        sha256="",
+        n_arms=args.arms,
+        category=args.category,
+        mode=args.mode,
+        rule=values["rule"],
+        observation=observation_for(args.category),
+        params=values["params"],
+        step_sizes=values["step_sizes"],
+        baselines=values["baselines"],
+        damping=values["damping"],
+    )
+
+
+def evaluate(
+    theta: torch.Tensor, layout: Layout, args: PretrainArgs, participants: int, seed: int
+) -> dict[str, Any]:
+    """The deployed learner's figures on simulated participants (12 answers, one at a time)."""
+    summary = summarise(
+        simulate_learner(
+            "meta",
+            args.tasks,
+            participants=participants,
+            iterations=args.horizon,
+            seed=seed,
+            checkpoint=as_checkpoint(theta, layout, args),
+        )
+    )
+    summary["mean_p_correct"] = mean_p_correct(summary)
+    return summary
+
+
+def _is_better(candidate: dict[str, Any], best: dict[str, Any] | None, limit: float) -> bool:
+    if candidate["wrong_95"] > limit:
+        return False
+    if best is None:
+        return True
+    key = (candidate["iterations_to_95"], -candidate["mean_p_correct"])
+    return key < (best["iterations_to_95"], -best["mean_p_correct"])
+
+
+def _online_surrogate(
+    layout: Layout,
+    obs: torch.Tensor,
+    args: PretrainArgs,
+    batch: OnlineBatch,
+    old: Rollout,
+    advantages: torch.Tensor,
+    theta: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Online surrogate and KL at ``theta`` on the old trajectories (for :func:`trpo_step`)."""
+    new = online_rollout(theta, layout, obs, args, batch, actions=old.actions)
+    value = online_surrogate(new, batch, old, advantages, args.objective)
+    return value, mean_kl(new.log_probs, old.log_probs)
+
+
+def _paper_surrogate(
+    layout: Layout,
+    obs: torch.Tensor,
+    args: PretrainArgs,
+    batch: PaperBatch,
+    old: PaperRollout,
+    theta: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Paper surrogate and KL (pre- and post-adaptation) at ``theta`` on the old pulls."""
+    new = paper_rollout(theta, layout, obs, args, batch, fixed=old)
+    return paper_surrogate(new, old), mean_kl(new.log_probs, old.log_probs)
+
+
+def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = None) -> TrainResult:
+    """Meta-train from ``args`` (already :meth:`~PretrainArgs.resolved`).
+
+    ``progress(iteration, running_objective)`` is called after every meta-batch. ``online`` mode
+    validates every ``validate_every`` batches and returns the best parameters whose validation
+    ``wrong_95`` is within ``wrong_limit``; ``paper`` mode returns the last parameters.
+    """
+    assert args.meta_batches is not None
+    torch.set_default_dtype(DTYPE)
+    rng = np.random.default_rng(args.seed)
+    obs_np = observation_for(args.category)
+    obs = torch.as_tensor(obs_np, dtype=DTYPE)
+    layout = layout_for(args, obs_np.shape[0])
+    theta = initial_theta(args, layout, rng)
+    result = TrainResult(theta, layout)
+    best: dict[str, Any] | None = None
+    running = math.nan
+    validation_seed = args.seed + 10_000
+    for iteration in range(1, args.meta_batches + 1):
+        if args.mode == "online":
+            batch = sample_online_batch(args, rng)
+            with torch.no_grad():
+                old = online_rollout(theta, layout, obs, args, batch)
+                f_old = objective_terms(old, batch, args.objective)
+                advantages = online_advantages(f_old)
+            objective = float(f_old.mean())
+
+            surrogate = partial(_online_surrogate, layout, obs, args, batch, old, advantages)
+        else:
+            paper_batch = sample_paper_batch(args, rng)
+            with torch.no_grad():
+                paper_old = paper_rollout(theta, layout, obs, args, paper_batch)
+            objective = float(
+                paper_old.log_probs[1].exp().gather(-1, paper_batch.preferred.unsqueeze(-1)).mean()
+            )
+            surrogate = partial(_paper_surrogate, layout, obs, args, paper_batch, paper_old)
+        theta, step = trpo_step(theta, surrogate, args)
+        running = objective if math.isnan(running) else 0.9 * running + 0.1 * objective
+        result.history.append(
+            {
+                "iteration": iteration,
+                "objective": objective,
+                "kl": step.kl,
+                "accepted": float(step.accepted),
+            }
+        )
+        if progress is not None:
+            progress(iteration, running)
+        if args.mode == "online" and (
+            iteration % args.validate_every == 0 or iteration == args.meta_batches
+        ):
+            figures = evaluate(theta, layout, args, args.validation_participants, validation_seed)
+            figures["iteration"] = iteration
+            if _is_better(figures, best, args.wrong_limit):
+                best = figures
+                result.theta = theta.clone()
+                result.selected_iteration = iteration
+    if args.mode == "paper" or best is None:
+        result.theta = theta.clone()
+        result.selected_iteration = args.meta_batches
+    else:
+        result.validation = best
+    return result
+
+
+def pretrain(
+    args: PretrainArgs,
+    out: Path,
+    progress: Callable[[int, float], None] | None = None,
+) -> Checkpoint:
+    """Train from ``args`` and write the checkpoint to ``out`` (weights, hash, config, metrics).
+
+    metrics.json holds the training wall time, the selected iteration, the objective history and
+    the deployed learner's figures on ``evaluation_participants`` fresh simulated participants.
+    """
+    args = args.resolved()
+    torch.manual_seed(args.seed)
+    start = time.perf_counter()
+    result = train(args, progress)
+    seconds = time.perf_counter() - start
+    values = checkpoint_values(result.theta, result.layout, args)
+    evaluation = evaluate(
+        result.theta, result.layout, args, args.evaluation_participants, args.seed + 20_000
+    )
+    config = asdict(args)
+    config["torch"] = torch.__version__
+    metrics = {
+        "train_seconds": round(seconds, 3),
+        "selected_iteration": result.selected_iteration,
+        "validation": result.validation,
+        "evaluation": evaluation,
+        "objective_history": [round(h["objective"], 6) for h in result.history],
+        "accepted_steps": int(sum(h["accepted"] for h in result.history)),
+    }
+    return write_checkpoint(
+        out,
+        n_arms=args.arms,
+        category=args.category,
+        mode=args.mode,
+        rule=values["rule"],
+        observation=observation_for(args.category),
+        params=values["params"],
+        step_sizes=values["step_sizes"],
+        baselines=values["baselines"],
+        damping=values["damping"],
+        config=config,
+        metrics=metrics,
+    )

@@ -1,0 +1,120 @@
+"""The arguments of one meta-training run, with their defaults for each mode.
+
+Kept apart from the training code so the command line can validate arguments (and the inner
+loops can read them) without the training loop. Saved as every checkpoint's config.json.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from models.checkpoints import GENERIC
+from models.learners.mlp_policy import HIDDEN_UNITS
+from models.tasks import DEFAULT_VARIANCE, TaskDistribution, check_prior
+
+WRONG_LIMIT = 0.0095
+"""Model selection keeps only checkpoints whose validation ``wrong_95`` is at most this."""
+
+
+@dataclass
+class PretrainArgs:
+    """Arguments of one meta-training run (saved as the checkpoint's config.json)."""
+
+    category: str = GENERIC
+    """Category name; it fixes the observation vector (``generic`` for any category with K)."""
+    arms: int = 4
+    """K, the number of questions."""
+    mode: str = "online"
+    """``online`` (deployed protocol as inner loop) or ``paper`` (the paper's configuration)."""
+    seed: int = 0
+    """Seeds every random draw (initialisation, tasks, actions, rewards, validation)."""
+    objective: str = "log_score"
+    """``online`` only: ``log_score`` (log π(preferred) after each answer) or ``reward``."""
+    preferred_prior: tuple[float, ...] | None = None
+    """Prior over which question is preferred (uniform when unset)."""
+    variance: float = DEFAULT_VARIANCE
+    """σ² of the simulated rewards."""
+    horizon: int = 12
+    """``online``: answers per task (the protocol's 12 adaptation iterations)."""
+    meta_batches: int | None = None
+    """Outer TRPO steps (online 150, paper 200 when unset)."""
+    tasks_per_batch: int | None = None
+    """Tasks per meta-batch (online 200, paper 40 when unset)."""
+    pulls: int = 20
+    """``paper``: pulls per task in the inner and in the validation batch."""
+    fast_lr: float = 0.5
+    """``paper``: step size of the inner policy-gradient step."""
+    discount: float = 0.95
+    """``paper``: discount of the returns over the pulls."""
+    max_kl: float = 1e-2
+    """TRPO trust-region size δ (mean KL per policy)."""
+    cg_iterations: int = 10
+    """Conjugate-gradient iterations for the natural direction."""
+    cg_damping: float = 1e-5
+    """Damping added to the KL Hessian in conjugate gradient."""
+    ls_steps: int = 15
+    """Backtracking line-search steps."""
+    ls_backtrack: float = 0.8
+    """Line-search shrink factor."""
+    hidden: int = HIDDEN_UNITS
+    """Hidden units of the policy network."""
+    init_step_size: float = 1.0
+    """``online``: starting value of every meta-learned step size."""
+    init_damping: float = 0.1
+    """``online``: starting value of the meta-learned damping λ."""
+    validate_every: int = 10
+    """``online``: meta-batches between validations (model selection)."""
+    validation_participants: int = 2000
+    """Simulated participants per validation."""
+    wrong_limit: float = WRONG_LIMIT
+    """Model selection: the largest acceptable validation ``wrong_95``."""
+    evaluation_participants: int = 20000
+    """Simulated participants of the final evaluation written to metrics.json."""
+
+    def resolved(self) -> PretrainArgs:
+        """A copy with the mode-dependent defaults filled in, after checking every value."""
+        if self.mode not in ("online", "paper"):
+            raise ValueError(f"mode must be 'online' or 'paper', not {self.mode!r}")
+        if self.objective not in ("log_score", "reward"):
+            raise ValueError(f"objective must be 'log_score' or 'reward', not {self.objective!r}")
+        if self.arms < 2 or self.arms > 64:
+            raise ValueError(f"arms must be between 2 and 64, got {self.arms}")
+        prior = check_prior(self.preferred_prior, self.arms)
+        online = self.mode == "online"
+        args = replace(
+            self,
+            preferred_prior=None if self.preferred_prior is None else tuple(prior.tolist()),
+            meta_batches=self.meta_batches or (150 if online else 200),
+            tasks_per_batch=self.tasks_per_batch or (200 if online else 40),
+        )
+        positive = {
+            "horizon": args.horizon,
+            "meta_batches": args.meta_batches,
+            "tasks_per_batch": args.tasks_per_batch,
+            "pulls": args.pulls,
+            "fast_lr": args.fast_lr,
+            "max_kl": args.max_kl,
+            "cg_iterations": args.cg_iterations,
+            "ls_steps": args.ls_steps,
+            "hidden": args.hidden,
+            "init_step_size": args.init_step_size,
+            "init_damping": args.init_damping,
+            "validate_every": args.validate_every,
+            "validation_participants": args.validation_participants,
+            "evaluation_participants": args.evaluation_participants,
+            "variance": args.variance,
+        }
+        for name, value in positive.items():
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        if not 0 < args.ls_backtrack < 1 or not 0 < args.discount <= 1:
+            raise ValueError("ls_backtrack must be in (0, 1) and discount in (0, 1]")
+        if args.cg_damping < 0:
+            raise ValueError("cg_damping must not be negative")
+        return args
+
+    @property
+    def tasks(self) -> TaskDistribution:
+        """The task distribution this run trains on."""
+        return TaskDistribution(self.arms, self.preferred_prior, variance=self.variance)

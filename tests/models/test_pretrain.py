@@ -1,0 +1,218 @@
+"""Meta-training: second-order meta-gradients, the TRPO trust region, seeding and reproducibility."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from models.checkpoints import PRETRAINED_DIR, load_checkpoint, observation_for
+from models.inner_loops import (
+    mean_kl,
+    objective_terms,
+    online_advantages,
+    online_rollout,
+    online_surrogate,
+    paper_rollout,
+    paper_surrogate,
+    sample_online_batch,
+    sample_paper_batch,
+)
+from models.learners.meta_policy import MetaPolicyLearner
+from models.learners.mlp_policy import init_params, update_params
+from models.meta_torch import DTYPE, apply_step, initial_theta, layout_for
+from models.pretrain import PretrainArgs, pretrain, train
+from models.trpo import conjugate_gradient, trpo_step
+
+TINY = {
+    "hidden": 6,
+    "tasks_per_batch": 6,
+    "validation_participants": 50,
+    "evaluation_participants": 50,
+    "validate_every": 2,
+}
+
+
+def _setup(mode: str, seed: int = 0, **changes: object):  # type: ignore[no-untyped-def]
+    args = PretrainArgs(mode=mode, arms=3, horizon=4, pulls=5, **{**TINY, **changes}).resolved()
+    rng = np.random.default_rng(seed)
+    obs = torch.as_tensor(observation_for("generic"), dtype=DTYPE)
+    layout = layout_for(args, obs.shape[0])
+    theta = initial_theta(args, layout, rng)
+    return args, rng, obs, layout, theta
+
+
+def test_torch_step_matches_the_numpy_learner() -> None:
+    rng = np.random.default_rng(3)
+    obs = observation_for("affection")
+    params = init_params(rng, obs.shape[0], 7, 4)
+    expected = update_params(
+        params,
+        obs,
+        np.asarray(1),
+        np.asarray(0.8),
+        step_size=0.6,
+        baseline=0.2,
+        damping=0.03,
+        rule="natural",
+    )
+    net = {k: torch.as_tensor(v) for k, v in params.items()}
+    t_obs = torch.as_tensor(obs)
+    pi = torch.softmax(net["W2"] @ torch.tanh(net["W1"] @ t_obs + net["b1"]) + net["b2"], -1)
+    s = (torch.eye(4, dtype=DTYPE)[1] - pi) * (0.8 - 0.2)
+    got = apply_step(net, t_obs, s, torch.tensor(0.6, dtype=DTYPE), torch.tensor(0.03, dtype=DTYPE))
+    for name in expected:
+        np.testing.assert_allclose(got[name].numpy(), expected[name], rtol=1e-12, atol=1e-14)
+
+
+def _directional_check(fn, theta: torch.Tensor, seed: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    """(autograd, central finite difference) directional derivatives of ``fn`` at ``theta``."""
+    direction = torch.as_tensor(np.random.default_rng(seed).standard_normal(theta.shape[0]))
+    th = theta.clone().requires_grad_(True)
+    grad = torch.autograd.grad(fn(th), th)[0]
+    eps = 1e-6
+    with torch.no_grad():
+        fd = (fn(theta + eps * direction) - fn(theta - eps * direction)) / (2 * eps)
+    return float(grad @ direction), float(fd)
+
+
+def test_paper_meta_gradient_matches_finite_differences() -> None:
+    args, rng, obs, layout, theta = _setup("paper")
+    batch = sample_paper_batch(args, rng)
+    with torch.no_grad():
+        old = paper_rollout(theta, layout, obs, args, batch)
+
+    def second(th: torch.Tensor) -> torch.Tensor:
+        return paper_surrogate(paper_rollout(th, layout, obs, args, batch, fixed=old), old)
+
+    def first(th: torch.Tensor) -> torch.Tensor:
+        new = paper_rollout(th, layout, obs, args, batch, fixed=old, first_order=True)
+        return paper_surrogate(new, old)
+
+    for seed in range(3):
+        auto, fd = _directional_check(second, theta, seed)
+        assert auto == pytest.approx(fd, rel=1e-6, abs=1e-9)
+        # The first-order approximation misses the path through the inner step: the check
+        # above would catch an implementation that silently dropped it.
+        auto_first, _ = _directional_check(first, theta, seed)
+        assert abs(auto_first - fd) > 1e-4 * max(abs(fd), 1e-3)
+
+
+@pytest.mark.parametrize("objective", ["log_score", "reward"])
+def test_online_meta_gradient_matches_finite_differences(objective: str) -> None:
+    args, rng, obs, layout, theta = _setup("online", objective=objective)
+    batch = sample_online_batch(args, rng)
+    with torch.no_grad():
+        old = online_rollout(theta, layout, obs, args, batch)
+        advantages = online_advantages(objective_terms(old, batch, objective))
+
+    def surrogate(th: torch.Tensor) -> torch.Tensor:
+        new = online_rollout(th, layout, obs, args, batch, actions=old.actions)
+        return online_surrogate(new, batch, old, advantages, objective)
+
+    for seed in range(3):
+        auto, fd = _directional_check(surrogate, theta, seed)
+        assert auto == pytest.approx(fd, rel=1e-6, abs=1e-9)
+
+
+def test_conjugate_gradient_solves_a_spd_system() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((6, 6))
+    h = torch.as_tensor(a @ a.T + 6 * np.eye(6))
+    b = torch.as_tensor(rng.standard_normal(6))
+    x = conjugate_gradient(lambda v: h @ v, b, 6)
+    np.testing.assert_allclose((h @ x).numpy(), b.numpy(), atol=1e-8)
+
+
+@pytest.mark.parametrize(("mode", "max_kl"), [("paper", 1e-2), ("online", 1e-2), ("online", 1e-4)])
+def test_trpo_step_stays_within_max_kl_and_improves(mode: str, max_kl: float) -> None:
+    for seed in range(4):
+        args, rng, obs, layout, theta = _setup(mode, seed, max_kl=max_kl)
+        if mode == "paper":
+            batch = sample_paper_batch(args, rng)
+            with torch.no_grad():
+                old = paper_rollout(theta, layout, obs, args, batch)
+
+            def surrogate(th: torch.Tensor, batch=batch, old=old):  # type: ignore[no-untyped-def]
+                new = paper_rollout(th, layout, obs, args, batch, fixed=old)
+                return paper_surrogate(new, old), mean_kl(new.log_probs, old.log_probs)
+        else:
+            batch = sample_online_batch(args, rng)
+            with torch.no_grad():
+                old = online_rollout(theta, layout, obs, args, batch)
+                adv = online_advantages(objective_terms(old, batch, args.objective))
+
+            def surrogate(th: torch.Tensor, batch=batch, old=old, adv=adv):  # type: ignore[no-untyped-def]
+                new = online_rollout(th, layout, obs, args, batch, actions=old.actions)
+                value = online_surrogate(new, batch, old, adv, args.objective)
+                return value, mean_kl(new.log_probs, old.log_probs)
+
+        new_theta, step = trpo_step(theta, surrogate, args)
+        with torch.no_grad():
+            value_before, _ = surrogate(theta)
+            value_after, kl = surrogate(new_theta)
+        assert float(kl) <= max_kl
+        if step.accepted:
+            assert float(value_after) > float(value_before)
+            assert not torch.equal(new_theta, theta)
+        else:
+            assert torch.equal(new_theta, theta)
+
+
+def test_same_seed_same_run_other_seed_other_run() -> None:
+    for mode in ("online", "paper"):
+        args = PretrainArgs(mode=mode, arms=3, horizon=3, meta_batches=3, **TINY).resolved()
+        a, b = train(args), train(args)
+        assert torch.equal(a.theta, b.theta)
+        c = train(replace(args, seed=1))
+        assert not torch.equal(a.theta, c.theta)
+
+
+def test_tiny_pretrain_writes_a_usable_checkpoint_and_reruns_reproduce_it(tmp_path: Path) -> None:
+    args = PretrainArgs(
+        category="cognition", mode="online", arms=3, horizon=3, meta_batches=4, seed=5, **TINY
+    )
+    first = pretrain(args, tmp_path / "a")
+    second = pretrain(args, tmp_path / "b")
+    assert first.sha256 == second.sha256
+    assert (tmp_path / "a" / "weights.json").read_bytes() == (
+        tmp_path / "b" / "weights.json"
+    ).read_bytes()
+    loaded = load_checkpoint(tmp_path / "a", expected_arms=3)
+    assert loaded.config["category"] == "cognition"
+    assert loaded.config["seed"] == 5
+    assert set(loaded.metrics["evaluation"]) >= {"iterations_to_95", "wrong_95", "p_correct"}
+    assert len(loaded.step_sizes) == 3 and loaded.rule == "natural"
+    learner = MetaPolicyLearner.from_checkpoint(tmp_path / "a", expected_arms=3)
+    learner.update(learner.select(np.random.default_rng(0)), 1.0)
+    assert learner.answers == 1
+
+
+def test_bad_arguments_are_refused() -> None:
+    with pytest.raises(ValueError, match="mode"):
+        PretrainArgs(mode="offline").resolved()
+    with pytest.raises(ValueError, match="objective"):
+        PretrainArgs(objective="accuracy").resolved()
+    with pytest.raises(ValueError, match="horizon"):
+        PretrainArgs(horizon=0).resolved()
+    with pytest.raises(ValueError, match="preferred prior"):
+        PretrainArgs(arms=4, preferred_prior=(1.0, 0.0)).resolved()
+
+
+def test_rerun_reproduces_the_shipped_paper_checkpoint(tmp_path: Path) -> None:
+    shipped = PRETRAINED_DIR / "paper" / "conation-k4"
+    if not (shipped / "weights.json").exists():
+        pytest.fail(f"{shipped} does not ship")
+    config = json.loads((shipped / "config.json").read_text())
+    config.pop("torch")
+    config["preferred_prior"] = (
+        None if config["preferred_prior"] is None else tuple(config["preferred_prior"])
+    )
+    config["evaluation_participants"] = 100  # metrics only: the weights' hash is unaffected
+    torch.set_num_threads(1)
+    rerun = pretrain(PretrainArgs(**config), tmp_path / "rerun")
+    assert rerun.sha256 == load_checkpoint(shipped).sha256
