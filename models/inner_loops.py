@@ -265,3 +265,31 @@ def paper_surrogate(rollout: PaperRollout, old: PaperRollout) -> torch.Tensor:
     new_lp = rollout.log_probs[1].gather(-1, old.valid_actions)
     old_lp = old.log_probs[1].gather(-1, old.valid_actions)
     return ((new_lp - old_lp).exp() * old.valid_advantages).mean()
+
+
+def online_surrogate_and_kl(
+    layout: Layout,
+    obs: torch.Tensor,
+    args: PretrainArgs,
+    batch: OnlineBatch,
+    old: Rollout,
+    advantages: torch.Tensor,
+    theta: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Online surrogate and KL at ``theta`` on the old trajectories (for :func:`trpo_step`)."""
+    new = online_rollout(theta, layout, obs, args, batch, actions=old.actions)
+    value = online_surrogate(new, batch, old, advantages, args.objective)
+    return value, mean_kl(new.log_probs, old.log_probs)
+
+
+def paper_surrogate_and_kl(
+    layout: Layout,
+    obs: torch.Tensor,
+    args: PretrainArgs,
+    batch: PaperBatch,
+    old: PaperRollout,
+    theta: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Paper surrogate and KL (pre- and post-adaptation) at ``theta`` on the old pulls."""
+    new = paper_rollout(theta, layout, obs, args, batch, fixed=old)
+    return paper_surrogate(new, old), mean_kl(new.log_probs, old.log_probs)

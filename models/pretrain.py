@@ -43,17 +43,12 @@ import torch
 
 from models.checkpoints import Checkpoint, observation_for, write_checkpoint
 from models.inner_loops import (
-    OnlineBatch,
-    PaperBatch,
-    PaperRollout,
-    Rollout,
-    mean_kl,
     objective_terms,
     online_advantages,
     online_rollout,
-    online_surrogate,
+    online_surrogate_and_kl,
     paper_rollout,
-    paper_surrogate,
+    paper_surrogate_and_kl,
     sample_online_batch,
     sample_paper_batch,
 )
@@ -152,34 +147,6 @@ def _is_better(candidate: dict[str, Any], best: dict[str, Any] | None, limit: fl
     return key < (best["iterations_to_95"], -best["mean_p_correct"])
 
 
-def _online_surrogate(
-    layout: Layout,
-    obs: torch.Tensor,
-    args: PretrainArgs,
-    batch: OnlineBatch,
-    old: Rollout,
-    advantages: torch.Tensor,
-    theta: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Online surrogate and KL at ``theta`` on the old trajectories (for :func:`trpo_step`)."""
-    new = online_rollout(theta, layout, obs, args, batch, actions=old.actions)
-    value = online_surrogate(new, batch, old, advantages, args.objective)
-    return value, mean_kl(new.log_probs, old.log_probs)
-
-
-def _paper_surrogate(
-    layout: Layout,
-    obs: torch.Tensor,
-    args: PretrainArgs,
-    batch: PaperBatch,
-    old: PaperRollout,
-    theta: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Paper surrogate and KL (pre- and post-adaptation) at ``theta`` on the old pulls."""
-    new = paper_rollout(theta, layout, obs, args, batch, fixed=old)
-    return paper_surrogate(new, old), mean_kl(new.log_probs, old.log_probs)
-
-
 def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = None) -> TrainResult:
     """Meta-train from ``args`` (already :meth:`~PretrainArgs.resolved`).
 
@@ -207,7 +174,7 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
                 advantages = online_advantages(f_old)
             objective = float(f_old.mean())
 
-            surrogate = partial(_online_surrogate, layout, obs, args, batch, old, advantages)
+            surrogate = partial(online_surrogate_and_kl, layout, obs, args, batch, old, advantages)
         else:
             paper_batch = sample_paper_batch(args, rng)
             with torch.no_grad():
@@ -215,7 +182,7 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
             objective = float(
                 paper_old.log_probs[1].exp().gather(-1, paper_batch.preferred.unsqueeze(-1)).mean()
             )
-            surrogate = partial(_paper_surrogate, layout, obs, args, paper_batch, paper_old)
+            surrogate = partial(paper_surrogate_and_kl, layout, obs, args, paper_batch, paper_old)
         theta, step = trpo_step(theta, surrogate, args)
         running = objective if math.isnan(running) else 0.9 * running + 0.1 * objective
         result.history.append(

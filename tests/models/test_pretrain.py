@@ -1,10 +1,13 @@
-"""Meta-training: second-order meta-gradients, the TRPO trust region, seeding and reproducibility."""
+"""Meta-training: second-order meta-gradients, the TRPO trust region, seeding, reproducibility."""
 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,13 +15,14 @@ import torch
 
 from models.checkpoints import PRETRAINED_DIR, load_checkpoint, observation_for
 from models.inner_loops import (
-    mean_kl,
     objective_terms,
     online_advantages,
     online_rollout,
     online_surrogate,
+    online_surrogate_and_kl,
     paper_rollout,
     paper_surrogate,
+    paper_surrogate_and_kl,
     sample_online_batch,
     sample_paper_batch,
 )
@@ -28,7 +32,7 @@ from models.meta_torch import DTYPE, apply_step, initial_theta, layout_for
 from models.pretrain import PretrainArgs, pretrain, train
 from models.trpo import conjugate_gradient, trpo_step
 
-TINY = {
+TINY: dict[str, Any] = {
     "hidden": 6,
     "tasks_per_batch": 6,
     "validation_participants": 50,
@@ -132,25 +136,20 @@ def test_conjugate_gradient_solves_a_spd_system() -> None:
 def test_trpo_step_stays_within_max_kl_and_improves(mode: str, max_kl: float) -> None:
     for seed in range(4):
         args, rng, obs, layout, theta = _setup(mode, seed, max_kl=max_kl)
+        surrogate: Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
         if mode == "paper":
             batch = sample_paper_batch(args, rng)
             with torch.no_grad():
                 old = paper_rollout(theta, layout, obs, args, batch)
-
-            def surrogate(th: torch.Tensor, batch=batch, old=old):  # type: ignore[no-untyped-def]
-                new = paper_rollout(th, layout, obs, args, batch, fixed=old)
-                return paper_surrogate(new, old), mean_kl(new.log_probs, old.log_probs)
+            surrogate = partial(paper_surrogate_and_kl, layout, obs, args, batch, old)
         else:
-            batch = sample_online_batch(args, rng)
+            online_batch = sample_online_batch(args, rng)
             with torch.no_grad():
-                old = online_rollout(theta, layout, obs, args, batch)
-                adv = online_advantages(objective_terms(old, batch, args.objective))
-
-            def surrogate(th: torch.Tensor, batch=batch, old=old, adv=adv):  # type: ignore[no-untyped-def]
-                new = online_rollout(th, layout, obs, args, batch, actions=old.actions)
-                value = online_surrogate(new, batch, old, adv, args.objective)
-                return value, mean_kl(new.log_probs, old.log_probs)
-
+                online_old = online_rollout(theta, layout, obs, args, online_batch)
+                adv = online_advantages(objective_terms(online_old, online_batch, args.objective))
+            surrogate = partial(
+                online_surrogate_and_kl, layout, obs, args, online_batch, online_old, adv
+            )
         new_theta, step = trpo_step(theta, surrogate, args)
         with torch.no_grad():
             value_before, _ = surrogate(theta)
