@@ -102,6 +102,16 @@ class Subscription:
             self.lagged = False
         return event
 
+    def drain(self) -> list[Event]:
+        """The events already queued, without waiting (a :data:`RESYNC` among them clears lag)."""
+        events = []
+        with contextlib.suppress(asyncio.QueueEmpty):
+            while True:
+                events.append(self.queue.get_nowait())
+        if RESYNC in events:
+            self.lagged = False
+        return events
+
 
 class EventHub:
     """One process's fan-out of events to its asyncio subscribers, whatever loop they run on."""

@@ -15,6 +15,9 @@ from fastapi.responses import StreamingResponse
 from app.events import EventHub
 
 KEEPALIVE_SECONDS = 15.0
+COALESCE_SECONDS = 0.1
+"""Changes within this window after the first go out as one message: a busy study changes many
+times a second, and a page refetches on each message, so at most ten a second reach it."""
 
 
 def event_stream(hub: EventHub, topics: Iterable[str]) -> StreamingResponse:
@@ -33,7 +36,9 @@ def event_stream(hub: EventHub, topics: Iterable[str]) -> StreamingResponse:
                 except TimeoutError:
                     yield ": keepalive\n\n"
                     continue
-                yield f"event: changed\ndata: {json.dumps({'type': event.type})}\n\n"
+                await asyncio.sleep(COALESCE_SECONDS)
+                types = sorted({event.type, *(later.type for later in subscription.drain())})
+                yield f"event: changed\ndata: {json.dumps({'types': types})}\n\n"
         finally:
             hub.close(subscription)
 

@@ -71,3 +71,23 @@ def test_topics_are_filtered() -> None:
             return subscription.queue.qsize()
 
     assert asyncio.run(scenario()) == 1
+
+
+def test_a_page_stream_sends_one_message_per_burst_of_changes() -> None:
+    from app.web.streams import event_stream
+
+    async def scenario() -> list[str]:
+        hub = EventHub()
+        body = event_stream(hub, ["study:1"]).body_iterator
+        chunks = [await anext(body)]  # the retry hint; the subscription is open now
+        hub.deliver(Event(topic="study:1", type=kind) for kind in ("prompt", "answer", "answer"))
+        chunks.append(await asyncio.wait_for(anext(body), 5))
+        hub.deliver([Event(topic="study:1", type="questionnaire")])
+        chunks.append(await asyncio.wait_for(anext(body), 5))
+        await body.aclose()  # type: ignore[attr-defined]
+        return [str(chunk) for chunk in chunks]
+
+    retry, burst, single = asyncio.run(scenario())
+    assert retry.startswith("retry:")
+    assert burst == 'event: changed\ndata: {"types": ["answer", "prompt"]}\n\n'
+    assert single == 'event: changed\ndata: {"types": ["questionnaire"]}\n\n'

@@ -1,0 +1,279 @@
+"""``trustlab simulate adaptation`` and ``trustlab pretrain``: the adaptation engine from the shell.
+
+The main ``trustlab`` Typer app calls :func:`register`. ``simulate adaptation --json`` prints
+exactly one JSON object (issue 3)::
+
+    {"arms": K, "iterations": T, "participants": N,
+     "learners": {"exp3": {"p_correct": [T + 1 numbers], "iterations_to_95": …,
+                           "reached_95": …, "wrong_95": …},
+                  "meta": {…}, "random_init": {…}, "bayes": {…}}}
+
+With ``--out DIR`` it also writes the CSVs and the HTML page of the paper's figures (a) and (b);
+(b) runs meta, random_init and bayes for every K with a shipped generic checkpoint.
+
+``pretrain`` meta-trains checkpoints into ``OUT/<category>-k<K>/``; ``--category all`` trains the
+three default categories. Bad input prints one line ``error: …`` on stderr and exits with 2.
+torch is imported only inside ``pretrain``: the rest of the command line stays fast to start.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from models.checkpoints import (
+    GENERIC,
+    PRETRAINED_DIR,
+    Checkpoint,
+    available_arms,
+    checkpoint_name,
+    load_checkpoint,
+    shipped_checkpoint,
+)
+from models.learners.exp3 import DEFAULT_EXP3_GAMMA
+from models.simulate import simulate_adaptation
+from models.tasks import TaskDistribution
+
+__all__ = ["DEFAULT_CATEGORIES", "EXIT_BAD_INPUT", "register"]
+
+EXIT_BAD_INPUT = 2
+"""Exit status for unusable input (as for command-line usage errors)."""
+
+DEFAULT_CATEGORIES = ("conation", "affection", "cognition")
+"""The protocol's three categories, trained by ``pretrain --category all``."""
+
+SWEEP_LEARNERS = ("meta", "random_init", "bayes")
+"""The learners of figure (b), as in the paper's Appendix."""
+
+
+def register(cli: typer.Typer) -> None:
+    """Add ``simulate adaptation`` and ``pretrain`` to the ``trustlab`` command line."""
+    simulate = typer.Typer(help="Simulated participants: the engine's objective measures.")
+    simulate.command("adaptation")(simulate_adaptation_command)
+    cli.add_typer(simulate, name="simulate")
+    cli.command("pretrain")(pretrain_command)
+
+
+def _fail(message: str) -> typer.Exit:
+    typer.echo("error: " + " ".join(message.split()), err=True)
+    return typer.Exit(EXIT_BAD_INPUT)
+
+
+def _prior(text: str | None, arms: int) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise _fail(f"--preferred-prior must be comma-separated numbers, got {text!r}") from None
+    if len(values) != arms:
+        raise _fail(f"--preferred-prior needs {arms} numbers (one per question), got {len(values)}")
+    return values
+
+
+def _checkpoint(arms: int, category: str | None, mode: str, path: Path | None) -> Checkpoint:
+    location = path if path is not None else shipped_checkpoint(arms, category, mode)
+    return load_checkpoint(location, expected_arms=arms)
+
+
+def simulate_adaptation_command(
+    arms: Annotated[int, typer.Option("--arms", help="Number of questions K.")] = 4,
+    iterations: Annotated[int, typer.Option("--iterations", help="Answers per participant.")] = 12,
+    participants: Annotated[
+        int, typer.Option("--participants", help="Simulated participants.")
+    ] = 2000,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed (same seed, same run).")] = 0,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Write CSVs and the HTML figures (a), (b) here.")
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    gamma: Annotated[
+        float, typer.Option("--gamma", help="Exp3's exploration rate γ (C1).")
+    ] = DEFAULT_EXP3_GAMMA,
+    category: Annotated[
+        str | None,
+        typer.Option("--category", help="Use this category's checkpoint (generic if unset)."),
+    ] = None,
+    mode: Annotated[
+        str, typer.Option("--mode", help="Shipped checkpoint set: online or paper.")
+    ] = "online",
+    checkpoint: Annotated[
+        Path | None, typer.Option("--checkpoint", help="Use this checkpoint directory instead.")
+    ] = None,
+    preferred_prior: Annotated[
+        str | None,
+        typer.Option("--preferred-prior", help="Comma-separated prior over the preferred question."),
+    ] = None,
+) -> None:
+    """Simulate participants answering Exp3, the meta-policy, its random init and Bayes."""
+    if participants < 1 or iterations < 1:
+        raise _fail("--participants and --iterations must be at least 1")
+    try:
+        tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
+        ckpt = _checkpoint(arms, category, mode, checkpoint)
+        result = simulate_adaptation(
+            tasks,
+            participants=participants,
+            iterations=iterations,
+            seed=seed,
+            checkpoint=ckpt,
+            gamma=gamma,
+        )
+        sweep = _sweep(result, participants, iterations, seed, mode) if out is not None else []
+    except ValueError as error:
+        raise _fail(str(error)) from None
+    if out is not None:
+        from analysis.simulation_figures import write_outputs
+
+        try:
+            write_outputs(out, result, sweep)
+        except OSError as error:
+            raise _fail(f"cannot write to {out}: {error}") from None
+    if as_json:
+        typer.echo(json.dumps(result, allow_nan=False))
+    else:
+        typer.echo(render(result, ckpt))
+
+
+def _sweep(
+    result: dict[str, Any], participants: int, iterations: int, seed: int, mode: str
+) -> list[dict[str, Any]]:
+    """Figure (b)'s simulations: meta, random_init and bayes for every K with a checkpoint."""
+    results = []
+    for k in available_arms(mode):
+        ckpt = load_checkpoint(PRETRAINED_DIR / mode / checkpoint_name(GENERIC, k), k)
+        results.append(
+            simulate_adaptation(
+                TaskDistribution(k),
+                participants=participants,
+                iterations=iterations,
+                seed=seed,
+                checkpoint=ckpt,
+                gamma=DEFAULT_EXP3_GAMMA,
+                learners=SWEEP_LEARNERS,
+            )
+        )
+    if not results:
+        raise ValueError(f"no generic {mode} checkpoints ship, so figure (b) cannot be drawn")
+    return results
+
+
+def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
+    """A readable table of the simulation's figures."""
+    lines = [
+        f"{result['participants']} simulated participants, K = {result['arms']}, "
+        f"{result['iterations']} answers; meta = {checkpoint.path} ({checkpoint.sha256[:12]})",
+        "",
+        f"{'learner':<12} {'answers to 95%':>14} {'reached 95%':>12} {'wrong 95%':>10} "
+        f"{'mean p 1..T':>12}",
+    ]
+    for name, s in result["learners"].items():
+        mean_p = sum(s["p_correct"][1:]) / (len(s["p_correct"]) - 1)
+        lines.append(
+            f"{name:<12} {s['iterations_to_95']:>14.2f} {s['reached_95']:>12.3f} "
+            f"{s['wrong_95']:>10.4f} {mean_p:>12.3f}"
+        )
+    return "\n".join(lines)
+
+
+def pretrain_command(
+    category: Annotated[
+        str,
+        typer.Option("--category", help="Category name, 'generic', or 'all' (the three defaults)."),
+    ] = "all",
+    mode: Annotated[str, typer.Option("--mode", help="online (C2's default) or paper.")] = "online",
+    arms: Annotated[int, typer.Option("--arms", help="Number of questions K.")] = 4,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Parent directory; default models/pretrained/<mode>."),
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed (same seed, same file).")] = 0,
+    objective: Annotated[
+        str, typer.Option("--objective", help="online: log_score (default) or reward.")
+    ] = "log_score",
+    meta_batches: Annotated[
+        int | None, typer.Option("--meta-batches", help="Outer steps (online 150, paper 200).")
+    ] = None,
+    tasks_per_batch: Annotated[
+        int | None, typer.Option("--tasks-per-batch", help="Tasks per step (online 200, paper 40).")
+    ] = None,
+    horizon: Annotated[int, typer.Option("--horizon", help="online: answers per task.")] = 12,
+    preferred_prior: Annotated[
+        str | None,
+        typer.Option("--preferred-prior", help="Comma-separated prior over the preferred question."),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+) -> None:
+    """Meta-train checkpoints (MAML with a TRPO outer step) and write them with their hash."""
+    from models.pretrain import PretrainArgs
+
+    names = list(DEFAULT_CATEGORIES) if category == "all" else [category]
+    root = out if out is not None else PRETRAINED_DIR / mode
+    try:
+        jobs = [
+            PretrainArgs(
+                category=name,
+                arms=arms,
+                mode=mode,
+                seed=seed,
+                objective=objective,
+                meta_batches=meta_batches,
+                tasks_per_batch=tasks_per_batch,
+                horizon=horizon,
+                preferred_prior=_prior(preferred_prior, arms),
+            ).resolved()
+            for name in names
+        ]
+    except ValueError as error:
+        raise _fail(str(error)) from None
+    written = []
+    for args in jobs:
+        target = root / checkpoint_name(args.category, args.arms)
+        try:
+            checkpoint = _train_with_progress(args, target, show=not as_json)
+        except (ValueError, OSError) as error:
+            raise _fail(str(error)) from None
+        evaluation = checkpoint.metrics["evaluation"]
+        written.append(
+            {
+                "path": str(checkpoint.path),
+                "sha256": checkpoint.sha256,
+                "train_seconds": checkpoint.metrics["train_seconds"],
+                "iterations_to_95": evaluation["iterations_to_95"],
+                "reached_95": evaluation["reached_95"],
+                "wrong_95": evaluation["wrong_95"],
+                "mean_p_correct": evaluation["mean_p_correct"],
+            }
+        )
+        if not as_json:
+            typer.echo(
+                f"{checkpoint.path}: sha256 {checkpoint.sha256[:12]}…, "
+                f"{checkpoint.metrics['train_seconds']:.1f} s; deployed: "
+                f"{evaluation['iterations_to_95']:.2f} answers to 95 %, "
+                f"wrong {evaluation['wrong_95']:.4f}"
+            )
+    if as_json:
+        typer.echo(json.dumps({"checkpoints": written}, allow_nan=False))
+
+
+def _train_with_progress(args: Any, target: Path, *, show: bool) -> Checkpoint:
+    """Run :func:`models.pretrain.pretrain` under a tqdm bar showing the running objective."""
+    from tqdm import tqdm
+
+    from models.pretrain import pretrain
+
+    with tqdm(
+        total=args.meta_batches,
+        desc=f"{args.mode} {args.category} K={args.arms}",
+        disable=not show,
+        leave=False,
+    ) as bar:
+
+        def progress(iteration: int, running: float) -> None:
+            bar.update(1)
+            bar.set_postfix(objective=f"{running:.4f}")
+
+        return pretrain(args, target, progress)
