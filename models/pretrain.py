@@ -69,6 +69,7 @@ class TrainResult:
     layout: Layout
     history: list[dict[str, float]] = field(default_factory=list)
     selected_iteration: int = 0
+    validations: list[dict[str, float]] = field(default_factory=list)
     validation: dict[str, Any] = field(default_factory=dict)
 
 
@@ -200,6 +201,12 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
         ):
             figures = evaluate(theta, layout, args, args.validation_participants, validation_seed)
             figures["iteration"] = iteration
+            result.validations.append(
+                {
+                    key: figures[key]
+                    for key in ("iteration", "iterations_to_95", "wrong_95", "mean_p_correct")
+                }
+            )
             if _is_better(figures, best, args.wrong_limit):
                 best = figures
                 result.theta = theta.clone()
@@ -221,12 +228,19 @@ def pretrain(
 
     metrics.json holds the training wall time, the selected iteration, the objective history and
     the deployed learner's figures on ``evaluation_participants`` fresh simulated participants.
+    Training runs on one thread: a different thread count changes the order of floating-point
+    sums, and with it the weights' hash.
     """
     args = args.resolved()
     torch.manual_seed(args.seed)
-    start = time.perf_counter()
-    result = train(args, progress)
-    seconds = time.perf_counter() - start
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        start = time.perf_counter()
+        result = train(args, progress)
+        seconds = time.perf_counter() - start
+    finally:
+        torch.set_num_threads(threads)
     values = checkpoint_values(result.theta, result.layout, args)
     evaluation = evaluate(
         result.theta, result.layout, args, args.evaluation_participants, args.seed + 20_000
@@ -236,6 +250,7 @@ def pretrain(
     metrics = {
         "train_seconds": round(seconds, 3),
         "selected_iteration": result.selected_iteration,
+        "validations": result.validations,
         "validation": result.validation,
         "evaluation": evaluation,
         "objective_history": [round(h["objective"], 6) for h in result.history],

@@ -65,7 +65,7 @@ class PretrainArgs:
     """``online``: starting value of the meta-learned damping λ."""
     validate_every: int = 10
     """``online``: meta-batches between validations (model selection)."""
-    validation_participants: int = 2000
+    validation_participants: int = 10000
     """Simulated participants per validation."""
     wrong_limit: float = WRONG_LIMIT
     """Model selection: the largest acceptable validation ``wrong_95``."""

@@ -74,8 +74,10 @@ def _prior(text: str | None, arms: int) -> tuple[float, ...] | None:
     return values
 
 
-def _checkpoint(arms: int, category: str | None, mode: str, path: Path | None) -> Checkpoint:
-    location = path if path is not None else shipped_checkpoint(arms, category, mode)
+def _checkpoint(
+    arms: int, category: str | None, mode: str, path: Path | None, directory: Path | None
+) -> Checkpoint:
+    location = path if path is not None else shipped_checkpoint(arms, category, mode, directory)
     return load_checkpoint(location, expected_arms=arms)
 
 
@@ -105,7 +107,13 @@ def simulate_adaptation_command(
     ] = None,
     preferred_prior: Annotated[
         str | None,
-        typer.Option("--preferred-prior", help="Comma-separated prior over the preferred question."),
+        typer.Option(
+            "--preferred-prior", help="Comma-separated prior over the preferred question."
+        ),
+    ] = None,
+    checkpoint_dir: Annotated[
+        Path | None,
+        typer.Option("--checkpoint-dir", help="A retrained set (<mode>/<name>-k<K>/) to use."),
     ] = None,
 ) -> None:
     """Simulate participants answering Exp3, the meta-policy, its random init and Bayes."""
@@ -113,7 +121,7 @@ def simulate_adaptation_command(
         raise _fail("--participants and --iterations must be at least 1")
     try:
         tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
-        ckpt = _checkpoint(arms, category, mode, checkpoint)
+        ckpt = _checkpoint(arms, category, mode, checkpoint, checkpoint_dir)
         result = simulate_adaptation(
             tasks,
             participants=participants,
@@ -122,7 +130,9 @@ def simulate_adaptation_command(
             checkpoint=ckpt,
             gamma=gamma,
         )
-        sweep = _sweep(result, participants, iterations, seed, mode) if out is not None else []
+        sweep = []
+        if out is not None:
+            sweep = _sweep(participants, iterations, seed, mode, checkpoint_dir)
     except ValueError as error:
         raise _fail(str(error)) from None
     if out is not None:
@@ -139,12 +149,13 @@ def simulate_adaptation_command(
 
 
 def _sweep(
-    result: dict[str, Any], participants: int, iterations: int, seed: int, mode: str
+    participants: int, iterations: int, seed: int, mode: str, directory: Path | None
 ) -> list[dict[str, Any]]:
     """Figure (b)'s simulations: meta, random_init and bayes for every K with a checkpoint."""
     results = []
-    for k in available_arms(mode):
-        ckpt = load_checkpoint(PRETRAINED_DIR / mode / checkpoint_name(GENERIC, k), k)
+    root = PRETRAINED_DIR if directory is None else directory
+    for k in available_arms(mode, directory):
+        ckpt = load_checkpoint(root / mode / checkpoint_name(GENERIC, k), k)
         results.append(
             simulate_adaptation(
                 TaskDistribution(k),
@@ -203,7 +214,9 @@ def pretrain_command(
     horizon: Annotated[int, typer.Option("--horizon", help="online: answers per task.")] = 12,
     preferred_prior: Annotated[
         str | None,
-        typer.Option("--preferred-prior", help="Comma-separated prior over the preferred question."),
+        typer.Option(
+            "--preferred-prior", help="Comma-separated prior over the preferred question."
+        ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:

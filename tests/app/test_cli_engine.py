@@ -1,0 +1,191 @@
+"""``trustlab simulate adaptation`` and ``trustlab pretrain``: JSON contract, files, errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import typer
+from typer.testing import CliRunner, Result
+
+from app.cli.engine import EXIT_BAD_INPUT, register
+from models.checkpoints import load_checkpoint
+from tests.models.conftest import make_checkpoint
+
+
+@pytest.fixture(scope="module")
+def cli() -> typer.Typer:
+    app = typer.Typer()
+
+    @app.callback()
+    def main() -> None:
+        """Stand-in for the trustlab app, which has many commands."""
+
+    register(app)
+    return app
+
+
+@pytest.fixture
+def checkpoints(tmp_path: Path) -> Path:
+    """A retrained set: generic online checkpoints for K = 3 and 4."""
+    make_checkpoint(tmp_path / "online" / "generic-k3", n_arms=3)
+    make_checkpoint(tmp_path / "online" / "generic-k4", n_arms=4)
+    return tmp_path
+
+
+def run(cli: typer.Typer, *args: str) -> Result:
+    return CliRunner().invoke(cli, list(args))
+
+
+def one_json(result: Result) -> dict[str, Any]:
+    assert result.exit_code == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 1
+    return json.loads(lines[0])
+
+
+def test_simulate_json_contract(cli: typer.Typer, checkpoints: Path) -> None:
+    out = one_json(
+        run(
+            cli,
+            "simulate",
+            "adaptation",
+            "--arms",
+            "3",
+            "--iterations",
+            "5",
+            "--participants",
+            "40",
+            "--seed",
+            "1",
+            "--json",
+            "--checkpoint-dir",
+            str(checkpoints),
+        )
+    )
+    assert set(out) == {"arms", "iterations", "participants", "learners"}
+    assert (out["arms"], out["iterations"], out["participants"]) == (3, 5, 40)
+    assert list(out["learners"]) == ["exp3", "meta", "random_init", "bayes"]
+    for summary in out["learners"].values():
+        assert set(summary) == {"p_correct", "iterations_to_95", "reached_95", "wrong_95"}
+        assert len(summary["p_correct"]) == 6
+        assert 0 <= summary["iterations_to_95"] <= 6
+    again = one_json(
+        run(
+            cli,
+            "simulate",
+            "adaptation",
+            "--arms",
+            "3",
+            "--iterations",
+            "5",
+            "--participants",
+            "40",
+            "--seed",
+            "1",
+            "--json",
+            "--checkpoint-dir",
+            str(checkpoints),
+        )
+    )
+    assert again == out
+
+
+def test_simulate_out_writes_both_figures(
+    cli: typer.Typer, checkpoints: Path, tmp_path: Path
+) -> None:
+    result = run(
+        cli,
+        "simulate",
+        "adaptation",
+        "--arms",
+        "4",
+        "--participants",
+        "30",
+        "--out",
+        str(tmp_path / "figs"),
+        "--checkpoint-dir",
+        str(checkpoints),
+    )
+    assert result.exit_code == 0, result.stderr
+    assert "answers to 95%" in result.stdout
+    names = sorted(p.name for p in (tmp_path / "figs").iterdir())
+    assert names == ["adaptation_curves.csv", "iterations_by_arms.csv", "simulation.html"]
+    sweep = (tmp_path / "figs" / "iterations_by_arms.csv").read_text()
+    assert "random_init" in sweep and "\n3," in sweep and "\n4," in sweep
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--arms", "7"], "no online meta-policy checkpoint for 7 questions"),
+        (["--participants", "0"], "at least 1"),
+        (["--gamma", "0"], "gamma"),
+        (["--preferred-prior", "1,2"], "needs 4 numbers"),
+        (["--checkpoint", "/nonexistent"], "does not exist"),
+    ],
+)
+def test_simulate_bad_input_is_one_line(
+    cli: typer.Typer, checkpoints: Path, args: list[str], message: str
+) -> None:
+    result = run(cli, "simulate", "adaptation", "--checkpoint-dir", str(checkpoints), *args)
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert result.stderr.startswith("error: ") and message in result.stderr
+    assert len(result.stderr.splitlines()) == 1
+
+
+def test_simulate_refuses_a_tampered_checkpoint(cli: typer.Typer, checkpoints: Path) -> None:
+    weights = checkpoints / "online" / "generic-k4" / "weights.json"
+    weights.write_text(weights.read_text().replace('"damping":0.05', '"damping":0.5'))
+    result = run(cli, "simulate", "adaptation", "--checkpoint-dir", str(checkpoints))
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert str(weights) in result.stderr
+
+
+def test_pretrain_tiny_run_writes_checkpoints(cli: typer.Typer, tmp_path: Path) -> None:
+    out = one_json(
+        run(
+            cli,
+            "pretrain",
+            "--category",
+            "affection",
+            "--mode",
+            "paper",
+            "--arms",
+            "3",
+            "--meta-batches",
+            "2",
+            "--tasks-per-batch",
+            "4",
+            "--out",
+            str(tmp_path),
+            "--seed",
+            "3",
+            "--json",
+        )
+    )
+    (entry,) = out["checkpoints"]
+    assert entry["path"] == str(tmp_path / "affection-k3")
+    checkpoint = load_checkpoint(tmp_path / "affection-k3", expected_arms=3)
+    assert checkpoint.sha256 == entry["sha256"]
+    assert checkpoint.mode == "paper" and checkpoint.rule == "gradient"
+    assert checkpoint.config["seed"] == 3
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--mode", "offline"], "mode"),
+        (["--objective", "accuracy"], "objective"),
+        (["--arms", "1"], "arms"),
+        (["--preferred-prior", "a,b,c,d"], "comma-separated"),
+    ],
+)
+def test_pretrain_bad_input_is_one_line(
+    cli: typer.Typer, tmp_path: Path, args: list[str], message: str
+) -> None:
+    result = run(cli, "pretrain", "--out", str(tmp_path), *args)
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert result.stderr.startswith("error: ") and message in result.stderr

@@ -1,0 +1,113 @@
+"""Simulations: batch learners equal the deployed classes; the summary figures; seeding."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from models.checkpoints import Checkpoint
+from models.learners.bayes import BayesLearner
+from models.learners.exp3 import Exp3
+from models.learners.meta_policy import MetaPolicyLearner
+from models.simulate import (
+    BatchBayes,
+    BatchExp3,
+    BatchMetaPolicy,
+    Trajectories,
+    random_init_params,
+    sample_actions,
+    simulate_adaptation,
+    simulate_learner,
+    summarise,
+)
+from models.tasks import TaskDistribution
+
+
+def _feed(batch, singles, rng: np.random.Generator) -> None:  # type: ignore[no-untyped-def]
+    """Feed the same answers to the batch learner and to one class instance per row."""
+    for _ in range(6):
+        actions = rng.integers(0, 4, size=len(singles))
+        rewards = rng.normal(0.4, 0.6, size=len(singles))
+        batch.update(actions, rewards)
+        for i, single in enumerate(singles):
+            single.update(int(actions[i]), float(rewards[i]))
+        expected = np.stack([s.probabilities() for s in singles])
+        np.testing.assert_allclose(batch.probabilities(), expected, rtol=1e-10, atol=1e-13)
+
+
+def test_batch_exp3_equals_exp3() -> None:
+    _feed(BatchExp3(3, 4, 0.3), [Exp3(4, gamma=0.3) for _ in range(3)], np.random.default_rng(0))
+
+
+def test_batch_bayes_equals_bayes() -> None:
+    tasks = TaskDistribution(4, preferred_prior=(0.1, 0.2, 0.3, 0.4))
+    _feed(BatchBayes(3, tasks), [BayesLearner(tasks) for _ in range(3)], np.random.default_rng(1))
+
+
+def test_batch_meta_policy_equals_the_learner(checkpoint: Checkpoint) -> None:
+    singles = [MetaPolicyLearner(checkpoint) for _ in range(3)]
+    _feed(BatchMetaPolicy(checkpoint), singles, np.random.default_rng(2))
+    params = random_init_params(checkpoint, 3, np.random.default_rng(5))
+    rng = np.random.default_rng(5)
+    randoms = [MetaPolicyLearner.random_init(checkpoint, rng) for _ in range(3)]
+    _feed(BatchMetaPolicy(checkpoint, params), randoms, np.random.default_rng(3))
+
+
+def test_sample_actions_follows_the_probabilities() -> None:
+    probs = np.tile([0.1, 0.6, 0.3], (60_000, 1))
+    counts = np.bincount(sample_actions(probs, np.random.default_rng(0)), minlength=3) / 60_000
+    np.testing.assert_allclose(counts, [0.1, 0.6, 0.3], atol=0.01)
+
+
+def test_summary_by_hand() -> None:
+    # Participant 0 reaches .95 after 2 answers; 1 never (counts as T + 1 = 4); 2 at once (0)
+    # and participant 1 has another question reach .95: wrong_95 = 1/3.
+    p = np.array([[0.3, 0.6, 0.96, 0.99], [0.3, 0.2, 0.1, 0.01], [0.95, 0.97, 0.98, 0.99]])
+    other = np.array([[0.3, 0.2, 0.02, 0.0], [0.3, 0.5, 0.9, 0.96], [0.01, 0.01, 0.0, 0.0]])
+    summary = summarise(Trajectories(np.zeros(3, dtype=int), p, other))
+    assert summary["iterations_to_95"] == pytest.approx((2 + 4 + 0) / 3)
+    assert summary["reached_95"] == pytest.approx(2 / 3)
+    assert summary["wrong_95"] == pytest.approx(1 / 3)
+    assert summary["p_correct"] == pytest.approx(p.mean(axis=0).tolist())
+
+
+def test_same_seed_same_run_and_learners_see_the_same_participants(
+    checkpoint: Checkpoint,
+) -> None:
+    tasks = TaskDistribution(4)
+    args: dict[str, Any] = {
+        "participants": 300,
+        "iterations": 5,
+        "seed": 9,
+        "checkpoint": checkpoint,
+        "gamma": 0.5,
+    }
+    assert simulate_adaptation(tasks, **args) == simulate_adaptation(tasks, **args)
+    assert simulate_adaptation(tasks, **{**args, "seed": 10}) != simulate_adaptation(tasks, **args)
+    a = simulate_learner("exp3", tasks, participants=50, iterations=3, seed=1, gamma=0.5)
+    b = simulate_learner("bayes", tasks, participants=50, iterations=3, seed=1)
+    assert np.array_equal(a.preferred, b.preferred)
+
+
+def test_bayes_learns_and_exp3_at_half_gamma_never_reaches_95() -> None:
+    tasks = TaskDistribution(4)
+    bayes = summarise(simulate_learner("bayes", tasks, participants=2000, iterations=12, seed=0))
+    exp3 = summarise(
+        simulate_learner("exp3", tasks, participants=2000, iterations=12, seed=0, gamma=0.5)
+    )
+    assert bayes["reached_95"] > 0.97
+    assert bayes["p_correct"][12] > 0.95
+    assert exp3["reached_95"] == 0.0
+    assert max(exp3["p_correct"]) <= 0.625 + 1e-12  # (1 − γ) + γ/K at γ = .5, K = 4
+
+
+def test_bad_arguments_are_refused(checkpoint: Checkpoint) -> None:
+    tasks = TaskDistribution(3)
+    with pytest.raises(ValueError, match="unknown learner"):
+        simulate_learner("ucb", tasks, participants=5, iterations=2, seed=0)
+    with pytest.raises(ValueError, match="4 questions"):
+        simulate_learner("meta", tasks, participants=5, iterations=2, seed=0, checkpoint=checkpoint)
+    with pytest.raises(ValueError, match="at least 1"):
+        simulate_learner("bayes", tasks, participants=0, iterations=2, seed=0)
