@@ -68,7 +68,7 @@ def online_rollout(
     """
     p = layout.unflatten(theta)
     net = {name: p[name] for name in PARAM_NAMES}
-    damping = p["log_damping"].exp().squeeze()
+    damping = p["log_damping"].exp().squeeze() if "log_damping" in p else None
     sigma = math.sqrt(args.variance)
     n_arms = args.arms
     arange = torch.arange(n_arms)

@@ -102,6 +102,8 @@ def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
         shapes.update(
             {"log_step": (args.horizon,), "log_damping": (1,), "baseline": (args.horizon,)}
         )
+        if args.online_rule == "gradient":
+            del shapes["log_damping"]
     return Layout(shapes)
 
 
@@ -111,7 +113,8 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
     values: dict[str, np.ndarray] = dict(init_params(rng, obs_dim, args.hidden, args.arms))
     if args.mode == "online":
         values["log_step"] = np.full(args.horizon, math.log(args.init_step_size))
-        values["log_damping"] = np.array([math.log(args.init_damping)])
+        if args.online_rule == "natural":
+            values["log_damping"] = np.array([math.log(args.init_damping)])
         # The expected reward of an answer to a uniformly chosen question.
         tasks = args.tasks
         first = (tasks.mu_preferred + (args.arms - 1) * tasks.mu_other) / args.arms

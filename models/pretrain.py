@@ -85,10 +85,10 @@ def checkpoint_values(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -
     if args.mode == "online":
         return {
             "params": params,
-            "rule": "natural",
+            "rule": args.online_rule,
             "step_sizes": np.exp(values["log_step"]),
             "baselines": values["baseline"],
-            "damping": float(np.exp(values["log_damping"][0])),
+            "damping": float(np.exp(values["log_damping"][0])) if "log_damping" in values else 1.0,
         }
     obs = observation_for(args.category)
     from models.learners.mlp_policy import probabilities

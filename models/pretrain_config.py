@@ -31,6 +31,8 @@ class PretrainArgs:
     """Seeds every random draw (initialisation, tasks, actions, rewards, validation)."""
     objective: str = "log_score"
     """``online`` only: ``log_score`` (log π(preferred) after each answer) or ``reward``."""
+    online_rule: str = "natural"
+    """``online`` only: the one-answer update, ``natural`` (deployed) or ``gradient`` (plain)."""
     preferred_prior: tuple[float, ...] | None = None
     """Prior over which question is preferred (uniform when unset)."""
     variance: float = DEFAULT_VARIANCE
@@ -78,6 +80,10 @@ class PretrainArgs:
             raise ValueError(f"mode must be 'online' or 'paper', not {self.mode!r}")
         if self.objective not in ("log_score", "reward"):
             raise ValueError(f"objective must be 'log_score' or 'reward', not {self.objective!r}")
+        if self.online_rule not in ("natural", "gradient"):
+            raise ValueError(
+                f"online_rule must be 'natural' or 'gradient', not {self.online_rule!r}"
+            )
         if self.arms < 2 or self.arms > 64:
             raise ValueError(f"arms must be between 2 and 64, got {self.arms}")
         prior = check_prior(self.preferred_prior, self.arms)

@@ -215,3 +215,14 @@ def test_rerun_reproduces_the_shipped_paper_checkpoint(tmp_path: Path) -> None:
     torch.set_num_threads(1)
     rerun = pretrain(PretrainArgs(**config), tmp_path / "rerun")
     assert rerun.sha256 == load_checkpoint(shipped).sha256
+
+
+def test_plain_gradient_variant_trains_without_damping(tmp_path: Path) -> None:
+    args = PretrainArgs(
+        mode="online", arms=3, horizon=2, meta_batches=2, online_rule="gradient", **TINY
+    )
+    checkpoint = pretrain(args, tmp_path / "plain")
+    assert checkpoint.rule == "gradient"
+    assert "log_damping" not in layout_for(args.resolved(), 8).shapes
+    with pytest.raises(ValueError, match="online_rule"):
+        PretrainArgs(online_rule="newton").resolved()
