@@ -65,7 +65,7 @@ class PretrainArgs:
     """``online``: starting value of every meta-learned step size."""
     init_damping: float = 0.1
     """``online``: starting value of the meta-learned damping λ."""
-    validate_every: int = 10
+    validate_every: int = 5
     """``online``: meta-batches between validations (model selection)."""
     validation_participants: int = 10000
     """Simulated participants per validation."""

@@ -191,16 +191,19 @@ def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
 
 
 def pretrain_command(
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Parent directory: writes OUT/<category>-k<K>/ (e.g. models/pretrained/online).",
+        ),
+    ],
     category: Annotated[
         str,
         typer.Option("--category", help="Category name, 'generic', or 'all' (the three defaults)."),
     ] = "all",
     mode: Annotated[str, typer.Option("--mode", help="online (C2's default) or paper.")] = "online",
     arms: Annotated[int, typer.Option("--arms", help="Number of questions K.")] = 4,
-    out: Annotated[
-        Path | None,
-        typer.Option("--out", help="Parent directory; default models/pretrained/<mode>."),
-    ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Random seed (same seed, same file).")] = 0,
     objective: Annotated[
         str, typer.Option("--objective", help="online: log_score (default) or reward.")
@@ -212,6 +215,12 @@ def pretrain_command(
         int | None, typer.Option("--tasks-per-batch", help="Tasks per step (online 200, paper 40).")
     ] = None,
     horizon: Annotated[int, typer.Option("--horizon", help="online: answers per task.")] = 12,
+    validate_every: Annotated[
+        int, typer.Option("--validate-every", help="online: meta-batches between validations.")
+    ] = 5,
+    online_rule: Annotated[
+        str, typer.Option("--online-rule", help="online: natural (deployed) or gradient.")
+    ] = "natural",
     preferred_prior: Annotated[
         str | None,
         typer.Option(
@@ -224,7 +233,7 @@ def pretrain_command(
     from models.pretrain import PretrainArgs
 
     names = list(DEFAULT_CATEGORIES) if category == "all" else [category]
-    root = out if out is not None else PRETRAINED_DIR / mode
+    root = out
     try:
         jobs = [
             PretrainArgs(
@@ -236,6 +245,8 @@ def pretrain_command(
                 meta_batches=meta_batches,
                 tasks_per_batch=tasks_per_batch,
                 horizon=horizon,
+                validate_every=validate_every,
+                online_rule=online_rule,
                 preferred_prior=_prior(preferred_prior, arms),
             ).resolved()
             for name in names
