@@ -8,9 +8,9 @@ Two inner loops (issue 3):
     adapting policy. Meta-learned: the network's starting weights and, per answer, the step size,
     the reward baseline, plus the damping. The default objective is the *log score* of the
     learner's belief — ``log π_t(preferred)`` after each answer, averaged — because maximising the
-    expected reward (the issue's wording, ``objective="reward"``) made C2 overconfident: it
-    committed after one lucky answer and was confidently wrong for 4.5 % of simulated
-    participants (docs/engine.md, "Deviations").
+    expected reward (the issue's wording, ``objective="reward"``) made C2 overconfident: the
+    first implementation measured it confidently wrong for 4.5 % of simulated participants
+    (docs/engine.md, "Deviations"; ``bench/variants.py`` re-measures it).
 ``paper``
     The paper's configuration: one plain policy-gradient inner step (fast lr 0.5) on 20 pulls per
     task with discounted (0.95), baselined and normalised advantages, 200 meta-batches × 40 tasks.
@@ -52,7 +52,7 @@ from models.inner_loops import (
     sample_online_batch,
     sample_paper_batch,
 )
-from models.learners.mlp_policy import PARAM_NAMES
+from models.learners.mlp_policy import PARAM_NAMES, probabilities
 from models.meta_torch import DTYPE, Layout, initial_theta, layout_for
 from models.pretrain_config import PretrainArgs
 from models.simulate import mean_p_correct, simulate_learner, summarise
@@ -91,8 +91,6 @@ def checkpoint_values(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -
             "damping": float(np.exp(values["log_damping"][0])) if "log_damping" in values else 1.0,
         }
     obs = observation_for(args.category)
-    from models.learners.mlp_policy import probabilities
-
     first = float(probabilities(params, obs) @ args.tasks.prior)
     return {
         "params": params,
