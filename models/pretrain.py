@@ -162,6 +162,8 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
     theta = initial_theta(args, layout, rng)
     result = TrainResult(theta, layout)
     best: dict[str, Any] | None = None
+    fallback: dict[str, Any] | None = None  # the least often wrong, if none is within the limit
+    fallback_theta = theta
     running = math.nan
     validation_seed = args.seed + 10_000
     for iteration in range(1, args.meta_batches + 1):
@@ -169,7 +171,7 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
             batch = sample_online_batch(args, rng)
             with torch.no_grad():
                 old = online_rollout(theta, layout, obs, args, batch)
-                f_old = objective_terms(old, batch, args.objective)
+                f_old = objective_terms(old, batch, args.objective, args.wrong_penalty)
                 advantages = online_advantages(f_old)
             objective = float(f_old.mean())
 
@@ -205,14 +207,23 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
                     for key in ("iteration", "iterations_to_95", "wrong_95", "mean_p_correct")
                 }
             )
+            if fallback is None or (figures["wrong_95"], figures["iterations_to_95"]) < (
+                fallback["wrong_95"],
+                fallback["iterations_to_95"],
+            ):
+                fallback, fallback_theta = figures, theta.clone()
             if _is_better(figures, best, args.wrong_limit):
                 best = figures
                 result.theta = theta.clone()
                 result.selected_iteration = iteration
-    if args.mode == "paper" or best is None:
+    if args.mode == "paper":
         result.theta = theta.clone()
         result.selected_iteration = args.meta_batches
-    else:
+    elif best is None and fallback is not None:
+        result.theta = fallback_theta
+        result.selected_iteration = int(fallback["iteration"])
+        result.validation = fallback
+    elif best is not None:
         result.validation = best
     return result
 

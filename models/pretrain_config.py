@@ -31,6 +31,8 @@ class PretrainArgs:
     """Seeds every random draw (initialisation, tasks, actions, rewards, validation)."""
     objective: str = "log_score"
     """``online`` only: ``log_score`` (log π(preferred) after each answer) or ``reward``."""
+    wrong_penalty: float = 0.0
+    """``online``, ``log_score`` only: weight of ``log(1 − max wrong π)`` in the objective."""
     online_rule: str = "natural"
     """``online`` only: the one-answer update, ``natural`` (deployed) or ``gradient`` (plain)."""
     preferred_prior: tuple[float, ...] | None = None
@@ -116,6 +118,10 @@ class PretrainArgs:
                 raise ValueError(f"{name} must be positive, got {value!r}")
         if not 0 < args.ls_backtrack < 1 or not 0 < args.discount <= 1:
             raise ValueError("ls_backtrack must be in (0, 1) and discount in (0, 1]")
+        if args.wrong_penalty < 0 or not math.isfinite(args.wrong_penalty):
+            raise ValueError(
+                f"wrong_penalty must be a non-negative number, got {args.wrong_penalty}"
+            )
         if args.cg_damping < 0:
             raise ValueError("cg_damping must not be negative")
         return args

@@ -221,6 +221,10 @@ def pretrain_command(
     online_rule: Annotated[
         str, typer.Option("--online-rule", help="online: natural (deployed) or gradient.")
     ] = "natural",
+    wrong_penalty: Annotated[
+        float,
+        typer.Option("--wrong-penalty", help="online log_score: weight of log(1 − max wrong p)."),
+    ] = 0.0,
     preferred_prior: Annotated[
         str | None,
         typer.Option(
@@ -247,6 +251,7 @@ def pretrain_command(
                 horizon=horizon,
                 validate_every=validate_every,
                 online_rule=online_rule,
+                wrong_penalty=wrong_penalty,
                 preferred_prior=_prior(preferred_prior, arms),
             ).resolved()
             for name in names

@@ -226,3 +226,33 @@ def test_plain_gradient_variant_trains_without_damping(tmp_path: Path) -> None:
     assert "log_damping" not in layout_for(args.resolved(), 8).shapes
     with pytest.raises(ValueError, match="online_rule"):
         PretrainArgs(online_rule="newton").resolved()
+
+
+def test_wrong_penalty_adds_log_of_the_doubt_about_wrong_questions() -> None:
+    from models.inner_loops import OnlineBatch, Rollout
+
+    log_probs = [torch.log(torch.tensor([[0.2, 0.5, 0.3]], dtype=DTYPE))] * 2
+    rollout = Rollout(log_probs, torch.zeros((1, 1), dtype=torch.long))
+    batch = OnlineBatch(torch.tensor([2]), torch.zeros((1, 1)), torch.zeros((1, 1)))
+    plain = objective_terms(rollout, batch, "log_score")
+    penalised = objective_terms(rollout, batch, "log_score", wrong_penalty=2.0)
+    assert float(plain[0, 0]) == pytest.approx(np.log(0.3))
+    assert float(penalised[0, 0]) == pytest.approx(np.log(0.3) + 2.0 * np.log(1 - 0.5))
+    with pytest.raises(ValueError, match="wrong_penalty"):
+        PretrainArgs(wrong_penalty=-1.0).resolved()
+
+
+def test_selection_falls_back_to_the_least_often_wrong_validation() -> None:
+    args = PretrainArgs(
+        mode="online",
+        arms=3,
+        horizon=3,
+        meta_batches=4,
+        wrong_limit=-1.0,
+        **{**TINY, "validation_participants": 400},
+    ).resolved()
+    result = train(args)
+    assert len(result.validations) == 2
+    best = min(result.validations, key=lambda v: (v["wrong_95"], v["iterations_to_95"]))
+    assert result.selected_iteration == best["iteration"]
+    assert result.validation["wrong_95"] == best["wrong_95"]
