@@ -242,7 +242,7 @@ def test_wrong_penalty_adds_log_of_the_doubt_about_wrong_questions() -> None:
         PretrainArgs(wrong_penalty=-1.0).resolved()
 
 
-def test_selection_falls_back_to_the_least_often_wrong_validation() -> None:
+def test_selection_falls_back_to_the_best_penalised_validation() -> None:
     args = PretrainArgs(
         mode="online",
         arms=3,
@@ -253,6 +253,8 @@ def test_selection_falls_back_to_the_least_often_wrong_validation() -> None:
     ).resolved()
     result = train(args)
     assert len(result.validations) == 2
-    best = min(result.validations, key=lambda v: (v["wrong_95"], v["iterations_to_95"]))
+    best = min(
+        result.validations, key=lambda v: v["iterations_to_95"] + 100 * (v["wrong_95"] + 1.0)
+    )
     assert result.selected_iteration == best["iteration"]
     assert result.validation["wrong_95"] == best["wrong_95"]
