@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from app.cli import admin, analysis, exports, robot, runtime
+from app.cli import admin, analysis, engine, exports, robot, runtime
 from app.cli.errors import ErrorsAsMessages
 
 cli = typer.Typer(
@@ -24,6 +24,7 @@ runtime.register(cli)
 robot.register(cli)
 analysis.register(cli)
 exports.register(cli)
+engine.register(cli)
 
 
 def main() -> None:

@@ -452,11 +452,22 @@ class PromptResult:
     run_number: int
 
 
+def _refuse_withdrawn(ctx: Context) -> None:
+    """A withdrawn participant's learners never change again (an acknowledged answer still
+    replays: that happened before the withdrawal)."""
+    if ctx.participant.status == ParticipantStatus.WITHDRAWN:
+        raise Conflict(
+            f"{ctx.participant.code} has withdrawn: no more prompts or answers; "
+            "seat another participant at this station"
+        )
+
+
 def request_prompt(
     db: Session, *, station_name: str, category: str, actor: Actor, device_id: int | None = None
 ) -> PromptResult:
     """Choose the question for ``category`` with the participant's learner; commits."""
     ctx = _context(db, station_name)
+    _refuse_withdrawn(ctx)
     index = _category_index(ctx, category)
     session = _running_session(db, ctx)
     run = ctx.run
@@ -585,6 +596,7 @@ def record_answer(
         )
         db.rollback()
         return result
+    _refuse_withdrawn(ctx)
     if run.status != RunStatus.RUNNING:
         raise Conflict(
             f"step {step_id} belongs to run {run.number}, which has ended; "

@@ -325,3 +325,24 @@ def test_step_log_is_append_only(lab: Lab) -> None:
     with lab.database.read_session() as db:
         assert db.scalar(select(func.count()).select_from(Prompt)) == 1
         assert db.scalar(select(func.count()).select_from(StudySession)) == 1
+
+
+def test_a_withdrawn_participant_gets_no_more_prompts_or_updates(lab: Lab) -> None:
+    code = lab.enrol_and_assign()
+    lab.start_session()
+    step = lab.robot.post("/api/v1/station/prompts", json={"category": "conation"}).json()
+    answered = {"answer": "yes", "idempotency_key": "before-withdrawal"}
+    first = lab.robot.post(f"/api/v1/station/steps/{step['step_id']}/answer", json=answered)
+    assert first.status_code == 200
+    open_step = lab.robot.post("/api/v1/station/prompts", json={"category": "affection"}).json()
+    lab.experimenter.post(f"/api/v1/studies/rt/participants/{code}/withdraw", json={})
+    refused = lab.robot.post("/api/v1/station/prompts", json={"category": "cognition"})
+    assert refused.status_code == 409
+    assert refused.json()["detail"].startswith(f"{code} has withdrawn")
+    late = lab.robot.post(
+        f"/api/v1/station/steps/{open_step['step_id']}/answer",
+        json={"answer": "no", "idempotency_key": "after-withdrawal"},
+    )
+    assert late.status_code == 409
+    replay = lab.robot.post(f"/api/v1/station/steps/{step['step_id']}/answer", json=answered)
+    assert replay.status_code == 200 and replay.json()["reply"] == first.json()["reply"]
