@@ -42,6 +42,18 @@
   if (stream) {
     const source = new EventSource(stream);
     source.addEventListener("changed", () => window.location.replace("/tablet"));
+    // A change that happened before the stream was listening sends no event: once it is
+    // listening, ask where the server would send this tablet now, and go there if it moved on.
+    source.addEventListener("open", async () => {
+      try {
+        const now = await fetch("/tablet", { credentials: "same-origin" });
+        if (new URL(now.url).pathname !== window.location.pathname) {
+          window.location.replace("/tablet");
+        }
+      } catch (error) {
+        // the interval below looks again
+      }
+    });
     // Belt and braces: look again once a minute even if the event stream is down.
     setInterval(() => window.location.replace("/tablet"), 60000);
   }
