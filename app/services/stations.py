@@ -184,10 +184,19 @@ def assign_participant(
         db.flush()
     station.participant_id = participant.id
     station.assigned_at = utcnow()
+    _seating_changed(db, station, participant, actor, "assigned")
+    db.commit()
+    return station
+
+
+def _seating_changed(
+    db: Session, station: Station, participant: Participant, actor: Actor, change: str
+) -> None:
+    """Audit a seating change and tell the station's and the study's pages (before commit)."""
     audit.record(
         db,
         actor=actor,
-        action="station.assigned",
+        action=f"station.{change}",
         study_id=participant.study_id,
         subject=participant.code,
         details={"station": station.name},
@@ -195,12 +204,10 @@ def assign_participant(
     events.publish(
         db,
         topics=[station_topic(station), study_topic(participant.study_id)],
-        type="participant_assigned",
+        type=f"participant_{change}",
         station=station.name,
         participant=participant.code,
     )
-    db.commit()
-    return station
 
 
 def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
@@ -214,21 +221,7 @@ def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
         raise Conflict(f"{participant.code!r} is in a session: end it before freeing the station")
     station.participant_id = None
     station.assigned_at = None
-    audit.record(
-        db,
-        actor=actor,
-        action="station.unassigned",
-        study_id=participant.study_id,
-        subject=participant.code,
-        details={"station": station.name},
-    )
-    events.publish(
-        db,
-        topics=[station_topic(station), study_topic(participant.study_id)],
-        type="participant_unassigned",
-        station=station.name,
-        participant=participant.code,
-    )
+    _seating_changed(db, station, participant, actor, "unassigned")
     db.commit()
     return station
 
