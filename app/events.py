@@ -21,6 +21,7 @@ import contextlib
 import json
 import logging
 import threading
+from collections import Counter
 from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,6 +35,7 @@ log = logging.getLogger(__name__)
 
 CHANNEL = "trustlab"
 PENDING_KEY = "trustlab_pending_events"
+NOTIFIED_KEY = "trustlab_notified_topics"
 MAX_PAYLOAD_BYTES = 7900  # PostgreSQL refuses NOTIFY payloads of 8000 bytes or more
 QUEUE_SIZE = 256
 
@@ -119,6 +121,18 @@ class EventHub:
     def __init__(self) -> None:
         self._subscriptions: set[Subscription] = set()
         self._lock = threading.Lock()
+        self._versions: Counter[str] = Counter()
+
+    def version(self, topic: str) -> int:
+        """How many changes of ``topic`` (or resyncs) this process has seen: equal numbers mean
+        nothing this process knows of has changed, so data computed in between is still current."""
+        with self._lock:
+            return self._versions[topic] + self._versions["*"]
+
+    def note_changes(self, topics: Iterable[str]) -> None:
+        """Count changes committed here whose events arrive later (PostgreSQL's NOTIFY)."""
+        with self._lock:
+            self._versions.update(topics)
 
     def open(self, topics: Iterable[str]) -> Subscription:
         """Start receiving events of these topics (call from the loop that will read them)."""
@@ -147,6 +161,7 @@ class EventHub:
         if not batch:
             return
         with self._lock:
+            self._versions.update(item.topic for item in batch)
             subscriptions = list(self._subscriptions)
         for subscription in subscriptions:
             for item in batch:
@@ -166,16 +181,24 @@ def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres
 
     def _drop(session: Session, *_: Any) -> None:
         session.info.pop(PENDING_KEY, None)
+        session.info.pop(NOTIFIED_KEY, None)
 
     if postgres:
 
         @event.listens_for(factory, "before_commit")
         def _notify(session: Session) -> None:
-            for pending in session.info.pop(PENDING_KEY, []):
+            pending_events = session.info.pop(PENDING_KEY, [])
+            session.info[NOTIFIED_KEY] = [pending.topic for pending in pending_events]
+            for pending in pending_events:
                 payload = pending.to_json()
                 if len(payload.encode()) > MAX_PAYLOAD_BYTES:
                     payload = Event(pending.topic, pending.type, {"truncated": True}).to_json()
                 session.execute(text("SELECT pg_notify(:c, :p)"), {"c": CHANNEL, "p": payload})
+
+        @event.listens_for(factory, "after_commit")
+        def _count(session: Session) -> None:
+            # This process's own writes count at once; their events come back through LISTEN.
+            hub.note_changes(session.info.pop(NOTIFIED_KEY, []))
 
     else:
 

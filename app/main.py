@@ -38,8 +38,10 @@ from app.web import studies as studies_pages
 API_PREFIX = "/api/v1"
 MAX_BODY_BYTES = 1024 * 1024
 DASHBOARD_DATA_MAX_AGE = 0.25
-"""Seconds for which live dashboards share one computation of their data: below the 300 ms the
-page waits after a change event before refetching, so a refetch always includes that change."""
+"""Seconds for which live dashboards share one computation of their data. Shared only while the
+study's change count in this process is unchanged, so a reader never misses its own write; the
+window bounds what another worker's not-yet-notified write can hide (below the page's 300 ms
+refetch delay, which that write's own event triggers)."""
 """Largest request body accepted (a protocol upload is at most 512 KiB); larger ones get 413."""
 
 

@@ -8,7 +8,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
 from app.deps import CurrentUser, SessionDep
-from app.services import dashboard, studies
+from app.events import EventHub
+from app.services import dashboard, stations, studies
 from app.services.audit import Actor
 from app.services.freshness import FreshnessCache
 from app.web.templating import render
@@ -37,13 +38,15 @@ def dashboard_data(
 ) -> dict[str, Any]:
     """The figures' data (Plotly payloads), blinded for roles that may not see conditions.
 
-    Dashboards asking at nearly the same moment share one computation (``DASHBOARD_DATA_MAX_AGE``
-    in app/main.py; app/services/freshness.py says why that never hides a change).
+    Dashboards asking at nearly the same moment, with no change of the study in between, share
+    one computation (``DASHBOARD_DATA_MAX_AGE`` in app/main.py, app/services/freshness.py).
     """
     study = studies.get_study(db, name)
     actor = Actor.of_user(user)
     shared: FreshnessCache[dict[str, Any]] = request.app.state.dashboard_data
+    hub: EventHub = request.app.state.database.hub
+    changes = hub.version(stations.study_topic(study.id))
     return shared.get(
-        dashboard.data_key(study, actor),
+        (dashboard.data_key(study, actor), changes),
         lambda: dashboard.dashboard_data(db, study=study, actor=actor),
     )

@@ -91,3 +91,13 @@ def test_a_page_stream_sends_one_message_per_burst_of_changes() -> None:
     assert retry.startswith("retry:")
     assert burst == 'event: changed\ndata: {"types": ["answer", "prompt"]}\n\n'
     assert single == 'event: changed\ndata: {"types": ["questionnaire"]}\n\n'
+
+
+def test_the_hub_counts_changes_per_topic() -> None:
+    hub = EventHub()
+    assert hub.version("study:1") == 0
+    hub.deliver([Event(topic="study:1", type="answer"), Event(topic="study:2", type="answer")])
+    hub.note_changes(["study:1"])  # committed here, its NOTIFY still on the way
+    assert (hub.version("study:1"), hub.version("study:2")) == (2, 1)
+    hub.deliver([RESYNC])  # anything may have changed
+    assert (hub.version("study:1"), hub.version("study:2")) == (3, 2)
