@@ -531,9 +531,37 @@ class AnswerResult:
     expected: Expected
 
 
+def _completed_by(db: Session, ctx: Context, run: Run, existing: Answer) -> tuple[bool, bool]:
+    """Whether ``existing`` completed its run and its session, from what is stored.
+
+    A run completes in the transaction of its last answer, and a run's answers are serialised by
+    the run lock, so the answer that completed a completed run is the run's newest one; it
+    completed the session too when that run is the session's last (however the session ended).
+    """
+    if run.status != RunStatus.COMPLETED:
+        return False, False
+    rows = db.execute(_RUN_PROMPTS, {"run": run.id}).all()
+    newest = max((answer_id for _, answer_id in rows if answer_id is not None), default=None)
+    if newest != existing.id:
+        return False, False
+    session = ctx.session if ctx.session and ctx.session.id == run.session_id else None
+    session = session or db.get(StudySession, run.session_id)
+    assert session is not None
+    return True, run.number >= runs_in(ctx.protocol, session.number)
+
+
 def _replay(
-    existing: Answer, prompt: Prompt, *, answer: bool, idempotency_key: str, expected: Expected
+    db: Session,
+    ctx: Context,
+    run: Run,
+    existing: Answer,
+    prompt: Prompt,
+    *,
+    answer: bool,
+    idempotency_key: str,
 ) -> AnswerResult:
+    """The stored answer's reply again, exactly as first sent (``replayed`` aside); ``expected``
+    is what the station should do now, which is the original unless the station moved on."""
     said = "yes" if existing.answer else "no"
     if existing.idempotency_key == idempotency_key and existing.answer != answer:
         raise Conflict(
@@ -544,7 +572,8 @@ def _replay(
         raise Conflict(
             f"step {prompt.id} was already answered {said!r}; a different answer is refused"
         )
-    return AnswerResult(existing, prompt, True, False, False, expected)
+    run_done, session_done = _completed_by(db, ctx, run, existing)
+    return AnswerResult(existing, prompt, True, run_done, session_done, expected_next(db, ctx))
 
 
 def _prompt_at_station(db: Session, ctx: Context, step_id: int) -> Prompt:
@@ -591,9 +620,7 @@ def record_answer(
     _lock(db, run)
     existing = db.scalar(_ANSWER_OF, {"prompt": prompt.id})
     if existing is not None:
-        result = _replay(
-            existing, prompt, answer=answer, idempotency_key=key, expected=expected_next(db, ctx)
-        )
+        result = _replay(db, ctx, run, existing, prompt, answer=answer, idempotency_key=key)
         db.rollback()
         return result
     _refuse_withdrawn(ctx)
@@ -671,13 +698,10 @@ def record_answer(
         existing = db.scalar(_ANSWER_OF, {"prompt": prompt.id})
         if existing is None:
             raise
-        return _replay(
-            existing,
-            prompt,
-            answer=answer,
-            idempotency_key=key,
-            expected=expected_next(db, _context(db, station_name)),
-        )
+        ctx = _context(db, station_name)
+        run = db.get(Run, prompt.run_id)
+        assert run is not None
+        return _replay(db, ctx, run, existing, prompt, answer=answer, idempotency_key=key)
     if learner is not None:
         learners.cache.put(row.id, row.version, learner)
     return AnswerResult(record, prompt, False, run_done, session_done, expected)
