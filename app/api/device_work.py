@@ -40,7 +40,7 @@ async def device_key(
     key = credentials.credentials if credentials is not None else ""
     # Refused here, before the body is validated, when it cannot be a device key at all: a
     # participant's or a forged token learns nothing about the route's body from a 422.
-    if not key.startswith(stations.KEY_PREFIX) or len(key) > 200:
+    if not key.startswith(stations.KEY_PREFIX) or len(key) > stations.KEY_MAX_LENGTH:
         raise NotAuthenticated("send the device key as the header 'Authorization: Bearer tlk_…'")
     return key
 
