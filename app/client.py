@@ -3,7 +3,8 @@
 - :class:`RobotClient` speaks for one station with a device key over REST;
 - :class:`StationSocket` does the same over the station WebSocket, answers heartbeats, receives
   pushes, and reconnects by itself (requests are idempotent, so a retried prompt or answer never
-  creates a second step);
+  creates a second step), except after close code 4401: a refused key raises
+  :class:`DeviceKeyRefused` instead;
 - :class:`ExperimenterClient` signs in like a person and drives enrolment and sessions.
 
 Responses are parsed into the same pydantic models the server validates against
@@ -23,15 +24,16 @@ import asyncio
 import contextlib
 import itertools
 import json
+import random
 import uuid
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 from types import TracebackType
 from typing import Any, Literal, Self, TypeVar
 
 import httpx
 from pydantic import BaseModel
 from websockets.asyncio.client import ClientConnection, connect
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from app.api.runtime_schemas import AnswerOut, IssuedDeviceOut, PromptOut, StationStateOut
 
@@ -39,6 +41,11 @@ Model = TypeVar("Model", bound=BaseModel)
 Answer = Literal["yes", "no"]
 
 RETRYABLE_STATUS = {502, 503, 504}
+
+CLOSE_KEY_REFUSED = 4401
+"""The station WebSocket's close code for an unknown or revoked device key: never retried."""
+CLOSE_TRY_AGAIN_LATER = 1013
+"""The standard close code for "try again later" (overload, restart): retried with back-off."""
 
 
 class ApiError(Exception):
@@ -48,6 +55,34 @@ class ApiError(Exception):
         super().__init__(f"{status}: {detail}")
         self.status = status
         self.detail = detail
+
+
+class DeviceKeyRefused(ApiError):
+    """The server closed the station WebSocket with code 4401: the key is unknown or revoked.
+
+    Retrying cannot help, so :class:`StationSocket` stops reconnecting; ``detail`` is the server's
+    reason (``unknown or revoked device key`` or ``device key revoked``).
+    """
+
+    def __init__(self, reason: str) -> None:
+        reason = reason or "unknown or revoked device key"
+        super().__init__(401, f"the server closed the station WebSocket with code 4401: {reason}")
+        self.reason = reason
+
+
+class _TryAgainLater(ConnectionError):
+    """The server answered the WebSocket handshake with 503 or closed it with 1013."""
+
+
+def backoff_delays(
+    base: float, cap: float, rng: random.Random, *, attempts: int | None = None
+) -> Iterator[float]:
+    """Waits between retries: ``base`` doubling up to ``cap``, each drawn from its upper half
+    (jitter, so that robots cut off together do not come back in lockstep); endless unless
+    ``attempts`` is given."""
+    for attempt in itertools.count() if attempts is None else range(attempts):
+        ceiling = min(cap, base * 2**attempt)
+        yield rng.uniform(ceiling / 2, ceiling)
 
 
 def _detail(response: httpx.Response) -> str:
@@ -148,21 +183,42 @@ class RobotClient:
 
 
 class StationSocket:
-    """The station WebSocket: requests by id, pushes on :attr:`events`, automatic reconnection."""
+    """The station WebSocket: requests by id, pushes on :attr:`events`, automatic reconnection.
+
+    Reconnection waits with jittered, bounded back-off (``retry_delay`` doubling up to
+    ``max_retry_delay``). :meth:`open` retries a server that answers 503 or closes with 1013 (try
+    again later) up to ``connect_attempts`` connections; after a drop the socket reconnects until
+    :meth:`close`. Close code 4401 (unknown or revoked key) is never retried: :meth:`open`,
+    :meth:`request` and :meth:`next_event` raise :class:`DeviceKeyRefused` naming the reason.
+    """
 
     def __init__(
-        self, base_url: str, key: str, *, request_timeout: float = 15.0, reconnect: bool = True
+        self,
+        base_url: str,
+        key: str,
+        *,
+        request_timeout: float = 15.0,
+        reconnect: bool = True,
+        retry_delay: float = 0.2,
+        max_retry_delay: float = 5.0,
+        connect_attempts: int = 8,
     ) -> None:
         scheme = "wss" if base_url.startswith("https") else "ws"
         self.url = f"{scheme}://{base_url.split('://', 1)[1].rstrip('/')}/api/v1/station/ws"
         self._key = key
         self._timeout = request_timeout
         self._reconnect = reconnect
+        self._retry_delay = retry_delay
+        self._max_retry_delay = max_retry_delay
+        self._connect_attempts = max(1, connect_attempts)
+        self._rng = random.Random()
         self._connection: ClientConnection | None = None
         self._pending: dict[str, asyncio.Future[dict[str, Any]]] = {}
         self._ids = itertools.count(1)
         self._reader: asyncio.Task[None] | None = None
         self._connected = asyncio.Event()
+        self._refused: DeviceKeyRefused | None = None
+        self._refused_event = asyncio.Event()
         self._closing = False
         self.events: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
         self.state: dict[str, Any] | None = None
@@ -180,23 +236,71 @@ class StationSocket:
         await self.close()
 
     async def open(self) -> None:
-        """Connect and wait for the server's hello (which carries the current state)."""
-        await self._connect()
+        """Connect and wait for the server's hello (which carries the current state).
+
+        Raises :class:`DeviceKeyRefused` at once for a refused key; retries 503/1013 with back-off,
+        then raises :class:`ConnectionError`.
+        """
+        delays = backoff_delays(
+            self._retry_delay,
+            self._max_retry_delay,
+            self._rng,
+            attempts=self._connect_attempts - 1,
+        )
+        while True:
+            try:
+                await self._connect()
+                break
+            except _TryAgainLater:
+                delay = next(delays, None)
+                if delay is None:
+                    raise
+                await asyncio.sleep(delay)
         self._reader = asyncio.create_task(self._read_forever())
 
     async def _connect(self) -> None:
-        connection = await connect(
-            self.url,
-            additional_headers={"Authorization": f"Bearer {self._key}"},
-            open_timeout=self._timeout,
-        )
-        hello = json.loads(await asyncio.wait_for(connection.recv(), self._timeout))
+        try:
+            connection = await connect(
+                self.url,
+                additional_headers={"Authorization": f"Bearer {self._key}"},
+                open_timeout=self._timeout,
+            )
+        except InvalidStatus as exc:
+            if exc.response.status_code == 503:
+                raise _TryAgainLater(f"the server answered 503: {exc}") from exc
+            raise
+        try:
+            hello = json.loads(await asyncio.wait_for(connection.recv(), self._timeout))
+        except ConnectionClosed as exc:
+            self._raise_for_close(connection)
+            raise ConnectionError(f"closed before the greeting: {exc}") from exc
+        except TimeoutError:
+            await connection.close()
+            raise
         if hello.get("type") != "hello":
             await connection.close()
             raise ApiError(401, f"unexpected greeting {hello!r}")
         self.state = hello.get("state")
         self._connection = connection
         self._connected.set()
+
+    @staticmethod
+    def _raise_for_close(connection: ClientConnection) -> None:
+        """Raise what a refusing close code means (4401, 1013); return for any other."""
+        code, reason = connection.close_code, connection.close_reason or ""
+        if code == CLOSE_KEY_REFUSED:
+            raise DeviceKeyRefused(reason)
+        if code == CLOSE_TRY_AGAIN_LATER:
+            raise _TryAgainLater(f"the server closed with code 1013: {reason or 'try again later'}")
+
+    def _refuse(self, refused: DeviceKeyRefused) -> None:
+        """The key is refused: stop reconnecting and fail whoever waits, with the reason."""
+        self._refused = refused
+        self._refused_event.set()
+        for future in self._pending.values():
+            if not future.done():
+                future.set_exception(refused)
+        self._pending.clear()
 
     async def _read_forever(self) -> None:
         while not self._closing:
@@ -208,24 +312,56 @@ class StationSocket:
             except ConnectionClosed:
                 pass
             self._connected.clear()
+            if connection.close_code == CLOSE_KEY_REFUSED:
+                self._refuse(DeviceKeyRefused(connection.close_reason or ""))
+                return
             for future in self._pending.values():
                 if not future.done():
                     future.set_exception(ConnectionError("connection lost"))
             self._pending.clear()
             if self._closing or not self._reconnect:
                 return
-            await self._reconnect_with_backoff()
+            try:
+                await self._reconnect_with_backoff()
+            except DeviceKeyRefused as refused:
+                self._refuse(refused)
+                return
 
     async def _reconnect_with_backoff(self) -> None:
-        delay = 0.2
-        while not self._closing:
+        """Reconnect until it works or :meth:`close`; a refused key raises."""
+        for delay in backoff_delays(self._retry_delay, self._max_retry_delay, self._rng):
+            if self._closing:
+                return
+            await asyncio.sleep(delay)
+            if self._closing:
+                return
             try:
                 await self._connect()
-                await self.events.put({"type": "reconnected", "state": self.state})
-                return
-            except (OSError, ConnectionClosed, TimeoutError, ApiError):
-                await asyncio.sleep(delay)
-                delay = min(delay * 2, 5.0)
+            except DeviceKeyRefused:
+                raise
+            except (OSError, ConnectionClosed, TimeoutError, ApiError, InvalidStatus):
+                continue
+            await self.events.put({"type": "reconnected", "state": self.state})
+            return
+
+    async def _wait_connected(self) -> None:
+        """Wait until connected; raise :class:`DeviceKeyRefused` if the key was refused."""
+        if self._refused is None and not self._connected.is_set():
+            waiters = [
+                asyncio.ensure_future(self._connected.wait()),
+                asyncio.ensure_future(self._refused_event.wait()),
+            ]
+            try:
+                await asyncio.wait(
+                    waiters, timeout=self._timeout * 2, return_when=asyncio.FIRST_COMPLETED
+                )
+            finally:
+                for waiter in waiters:
+                    waiter.cancel()
+        if self._refused is not None:
+            raise self._refused
+        if not self._connected.is_set():
+            raise TimeoutError("not connected to the station WebSocket")
 
     async def _dispatch(self, message: dict[str, Any]) -> None:
         kind = message.get("type")
@@ -246,7 +382,7 @@ class StationSocket:
     async def request(self, op: str, **fields: Any) -> dict[str, Any]:
         """Send one request and return its ``data``; resend after a reconnection (idempotent)."""
         for attempt in range(3):
-            await asyncio.wait_for(self._connected.wait(), self._timeout * 2)
+            await self._wait_connected()
             request_id = f"r{next(self._ids)}"
             future: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
             self._pending[request_id] = future
@@ -286,8 +422,25 @@ class StationSocket:
         return StationStateOut.model_validate(await self.request("state"))
 
     async def next_event(self, timeout: float | None = None) -> dict[str, Any]:
-        """The next pushed event (or reconnection notice)."""
-        return await asyncio.wait_for(self.events.get(), timeout)
+        """The next pushed event (or reconnection notice); raises :class:`DeviceKeyRefused` once
+        the queue is empty and the key was refused (no more events can come)."""
+        if not self.events.empty() or self._refused is None:
+            getter = asyncio.ensure_future(self.events.get())
+            refused = asyncio.ensure_future(self._refused_event.wait())
+            try:
+                done, _ = await asyncio.wait(
+                    [getter, refused], timeout=timeout, return_when=asyncio.FIRST_COMPLETED
+                )
+            finally:
+                refused.cancel()
+                if not getter.done():
+                    getter.cancel()
+            if getter in done:
+                return getter.result()
+            if not done:
+                raise TimeoutError("no event")
+        assert self._refused is not None
+        raise self._refused
 
     async def close(self) -> None:
         """Close the connection and stop reconnecting."""
