@@ -195,7 +195,8 @@ def revoke_link(name: str, code: str, db: SessionDep, user: ExperimenterUser) ->
 
 @router.post("/{name}/participants/{code}/lock")
 def lock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> ParticipantOut:
-    """Lock the participant's answers: no more edits."""
+    """Lock the participant's answers for analysis: the tablet's submissions are refused (409),
+    new questionnaires and consent as well as revisions, until unlocked."""
     study = studies.get_study(db, name)
     participant = enrolment.get_participant(db, study, code, for_update=True)
     questionnaires.set_locked(db, participant=participant, locked=True, actor=Actor.of_user(user))
@@ -204,7 +205,7 @@ def lock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> Partic
 
 @router.post("/{name}/participants/{code}/unlock")
 def unlock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> ParticipantOut:
-    """Allow edits again."""
+    """Unlock the participant's answers: new submissions and revisions are accepted again."""
     study = studies.get_study(db, name)
     participant = enrolment.get_participant(db, study, code, for_update=True)
     questionnaires.set_locked(db, participant=participant, locked=False, actor=Actor.of_user(user))

@@ -80,7 +80,8 @@ def consent(body: ConsentIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
 
 @router.post("/questionnaires/{instrument}", responses={422: {"description": "Per-item errors"}})
 def submit(instrument: str, body: AnswersIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
-    """Submit (or, until locked, revise) one questionnaire page; returns the next page."""
+    """Submit (or revise) one questionnaire page; returns the next page. Refused (409) while the
+    experimenter has locked the participant's answers, for new pages and revisions alike."""
     questionnaires.submit(
         db,
         participant=tablet.participant,

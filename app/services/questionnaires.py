@@ -9,8 +9,9 @@ tablets always land right.
 A submission is validated as a whole against the protocol's instrument (required items, ranges,
 options, lengths, unknown items) and then stored in one transaction: the long-format responses, the
 submission record, audit entries for every changed value (with the old value), and a live event.
-Nothing partial is ever stored. Until the experimenter locks the participant, submitting again
-revises the answers.
+Nothing partial is ever stored. Submitting a page again revises its answers. Locking a participant
+freezes their answers for analysis: every submission (consent, new pages and revisions) is refused
+until the experimenter unlocks them.
 """
 
 from __future__ import annotations
@@ -396,6 +397,7 @@ def _publish(db: Session, participant: Participant, instrument: str, session: in
 
 
 def _refuse_if_locked(participant: Participant) -> None:
+    """Refuse any submission (new or a revision) for a locked or withdrawn participant."""
     if participant.locked_at is not None:
         raise Conflict(f"{participant.code}'s answers are locked; the experimenter can unlock them")
     if participant.status == ParticipantStatus.WITHDRAWN:
@@ -463,7 +465,7 @@ def submit(
 
 
 def set_locked(db: Session, *, participant: Participant, locked: bool, actor: Actor) -> None:
-    """Lock (no more edits) or unlock a participant's answers; commits."""
+    """Lock a participant's answers (no new submissions, no revisions) or unlock them; commits."""
     if (participant.locked_at is not None) == locked:
         return
     participant.locked_at = utcnow() if locked else None

@@ -179,6 +179,43 @@ def test_edits_are_audited_until_locked(app: FastAPI, lab: Lab) -> None:
     )
 
 
+LOCKED_HELP = (
+    "Locking freezes the answers for analysis: the tablet can neither submit new questionnaires "
+    "nor change submitted ones until they are unlocked."
+)
+
+
+def test_locking_freezes_new_submissions_and_edits_until_unlocked(app: FastAPI, lab: Lab) -> None:
+    code = lab.enrol_and_assign(questionnaires=False)
+    tablet = tablet_client(app, lab, code)
+    base = f"/api/v1/studies/{lab.study}/participants/{code}"
+    assert lab.experimenter.post(f"{base}/lock").json()["locked"] is True
+    refusal = f"{code}'s answers are locked; the experimenter can unlock them"
+    consent = tablet.post("/api/v1/tablet/consent", json={"accept": True})
+    assert (consent.status_code, consent.json()["detail"]) == (409, refusal)
+    assert lab.experimenter.post(f"{base}/unlock").json()["locked"] is False
+    assert tablet.post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
+    lab.experimenter.post(f"{base}/lock")
+    new = tablet.post(
+        "/api/v1/tablet/questionnaires/demographics",
+        json={"answers": {"age": "27", "gender": "female"}},
+    )
+    assert (new.status_code, new.json()["detail"]) == (409, refusal)
+    assert _count(lab, Submission) == 1, "only the consent is stored"
+    assert tablet.get("/api/v1/tablet").json()["instrument"]["key"] == "demographics"
+    lab.experimenter.post(f"{base}/unlock")
+    fill_pre_study(tablet)
+    # What the experimenter reads agrees: the participant page and the API's own description.
+    lab.experimenter.post(f"{base}/lock")
+    page = lab.experimenter.get(f"/studies/{lab.study}/participants/{code}").text
+    assert "answers locked" in page and LOCKED_HELP in page
+    described = lab.experimenter.get("/api/v1/openapi.json").json()["paths"]
+    lock_doc = described["/api/v1/studies/{name}/participants/{code}/lock"]["post"]["description"]
+    assert "new questionnaires" in lock_doc and "revisions" in lock_doc
+    submit_doc = described["/api/v1/tablet/questionnaires/{instrument}"]["post"]["description"]
+    assert "until locked, revise" not in submit_doc and "locked" in submit_doc
+
+
 def test_links_can_be_revoked_and_reissued(app: FastAPI, lab: Lab) -> None:
     code = lab.enrol_and_assign(questionnaires=False)
     base = f"/api/v1/studies/{lab.study}/participants/{code}/link"
