@@ -19,6 +19,7 @@ from sqlalchemy.orm import Session
 
 from app.services.audit import Actor
 from app.services.enrolment import condition_label
+from app.services.runtime import session_label
 from app.services.studies import protocol_of
 from app.tables import (
     Allocation,
@@ -161,7 +162,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
         if running is not None and last is not None and now - last > STALLED_AFTER:
             overview.warnings.append(
                 Attention(
-                    f"{participant.code}: session {running.number} has had no answer for "
+                    f"{participant.code}: {session_label(running.number)} has had no answer for "
                     f"{int((now - last).total_seconds() // 60)} minutes",
                     participant=participant.code,
                     station=station_of.get(participant.id),
@@ -219,7 +220,7 @@ def _station_warnings(db: Session, study: Study, now: datetime) -> list[Attentio
             warnings.append(
                 Attention(
                     f"station {station.name}: no device has been heard from during "
-                    f"session {running}",
+                    f"{session_label(running)}",
                     station=station.name,
                 )
             )

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select, update
 
 from app.db import Database
-from app.tables import Prompt, Role, StudySession, utcnow
+from app.tables import Device, Participant, Prompt, Response, Role, StudySession, utcnow
 from tests.conftest import TRUST_ANSWERS, Lab, UserClientFactory
 
 PAGES = [
@@ -178,6 +178,23 @@ def test_overview_warns_about_stalled_sessions_and_missing_questionnaires(lab: L
         db.commit()
     # the stall is measured from the last activity: answers and questionnaires are recent
     assert "has had no answer" not in lab.experimenter.get("/studies/rt").text
+
+
+def test_overview_names_the_familiarisation_run_not_session_0(lab: Lab) -> None:
+    code = lab.enrol_and_assign()
+    lab.start_session()  # the familiarisation run: session number 0
+    long_ago = utcnow() - timedelta(hours=1)
+    with lab.database.writing() as db:
+        db.execute(update(StudySession).values(started_at=long_ago))
+        db.execute(update(Response).values(answered_at=long_ago))
+        db.execute(update(Participant).values(enrolled_at=long_ago))
+        db.execute(update(Device).values(connected_at=None, last_seen_at=long_ago))
+        db.commit()
+    page = lab.experimenter.get("/studies/rt").text
+    assert f"{code}: the familiarisation run has had no answer for 60 minutes" in page
+    assert "station lab-1: no device has been heard from during the familiarisation run" in page
+    assert "familiarisation running" in page
+    assert "session 0" not in page
 
 
 def test_overview_warns_about_a_station_without_devices(
