@@ -35,7 +35,12 @@ class Settings(BaseSettings):
     )
     secret_key: SecretStr | None = Field(
         default=None,
-        description="Signs CSRF tokens; generated once into var/secret_key when not given.",
+        description=(
+            "Signs the sign-in form's and the tablet forms' CSRF tokens and the one-time notice "
+            "cookie, and derives the tablet and kiosk links (after a change, issued links still "
+            "work but cannot be shown again until reissued); sign-in sessions do not use it. "
+            "Generated once into var/secret_key when not given."
+        ),
     )
     checkpoint_dir: Path | None = Field(
         default=None,
