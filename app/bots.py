@@ -12,7 +12,8 @@ stations, and taken through the study:
   ``noise``.
 
 Used for the demo study of ``make run``, for load tests and the crash test. A failure of one
-participant is counted in the summary and the others carry on.
+participant is counted in the summary and the others carry on. The device keys a run issues for
+its stations are revoked when it ends, also after an error or Ctrl-C, so no live key is left behind.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from typing import Any, Literal
 
 import httpx
 
-from app.api.runtime_schemas import AnswerOut, PromptOut
+from app.api.runtime_schemas import AnswerOut, IssuedDeviceOut, PromptOut
 from app.client import ApiError, ExperimenterClient, RobotClient, StationSocket
 
 
@@ -308,10 +309,16 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
         for index in range(config.participants):
             queue.put_nowait(index)
 
+        issuing: list[asyncio.Future[IssuedDeviceOut]] = []
+
         async def lane_worker(number: int, lane_rng: random.Random) -> None:
             station = f"{config.station_prefix}-{number}"
             await admin.ensure_station(station)
-            key = (await admin.issue_key(station, "bots")).key
+            # Shielded and remembered: even if the run is cancelled while the key is being
+            # issued, the cleanup learns the key's id and revokes it.
+            issue = asyncio.ensure_future(admin.issue_key(station, "bots"))
+            issuing.append(issue)
+            key = (await asyncio.shield(issue)).key
             if config.transport == "ws":
                 socket = StationSocket(config.url, key)
                 await socket.open()
@@ -336,8 +343,32 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
                 await robot.close()
 
         lanes = min(config.concurrency, max(config.participants, 1))
-        await asyncio.gather(
-            *(lane_worker(n, random.Random(rng.random())) for n in range(1, lanes + 1))
-        )
+        workers = [
+            asyncio.ensure_future(lane_worker(n, random.Random(rng.random())))
+            for n in range(1, lanes + 1)
+        ]
+        try:
+            await asyncio.gather(*workers)
+        finally:
+            # Success, a failed lane or cancellation (Ctrl-C): stop every lane, then revoke.
+            for worker in workers:
+                worker.cancel()
+            await asyncio.gather(*workers, return_exceptions=True)
+            await _revoke_keys(admin, issuing, summary)
     summary.seconds = round(time.perf_counter() - started, 3)
     return summary
+
+
+async def _revoke_keys(
+    admin: ExperimenterClient, issuing: list[asyncio.Future[IssuedDeviceOut]], summary: BotSummary
+) -> None:
+    """Revoke every device key this run issued; a key that cannot be revoked is an error."""
+    for issued in await asyncio.gather(*issuing, return_exceptions=True):
+        if not isinstance(issued, IssuedDeviceOut):
+            continue  # never issued
+        try:
+            await admin.revoke_key(issued.id)
+        except (ApiError, httpx.HTTPError, OSError) as exc:
+            if isinstance(exc, ApiError) and exc.status == 409:
+                continue  # already revoked
+            summary.errors.append(f"{issued.station}: device key {issued.id} not revoked: {exc}")

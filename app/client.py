@@ -35,7 +35,13 @@ from pydantic import BaseModel
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
-from app.api.runtime_schemas import AnswerOut, IssuedDeviceOut, PromptOut, StationStateOut
+from app.api.runtime_schemas import (
+    AnswerOut,
+    DeviceOut,
+    IssuedDeviceOut,
+    PromptOut,
+    StationStateOut,
+)
 
 Model = TypeVar("Model", bound=BaseModel)
 Answer = Literal["yes", "no"]
@@ -504,6 +510,10 @@ class ExperimenterClient:
         return IssuedDeviceOut.model_validate(
             await self.call("POST", f"/stations/{station}/devices", {"label": label})
         )
+
+    async def revoke_key(self, device_id: int) -> DeviceOut:
+        """Revoke a device key (admin); its robot is refused from then on."""
+        return DeviceOut.model_validate(await self.call("POST", f"/devices/{device_id}/revoke"))
 
     async def assign(self, station: str, study: str, code: str) -> None:
         """Seat a participant at a station."""

@@ -11,14 +11,14 @@ import pytest
 from sqlalchemy import func, select
 from typer.testing import CliRunner
 
-from app import demo
+from app import bots, demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
 from app.db import Database
 from app.services import users, verify
 from app.services.audit import Actor
 from app.settings import Settings
-from app.tables import Answer, Response, Role
+from app.tables import Answer, Device, Response, Role
 from tests.conftest import PASSWORD, make_user
 from tests.servers import ServerProcess
 
@@ -60,6 +60,54 @@ def test_bots_complete_the_protocol(
         trust = db.scalars(select(Response.value).where(Response.instrument == "trust")).all()
     assert report.ok, report.findings
     assert len(trust) == 3 * 4 * 5
+
+
+def _bot_keys(database: Database) -> list[tuple[str, bool]]:
+    """(station, revoked?) of every key the bots issued."""
+    with database.read_session() as db:
+        devices = db.scalars(select(Device).where(Device.label == "bots").order_by(Device.id))
+        return [(d.station.name, d.revoked_at is not None) for d in devices]
+
+
+def _config(server: ServerProcess, study: str, participants: int) -> BotConfig:
+    return BotConfig(
+        url=server.url,
+        study=study,
+        participants=participants,
+        username="botmaster",
+        password=PASSWORD,
+        concurrency=2,
+        transport="rest",
+    )
+
+
+@pytest.mark.slow
+def test_bots_revoke_their_keys_after_a_run_an_error_and_an_interruption(
+    server: ServerProcess, database: Database, exp3_study: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    summary = asyncio.run(run_bots(_config(server, exp3_study, 2)))
+    assert summary.errors == [] and summary.completed == 2
+    assert sorted(_bot_keys(database)) == [("bot-1", True), ("bot-2", True)]
+
+    async def interrupted() -> None:
+        answered = asyncio.Event()
+        run = asyncio.ensure_future(run_bots(_config(server, exp3_study, 2), tick=answered.set))
+        await asyncio.wait_for(answered.wait(), 60)
+        run.cancel()  # what Ctrl-C does to asyncio.run's task
+        with pytest.raises(asyncio.CancelledError):
+            await run
+
+    asyncio.run(interrupted())
+    assert [revoked for _, revoked in _bot_keys(database)] == [True] * 4
+
+    monkeypatch.setattr(bots._Lane, "run_participant", _crash)
+    with pytest.raises(RuntimeError, match="lane crashed"):
+        asyncio.run(run_bots(_config(server, exp3_study, 2)))
+    assert [revoked for _, revoked in _bot_keys(database)] == [True] * 6
+
+
+async def _crash(self: object) -> None:
+    raise RuntimeError("lane crashed")
 
 
 def test_response_model_shifts_and_mirrors() -> None:
