@@ -2,8 +2,11 @@
 
 Each client is a robot at its own station with its own participant, looping prompt → answer as
 fast as the server lets it (a closed loop, no think time); the baseline clients loop on
-``GET /api/v1/ping``, which touches nothing, in the same run. Reported per concurrency: answers per
-second, p50/p99 of the answer round trip and of the baseline, and their p99 ratio (target ≤ 3).
+``GET /api/v1/ping``, which touches nothing, in the same run, at the same concurrency, with the
+same client code and the same headers (the device key is sent, and ignored). Baseline and robot
+phases alternate (``--rounds``), so a background load that drifts during the run weighs on both
+alike. Reported per concurrency: answers per second, p50/p99 of the answer round trip and of the
+baseline, and their p99 ratio (target ≤ 3).
 
     .venv/bin/python bench/api.py                       # SQLite
     .venv/bin/python bench/api.py --postgres postgresql+psycopg://postgres@127.0.0.1:5432/test
@@ -152,8 +155,8 @@ async def robot_loop(
         await robot.close()
 
 
-async def ping_loop(base: str, deadline: float, samples: Samples) -> None:
-    client = RawHttp(base)
+async def ping_loop(base: str, key: str, deadline: float, samples: Samples) -> None:
+    client = RawHttp(base, {"Authorization": f"Bearer {key}"})
     try:
         while time.perf_counter() < deadline:
             t0 = time.perf_counter()
@@ -173,7 +176,9 @@ def percentile(values: list[float], q: float) -> float:
     return 1000.0 * ordered[min(len(ordered) - 1, max(0, round(q * len(ordered)) - 1))]
 
 
-async def measure(base: str, keys: list[str], clients: int, seconds: float) -> dict[str, object]:
+async def measure(
+    base: str, keys: list[str], clients: int, seconds: float, rounds: int
+) -> dict[str, object]:
     samples = Samples()
     login = RawHttp(base)
     _, signed = await login.request(
@@ -182,16 +187,18 @@ async def measure(base: str, keys: list[str], clients: int, seconds: float) -> d
     await login.close()
     credentials = {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
     experimenters = [RawHttp(base, credentials) for _ in range(clients)]
-    # The baseline first, alone, then the robots: each at the same concurrency.
-    deadline = time.perf_counter() + seconds / 2
-    await asyncio.gather(*(ping_loop(base, deadline, samples) for _ in range(clients)))
-    deadline = time.perf_counter() + seconds
-    await asyncio.gather(
-        *(
-            robot_loop(base, keys[i], f"bench-{i}", experimenters[i], deadline, samples)
-            for i in range(clients)
+    # Baseline and robots alternate, each alone and at the same concurrency: the baseline gets
+    # half the robots' time in total.
+    for _ in range(rounds):
+        deadline = time.perf_counter() + seconds / rounds / 2
+        await asyncio.gather(*(ping_loop(base, keys[i], deadline, samples) for i in range(clients)))
+        deadline = time.perf_counter() + seconds / rounds
+        await asyncio.gather(
+            *(
+                robot_loop(base, keys[i], f"bench-{i}", experimenters[i], deadline, samples)
+                for i in range(clients)
+            )
         )
-    )
     for experimenter in experimenters:
         await experimenter.close()
     answer_p99, ping_p99 = percentile(samples.answer, 0.99), percentile(samples.ping, 0.99)
@@ -231,6 +238,9 @@ def main() -> None:
     parser.add_argument("--clients", default="1,10,100", help="concurrency levels")
     parser.add_argument("--seconds", type=float, default=10.0, help="robot time per level")
     parser.add_argument(
+        "--rounds", type=int, default=4, help="alternations of baseline and robots per level"
+    )
+    parser.add_argument(
         "--exp3-only",
         action="store_true",
         help="give both conditions Exp3 (isolates the meta-policy's cost)",
@@ -244,14 +254,16 @@ def main() -> None:
         server = ServerProcess(url, Path(tmp) / "var", workers=args.workers)
         server.start()
         try:
-            results = [uvloop.run(measure(server.url, keys, c, args.seconds)) for c in levels]
+            results = [
+                uvloop.run(measure(server.url, keys, c, args.seconds, args.rounds)) for c in levels
+            ]
         finally:
             server.stop()
     engine = "postgresql" if args.postgres else "sqlite"
     if args.json:
         print(json.dumps({"engine": engine, "workers": args.workers, "levels": results}))
         return
-    print(f"engine={engine} workers={args.workers} seconds={args.seconds}")
+    print(f"engine={engine} workers={args.workers} seconds={args.seconds} rounds={args.rounds}")
     header = (
         "clients",
         "answers/s",
@@ -261,6 +273,8 @@ def main() -> None:
         "no-op p99",
         "p99 ratio",
         "errors",
+        "prompt p50",
+        "prompt p99",
     )
     print("  ".join(f"{h:>10}" for h in header))
     for r in results:
@@ -276,6 +290,8 @@ def main() -> None:
                     r["noop_p99_ms"],
                     r["p99_ratio"],
                     r["errors"],
+                    r["prompt_p50_ms"],
+                    r["prompt_p99_ms"],
                 )
             )
         )
