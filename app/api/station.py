@@ -24,7 +24,7 @@ async def get_state(request: Request, key: DeviceKey) -> StationStateOut:
         request.app,
         key,
         write=False,
-        op=lambda db, device: station_ops.state(db, station=device.station.name),
+        op=lambda db, device: station_ops.state(db, station=device.station),
     )
 
 
@@ -43,7 +43,7 @@ async def prompt(
         write=True,
         op=lambda db, device: station_ops.prompt(
             db,
-            station=device.station.name,
+            station=device.station,
             body=body,
             actor=device_actor(device),
             device_id=device.id,
@@ -63,7 +63,7 @@ async def answer(step_id: int, body: AnswerRequest, request: Request, key: Devic
         write=True,
         op=lambda db, device: station_ops.answer(
             db,
-            station=device.station.name,
+            station=device.station,
             step_id=step_id,
             body=body,
             actor=device_actor(device),
@@ -80,6 +80,6 @@ async def start_run(request: Request, key: DeviceKey) -> StationStateOut:
         key,
         write=True,
         op=lambda db, device: station_ops.start_run(
-            db, station=device.station.name, actor=device_actor(device)
+            db, station=device.station, actor=device_actor(device)
         ),
     )

@@ -20,18 +20,33 @@ from app.services import runtime
 from app.services.audit import Actor
 from app.tables import Device, Prompt, Station
 
+StationRef = str | Station
+"""A station by name (the experimenter's routes), or as a robot's device brings it: loaded with
+its seated participant and study, which spares the runtime looking them up again."""
 
-def state(db: Session, *, station: str) -> StationStateOut:
+
+def _named(station: StationRef) -> tuple[str, Station | None]:
+    return (station, None) if isinstance(station, str) else (station.name, station)
+
+
+def state(db: Session, *, station: StationRef) -> StationStateOut:
     """The station's state and what is expected next."""
-    return state_out(runtime.station_view(db, station_name=station))
+    name, loaded = _named(station)
+    return state_out(runtime.station_view(db, station_name=name, station=loaded))
 
 
 def prompt(
-    db: Session, *, station: str, body: PromptRequest, actor: Actor, device_id: int | None
+    db: Session, *, station: StationRef, body: PromptRequest, actor: Actor, device_id: int | None
 ) -> PromptOut:
     """Choose a question for a category (or hand out its open one again)."""
+    name, loaded = _named(station)
     result = runtime.request_prompt(
-        db, station_name=station, category=body.category, actor=actor, device_id=device_id
+        db,
+        station_name=name,
+        category=body.category,
+        actor=actor,
+        device_id=device_id,
+        station=loaded,
     )
     return prompt_out(
         result.prompt, session=result.session_number, run=result.run_number, created=result.created
@@ -41,29 +56,32 @@ def prompt(
 def answer(
     db: Session,
     *,
-    station: str,
+    station: StationRef,
     step_id: int,
     body: AnswerRequest,
     actor: Actor,
     device_id: int | None,
 ) -> AnswerOut:
     """Record an answer exactly once and return the reply."""
+    name, loaded = _named(station)
     result = runtime.record_answer(
         db,
-        station_name=station,
+        station_name=name,
         step_id=step_id,
         answer=body.answer == "yes",
         idempotency_key=body.idempotency_key,
         actor=actor,
         device_id=device_id,
+        station=loaded,
     )
     return answer_out(result, result.expected)
 
 
-def start_run(db: Session, *, station: str, actor: Actor) -> StationStateOut:
+def start_run(db: Session, *, station: StationRef, actor: Actor) -> StationStateOut:
     """Start the next run of the running session."""
-    runtime.start_run(db, station_name=station, actor=actor)
-    return state(db, station=station)
+    name, _ = _named(station)
+    runtime.start_run(db, station_name=name, actor=actor)
+    return state(db, station=name)
 
 
 # ------------------------------------------------------------------ service objects → bodies

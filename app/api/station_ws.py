@@ -138,7 +138,7 @@ class _Connection:
             self.websocket.app,
             self.device.key,
             write=False,
-            op=lambda db, _device: station_ops.state(db, station=self.device.station),
+            op=lambda db, device: station_ops.state(db, station=device.station),
         )
         return out.model_dump(mode="json")
 
@@ -187,7 +187,6 @@ class _Connection:
         await self.send({"type": "result", "id": message.id, "op": message.type, "data": result})
 
     async def _run(self, message: _Message) -> dict[str, Any]:
-        station = self.device.station
         if isinstance(message, StateMessage):
             return await self.state()
         if isinstance(message, PromptMessage):
@@ -196,7 +195,7 @@ class _Connection:
             def prompt_op(db: Any, device: Any) -> Any:
                 return station_ops.prompt(
                     db,
-                    station=station,
+                    station=device.station,
                     body=body,
                     actor=device_actor(device),
                     device_id=device.id,
@@ -212,7 +211,7 @@ class _Connection:
             def answer_op(db: Any, device: Any) -> Any:
                 return station_ops.answer(
                     db,
-                    station=station,
+                    station=device.station,
                     step_id=step_id,
                     body=answer_body,
                     actor=device_actor(device),
@@ -223,7 +222,7 @@ class _Connection:
         else:
 
             def run_op(db: Any, device: Any) -> Any:
-                return station_ops.start_run(db, station=station, actor=device_actor(device))
+                return station_ops.start_run(db, station=device.station, actor=device_actor(device))
 
             out = await as_device(self.websocket.app, self.device.key, write=True, op=run_op)
         result: dict[str, Any] = out.model_dump(mode="json")

@@ -121,19 +121,38 @@ _LEARNER = (
 _ANSWER_OF = select(Answer).where(Answer.prompt_id == bindparam("prompt"))
 
 
-def _context(db: Session, station_name: str, *, lock_station: bool = False) -> Context:
-    """Station, participant, study and the latest session and run: two queries on the hot path."""
+def _seated(
+    db: Session, station_name: str, loaded: Station | None, lock_station: bool
+) -> tuple[Station, Participant | None, Study | None]:
+    """The station, its participant and their study: as ``loaded`` if given, else one query.
+
+    A robot's device brings its station with participant and study already loaded
+    (:func:`app.services.stations.authenticate_device`); a station row lock always queries.
+    """
+    if loaded is not None and not lock_station:
+        assert loaded.name == station_name, (loaded.name, station_name)
+        participant = loaded.participant
+        return loaded, participant, participant.study if participant is not None else None
     query = _SEATED_LOCKED if lock_station else _SEATED
     found = db.execute(query, {"station": station_name}).first()
     if found is None:
         get_station(db, station_name)  # raises NotFound naming the stations that exist
     assert found is not None
-    station, participant, study = found
+    return found[0], found[1], found[2]
+
+
+def _context(
+    db: Session, station_name: str, *, station: Station | None = None, lock_station: bool = False
+) -> Context:
+    """Station, participant, study and the latest session and run: one query when ``station``
+    comes loaded (see :func:`_seated`), two otherwise."""
+    station, participant, study = _seated(db, station_name, station, lock_station)
     if participant is None:
         raise Conflict(
             f"no participant is assigned to station {station.name!r}: "
             "an experimenter assigns one first"
         )
+    assert study is not None
     latest = db.execute(_LATEST, {"participant": participant.id}).first()
     session, run = (latest[0], latest[1]) if latest is not None else (None, None)
     return Context(station, participant, study, protocol_of(study), session, run)
@@ -463,10 +482,18 @@ def _refuse_withdrawn(ctx: Context) -> None:
 
 
 def request_prompt(
-    db: Session, *, station_name: str, category: str, actor: Actor, device_id: int | None = None
+    db: Session,
+    *,
+    station_name: str,
+    category: str,
+    actor: Actor,
+    device_id: int | None = None,
+    station: Station | None = None,
 ) -> PromptResult:
-    """Choose the question for ``category`` with the participant's learner; commits."""
-    ctx = _context(db, station_name)
+    """Choose the question for ``category`` with the participant's learner; commits.
+
+    ``station``: the station as a robot's device brings it (see :func:`_seated`)."""
+    ctx = _context(db, station_name, station=station)
     _refuse_withdrawn(ctx)
     index = _category_index(ctx, category)
     session = _running_session(db, ctx)
@@ -586,6 +613,49 @@ def _prompt_at_station(db: Session, ctx: Context, step_id: int) -> Prompt:
     return prompt
 
 
+@dataclass(frozen=True)
+class _Step:
+    """The prompt being answered, its run, the run's prompts, and the prompt's answer if any."""
+
+    prompt: Prompt
+    run: Run
+    rows: list[tuple[Prompt, int | None]]
+    answer_id: int | None
+
+
+def _step_in_run(
+    db: Session, ctx: Context, step_id: int, run: Run
+) -> tuple[Prompt, int | None, list[tuple[Prompt, int | None]]] | None:
+    """``step_id`` among the prompts of ``run`` (one query, locked first on PostgreSQL)."""
+    _lock(db, run)
+    rows: list[tuple[Prompt, int | None]] = [
+        (prompt, answer_id) for prompt, answer_id in db.execute(_RUN_PROMPTS, {"run": run.id})
+    ]
+    for prompt, answer_id in rows:
+        if prompt.id == step_id:
+            return prompt, answer_id, rows
+    return None
+
+
+def _find_step(db: Session, ctx: Context, step_id: int) -> _Step:
+    """The step and what the answer needs to know about its run.
+
+    Nearly always the step belongs to the current run: its prompts (with their answers' ids) are
+    read in one query that serves the duplicate check, the run-completion check and the reply.
+    Otherwise (an old step, or not this participant's) the step is looked up on its own.
+    """
+    if ctx.run is not None:
+        found = _step_in_run(db, ctx, step_id, ctx.run)
+        if found is not None:
+            return _Step(found[0], ctx.run, found[2], found[1])
+    prompt = _prompt_at_station(db, ctx, step_id)
+    run = db.get(Run, prompt.run_id)
+    assert run is not None
+    found = _step_in_run(db, ctx, step_id, run)
+    assert found is not None
+    return _Step(prompt, run, found[2], found[1])
+
+
 def _preferred(ctx: Context, category: str, probabilities: list[float]) -> float | None:
     """The probability of the category's preferred question, if the protocol names one."""
     preferred = ctx.protocol.category(category).preferred
@@ -606,20 +676,23 @@ def record_answer(
     idempotency_key: str,
     actor: Actor,
     device_id: int | None = None,
+    station: Station | None = None,
 ) -> AnswerResult:
-    """Learn from a yes/no answer and choose the reply, exactly once; commits."""
+    """Learn from a yes/no answer and choose the reply, exactly once; commits.
+
+    Every read comes before the first change, so the changes (learner, answer, audit row, run)
+    are flushed once, at commit. ``station``: as a robot's device brings it (:func:`_seated`).
+    """
     started = time.perf_counter()
     key = idempotency_key.strip()
     if not key or len(key) > 100:
         raise InvalidInput("idempotency_key: give 1-100 characters, unique per answer")
-    ctx = _context(db, station_name)
-    prompt = _prompt_at_station(db, ctx, step_id)
-    run = ctx.run if ctx.run is not None and ctx.run.id == prompt.run_id else None
-    run = run or db.get(Run, prompt.run_id)
-    assert run is not None
-    _lock(db, run)
-    existing = db.scalar(_ANSWER_OF, {"prompt": prompt.id})
-    if existing is not None:
+    ctx = _context(db, station_name, station=station)
+    step = _find_step(db, ctx, step_id)
+    prompt, run = step.prompt, step.run
+    if step.answer_id is not None:
+        existing = db.get(Answer, step.answer_id)
+        assert existing is not None
         result = _replay(db, ctx, run, existing, prompt, answer=answer, idempotency_key=key)
         db.rollback()
         return result
@@ -631,6 +704,11 @@ def record_answer(
         )
     reward = ctx.protocol.reward.yes if answer else ctx.protocol.reward.no
     row = _learner_row(db, ctx.participant.id, prompt.category)
+    asked = {p.category for p, _ in step.rows}
+    answered = [p.category for p, answer_id in step.rows if answer_id is not None]
+    remaining = [p for p, answer_id in step.rows if answer_id is None and p.id != prompt.id]
+    pending = [c.name for c in ctx.protocol.categories if c.name not in asked]
+    # Reads end here: from now on the session only collects changes.
     learner = None
     if prompt.adapts:
         if row.version != prompt.learner_version:  # pragma: no cover - guarded by the run lock
@@ -646,10 +724,8 @@ def record_answer(
     probability = _reply_probability(ctx, prompt, after)
     level = confidence_level(probability, ctx.protocol.replies.thresholds)
     reply = ctx.protocol.replies.levels[level]
-    progress = run_progress(db, run, ctx.protocol)
-    remaining = [p for p in progress.open if p.id != prompt.id]
     run_done = session_done = False
-    if not remaining and not progress.pending:
+    if not remaining and not pending:
         ctx.run = run
         run_done = True
         session_done = _close_run(db, ctx, run, RunStatus.COMPLETED, actor)
@@ -689,8 +765,8 @@ def record_answer(
         processing_ms=round((time.perf_counter() - started) * 1000.0, 3),
     )
     db.add(record)
-    answered = RunProgress([*progress.answered, prompt.category], remaining, progress.pending)
-    expected = expected_next(db, ctx, None if run_done else answered)
+    progress = RunProgress([*answered, prompt.category], remaining, pending)
+    expected = expected_next(db, ctx, None if run_done else progress)
     try:
         db.commit()
     except IntegrityError:
@@ -699,9 +775,9 @@ def record_answer(
         if existing is None:
             raise
         ctx = _context(db, station_name)
-        run = db.get(Run, prompt.run_id)
-        assert run is not None
-        return _replay(db, ctx, run, existing, prompt, answer=answer, idempotency_key=key)
+        stored_run = db.get(Run, prompt.run_id)
+        assert stored_run is not None
+        return _replay(db, ctx, stored_run, existing, prompt, answer=answer, idempotency_key=key)
     if learner is not None:
         learners.cache.put(row.id, row.version, learner)
     return AnswerResult(record, prompt, False, run_done, session_done, expected)
@@ -723,14 +799,10 @@ class StationView:
     expected: Expected
 
 
-def station_view(db: Session, *, station_name: str) -> StationView:
-    """Where the station stands and what it should do next."""
-    found = db.execute(_SEATED, {"station": station_name}).first()
-    if found is None:
-        get_station(db, station_name)  # raises NotFound naming the stations that exist
-    assert found is not None
-    station = found[0]
-    if station.participant_id is None:
+def station_view(db: Session, *, station_name: str, station: Station | None = None) -> StationView:
+    """Where the station stands and what it should do next (``station``: see :func:`_seated`)."""
+    station, participant, _ = _seated(db, station_name, station, lock_station=False)
+    if participant is None:
         return StationView(
             station.name,
             None,
@@ -742,7 +814,7 @@ def station_view(db: Session, *, station_name: str) -> StationView:
                 "assign", f"an experimenter assigns a participant to station {station.name!r}"
             ),
         )
-    ctx = _context(db, station_name)
+    ctx = _context(db, station_name, station=station)
     session_info = run_info = None
     open_prompts: list[Prompt] = []
     if ctx.session is not None:

@@ -11,7 +11,7 @@ import re
 from dataclasses import dataclass
 
 from sqlalchemy import bindparam, select, update
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, contains_eager
 
 from app import events
 from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
@@ -139,11 +139,30 @@ def revoke_device(db: Session, *, device_id: int, actor: Actor) -> Device:
     return device
 
 
-_DEVICE_BY_KEY = select(Device).where(Device.key_hash == bindparam("digest"))
+_DEVICE_BY_KEY = (
+    select(Device)
+    .join(Device.station)
+    .outerjoin(Station.participant)
+    .outerjoin(Participant.study)
+    .options(
+        contains_eager(Device.station)
+        .contains_eager(Station.participant)
+        .contains_eager(Participant.study)
+    )
+    .where(Device.key_hash == bindparam("digest"))
+)
+"""A device with its station, the participant seated there and their study, in one statement:
+every robot request needs all four (app.services.runtime takes them from ``device.station``), and
+a separate query for each costs a round trip and as much CPU as the lookup itself."""
 
 
 def authenticate_device(db: Session, *, key: str) -> Device:
-    """The live device holding this key; NotAuthenticated otherwise (never saying why)."""
+    """The live device holding this key; NotAuthenticated otherwise (never saying why).
+
+    Looked up in the database on every request, never cached: a revoked key is refused on its
+    very next request, whichever worker process serves it. The device comes with its station,
+    the seated participant and their study loaded (no further queries to reach them).
+    """
     device = None
     if key.startswith(KEY_PREFIX) and len(key) <= KEY_MAX_LENGTH:
         device = db.scalar(_DEVICE_BY_KEY, {"digest": token_digest(key)})
