@@ -12,8 +12,9 @@ from tqdm import tqdm
 
 from app.bots import BotConfig, run_bots
 from app.cli.admin import JsonFlag, emit_json
-from app.client import ApiError, StationSocket
+from app.client import ApiError, DeviceKeyRefused, StationSocket
 from app.errors import InvalidInput
+from app.services.runtime import session_label
 
 
 def register(cli: typer.Typer) -> None:
@@ -28,7 +29,7 @@ def _show_state(state: dict[str, Any]) -> None:
     run = state.get("run")
     where = ""
     if session:
-        where = f", session {session['number']} ({session['status']})"
+        where = f", {session_label(session['number'])} ({session['status']})"
         if run:
             where += f", run {run['number']} ({run['status']})"
     typer.echo(f"[{state['station']}] {who}{where}")
@@ -63,6 +64,8 @@ async def _console(url: str, key: str) -> None:
             )
             try:
                 step = await socket.prompt(name)
+            except DeviceKeyRefused:
+                raise
             except ApiError as exc:
                 typer.echo(f"  refused: {exc.detail}")
                 continue
@@ -95,6 +98,10 @@ def robot(
         asyncio.run(_console(url, key))
     except (KeyboardInterrupt, EOFError):
         typer.echo("")
+    except DeviceKeyRefused as exc:
+        raise InvalidInput(
+            f"the server refused the device key: {exc.reason}; ask the experimenter for a new key"
+        ) from exc
     except OSError as exc:
         raise InvalidInput(f"cannot reach {url}: {exc}") from exc
 
