@@ -29,7 +29,7 @@ from sqlalchemy.orm import Session
 from app.protocol import Protocol
 from app.randomisation import entry_at
 from app.services import learners
-from app.services.runtime import FAMILIARISATION, first_session_number, runs_in
+from app.services.runtime import FAMILIARISATION, first_session_number, runs_in, session_label
 from app.services.studies import get_study, protocol_of
 from app.tables import (
     Allocation,
@@ -45,6 +45,15 @@ from app.tables import (
     StudySession,
 )
 from models.replies import confidence_level
+
+
+def _run_label(session_number: int, run_number: int) -> str:
+    """How people call a run: the familiarisation run has one, so it is not numbered."""
+    if session_number != FAMILIARISATION:
+        return f"{session_label(session_number)} run {run_number}"
+    if run_number == 1:
+        return session_label(session_number)
+    return f"run {run_number} of {session_label(session_number)}"
 
 
 @dataclass(frozen=True)
@@ -241,7 +250,7 @@ def _check_steps(data: _Study, report: VerifyReport) -> None:
                 Finding(
                     "timeline",
                     code,
-                    f"step {prompt.id}: adapts={prompt.adapts} in session {session.number}",
+                    f"step {prompt.id}: adapts={prompt.adapts} in {session_label(session.number)}",
                 )
             )
         category = categories.get(prompt.category)
@@ -303,13 +312,15 @@ def _check_timeline(data: _Study, report: VerifyReport) -> None:
                     Finding(
                         "timeline",
                         code,
-                        f"session {session.number} still running after a later one",
+                        f"{session_label(session.number)} still running after a later one",
                     )
                 )
             if (session.status == SessionStatus.RUNNING) == (session.ended_at is not None):
                 report.findings.append(
                     Finding(
-                        "timeline", code, f"session {session.number}: status and end time disagree"
+                        "timeline",
+                        code,
+                        f"{session_label(session.number)}: status and end time disagree",
                     )
                 )
             runs = runs_of.get(session.id, [])
@@ -319,12 +330,12 @@ def _check_timeline(data: _Study, report: VerifyReport) -> None:
                     Finding(
                         "timeline",
                         code,
-                        f"session {session.number}: runs out of order {run_numbers}",
+                        f"{session_label(session.number)}: runs out of order {run_numbers}",
                     )
                 )
             if len(runs) > runs_in(protocol, session.number):
                 report.findings.append(
-                    Finding("timeline", code, f"session {session.number}: too many runs")
+                    Finding("timeline", code, f"{session_label(session.number)}: too many runs")
                 )
             for position, run in enumerate(runs):
                 if run.participant_id != participant_id:
@@ -338,7 +349,7 @@ def _check_timeline(data: _Study, report: VerifyReport) -> None:
                         Finding(
                             "timeline",
                             code,
-                            f"session {session.number} run {run.number} is running out of turn",
+                            f"{_run_label(session.number, run.number)} is running out of turn",
                         )
                     )
                 if run.status == RunStatus.COMPLETED and answered_in[run.id] != all_categories:
@@ -347,7 +358,7 @@ def _check_timeline(data: _Study, report: VerifyReport) -> None:
                         Finding(
                             "timeline",
                             code,
-                            f"session {session.number} run {run.number} "
+                            f"{_run_label(session.number, run.number)} "
                             f"completed without {', '.join(missing)}",
                         )
                     )
