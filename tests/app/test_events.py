@@ -44,6 +44,54 @@ def test_committed_events_reach_subscribers_and_rolled_back_ones_do_not(
     assert received == [Event(topic="study:1", type="kept", data={"n": 2})]
 
 
+def test_a_transactions_events_arrive_in_order_from_one_notify(database: Database) -> None:
+    """PostgreSQL: all of a transaction's events go out in one statement, in publication order
+    (large ones truncated); SQLite: straight to the hub."""
+    from sqlalchemy import event as sa_event
+
+    notifies: list[str] = []
+
+    def count(_conn: object, _cursor: object, statement: str, *_: object) -> None:
+        if "pg_notify" in statement:
+            notifies.append(statement)
+
+    async def scenario() -> list[Event]:
+        hub = database.hub
+        listener = None
+        if not database.is_sqlite:
+            listener = events.PostgresListener(database.url, hub)
+            listener.start()
+        received: list[Event] = []
+        sa_event.listen(database.engine, "before_cursor_execute", count)
+        try:
+            async with hub.subscribe(["study:7"]) as subscription:
+
+                def publish() -> None:
+                    with database.write_session() as db:
+                        for n in range(3):
+                            events.publish(db, topics=["study:7"], type="step", n=n)
+                        events.publish(db, topics=["study:7"], type="big", text="x" * 9000)
+                        db.commit()
+
+                await asyncio.to_thread(publish)
+                while len(received) < 4:
+                    event = await asyncio.wait_for(subscription.next(), 5)
+                    if event is not RESYNC:
+                        received.append(event)
+        finally:
+            sa_event.remove(database.engine, "before_cursor_execute", count)
+            if listener is not None:
+                listener.stop()
+        return received
+
+    received = asyncio.run(scenario())
+    assert [(e.type, e.data.get("n")) for e in received[:3]] == [("step", n) for n in range(3)]
+    assert received[3].type == "big"
+    assert len(notifies) == (0 if database.is_sqlite else 1)
+    if not database.is_sqlite:
+        assert received[3].data == {"truncated": True}
+
+
 def test_a_slow_subscriber_is_told_to_resync() -> None:
     async def scenario() -> list[Event]:
         hub = EventHub()
