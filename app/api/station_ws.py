@@ -14,6 +14,9 @@ Protocol (JSON text frames; docs/robot-integration.md has a transcript):
   station changes (participant assigned, session/run started or ended, prompt, answer).
 - Heartbeats: the server sends ``{"type": "ping"}`` every ``heartbeat_seconds`` and closes the
   connection (code 4408) after three intervals without hearing from the client.
+- A revoked key's connection is closed with code 4401: at once when the revocation's event
+  arrives (any worker), on its next request, and at the latest at its next heartbeat (which
+  re-checks the key: covers a revocation from another process on SQLite, which sends no event).
 
 A client that reconnects gets the current state (open prompts included) in ``hello``; prompts and
 answers are idempotent, so resuming never duplicates a step.
@@ -100,6 +103,7 @@ _parse = TypeAdapter(ClientMessage)
 @dataclass(frozen=True)
 class _Device:
     key: str
+    id: int
     station: str
     station_id: int
 
@@ -107,7 +111,9 @@ class _Device:
 def _authenticate(database: Database, key: str) -> _Device:
     with database.read_session() as db:
         device = stations.authenticate_device(db, key=key)
-        return _Device(key=key, station=device.station.name, station_id=device.station_id)
+        return _Device(
+            key=key, id=device.id, station=device.station.name, station_id=device.station_id
+        )
 
 
 def _describe(exc: ValidationError) -> str:
@@ -142,7 +148,22 @@ class _Connection:
         )
         return out.model_dump(mode="json")
 
-    async def handle(self, raw: str) -> None:
+    async def close_revoked(self) -> None:
+        """Close the connection of a key that is no longer valid (code 4401)."""
+        await self.websocket.close(CLOSE_UNAUTHENTICATED, "device key revoked")
+
+    async def key_still_valid(self) -> bool:
+        """Whether the key still authenticates (True when the database cannot say right now)."""
+        try:
+            await run_in_threadpool(_authenticate, self.database, self.device.key)
+        except NotAuthenticated:
+            return False
+        except OperationalError:
+            return True
+        return True
+
+    async def handle(self, raw: str) -> bool:
+        """Answer one client message; False when the connection was closed (key revoked)."""
         request_id: Any = None
         try:
             data = json.loads(raw)
@@ -152,18 +173,21 @@ class _Connection:
             await self.send(
                 {"type": "error", "id": None, "status": 400, "detail": f"not JSON: {exc.msg}"}
             )
-            return
+            return True
         except ValidationError as exc:
             await self.send(
                 {"type": "error", "id": request_id, "status": 422, "detail": _describe(exc)}
             )
-            return
+            return True
         if isinstance(message, PingMessage):
             if message.type == "ping":
                 await self.send({"type": "pong", "id": message.id})
-            return
+            return True
         try:
             result = await self._run(message)
+        except NotAuthenticated:
+            await self.close_revoked()
+            return False
         except TrustlabError as exc:
             await self.send(
                 {
@@ -173,7 +197,7 @@ class _Connection:
                     "detail": exc.message,
                 }
             )
-            return
+            return True
         except OperationalError:
             await self.send(
                 {
@@ -183,8 +207,9 @@ class _Connection:
                     "detail": "the database is unavailable right now; please retry",
                 }
             )
-            return
+            return True
         await self.send({"type": "result", "id": message.id, "op": message.type, "data": result})
+        return True
 
     async def _run(self, message: _Message) -> dict[str, Any]:
         if isinstance(message, StateMessage):
@@ -232,17 +257,23 @@ class _Connection:
         while True:
             raw = await self.websocket.receive_text()
             self._heard = asyncio.get_running_loop().time()
-            await self.handle(raw)
+            if not await self.handle(raw):
+                return
 
     async def push_loop(self) -> None:
         topic = f"station:{self.device.station_id}"
         async with self.database.hub.subscribe([topic]) as subscription:
             while True:
                 event: Event = await subscription.next()
+                if event.type == stations.DEVICE_REVOKED:
+                    if event.data.get("device_id") == self.device.id:
+                        await self.close_revoked()
+                        return
+                    continue  # another key of the station: nothing the robot needs to know
                 try:
                     state = await self.state()
                 except NotAuthenticated:
-                    await self.websocket.close(CLOSE_UNAUTHENTICATED, "device key revoked")
+                    await self.close_revoked()
                     return
                 await self.send(
                     {"type": "event", "event": event.type, "data": event.data, "state": state}
@@ -254,6 +285,9 @@ class _Connection:
             await asyncio.sleep(self.heartbeat)
             if loop.time() - self._heard > self.heartbeat * MISSED_HEARTBEATS:
                 await self.websocket.close(CLOSE_HEARTBEAT_TIMEOUT, "no heartbeat from the client")
+                return
+            if not await self.key_still_valid():
+                await self.close_revoked()
                 return
             await self.send({"type": "ping"})
 

@@ -30,6 +30,9 @@ from app.tables import (
 
 STATION_NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{0,63}$")
 KEY_PREFIX = "tlk_"
+DEVICE_REVOKED = "device_revoked"
+"""The station event announcing a revoked key (data: ``device_id``): every worker closes that
+device's open WebSocket at once (app.api.station_ws)."""
 KEY_MAX_LENGTH = 200
 """The longest bearer value taken for a device key (issued keys have 47 characters). The REST
 dependency and :func:`authenticate_device` both refuse longer ones unhashed: one limit, so a key
@@ -121,7 +124,11 @@ def issue_device_key(db: Session, *, station_name: str, label: str, actor: Actor
 
 
 def revoke_device(db: Session, *, device_id: int, actor: Actor) -> Device:
-    """Revoke a device key at once; commits."""
+    """Revoke a device key at once; commits.
+
+    Its next request is refused (keys are looked up on every request), and its open WebSocket,
+    in whichever worker, is closed on the :data:`DEVICE_REVOKED` event (on SQLite, a revocation
+    from the command line is another process: the socket's periodic key check closes it)."""
     device = db.get(Device, device_id, with_for_update=True)
     if device is None:
         raise NotFound(f"no device with id {device_id}")
@@ -134,6 +141,9 @@ def revoke_device(db: Session, *, device_id: int, actor: Actor) -> Device:
         action="device.key_revoked",
         subject=f"{device.station.name}/{device.label}",
         details={"device_id": device.id, "key_prefix": device.key_prefix},
+    )
+    events.publish(
+        db, topics=[station_topic(device.station)], type=DEVICE_REVOKED, device_id=device.id
     )
     db.commit()
     return device

@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import time
 import uuid
 from typing import Any
 
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from sqlalchemy import select
 from starlette.websockets import WebSocketDisconnect
 
-from tests.conftest import Lab
+from app.db import Database
+from app.security import token_digest
+from app.services.audit import Actor
+from app.services.stations import revoke_device
+from app.tables import Device, Role
+from tests.conftest import Lab, UserClientFactory
 
 SOCKET = "/api/v1/station/ws"
 
@@ -145,3 +152,77 @@ def _drain(ws: Any) -> None:
     """Read until the server closes the connection."""
     for _ in range(50):
         ws.receive_json()
+
+
+def _device_id(lab: Lab, key: str) -> int:
+    with lab.database.writing() as db:
+        device_id = db.scalar(select(Device.id).where(Device.key_hash == token_digest(key)))
+    assert device_id is not None
+    return int(device_id)
+
+
+def _revoke_from_another_process(lab: Lab) -> None:
+    """Revoke the lab's key as ``trustlab device revoke`` does: with a Database of its own (on
+    SQLite its events reach no other process; on PostgreSQL they arrive by NOTIFY)."""
+    elsewhere = Database(lab.database.url)
+    try:
+        with elsewhere.writing() as db:
+            revoke_device(db, device_id=_device_id(lab, lab.key), actor=Actor.system("tests"))
+    finally:
+        elsewhere.dispose()
+
+
+def _closed_code(ws: Any) -> int:
+    with pytest.raises(WebSocketDisconnect) as closed:
+        _drain(ws)
+    return int(closed.value.code)
+
+
+@pytest.mark.timeout(60)
+def test_revoking_a_key_closes_its_open_socket_at_once(
+    app: FastAPI, lab: Lab, user_client: UserClientFactory
+) -> None:
+    """The revocation's event closes the socket (4401); the station's other key stays connected.
+    The heartbeat is long, so only the event can close it within the time allowed."""
+    app.state.settings = app.state.settings.model_copy(update={"websocket_heartbeat_seconds": 8})
+    admin = user_client(Role.ADMIN)
+    spare = admin.post(f"/api/v1/stations/{lab.station}/devices", json={"label": "spare"})
+    spare_key = spare.json()["key"]
+    with (
+        lab.robot.websocket_connect(SOCKET) as ws,
+        TestClient(app, headers={"Authorization": f"Bearer {spare_key}"}) as other,
+        other.websocket_connect(SOCKET) as other_ws,
+    ):
+        assert ws.receive_json()["type"] == "hello"
+        assert other_ws.receive_json()["type"] == "hello"
+        started = time.monotonic()
+        revoked = admin.post(f"/api/v1/devices/{_device_id(lab, lab.key)}/revoke")
+        assert revoked.status_code == 200
+        assert _closed_code(ws) == 4401
+        assert time.monotonic() - started < 4
+        other_ws.send_json({"id": 1, "type": "state"})
+        reply = other_ws.receive_json()
+        assert (reply["type"], reply["id"]) == ("result", 1)
+
+
+@pytest.mark.timeout(60)
+def test_a_revocation_that_sends_no_event_closes_the_socket_at_the_next_heartbeat(
+    app: FastAPI, lab: Lab
+) -> None:
+    """On SQLite a revocation from another process (``trustlab device revoke``) reaches this
+    process as no event: the heartbeat's key check closes the socket (4401), not the timeout."""
+    app.state.settings = app.state.settings.model_copy(update={"websocket_heartbeat_seconds": 0.2})
+    with lab.robot.websocket_connect(SOCKET) as ws:
+        assert ws.receive_json()["type"] == "hello"
+        _revoke_from_another_process(lab)
+        assert _closed_code(ws) == 4401
+
+
+@pytest.mark.timeout(60)
+def test_a_request_with_a_revoked_key_closes_the_socket(app: FastAPI, lab: Lab) -> None:
+    app.state.settings = app.state.settings.model_copy(update={"websocket_heartbeat_seconds": 30})
+    with lab.robot.websocket_connect(SOCKET) as ws:
+        assert ws.receive_json()["type"] == "hello"
+        _revoke_from_another_process(lab)
+        ws.send_json({"id": 1, "type": "state"})
+        assert _closed_code(ws) == 4401
