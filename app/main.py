@@ -48,7 +48,11 @@ refetch delay, which that write's own event triggers)."""
 def create_app(settings: Settings | None = None) -> FastAPI:
     """A trustlab application for ``settings`` (read from the environment when omitted)."""
     settings = settings or Settings()
-    database = Database(settings.database_url, sqlite_synchronous=settings.sqlite_synchronous)
+    database = Database(
+        settings.database_url,
+        sqlite_synchronous=settings.sqlite_synchronous,
+        background_checkpoints=True,
+    )
     activity = ActivityRecorder(database)
 
     @asynccontextmanager
@@ -58,9 +62,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
         if listener is not None:
             listener.start()
+        database.start_background_work()
         activity.start()
         yield
         activity.stop()
+        database.stop_background_work()
         if listener is not None:
             listener.stop()
         database.dispose()
