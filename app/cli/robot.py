@@ -5,13 +5,16 @@ from __future__ import annotations
 import asyncio
 import json
 import sys
+import uuid
 from typing import Annotated, Any, Literal
 
 import typer
 from tqdm import tqdm
+from websockets.exceptions import ConnectionClosed, WebSocketException
 
 from app.bots import BotConfig, run_bots
 from app.cli.admin import JsonFlag, emit_json
+from app.cli.errors import fail
 from app.client import ApiError, DeviceKeyRefused, StationSocket
 from app.errors import InvalidInput
 from app.services.runtime import session_label
@@ -36,55 +39,115 @@ def _show_state(state: dict[str, Any]) -> None:
     typer.echo(f"  next: {state['expected']['message']}")
 
 
+BUSY = 503
+"""The status of a server that cannot serve right now (e.g. its database restarts): retry."""
+
+
+class _ConnectionLost(Exception):
+    """The station WebSocket is gone and the client's own reconnection gave up."""
+
+
+def _refusal(exc: ApiError, retry: str) -> None:
+    """One line for a refused request: busy (503, ``retry`` says how) or refused (4xx)."""
+    if exc.status == BUSY:
+        typer.echo(f"  server unavailable: {exc.detail}; {retry}")
+    else:
+        typer.echo(f"  refused: {exc.detail}")
+
+
 async def _console(url: str, key: str) -> None:
     async with StationSocket(url, key) as socket:
         assert socket.state is not None
         _show_state(socket.state)
-        while True:
-            state = socket.state or {}
-            expected = state.get("expected", {})
-            categories: list[str] = expected.get("categories") or []
-            if expected.get("action") == "answer" and state.get("open_prompts"):
-                open_prompt = state["open_prompts"][0]
-                await _ask(socket, open_prompt["step_id"], open_prompt["question"])
-                continue
-            if expected.get("action") != "prompt":
-                typer.echo("  waiting for the experimenter… (Ctrl-C quits)")
-                event = await socket.next_event()
-                typer.echo(f"  event: {event.get('event', event['type'])}")
-                continue
-            menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
-            choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
-            if choice.lower() in {"q", "quit"}:
-                return
-            name = (
-                categories[int(choice) - 1]
-                if choice.isdigit() and 0 < int(choice) <= len(categories)
-                else choice
-            )
-            try:
-                step = await socket.prompt(name)
-            except DeviceKeyRefused:
-                raise
-            except ApiError as exc:
-                typer.echo(f"  refused: {exc.detail}")
-                continue
-            await _ask(socket, step.step_id, step.question)
+        try:
+            await _loop(socket)
+        except DeviceKeyRefused:
+            raise
+        except (ConnectionError, ConnectionClosed, TimeoutError) as exc:
+            raise _ConnectionLost(str(exc) or type(exc).__name__) from exc
+
+
+async def _loop(socket: StationSocket) -> None:
+    """Prompt, ask and wait until the user quits; a refused request is shown and skipped."""
+    while True:
+        state = socket.state or {}
+        expected = state.get("expected", {})
+        categories: list[str] = expected.get("categories") or []
+        if expected.get("action") == "answer" and state.get("open_prompts"):
+            open_prompt = state["open_prompts"][0]
+            await _ask(socket, open_prompt["step_id"], open_prompt["question"])
+            continue
+        if expected.get("action") != "prompt":
+            typer.echo("  waiting for the experimenter… (Ctrl-C quits)")
+            event = await socket.next_event()
+            typer.echo(f"  event: {event.get('event', event['type'])}")
+            continue
+        menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
+        choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
+        if choice.lower() in {"q", "quit"}:
+            return
+        name = (
+            categories[int(choice) - 1]
+            if choice.isdigit() and 0 < int(choice) <= len(categories)
+            else choice
+        )
+        try:
+            step = await socket.prompt(name)
+        except DeviceKeyRefused:
+            raise
+        except ApiError as exc:
+            _refusal(exc, "choose the category again to retry")
+            continue
+        await _ask(socket, step.step_id, step.question)
 
 
 async def _ask(socket: StationSocket, step_id: int, question: str) -> None:
+    """Ask ``question``, send the typed answer; a refusal is shown and the state re-read.
+
+    A busy server (503) asks for the answer again and resends it with the same idempotency key,
+    so an answer the server did record after all is not recorded twice.
+    """
     typer.echo(f"  robot: {question}")
+    idempotency_key = uuid.uuid4().hex
     while True:
         said = (await asyncio.to_thread(input, "  participant (y/n)? ")).strip().lower()
-        if said in {"y", "yes", "n", "no"}:
-            break
-    answer: Literal["yes", "no"] = "yes" if said.startswith("y") else "no"
-    reply = await socket.answer(step_id, answer)
+        if said not in {"y", "yes", "n", "no"}:
+            continue
+        answer: Literal["yes", "no"] = "yes" if said.startswith("y") else "no"
+        try:
+            reply = await socket.answer(step_id, answer, idempotency_key=idempotency_key)
+        except DeviceKeyRefused:
+            raise
+        except ApiError as exc:
+            if exc.status == BUSY:
+                _refusal(exc, "type the answer again to retry")
+                continue
+            _refusal(exc, "")
+            await _refresh(socket)
+            return
+        break
     typer.echo(
         f"  robot: {reply.reply}  (confidence {reply.confidence}, p = {reply.probability:.2f})"
     )
-    socket.state = (await socket.current_state()).model_dump(mode="json")
+    if not await _refresh(socket) and socket.state is not None:
+        # the answer is recorded: do not ask it again from the stale state
+        socket.state["open_prompts"] = [
+            p for p in socket.state.get("open_prompts") or [] if p.get("step_id") != step_id
+        ]
+        socket.state["expected"] = reply.expected.model_dump(mode="json")
     typer.echo(f"  next: {reply.expected.message}")
+
+
+async def _refresh(socket: StationSocket) -> bool:
+    """Re-read the station's state; False (with the refusal shown) when the server refuses."""
+    try:
+        socket.state = (await socket.current_state()).model_dump(mode="json")
+    except DeviceKeyRefused:
+        raise
+    except ApiError as exc:
+        _refusal(exc, "carrying on with the last known state")
+        return False
+    return True
 
 
 def robot(
@@ -102,7 +165,11 @@ def robot(
         raise InvalidInput(
             f"the server refused the device key: {exc.reason}; ask the experimenter for a new key"
         ) from exc
-    except OSError as exc:
+    except _ConnectionLost as exc:
+        fail(f"lost the connection to {url}: {exc}; start the robot again once the server is back")
+    except ApiError as exc:
+        fail(f"the server refused: {exc.detail}")
+    except (OSError, WebSocketException) as exc:
         raise InvalidInput(f"cannot reach {url}: {exc}") from exc
 
 

@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
+import socket
 from typing import Any
 
+import pytest
 from typer.testing import CliRunner
 from websockets.asyncio.server import ServerConnection
 
 from app.cli import cli
+from app.cli import robot as robot_cli
+from app.client import StationSocket
 from tests.app.test_client_socket import Script, scripted_server
 
 runner = CliRunner()
@@ -20,8 +25,12 @@ def _state(action: str, *, session: int | None = None, categories: list[str] | N
         "station": "lab-1",
         "participant": "P01" if session is not None else None,
         "study": "s" if session is not None else None,
-        "session": None if session is None else {"number": session, "status": "running"},
-        "run": None if session is None else {"number": 1, "status": "running"},
+        "session": None
+        if session is None
+        else {"number": session, "status": "running", "runs": 4, "familiarisation": session == 0},
+        "run": None
+        if session is None
+        else {"number": 1, "status": "running", "answered": [], "pending": categories or []},
         "open_prompts": [],
         "expected": {
             "action": action,
@@ -90,3 +99,183 @@ def test_an_unknown_key_at_connection_ends_with_one_error_line() -> None:
         "error: the server refused the device key: unknown or revoked device key; "
         "ask the experimenter for a new key"
     )
+
+
+def _prompt(step_id: int = 7) -> Any:
+    return {
+        "step_id": step_id,
+        "category": "conation",
+        "action": 0,
+        "question": "Do you want to go on?",
+        "probabilities": [0.5, 0.5],
+        "adapts": True,
+        "session": 2,
+        "run": 1,
+        "created": True,
+    }
+
+
+def _answered(state: Any, step_id: int = 7) -> Any:
+    return {
+        "step_id": step_id,
+        "category": "conation",
+        "answer": "yes",
+        "reply": "Great.",
+        "confidence_level": 2,
+        "confidence": "sure",
+        "probability": 0.75,
+        "probabilities": [0.75, 0.25],
+        "replayed": False,
+        "run_completed": False,
+        "session_completed": False,
+        "expected": state["expected"],
+    }
+
+
+Reply = tuple[str, Any]  # ("result", data) or ("error", (status, detail))
+
+
+def _serving(replies: dict[str, list[Reply]], seen: list[dict[str, Any]]) -> Script:
+    """Greet with a prompt state, then answer each request with the next scripted reply."""
+    prompting = _state("prompt", session=2, categories=["conation"])
+
+    async def script(attempt: int, connection: ServerConnection) -> None:
+        await connection.send(_hello(prompting))
+        async for raw in connection:
+            message = json.loads(raw)
+            if message["type"] == "pong":
+                continue
+            seen.append(message)
+            kind, body = replies[message["type"]].pop(0)
+            if kind == "error":
+                status, detail = body
+                reply = {"type": "error", "id": message["id"], "status": status, "detail": detail}
+            else:
+                reply = {"type": "result", "id": message["id"], "data": body}
+            await connection.send(json.dumps(reply))
+            if message["type"] == "state" and body["expected"]["action"] == "wait":
+                # the experimenter starts the next session: the robot prompts again
+                event = {
+                    "type": "event",
+                    "event": "session_started",
+                    "data": {},
+                    "state": prompting,
+                }
+                await connection.send(json.dumps(event))
+
+    return script
+
+
+def test_a_refused_answer_is_shown_and_the_robot_carries_on() -> None:
+    prompting = _state("prompt", session=2, categories=["conation"])
+    seen: list[dict[str, Any]] = []
+    replies: dict[str, list[Reply]] = {
+        "prompt": [("result", _prompt()), ("result", _prompt(8))],
+        "answer": [
+            ("error", (409, "step 7 was already answered 'no'; a different answer is refused")),
+            ("result", _answered(prompting, 8)),
+        ],
+        "state": [("result", prompting), ("result", prompting)],
+    }
+    code, out, err, _ = _robot(_serving(replies, seen), stdin="1\ny\n1\ny\nq\n")
+    assert code == 0, err
+    assert "Traceback" not in out + err
+    assert "  refused: step 7 was already answered 'no'; a different answer is refused" in out
+    after = out.split("refused:", 1)[1]
+    assert "category?" in after, "the loop goes on after a refused answer"
+    assert "robot: Great." in after, "the next prompt and answer work"
+    assert [m["type"] for m in seen] == ["prompt", "answer", "state", "prompt", "answer", "state"]
+
+
+def test_a_busy_server_asks_for_the_answer_again_and_resends_it_with_the_same_key() -> None:
+    prompting = _state("prompt", session=2, categories=["conation"])
+    seen: list[dict[str, Any]] = []
+    replies: dict[str, list[Reply]] = {
+        "prompt": [("result", _prompt())],
+        "answer": [
+            ("error", (503, "the database is unavailable right now; please retry")),
+            ("result", _answered(prompting)),
+        ],
+        "state": [("result", prompting)],
+    }
+    code, out, err, _ = _robot(_serving(replies, seen), stdin="1\ny\ny\nq\n")
+    assert code == 0, err
+    assert "Traceback" not in out + err
+    assert (
+        "  server unavailable: the database is unavailable right now; please retry; "
+        "type the answer again to retry"
+    ) in out
+    assert "robot: Great." in out
+    answers = [m for m in seen if m["type"] == "answer"]
+    assert len(answers) == 2
+    assert answers[0]["idempotency_key"] == answers[1]["idempotency_key"]
+
+
+def test_a_session_ended_meanwhile_is_shown_and_the_robot_waits() -> None:
+    waiting = _state("wait", session=2)
+    seen: list[dict[str, Any]] = []
+    replies: dict[str, list[Reply]] = {
+        "prompt": [("result", _prompt())],
+        "answer": [("error", (409, "session 2 has ended; no more answers are taken"))],
+        "state": [("result", waiting)],
+    }
+    code, out, err, _ = _robot(_serving(replies, seen), stdin="1\nn\nq\n")
+    assert code == 0, err
+    assert "Traceback" not in out + err
+    assert "  refused: session 2 has ended; no more answers are taken" in out
+    after = out.split("refused:", 1)[1]
+    assert "waiting for the experimenter" in after
+    assert "event: session_started" in after and "category?" in after
+
+
+def test_a_refused_prompt_is_shown_and_the_menu_comes_back() -> None:
+    seen: list[dict[str, Any]] = []
+    replies: dict[str, list[Reply]] = {
+        "prompt": [("error", (409, "no running session at station lab-1"))],
+    }
+    code, out, err, _ = _robot(_serving(replies, seen), stdin="1\nq\n")
+    assert code == 0, err
+    assert "  refused: no running session at station lab-1" in out
+    assert out.count("category?") == 2
+
+
+def test_a_lost_connection_ends_with_one_error_line(monkeypatch: pytest.MonkeyPatch) -> None:
+    fast = functools.partial(
+        StationSocket, request_timeout=0.3, retry_delay=0.01, max_retry_delay=0.05
+    )
+    monkeypatch.setattr(robot_cli, "StationSocket", fast)
+
+    async def script(attempt: int, connection: ServerConnection) -> None:
+        if attempt > 1:  # the server is gone: every reconnection is dropped at once
+            await connection.close(1011, "going away")
+            return
+        await connection.send(_hello(_state("prompt", session=2, categories=["conation"])))
+        async for raw in connection:
+            message = json.loads(raw)
+            if message["type"] == "prompt":
+                reply = {"type": "result", "id": message["id"], "data": _prompt()}
+                await connection.send(json.dumps(reply))
+            elif message["type"] == "answer":
+                await connection.close(1011, "server shutting down")
+                return
+
+    code, out, err, attempts = _robot(script, stdin="1\ny\n")
+    assert code == 1
+    assert "Traceback" not in out + err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("error: lost the connection to http://127.0.0.1:")
+    assert lines[0].endswith("start the robot again once the server is back")
+    assert len(attempts) > 1, "the client tried to reconnect before giving up"
+
+
+def test_no_server_at_the_url_ends_with_one_error_line() -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    args = ["robot", "--url", f"http://127.0.0.1:{port}", "--station", "lab-1", "--key", "tlk_x"]
+    result = runner.invoke(cli, args)
+    assert result.exit_code == 2
+    assert "Traceback" not in result.stdout + result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: cannot reach http://127.0.0.1:{port}")
