@@ -86,6 +86,7 @@ class Context:
     protocol: Protocol
     session: StudySession | None
     run: Run | None
+    run_locked: bool = False
 
 
 # The hot path's statements, built once: SQLAlchemy's expression building costs as much as running
@@ -104,6 +105,19 @@ _LATEST = (
     .order_by(StudySession.number.desc(), Run.number.desc())
     .limit(1)
 )
+_LATEST_RUN_LOCKED = (
+    select(StudySession, Run)
+    .join(Run, Run.session_id == StudySession.id)
+    .where(StudySession.participant_id == bindparam("participant"))
+    .order_by(StudySession.number.desc(), Run.number.desc())
+    .limit(1)
+    .with_for_update(of=Run)
+    .execution_options(populate_existing=True)
+)
+""":data:`_LATEST` with the run row-locked (PostgreSQL) in the same statement: prompts and answers
+lock the current run before reading its prompts, and this spares them a separate locking query.
+An inner join, as every session has a run from the moment it starts; PostgreSQL returns the run
+as it is once the lock is granted, as a refresh after locking would."""
 _RUN_PROMPTS = (
     select(Prompt, Answer.id)
     .outerjoin(Answer, Answer.prompt_id == Prompt.id)
@@ -142,10 +156,16 @@ def _seated(
 
 
 def _context(
-    db: Session, station_name: str, *, station: Station | None = None, lock_station: bool = False
+    db: Session,
+    station_name: str,
+    *,
+    station: Station | None = None,
+    lock_station: bool = False,
+    lock_run: bool = False,
 ) -> Context:
     """Station, participant, study and the latest session and run: one query when ``station``
-    comes loaded (see :func:`_seated`), two otherwise."""
+    comes loaded (see :func:`_seated`), two otherwise. ``lock_run``: the run comes row-locked
+    (PostgreSQL), as :func:`_lock_run` would lock it."""
     station, participant, study = _seated(db, station_name, station, lock_station)
     if participant is None:
         raise Conflict(
@@ -153,15 +173,24 @@ def _context(
             "an experimenter assigns one first"
         )
     assert study is not None
-    latest = db.execute(_LATEST, {"participant": participant.id}).first()
+    query = _LATEST_RUN_LOCKED if lock_run else _LATEST
+    latest = db.execute(query, {"participant": participant.id}).first()
     session, run = (latest[0], latest[1]) if latest is not None else (None, None)
-    return Context(station, participant, study, protocol_of(study), session, run)
+    return Context(
+        station, participant, study, protocol_of(study), session, run, lock_run and run is not None
+    )
 
 
 def _lock(db: Session, row: Run | StudySession) -> None:
     """Row-lock on PostgreSQL; SQLite's write transactions are exclusive already."""
     if db.get_bind().dialect.name == "postgresql":
         db.refresh(row, with_for_update=True)
+
+
+def _lock_run(db: Session, ctx: Context, run: Run) -> None:
+    """Row-lock ``run`` unless the context's query already did."""
+    if not (ctx.run_locked and run is ctx.run):
+        _lock(db, run)
 
 
 @dataclass(frozen=True)
@@ -493,13 +522,13 @@ def request_prompt(
     """Choose the question for ``category`` with the participant's learner; commits.
 
     ``station``: the station as a robot's device brings it (see :func:`_seated`)."""
-    ctx = _context(db, station_name, station=station)
+    ctx = _context(db, station_name, station=station, lock_run=True)
     _refuse_withdrawn(ctx)
     index = _category_index(ctx, category)
     session = _running_session(db, ctx)
     run = ctx.run
     assert run is not None
-    _lock(db, run)
+    _lock_run(db, ctx, run)
     if run.status != RunStatus.RUNNING:
         run = _open_next_run(db, ctx)
     progress = run_progress(db, run, ctx.protocol)
@@ -627,7 +656,7 @@ def _step_in_run(
     db: Session, ctx: Context, step_id: int, run: Run
 ) -> tuple[Prompt, int | None, list[tuple[Prompt, int | None]]] | None:
     """``step_id`` among the prompts of ``run`` (one query, locked first on PostgreSQL)."""
-    _lock(db, run)
+    _lock_run(db, ctx, run)
     rows: list[tuple[Prompt, int | None]] = [
         (prompt, answer_id) for prompt, answer_id in db.execute(_RUN_PROMPTS, {"run": run.id})
     ]
@@ -687,7 +716,7 @@ def record_answer(
     key = idempotency_key.strip()
     if not key or len(key) > 100:
         raise InvalidInput("idempotency_key: give 1-100 characters, unique per answer")
-    ctx = _context(db, station_name, station=station)
+    ctx = _context(db, station_name, station=station, lock_run=True)
     step = _find_step(db, ctx, step_id)
     prompt, run = step.prompt, step.run
     if step.answer_id is not None:
