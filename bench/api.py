@@ -245,13 +245,22 @@ def main() -> None:
         action="store_true",
         help="give both conditions Exp3 (isolates the meta-policy's cost)",
     )
+    parser.add_argument(
+        "--sqlite-synchronous",
+        help="the server's PRAGMA synchronous (TRUSTLAB_SQLITE_SYNCHRONOUS); default: its setting",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     levels = [int(c) for c in args.clients.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/bench.sqlite3"
         keys = prepare(url, max(levels), args.exp3_only)
-        server = ServerProcess(url, Path(tmp) / "var", workers=args.workers)
+        env = (
+            {"TRUSTLAB_SQLITE_SYNCHRONOUS": args.sqlite_synchronous}
+            if args.sqlite_synchronous
+            else None
+        )
+        server = ServerProcess(url, Path(tmp) / "var", workers=args.workers, extra_env=env)
         server.start()
         try:
             results = [
@@ -261,9 +270,14 @@ def main() -> None:
             server.stop()
     engine = "postgresql" if args.postgres else "sqlite"
     if args.json:
-        print(json.dumps({"engine": engine, "workers": args.workers, "levels": results}))
+        summary = {"engine": engine, "workers": args.workers, "levels": results}
+        print(json.dumps({**summary, "sqlite_synchronous": args.sqlite_synchronous}))
         return
-    print(f"engine={engine} workers={args.workers} seconds={args.seconds} rounds={args.rounds}")
+    synchronous = f" synchronous={args.sqlite_synchronous}" if args.sqlite_synchronous else ""
+    print(
+        f"engine={engine}{synchronous} workers={args.workers} seconds={args.seconds} "
+        f"rounds={args.rounds}"
+    )
     header = (
         "clients",
         "answers/s",
