@@ -80,6 +80,9 @@ async def _loop(socket: StationSocket) -> None:
         if expected.get("action") != "prompt":
             typer.echo("  waiting for the experimenter… (Ctrl-C quits)")
             event = await socket.next_event()
+            if event.get("state"):
+                # the pushed state is newer than one re-read before it arrived
+                socket.state = event["state"]
             typer.echo(f"  event: {event.get('event', event['type'])}")
             continue
         menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
