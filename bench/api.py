@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -252,6 +253,7 @@ def main() -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     levels = [int(c) for c in args.clients.split(",")]
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/bench.sqlite3"
         keys = prepare(url, max(levels), args.exp3_only)
@@ -269,14 +271,18 @@ def main() -> None:
         finally:
             server.stop()
     engine = "postgresql" if args.postgres else "sqlite"
+    # The machine's 1-minute load average before and after: latency percentiles mean little
+    # when other processes compete for the cores, so every result says how busy it was.
+    load = {"before": round(load_before, 2), "after": round(os.getloadavg()[0], 2)}
     if args.json:
         summary = {"engine": engine, "workers": args.workers, "levels": results}
-        print(json.dumps({**summary, "sqlite_synchronous": args.sqlite_synchronous}))
+        print(json.dumps({**summary, "sqlite_synchronous": args.sqlite_synchronous, "load": load}))
         return
     synchronous = f" synchronous={args.sqlite_synchronous}" if args.sqlite_synchronous else ""
     print(
         f"engine={engine}{synchronous} workers={args.workers} seconds={args.seconds} "
-        f"rounds={args.rounds}"
+        f"rounds={args.rounds} load average {load['before']} -> {load['after']} "
+        f"on {os.cpu_count()} cores"
     )
     header = (
         "clients",
