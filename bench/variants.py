@@ -1,6 +1,6 @@
 """Benchmark: the design choices behind C2, re-measured (docs/engine.md, "Deviations").
 
-Run from the repository root (one training after another, one thread; ~5 minutes each)::
+Run from the repository root (one training after another, one thread; 2–5 minutes each)::
 
     .venv/bin/python bench/variants.py
     .venv/bin/python bench/variants.py --variants reward reward_unlimited
@@ -8,10 +8,14 @@ Run from the repository root (one training after another, one thread; ~5 minutes
 Trains conation K = 4 online-mode variants with the shipped configuration except for one choice,
 and evaluates each deployed (12 single answers) on 20,000 simulated participants, seed 2026:
 
-- ``shipped``: log-score objective, natural-gradient step, selection wrong_95 ≤ .0095;
-- ``reward``: the issue's expected-reward objective, same selection;
-- ``reward_unlimited``: expected reward with no limit on wrong_95 in model selection;
-- ``plain_gradient``: the plain policy-gradient step instead of the natural one.
+- ``shipped``: log-score objective, natural step on the expected gradient (``natural_expected``),
+  step-scale calibration to wrong_95 ≤ .0075, selection of the snapshot fastest once calibrated;
+- ``uncalibrated``: the same without the calibration (selection: wrong_95 ≤ .0095);
+- ``score_function``: the natural step on the score-function gradient (``natural``, the previous
+  default), calibrated the same way;
+- ``reward``: the issue's expected-reward objective, same selection and calibration;
+- ``reward_unlimited``: expected reward with no limit on wrong_95 in selection or calibration;
+- ``plain_gradient``: the plain policy-gradient step instead of a natural one.
 
 Prints figures only; never used as a test assertion.
 """
@@ -37,8 +41,10 @@ from models.tasks import TaskDistribution  # noqa: E402
 
 VARIANTS: dict[str, dict[str, object]] = {
     "shipped": {},
+    "uncalibrated": {"calibrate": False},
+    "score_function": {"online_rule": "natural"},
     "reward": {"objective": "reward"},
-    "reward_unlimited": {"objective": "reward", "wrong_limit": 1.0},
+    "reward_unlimited": {"objective": "reward", "wrong_limit": 1.0, "calibrate": False},
     "plain_gradient": {"online_rule": "gradient"},
 }
 
@@ -82,7 +88,8 @@ def main() -> None:
             f"{name:<17} answers to 95 % {s['iterations_to_95']:.2f}  reached "
             f"{s['reached_95']:.3f}  wrong {s['wrong_95']:.4f}  mean p(1..12) "
             f"{s['mean_p_correct']:.3f}  (train {checkpoint.metrics['train_seconds']:.0f} s, "
-            f"selected iteration {checkpoint.metrics['selected_iteration']})",
+            f"selected iteration {checkpoint.metrics['selected_iteration']}, step scale "
+            f"{checkpoint.metrics['calibration'].get('scale', 'none')})",
             flush=True,
         )
 

@@ -24,13 +24,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from models.learners.mlp_policy import PARAM_NAMES, Params, UpdateRule, param_shapes
+from models.learners.mlp_policy import PARAM_NAMES, UPDATE_RULES, Params, UpdateRule, param_shapes
 
 Mode = Literal["online", "paper"]
 MODES: tuple[Mode, Mode] = ("online", "paper")
@@ -44,6 +45,11 @@ FORMAT_VERSION = 1
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 """Where the shipped checkpoints live: ``<mode>/<category>-k<K>/`` and ``<mode>/generic-k<K>/``."""
+
+RETIRED_DIR = PRETRAINED_DIR / "retired"
+"""Checkpoints that shipped once and were replaced by better ones. They stay so that learners
+enrolled with them (which record the checkpoint's SHA-256) can still be restored and verified:
+see :func:`find_by_sha256`. Nothing new is ever built from them."""
 
 GENERIC = "generic"
 """The category name of checkpoints trained for any category with K questions."""
@@ -77,7 +83,7 @@ class Checkpoint:
         Hex SHA-256 of ``weights.json``: the identity of these weights.
     n_arms, category, mode, rule
         K, the category it was trained for (``"generic"`` for any), ``online`` or ``paper``, and the
-        online update rule (``natural`` or ``gradient``).
+        update rule (one of ``models.learners.mlp_policy.UPDATE_RULES``).
     observation
         The fixed observation vector the network reads.
     params
@@ -247,7 +253,7 @@ def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Check
             f"{expected_arms}"
         )
     rule = weights.get("rule")
-    if rule not in ("natural", "gradient"):
+    if rule not in UPDATE_RULES:
         raise ValueError(f"checkpoint {weights_path}: unknown update rule {rule!r}")
     mode = weights.get("mode")
     if mode not in MODES:
@@ -299,6 +305,24 @@ def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Check
         config=config,
         metrics=metrics,
     )
+
+
+def find_by_sha256(sha256: str, roots: Sequence[Path]) -> Path | None:
+    """The checkpoint directory under any of ``roots`` whose hash file records ``sha256``.
+
+    Only the hash file is read here; :func:`load_checkpoint` then verifies the weights themselves,
+    so a directory whose weights were edited is still refused.
+    """
+    wanted = sha256.lower()
+    for root in roots:
+        for hash_file in sorted(Path(root).rglob(HASH_FILE)):
+            try:
+                recorded = hash_file.read_text(encoding="utf-8").split()
+            except (OSError, UnicodeDecodeError):
+                continue
+            if recorded and recorded[0].lower() == wanted:
+                return hash_file.parent
+    return None
 
 
 def checkpoint_name(category: str, arms: int) -> str:

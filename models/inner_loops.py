@@ -1,8 +1,9 @@
 """MAML's inner loops, differentiable for fixed random draws: ``online`` and ``paper`` modes.
 
-``online``: the deployed protocol itself — T sequential single-answer natural-gradient updates per
-task — with the per-answer objective (log score or expected reward) and a surrogate whose gradient
-also credits *which* questions got asked (score-function terms), since the actions are sampled.
+``online``: the deployed protocol itself — T sequential single-answer updates per task, by the
+checkpoint's rule (:mod:`models.learners.mlp_policy`) — with the per-answer objective (log score
+or expected reward) and a surrogate whose gradient also credits *which* questions got asked
+(score-function terms), since the actions are sampled.
 ``paper``: one plain policy-gradient step on 20 pulls per task, then 20 valid pulls, as in the
 paper's configuration.
 
@@ -61,7 +62,7 @@ def online_rollout(
     batch: OnlineBatch,
     actions: torch.Tensor | None = None,
 ) -> Rollout:
-    """Run the deployed protocol on every task: T answers, one natural-gradient step each.
+    """Run the deployed protocol on every task: T answers, one step of ``args.online_rule`` each.
 
     Actions are drawn from the current policy with the batch's uniforms unless ``actions`` fixes
     them (re-evaluating the same trajectories at other meta-parameters).
@@ -89,7 +90,10 @@ def online_rollout(
         taken.append(a)
         reward = (a == batch.preferred).to(DTYPE) + sigma * batch.noise[:, t]
         onehot = (a.unsqueeze(-1) == arange).to(DTYPE)
-        s = (onehot - logp.exp()) * (reward - p["baseline"][t]).unsqueeze(-1)
+        pi = logp.exp()
+        s = (onehot - pi) * (reward - p["baseline"][t]).unsqueeze(-1)
+        if args.online_rule == "natural_expected":
+            s = s * (pi * onehot).sum(-1, keepdim=True)
         net = apply_step(net, obs, s, p["log_step"][t].exp().expand(s.shape[0]), damping)
     return Rollout(log_probs, torch.stack(taken, dim=1))
 

@@ -112,11 +112,27 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
     obs_dim = layout.shapes["W1"][1]
     values: dict[str, np.ndarray] = dict(init_params(rng, obs_dim, args.hidden, args.arms))
     if args.mode == "online":
-        values["log_step"] = np.full(args.horizon, math.log(args.init_step_size))
-        if args.online_rule == "natural":
+        step, baseline = initial_update(args)
+        values["log_step"] = np.full(args.horizon, math.log(step))
+        if "log_damping" in layout.shapes:
             values["log_damping"] = np.array([math.log(args.init_damping)])
-        # The expected reward of an answer to a uniformly chosen question.
-        tasks = args.tasks
-        first = (tasks.mu_preferred + (args.arms - 1) * tasks.mu_other) / args.arms
-        values["baseline"] = np.full(args.horizon, first)
+        values["baseline"] = np.full(args.horizon, baseline)
     return layout.flatten(values)
+
+
+def initial_update(args: PretrainArgs) -> tuple[float, float]:
+    """The online update's starting step size and baseline.
+
+    ``natural_expected`` starts as the exact Bayesian update it can express: step
+    ``(μ₁ − μ₀)/σ²`` and baseline ``(μ₁ + μ₀)/2`` (see :mod:`models.learners.mlp_policy`), so
+    meta-training begins at the posterior and learns where to depart from it. The score-function
+    rules start at ``init_step_size`` (1 unless given) and the expected reward of an answer to a
+    uniformly chosen question.
+    """
+    tasks = args.tasks
+    if args.online_rule == "natural_expected":
+        bayes_step = (tasks.mu_preferred - tasks.mu_other) / tasks.variance
+        step = args.init_step_size if args.init_step_size is not None else bayes_step
+        return step, (tasks.mu_preferred + tasks.mu_other) / 2
+    step = args.init_step_size if args.init_step_size is not None else 1.0
+    return step, (tasks.mu_preferred + (args.arms - 1) * tasks.mu_other) / args.arms

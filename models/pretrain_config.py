@@ -10,11 +10,26 @@ import math
 from dataclasses import dataclass, replace
 
 from models.checkpoints import GENERIC
-from models.learners.mlp_policy import HIDDEN_UNITS
+from models.learners.mlp_policy import HIDDEN_UNITS, UPDATE_RULES
 from models.tasks import DEFAULT_VARIANCE, TaskDistribution, check_prior
 
 WRONG_LIMIT = 0.0095
 """Model selection keeps only checkpoints whose validation ``wrong_95`` is at most this."""
+
+CALIBRATION_LIMIT = 0.0075
+"""Calibration keeps the largest step scale whose ``wrong_95`` is at most this: the 1 % a lab can
+accept of confidently wrong replies, less three standard errors of a 1 % rate measured on the
+20,000 calibration participants (3 · √(.01 · .99 / 20000) ≈ .0021), so the true rate stays
+below 1 %."""
+
+
+def default_meta_batches(mode: str, online_rule: str) -> int:
+    """Outer steps when none are given: the paper's 200 in ``paper`` mode; in ``online`` mode 60
+    for ``natural_expected``, which starts at the Bayes update (its validations level off within
+    about 50 steps), and 150 for the score-function rules, which start far from it."""
+    if mode != "online":
+        return 200
+    return 60 if online_rule == "natural_expected" else 150
 
 
 @dataclass
@@ -33,8 +48,8 @@ class PretrainArgs:
     """``online`` only: ``log_score`` (log π(preferred) after each answer) or ``reward``."""
     wrong_penalty: float = 0.0
     """``online``, ``log_score`` only: weight of ``log(1 − max wrong π)`` in the objective."""
-    online_rule: str = "natural"
-    """``online`` only: the one-answer update, ``natural`` (deployed) or ``gradient`` (plain)."""
+    online_rule: str = "natural_expected"
+    """``online`` only: the one-answer update (``models.learners.mlp_policy.UPDATE_RULES``)."""
     preferred_prior: tuple[float, ...] | None = None
     """Prior over which question is preferred (uniform when unset)."""
     variance: float = DEFAULT_VARIANCE
@@ -42,7 +57,7 @@ class PretrainArgs:
     horizon: int = 12
     """``online``: answers per task (the protocol's 12 adaptation iterations)."""
     meta_batches: int | None = None
-    """Outer TRPO steps (online 150, paper 200 when unset)."""
+    """Outer TRPO steps (unset: :func:`default_meta_batches`)."""
     tasks_per_batch: int | None = None
     """Tasks per meta-batch (online 200, paper 40 when unset)."""
     pulls: int = 20
@@ -63,8 +78,9 @@ class PretrainArgs:
     """Line-search shrink factor."""
     hidden: int = HIDDEN_UNITS
     """Hidden units of the policy network."""
-    init_step_size: float = 1.0
-    """``online``: starting value of every meta-learned step size."""
+    init_step_size: float | None = None
+    """``online``: starting value of every meta-learned step size (unset: the rule's own start,
+    see :func:`models.meta_torch.initial_update`)."""
     init_damping: float = 0.1
     """``online``: starting value of the meta-learned damping λ."""
     validate_every: int = 5
@@ -73,6 +89,13 @@ class PretrainArgs:
     """Simulated participants per validation."""
     wrong_limit: float = WRONG_LIMIT
     """Model selection: the largest acceptable validation ``wrong_95``."""
+    calibrate: bool = True
+    """``online``: after selection, scale the step sizes down until ``wrong_95`` is within
+    ``calibration_limit`` (see :func:`models.pretrain.calibrate_step_scale`)."""
+    calibration_participants: int = 20000
+    """Simulated participants per calibration trial (a seed of their own)."""
+    calibration_limit: float = CALIBRATION_LIMIT
+    """Calibration: the largest acceptable ``wrong_95``."""
     evaluation_participants: int = 20000
     """Simulated participants of the final evaluation written to metrics.json."""
 
@@ -82,9 +105,9 @@ class PretrainArgs:
             raise ValueError(f"mode must be 'online' or 'paper', not {self.mode!r}")
         if self.objective not in ("log_score", "reward"):
             raise ValueError(f"objective must be 'log_score' or 'reward', not {self.objective!r}")
-        if self.online_rule not in ("natural", "gradient"):
+        if self.online_rule not in UPDATE_RULES:
             raise ValueError(
-                f"online_rule must be 'natural' or 'gradient', not {self.online_rule!r}"
+                f"online_rule must be one of {', '.join(UPDATE_RULES)}, not {self.online_rule!r}"
             )
         if self.arms < 2 or self.arms > 64:
             raise ValueError(f"arms must be between 2 and 64, got {self.arms}")
@@ -93,7 +116,7 @@ class PretrainArgs:
         args = replace(
             self,
             preferred_prior=None if self.preferred_prior is None else tuple(prior.tolist()),
-            meta_batches=self.meta_batches or (150 if online else 200),
+            meta_batches=self.meta_batches or default_meta_batches(self.mode, self.online_rule),
             tasks_per_batch=self.tasks_per_batch or (200 if online else 40),
         )
         positive = {
@@ -106,7 +129,8 @@ class PretrainArgs:
             "cg_iterations": args.cg_iterations,
             "ls_steps": args.ls_steps,
             "hidden": args.hidden,
-            "init_step_size": args.init_step_size,
+            "init_step_size": 1.0 if args.init_step_size is None else args.init_step_size,
+            "calibration_participants": args.calibration_participants,
             "init_damping": args.init_damping,
             "validate_every": args.validate_every,
             "validation_participants": args.validation_participants,
@@ -121,6 +145,10 @@ class PretrainArgs:
         if args.wrong_penalty < 0 or not math.isfinite(args.wrong_penalty):
             raise ValueError(
                 f"wrong_penalty must be a non-negative number, got {args.wrong_penalty}"
+            )
+        if not 0 < args.calibration_limit < 1:
+            raise ValueError(
+                f"calibration_limit must be between 0 and 1, got {args.calibration_limit!r}"
             )
         if args.cg_damping < 0:
             raise ValueError("cg_damping must not be negative")

@@ -209,7 +209,11 @@ def pretrain_command(
         str, typer.Option("--objective", help="online: log_score (default) or reward.")
     ] = "log_score",
     meta_batches: Annotated[
-        int | None, typer.Option("--meta-batches", help="Outer steps (online 150, paper 200).")
+        int | None,
+        typer.Option(
+            "--meta-batches",
+            help="Outer steps (online 60, or 150 for natural/gradient; paper 200).",
+        ),
     ] = None,
     tasks_per_batch: Annotated[
         int | None, typer.Option("--tasks-per-batch", help="Tasks per step (online 200, paper 40).")
@@ -219,8 +223,20 @@ def pretrain_command(
         int, typer.Option("--validate-every", help="online: meta-batches between validations.")
     ] = 5,
     online_rule: Annotated[
-        str, typer.Option("--online-rule", help="online: natural (deployed) or gradient.")
-    ] = "natural",
+        str,
+        typer.Option(
+            "--online-rule",
+            help="online: natural_expected (deployed), natural or gradient (docs/engine.md).",
+        ),
+    ] = "natural_expected",
+    calibrate: Annotated[
+        bool,
+        typer.Option(
+            "--calibrate/--no-calibrate",
+            help="online: keep the snapshot fastest once its steps are scaled down to confidently "
+            "wrong ≤ 0.75 % (docs/engine.md).",
+        ),
+    ] = True,
     wrong_penalty: Annotated[
         float,
         typer.Option("--wrong-penalty", help="online log_score: weight of log(1 − max wrong p)."),
@@ -251,6 +267,7 @@ def pretrain_command(
                 horizon=horizon,
                 validate_every=validate_every,
                 online_rule=online_rule,
+                calibrate=calibrate,
                 wrong_penalty=wrong_penalty,
                 preferred_prior=_prior(preferred_prior, arms),
             ).resolved()

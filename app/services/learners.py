@@ -24,7 +24,14 @@ import numpy as np
 
 from app.protocol import CategorySpec, LearnerKind, Protocol
 from app.tables import LearnerState
-from models.checkpoints import WEIGHTS_FILE, Checkpoint, load_checkpoint, shipped_checkpoint
+from models.checkpoints import (
+    PRETRAINED_DIR,
+    WEIGHTS_FILE,
+    Checkpoint,
+    find_by_sha256,
+    load_checkpoint,
+    shipped_checkpoint,
+)
 from models.learners.base import Learner
 from models.learners.exp3 import Exp3
 from models.learners.meta_policy import MetaPolicyLearner
@@ -83,19 +90,64 @@ def learner_spec(
     return LearnerSpec("meta", n_arms, config, checkpoint.sha256)
 
 
+def recorded_checkpoint(spec: LearnerSpec) -> Checkpoint:
+    """The exact checkpoint a meta learner was created with.
+
+    Normally the one at the recorded path. If that file has since been replaced (a newer
+    trustlab ships better checkpoints; their predecessors move to ``models/pretrained/retired``)
+    or the installation moved, the checkpoint is found by its recorded SHA-256 among the shipped
+    ones and beside the recorded path, so a study enrolled before an upgrade carries on with the
+    learners it started with.
+
+    Raises
+    ------
+    ValueError
+        If no checkpoint with the recorded hash can be found (the message says which file changed).
+    """
+    path = Path(spec.config["checkpoint"])
+    try:
+        checkpoint: Checkpoint | None = checkpoint_at(path, spec.n_arms)
+        problem = ""
+    except ValueError as error:
+        checkpoint, problem = None, str(error)
+    wanted = spec.checkpoint_sha256
+    if checkpoint is not None and (not wanted or checkpoint.sha256 == wanted):
+        return checkpoint
+    if wanted:
+        found = _checkpoint_with_hash(wanted, str(path.parent))
+        if found is not None:
+            return checkpoint_at(found, spec.n_arms)
+    if checkpoint is None:
+        raise ValueError(problem)
+    raise ValueError(
+        f"checkpoint {checkpoint.path} has changed since the learner was created "
+        f"(sha256 {checkpoint.sha256[:12]}…, recorded {str(wanted)[:12]}…) and no checkpoint "
+        f"with the recorded hash is in {PRETRAINED_DIR} or {path.parent}: restore the original"
+    )
+
+
+_FOUND_BY_HASH: dict[tuple[str, str], Path] = {}
+
+
+def _checkpoint_with_hash(sha256: str, beside: str) -> Path | None:
+    """Search once per process for a hit (checkpoints are read-only data); a miss is searched
+    again next time, so restoring the file fixes a running server."""
+    key = (sha256, beside)
+    if key not in _FOUND_BY_HASH:
+        found = find_by_sha256(sha256, [PRETRAINED_DIR, Path(beside)])
+        if found is None:
+            return None
+        _FOUND_BY_HASH[key] = found
+    return _FOUND_BY_HASH[key]
+
+
 def build(spec: LearnerSpec) -> Learner:
     """A fresh learner of this spec (the meta-policy's checkpoint is checked against its hash)."""
     if spec.kind == "exp3":
         return Exp3(spec.n_arms, gamma=float(spec.config["gamma"]))
     if spec.kind == "meta":
-        checkpoint = checkpoint_at(Path(spec.config["checkpoint"]), spec.n_arms)
-        if spec.checkpoint_sha256 and checkpoint.sha256 != spec.checkpoint_sha256:
-            raise ValueError(
-                f"checkpoint {checkpoint.path} has changed since the learner was created "
-                f"(sha256 {checkpoint.sha256[:12]}…, recorded {spec.checkpoint_sha256[:12]}…)"
-            )
         return MetaPolicyLearner.from_checkpoint(
-            checkpoint, learning_rate=spec.config.get("learning_rate")
+            recorded_checkpoint(spec), learning_rate=spec.config.get("learning_rate")
         )
     raise ValueError(f"unknown learner kind {spec.kind!r}")
 

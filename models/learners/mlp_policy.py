@@ -10,19 +10,38 @@ meta-training shapes. ``tanh`` (not ReLU) and a non-zero ``x`` keep every weight
 path: with a zero or constant-one observation and ReLU units, only the output bias of the
 reference MAML code ever learned.
 
-One answer ``(a, r)`` gives the policy-gradient direction ``g = Jᵀ s`` with ``J = ∂logits/∂θ``
-and ``s = (e_a − π)(r − b)``: raw reward minus a baseline ``b``, since the normalised advantage
-of a single answer is always zero. Two update rules use it:
+One answer ``(a, r)`` gives a policy-gradient direction ``g = Jᵀ s`` with ``J = ∂logits/∂θ``
+and a logit-space direction ``s`` built from the raw reward minus a baseline ``b`` (the normalised
+advantage of a single answer is always zero). Two estimators of the gradient:
 
+- the score function of the asked question, ``s = (e_a − π)(r − b)`` (REINFORCE);
+- the *expected* policy gradient ``∇ Σ_k π_k Q̂_k`` with ``Q̂_a = r`` for the asked question and
+  ``Q̂_k = b`` for the others, which is ``s = π_a (e_a − π)(r − b)``: it does not divide the
+  answer by the chance of having asked it.
+
+and two steps:
+
+- natural: ``θ ← θ + α (F + λI)⁻¹ g`` with ``F = Jᵀ (diag π − ππᵀ) J``, the Fisher information
+  of the softmax policy. ``F`` has rank < K, so by the push-through identity
+  ``(JᵀMJ + λI)⁻¹ Jᵀ = Jᵀ (M JJᵀ + λI)⁻¹`` the step costs one K × K solve, and ``JJᵀ`` has a
+  closed form for this network (see :func:`logit_gram`). A natural step moves the
+  *distribution* by an amount that does not depend on how the weights happen to be scaled,
+  which is why a single answer can move it far enough.
+- plain: ``θ ← θ + α g``.
+
+The three rules a checkpoint can name:
+
+``natural_expected`` (C2's default)
+    Natural step on the expected gradient. With ``λ → 0`` it adds ``α (r − b)`` to the asked
+    question's logit and leaves the others' — the form of the exact Bayesian update, which adds
+    ``(μ₁ − μ₀)/σ² · (r − (μ₁ + μ₀)/2)``. Meta-training learns ``α_t``, ``b_t`` and ``λ``;
+    a step smaller than Bayes's is a *tempered* posterior, the lever that trades a few tenths of
+    an answer for far fewer confidently wrong beliefs (docs/engine.md).
 ``natural``
-    ``θ ← θ + α (F + λI)⁻¹ g`` with ``F = Jᵀ (diag π − ππᵀ) J``, the Fisher information of
-    the softmax policy. ``F`` has rank < K, so by the push-through identity
-    ``(JᵀMJ + λI)⁻¹ Jᵀ = Jᵀ (M JJᵀ + λI)⁻¹`` the step costs one K × K solve, and ``JJᵀ`` has
-    a closed form for this network (see :func:`logit_gram`). A natural step moves the
-    *distribution* by an amount that does not depend on how the weights happen to be scaled,
-    which is why a single answer can move it far enough.
+    Natural step on the score function: it adds ``α (r − b)/π_a``, so a surprising answer to an
+    unlikely question moves the belief most — the source of this rule's confident mistakes.
 ``gradient``
-    ``θ ← θ + α g``: the plain step, used by ``paper``-mode checkpoints (the paper's inner loop).
+    Plain step on the score function, used by ``paper``-mode checkpoints (the paper's inner loop).
 
 Everything broadcasts over leading dimensions, so the learner (one participant) and the simulations
 (thousands at once) run the same code. The torch copy used in meta-training lives in
@@ -41,7 +60,10 @@ Params = dict[str, np.ndarray]
 PARAM_NAMES: tuple[str, str, str, str] = ("W1", "b1", "W2", "b2")
 """The network's weight arrays, in a fixed order (flattening, state dicts, checkpoints)."""
 
-UpdateRule = Literal["natural", "gradient"]
+UpdateRule = Literal["natural_expected", "natural", "gradient"]
+
+UPDATE_RULES: tuple[str, ...] = ("natural_expected", "natural", "gradient")
+"""Every rule a checkpoint may name (see the module docstring)."""
 
 HIDDEN_UNITS = 100
 """The issue's network: one hidden layer of 100 units."""
@@ -123,15 +145,17 @@ def update_params(
     n_arms = pi.shape[-1]
     onehot = np.asarray(action)[..., None] == np.arange(n_arms)
     advantage = np.asarray(reward, dtype=np.float64) - baseline
+    if rule not in UPDATE_RULES:
+        raise ValueError(f"unknown update rule {rule!r}: use one of {', '.join(UPDATE_RULES)}")
     s = (onehot - pi) * advantage[..., None]
-    if rule == "natural":
+    if rule == "natural_expected":
+        s = s * np.sum(pi * onehot, axis=-1, keepdims=True)
+    if rule != "gradient":
         fisher = pi[..., :, None] * (np.eye(n_arms) - pi[..., None, :])  # diag π − ππᵀ
         system = fisher @ logit_gram(params, obs, h) + damping * np.eye(n_arms)
         y = np.linalg.solve(system, s[..., None])[..., 0]
-    elif rule == "gradient":
-        y = s
     else:
-        raise ValueError(f"unknown update rule {rule!r}: use 'natural' or 'gradient'")
+        y = s
     y = y * np.asarray(step_size, dtype=np.float64)[..., None]
     # θ += Jᵀ y, written out per weight array.
     d_pre = (np.swapaxes(params["W2"], -1, -2) @ y[..., None])[..., 0] * (1.0 - h * h)

@@ -22,7 +22,7 @@ def make_checkpoint(
         n_arms=n_arms,
         category="conation",
         mode="online",
-        rule="natural" if rule == "natural" else "gradient",
+        rule=rule,  # type: ignore[arg-type]
         observation=obs,
         params=params,
         step_sizes=np.array([1.0, 0.8, 0.6]),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -37,6 +38,19 @@ def _jacobian(params: dict[str, np.ndarray], obs: np.ndarray) -> np.ndarray:
     return np.stack(columns, axis=1)
 
 
+def _flat_step(params: dict[str, np.ndarray], obs: np.ndarray, rule: str, **update: Any) -> Any:
+    """The change of every network parameter, flattened, after one ``update_params``."""
+    new = update_params(params, obs, rule=rule, **update)  # type: ignore[arg-type]
+    return np.concatenate([(new[n] - params[n]).ravel() for n in ("W1", "b1", "W2", "b2")])
+
+
+def _natural_dense(jacobian: Any, pi: Any, s: Any, alpha: float, damping: float) -> Any:
+    """``α (F + λI)⁻¹ Jᵀ s`` with the softmax policy's Fisher ``F``, solved densely."""
+    fisher = jacobian.T @ (np.diag(pi) - np.outer(pi, pi)) @ jacobian
+    eye = np.eye(jacobian.shape[1])
+    return alpha * np.linalg.solve(fisher + damping * eye, jacobian.T @ s)
+
+
 def test_natural_step_matches_the_dense_formula() -> None:
     rng = np.random.default_rng(0)
     obs = rng.standard_normal(3)
@@ -47,34 +61,86 @@ def test_natural_step_matches_the_dense_formula() -> None:
     h, _ = hidden_and_logits(params, obs)
     np.testing.assert_allclose(logit_gram(params, obs, h), J @ J.T, rtol=1e-6, atol=1e-8)
     pi = probabilities(params, obs)
-    fisher = J.T @ (np.diag(pi) - np.outer(pi, pi)) @ J
     s = (np.eye(4)[2] - pi) * (0.9 - 0.3)
-    damping, alpha = 0.1, 0.7
-    dense = alpha * np.linalg.solve(fisher + damping * np.eye(J.shape[1]), J.T @ s)
-    new = update_params(
+    update = {
+        "action": np.asarray(2),
+        "reward": np.asarray(0.9),
+        "step_size": 0.7,
+        "baseline": 0.3,
+        "damping": 0.1,
+    }
+    np.testing.assert_allclose(
+        _flat_step(params, obs, "natural", **update),
+        _natural_dense(J, pi, s, 0.7, 0.1),
+        rtol=1e-5,
+        atol=1e-9,
+    )
+    np.testing.assert_allclose(
+        _flat_step(params, obs, "gradient", **update), 0.7 * J.T @ s, rtol=1e-5, atol=1e-9
+    )
+
+
+def test_expected_natural_step_matches_the_dense_formula() -> None:
+    """``natural_expected``: the natural step on the expected gradient ``π_a (e_a − π)(r − b)``."""
+    rng = np.random.default_rng(4)
+    obs = rng.standard_normal(3)
+    from models.learners.mlp_policy import init_params
+
+    params = init_params(rng, 3, 5, 4)
+    J = _jacobian(params, obs)
+    pi = probabilities(params, obs)
+    s = pi[1] * (np.eye(4)[1] - pi) * (0.2 - 0.5)
+    step = _flat_step(
         params,
         obs,
-        np.asarray(2),
-        np.asarray(0.9),
-        step_size=alpha,
-        baseline=0.3,
-        damping=damping,
-        rule="natural",
+        "natural_expected",
+        action=np.asarray(1),
+        reward=np.asarray(0.2),
+        step_size=3.0,
+        baseline=0.5,
+        damping=0.05,
     )
-    step = np.concatenate([(new[n] - params[n]).ravel() for n in ("W1", "b1", "W2", "b2")])
-    np.testing.assert_allclose(step, dense, rtol=1e-5, atol=1e-9)
-    plain = update_params(
-        params,
-        obs,
-        np.asarray(2),
-        np.asarray(0.9),
-        step_size=alpha,
-        baseline=0.3,
-        damping=damping,
-        rule="gradient",
+    np.testing.assert_allclose(step, _natural_dense(J, pi, s, 3.0, 0.05), rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize(("scale", "tolerance"), [(1e-4, 1e-5), (1.0, 0.1)])
+def test_expected_natural_step_is_the_bayes_update_in_logit_space(
+    tmp_path: Path, scale: float, tolerance: float
+) -> None:
+    """With step (μ₁ − μ₀)/σ², baseline (μ₁ + μ₀)/2 and vanishing damping, each answer changes
+    the log-probabilities as the Bayes posterior over the preferred question changes: exactly to
+    first order (a tiny step, rescaled), and within a tenth of the Bayes step for the full step
+    (the tanh layer bends a long step)."""
+    from models.learners.bayes import BayesLearner
+    from models.tasks import TaskDistribution
+
+    tasks = TaskDistribution(4, variance=0.1)
+    checkpoint = make_checkpoint(tmp_path / "bayes-like", rule="natural_expected")
+    checkpoint = Checkpoint(
+        **{
+            **checkpoint.__dict__,
+            "step_sizes": np.full(6, scale / tasks.variance),
+            "baselines": np.full(6, 0.5),
+            "damping": 1e-12,
+        }
     )
-    step = np.concatenate([(plain[n] - params[n]).ravel() for n in ("W1", "b1", "W2", "b2")])
-    np.testing.assert_allclose(step, alpha * J.T @ s, rtol=1e-5, atol=1e-9)
+    learner, bayes = MetaPolicyLearner(checkpoint), BayesLearner(tasks)
+    for action, reward in [(2, 0.93), (0, -0.2), (2, 1.31), (3, 0.55), (1, 0.08), (2, 0.7)]:
+        before, prior = np.log(learner.probabilities()), np.log(bayes.probabilities())
+        learner.update(action, reward)
+        bayes.update(action, reward)
+        change = (np.log(learner.probabilities()) - before) / scale
+        expected = np.log(bayes.probabilities()) - prior
+        bayes_step = np.abs(expected - expected[0]).max()
+        np.testing.assert_allclose(
+            change - change[0], expected - expected[0], atol=tolerance * bayes_step
+        )
+    # The score-function rule divides by π_a instead: not the Bayes update.
+    other = MetaPolicyLearner(Checkpoint(**{**checkpoint.__dict__, "rule": "natural"}))
+    before = np.log(other.probabilities())
+    other.update(2, 0.93)
+    change = np.log(other.probabilities()) - before
+    assert abs((change[2] - change[0]) - 10 * (0.93 - 0.5)) > 1.0
 
 
 def test_batched_update_equals_one_at_a_time(checkpoint: Checkpoint) -> None:

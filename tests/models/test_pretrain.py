@@ -27,9 +27,17 @@ from models.inner_loops import (
     sample_paper_batch,
 )
 from models.learners.meta_policy import MetaPolicyLearner
-from models.learners.mlp_policy import init_params, update_params
+from models.learners.mlp_policy import init_params, probabilities, update_params
 from models.meta_torch import DTYPE, apply_step, initial_theta, layout_for
-from models.pretrain import PretrainArgs, pretrain, train
+from models.pretrain import (
+    CALIBRATION_SCALES,
+    PretrainArgs,
+    calibrate_step_scale,
+    pretrain,
+    select_calibrated,
+    train,
+    with_step_scale,
+)
 from models.trpo import conjugate_gradient, trpo_step
 
 TINY: dict[str, Any] = {
@@ -38,6 +46,7 @@ TINY: dict[str, Any] = {
     "validation_participants": 50,
     "evaluation_participants": 50,
     "validate_every": 2,
+    "calibration_participants": 50,
 }
 
 
@@ -73,6 +82,123 @@ def test_torch_step_matches_the_numpy_learner() -> None:
         np.testing.assert_allclose(got[name].numpy(), expected[name], rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("rule", ["natural_expected", "natural", "gradient"])
+def test_online_rollout_is_the_deployed_learner(rule: str) -> None:
+    """The differentiable inner loop and the numpy learner take the same 4 steps on 6 tasks."""
+    args, rng, obs, layout, theta = _setup("online", online_rule=rule)
+    batch = sample_online_batch(args, rng)
+    with torch.no_grad():
+        rollout = online_rollout(theta, layout, obs, args, batch)
+    values = {k: v.numpy() for k, v in layout.unflatten(theta).items()}
+    params = {name: values[name] for name in ("W1", "b1", "W2", "b2")}
+    damping = float(np.exp(values["log_damping"][0])) if "log_damping" in values else 1.0
+    for task in range(args.tasks_per_batch or 0):
+        net = dict(params)
+        for t in range(args.horizon):
+            action = int(rollout.actions[task, t])
+            reward = float(action == int(batch.preferred[task])) + np.sqrt(args.variance) * float(
+                batch.noise[task, t]
+            )
+            net = update_params(
+                net,
+                obs.numpy(),
+                np.asarray(action),
+                np.asarray(reward),
+                step_size=float(np.exp(values["log_step"][t])),
+                baseline=float(values["baseline"][t]),
+                damping=damping,
+                rule=rule,  # type: ignore[arg-type]
+            )
+            np.testing.assert_allclose(
+                np.exp(rollout.log_probs[t + 1][task].numpy()),
+                probabilities(net, obs.numpy()),
+                rtol=1e-10,
+                atol=1e-12,
+            )
+
+
+def test_natural_expected_starts_at_the_bayes_update() -> None:
+    args, _, _, layout, theta = _setup("online", variance=0.25)
+    values = layout.unflatten(theta)
+    # (μ₁ − μ₀)/σ² and (μ₁ + μ₀)/2 for the default rewards N(1, σ²) / N(0, σ²).
+    assert torch.allclose(values["log_step"].exp(), torch.full((args.horizon,), 4.0, dtype=DTYPE))
+    assert torch.allclose(values["baseline"], torch.full((args.horizon,), 0.5, dtype=DTYPE))
+    args, _, _, layout, theta = _setup("online", online_rule="natural")
+    assert torch.allclose(
+        layout.unflatten(theta)["log_step"].exp(), torch.ones(args.horizon, dtype=DTYPE)
+    )
+
+
+def test_calibration_keeps_the_largest_scale_within_the_limit() -> None:
+    args, _, _, layout, theta = _setup("online", calibration_participants=400)
+    steps = layout.unflatten(theta)["log_step"].exp()
+    scaled = with_step_scale(theta, layout, 0.5)
+    assert torch.allclose(layout.unflatten(scaled)["log_step"].exp(), 0.5 * steps)
+    assert torch.equal(layout.unflatten(theta)["log_step"].exp(), steps)  # a copy
+
+    loose = replace(args, calibration_limit=0.999)
+    same, report = calibrate_step_scale(theta, layout, loose)
+    assert torch.equal(same, theta) and report["scale"] == 1.0 and report["within_limit"]
+
+    impossible = replace(args, calibration_limit=1e-12)
+    smallest, report = calibrate_step_scale(theta, layout, impossible)
+    assert [trial["scale"] for trial in report["trials"]] == list(CALIBRATION_SCALES)
+    assert report == {**report, "scale": 0.5, "within_limit": False}
+    assert torch.allclose(layout.unflatten(smallest)["log_step"].exp(), 0.5 * steps)
+
+    # A limit between the trials' own figures stops at the first trial within it.
+    wrongs = [trial["wrong_95"] for trial in report["trials"]]
+    if max(wrongs) > min(wrongs):
+        limit = (max(wrongs) + min(wrongs)) / 2
+        _, chosen = calibrate_step_scale(theta, layout, replace(args, calibration_limit=limit))
+        first = next(t for t in report["trials"] if t["wrong_95"] <= limit)
+        assert chosen["scale"] == first["scale"] and chosen["within_limit"]
+        assert all(t["wrong_95"] > limit for t in chosen["trials"][:-1])
+
+
+def test_selection_keeps_the_snapshot_fastest_once_calibrated(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A fast snapshot a little too often wrong can beat a slower one once both are calibrated;
+    the search stops where no remaining snapshot can win (calibration only slows a learner)."""
+    args, _, _, layout, _ = _setup("online")
+    # snapshot id → (validation answers, calibrated answers, within the limit once calibrated)
+    table = {
+        1: (3.0, 3.30, True),
+        2: (3.1, 3.20, True),
+        3: (3.15, 3.5, False),
+        4: (3.25, 3.0, True),
+    }
+    calibrated: list[int] = []
+
+    def fake_calibration(theta: torch.Tensor, layout_: object, args_: object) -> tuple[Any, Any]:
+        key = int(theta[0])
+        calibrated.append(key)
+        _, answers, within = table[key]
+        trial = {"scale": 0.8, "iterations_to_95": answers, "wrong_95": 0.005}
+        return theta * 10, {"scale": 0.8, "within_limit": within, "trials": [trial]}
+
+    monkeypatch.setattr("models.pretrain.calibrate_step_scale", fake_calibration)
+    snapshots = [
+        (
+            {"iteration": 5 * key, "iterations_to_95": answers, "mean_p_correct": 0.9},
+            torch.tensor([float(key)]),
+        )
+        for key, (answers, _, _) in reversed(table.items())
+    ]
+    chosen = select_calibrated(snapshots, layout, args)
+    assert chosen is not None
+    (figures, theta), report = chosen
+    assert figures["iteration"] == 10 and float(theta[0]) == 20.0  # snapshot 2, scaled
+    assert calibrated == [1, 2, 3]  # 4's validation (3.25) cannot beat 3.20 once calibrated
+    assert [c["iteration"] for c in report["candidates"]] == [5, 10, 15]
+
+    table.update({key: (v, c, False) for key, (v, c, _) in table.items()})
+    calibrated.clear()
+    assert select_calibrated(snapshots, layout, args) is None
+    assert calibrated == [1, 2, 3, 4]
+
+
 def _directional_check(fn, theta: torch.Tensor, seed: int) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     """(autograd, central finite difference) directional derivatives of ``fn`` at ``theta``."""
     direction = torch.as_tensor(np.random.default_rng(seed).standard_normal(theta.shape[0]))
@@ -106,9 +232,12 @@ def test_paper_meta_gradient_matches_finite_differences() -> None:
         assert abs(auto_first - fd) > 1e-4 * max(abs(fd), 1e-3)
 
 
-@pytest.mark.parametrize("objective", ["log_score", "reward"])
-def test_online_meta_gradient_matches_finite_differences(objective: str) -> None:
-    args, rng, obs, layout, theta = _setup("online", objective=objective)
+@pytest.mark.parametrize(
+    ("objective", "rule"),
+    [("log_score", "natural_expected"), ("reward", "natural_expected"), ("log_score", "natural")],
+)
+def test_online_meta_gradient_matches_finite_differences(objective: str, rule: str) -> None:
+    args, rng, obs, layout, theta = _setup("online", objective=objective, online_rule=rule)
     batch = sample_online_batch(args, rng)
     with torch.no_grad():
         old = online_rollout(theta, layout, obs, args, batch)
@@ -185,7 +314,8 @@ def test_tiny_pretrain_writes_a_usable_checkpoint_and_reruns_reproduce_it(tmp_pa
     assert loaded.config["category"] == "cognition"
     assert loaded.config["seed"] == 5
     assert set(loaded.metrics["evaluation"]) >= {"iterations_to_95", "wrong_95", "p_correct"}
-    assert len(loaded.step_sizes) == 3 and loaded.rule == "natural"
+    assert len(loaded.step_sizes) == 3 and loaded.rule == "natural_expected"
+    assert loaded.metrics["calibration"]["scale"] in CALIBRATION_SCALES
     learner = MetaPolicyLearner.from_checkpoint(tmp_path / "a", expected_arms=3)
     learner.update(learner.select(np.random.default_rng(0)), 1.0)
     assert learner.answers == 1
@@ -242,13 +372,20 @@ def test_wrong_penalty_adds_log_of_the_doubt_about_wrong_questions() -> None:
         PretrainArgs(wrong_penalty=-1.0).resolved()
 
 
-def test_selection_falls_back_to_the_best_penalised_validation() -> None:
+@pytest.mark.parametrize("calibrate", [False, True])
+def test_selection_falls_back_to_the_best_penalised_validation(
+    calibrate: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """No validation within the selection limit and (when calibrating) no snapshot that
+    calibration brings within its limit: the best penalised validation, then calibrated."""
+    monkeypatch.setattr("models.pretrain.select_calibrated", lambda *args: None)
     args = PretrainArgs(
         mode="online",
         arms=3,
         horizon=3,
         meta_batches=4,
         wrong_limit=-1.0,
+        calibrate=calibrate,
         **{**TINY, "validation_participants": 400},
     ).resolved()
     result = train(args)
@@ -258,3 +395,8 @@ def test_selection_falls_back_to_the_best_penalised_validation() -> None:
     )
     assert result.selected_iteration == best["iteration"]
     assert result.validation["wrong_95"] == best["wrong_95"]
+    if calibrate:
+        assert result.calibration["scale"] in CALIBRATION_SCALES
+        assert "candidates" not in result.calibration
+    else:
+        assert result.calibration == {}

@@ -1,0 +1,74 @@
+"""Restoring C2 learners from the exact checkpoint they were created with, across upgrades."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.services.learners import LearnerSpec, build, recorded_checkpoint
+from models.checkpoints import HASH_FILE, RETIRED_DIR, load_checkpoint, shipped_checkpoint
+from tests.models.conftest import make_checkpoint
+
+
+def _spec(path: Path, sha256: str) -> LearnerSpec:
+    return LearnerSpec("meta", 4, {"checkpoint": str(path)}, sha256)
+
+
+def test_a_replaced_checkpoint_is_found_by_its_hash_beside_the_recorded_path(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "set" / "generic-k4"
+    original = make_checkpoint(path, seed=1)
+    spec = _spec(path, original.sha256)
+    before = build(spec).probabilities()
+
+    shutil.copytree(path, tmp_path / "set" / "old" / "generic-k4")
+    shutil.rmtree(path)
+    replacement = make_checkpoint(path, seed=2)
+    assert replacement.sha256 != original.sha256
+
+    found = recorded_checkpoint(spec)
+    assert found.sha256 == original.sha256
+    assert found.path == tmp_path / "set" / "old" / "generic-k4"
+    np.testing.assert_array_equal(build(spec).probabilities(), before)
+
+
+def test_without_the_original_anywhere_the_error_says_what_changed(tmp_path: Path) -> None:
+    path = tmp_path / "set" / "generic-k4"
+    original = make_checkpoint(path, seed=1)
+    shutil.rmtree(path)
+    make_checkpoint(path, seed=2)
+    with pytest.raises(ValueError, match="has changed since the learner was created"):
+        recorded_checkpoint(_spec(path, original.sha256))
+    shutil.rmtree(path)
+    with pytest.raises(ValueError, match="does not exist"):
+        recorded_checkpoint(_spec(path, original.sha256))
+
+
+def test_an_edited_original_is_still_refused(tmp_path: Path) -> None:
+    """The hash file alone only finds a candidate; its weights are verified before use."""
+    path = tmp_path / "set" / "generic-k4"
+    original = make_checkpoint(path, seed=1)
+    copy = tmp_path / "set" / "old" / "generic-k4"
+    shutil.copytree(path, copy)
+    shutil.rmtree(path)
+    make_checkpoint(path, seed=2)
+    weights = copy / "weights.json"
+    weights.write_bytes(weights.read_bytes().replace(b"0.", b"1.", 1))
+    with pytest.raises(ValueError, match="does not match its hash"):
+        recorded_checkpoint(_spec(path, original.sha256))
+
+
+def test_learners_enrolled_with_a_retired_shipped_checkpoint_still_restore() -> None:
+    """A study enrolled before the online checkpoints were replaced keeps its learners."""
+    retired = sorted(RETIRED_DIR.glob(f"*/*/{HASH_FILE}"))
+    assert retired, "the retired checkpoint set is missing"
+    for hash_file in retired:
+        old = load_checkpoint(hash_file.parent)
+        current = shipped_checkpoint(old.n_arms, category=old.category)
+        assert load_checkpoint(current).sha256 != old.sha256
+        spec = LearnerSpec("meta", old.n_arms, {"checkpoint": str(current)}, old.sha256)
+        assert recorded_checkpoint(spec).sha256 == old.sha256
