@@ -7,7 +7,7 @@ import uuid
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import func, select, text, update
+from sqlalchemy import event, func, select, text, update
 from sqlalchemy.exc import DBAPIError
 
 from app.services import verify
@@ -346,3 +346,34 @@ def test_a_withdrawn_participant_gets_no_more_prompts_or_updates(lab: Lab) -> No
     assert late.status_code == 409
     replay = lab.robot.post(f"/api/v1/station/steps/{step['step_id']}/answer", json=answered)
     assert replay.status_code == 200 and replay.json()["reply"] == first.json()["reply"]
+
+
+def test_an_answer_takes_a_fixed_small_number_of_statements(lab: Lab) -> None:
+    """Guards the hot path (docs/performance.md, "Robot API round trip"): the device with its
+    station, participant and study; the latest session and run (row-locked on PostgreSQL); the
+    run's prompts with their answers' ids; the learner; then INSERT answer, INSERT audit row,
+    UPDATE learner; PostgreSQL adds one pg_notify for all events. BEGIN/COMMIT not counted."""
+    lab.enrol_and_assign()
+    lab.start_session()
+    lab.run_session()  # the familiarisation run: its answers do not adapt
+    lab.start_session()
+    step = lab.prompt("conation")
+    database = lab.app.state.database
+    statements: list[str] = []
+
+    def count(_conn: object, _cursor: object, statement: str, *_: object) -> None:
+        if threading.current_thread().name != "trustlab-activity" and statement != "BEGIN":
+            statements.append(statement)
+
+    event.listen(database.engine, "before_cursor_execute", count)
+    try:
+        reply = lab.robot.post(
+            f"/api/v1/station/steps/{step['step_id']}/answer",
+            json={"answer": "yes", "idempotency_key": uuid.uuid4().hex},
+        )
+    finally:
+        event.remove(database.engine, "before_cursor_execute", count)
+    assert reply.status_code == 200, reply.text
+    assert reply.json()["run_completed"] is False
+    sql = [s for s in statements if not s.startswith("BEGIN")]
+    assert len(sql) == (7 if database.is_sqlite else 8), "\n".join(sql)
