@@ -1,11 +1,12 @@
-"""``trustlab verify``'s findings name sessions as people do (the familiarisation run)."""
+"""``trustlab verify``: findings name sessions as people do; replays tolerate rounding only."""
 
 from __future__ import annotations
 
+import pytest
 from sqlalchemy import select, update
 
-from app.services import verify
-from app.tables import Run, RunStatus, StudySession
+from app.services import learners, verify
+from app.tables import LearnerState, Run, RunStatus, StudySession
 from tests.conftest import Lab
 
 
@@ -39,3 +40,58 @@ def test_findings_name_the_familiarisation_run_not_session_0(lab: Lab) -> None:
         ("timeline", "session 1 run 3 is running out of turn"),
     ]
     assert not any("session 0" in detail for _, detail in findings)
+
+
+def _shift(values: list[float], by: float) -> list[float]:
+    return [values[0] + by, values[1] - by, *values[2:]]
+
+
+def test_rounding_differences_pass_and_real_differences_are_found(
+    lab: Lab, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A server on another CPU kernel differs from the replay in the last bits (1e-16): clean.
+    A change a fault would cause (1e-6 and up) is still a finding."""
+    lab.enrol_and_assign()
+    for _ in ("familiarisation", "session 1"):
+        lab.start_session()
+        lab.run_session()
+    assert _findings(lab) == []
+
+    exact = learners.probabilities_list
+    for by, found in ((3e-16, False), (1e-6, True)):
+        monkeypatch.setattr(
+            learners, "probabilities_list", lambda learner, by=by: _shift(exact(learner), by)
+        )
+        findings = _findings(lab)
+        assert bool(findings) is found
+        assert all(check == "replay" and "probabilities differ" in d for check, d in findings)
+    monkeypatch.setattr(learners, "probabilities_list", exact)
+
+    with lab.database.writing() as db:
+        row = db.scalars(select(LearnerState).where(LearnerState.category == "cognition")).one()
+        state = dict(row.state)
+
+    def store(learner_state: dict[str, object]) -> list[tuple[str, str]]:
+        with lab.database.writing() as db:
+            db.execute(
+                update(LearnerState).where(LearnerState.id == row.id).values(state=learner_state)
+            )
+            db.commit()
+        return _findings(lab)
+
+    weights = state["weights"]
+    assert isinstance(weights, list)
+    assert store({**state, "weights": _shift(weights, 1e-15 * abs(weights[0]))}) == []
+    differs = [("replay", "cognition learner: stored state differs from the replayed one")]
+    assert store({**state, "weights": _shift(weights, 1e-6 * (1.0 + abs(weights[0])))}) == differs
+    assert store({**state, "updates": True}) == differs
+
+
+def test_close_compares_structure_exactly_and_numbers_within_the_tolerance() -> None:
+    assert verify._close({"a": [1.0, 2.0]}, {"a": [1.0 + 1e-15, 2.0]})
+    assert not verify._close({"a": [1.0, 2.0]}, {"a": [1.0, 2.0, 3.0]})
+    assert not verify._close({"a": 1.0}, {"b": 1.0})
+    assert not verify._close([0.5], [0.5 + 1e-7])
+    assert not verify._close("exp3", "meta")
+    assert not verify._close(True, 1)
+    assert verify._close(1e6, 1e6 * (1 + 1e-12))
