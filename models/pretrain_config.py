@@ -19,8 +19,8 @@ WRONG_LIMIT = 0.0095
 CALIBRATION_LIMIT = 0.0075
 """Calibration keeps the largest step scale whose ``wrong_95`` is at most this: the 1 % a lab can
 accept of confidently wrong replies, less three standard errors of a 1 % rate measured on the
-20,000 calibration participants (3 · √(.01 · .99 / 20000) ≈ .0021), so the true rate stays
-below 1 %."""
+20,000 calibration participants (3 · √(.01 · .99 / 20000) ≈ .0021, so .0079), rounded down, so
+the true rate stays below 1 %."""
 
 
 def default_meta_batches(mode: str, online_rule: str) -> int:

@@ -301,6 +301,12 @@ def pretrain_command(
                 f"{evaluation['iterations_to_95']:.2f} answers to 95 %, "
                 f"wrong {evaluation['wrong_95']:.4f}"
             )
+            if checkpoint.metrics.get("calibration", {}).get("within_limit") is False:
+                typer.echo(
+                    f"warning: {checkpoint.path}: no step scale down to 0.5 brought wrong_95 "
+                    "within the calibration limit; see calibration in its metrics.json",
+                    err=True,
+                )
     if as_json:
         typer.echo(json.dumps({"checkpoints": written}, allow_nan=False))
 

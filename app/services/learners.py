@@ -26,6 +26,7 @@ from app.protocol import CategorySpec, LearnerKind, Protocol
 from app.tables import LearnerState
 from models.checkpoints import (
     PRETRAINED_DIR,
+    RETIRED_DIR,
     WEIGHTS_FILE,
     Checkpoint,
     find_by_sha256,
@@ -96,7 +97,8 @@ def recorded_checkpoint(spec: LearnerSpec) -> Checkpoint:
     Normally the one at the recorded path. If that file has since been replaced (a newer
     trustlab ships better checkpoints; their predecessors move to ``models/pretrained/retired``)
     or the installation moved, the checkpoint is found by its recorded SHA-256 among the shipped
-    ones and beside the recorded path, so a study enrolled before an upgrade carries on with the
+    ones, beside the recorded path and in its set's ``retired`` directory (a lab's own set,
+    retired as docs/engine.md says), so a study enrolled before an upgrade carries on with the
     learners it started with.
 
     Raises
@@ -114,7 +116,7 @@ def recorded_checkpoint(spec: LearnerSpec) -> Checkpoint:
     if checkpoint is not None and (not wanted or checkpoint.sha256 == wanted):
         return checkpoint
     if wanted:
-        found = _checkpoint_with_hash(wanted, str(path.parent))
+        found = _checkpoint_with_hash(wanted, _search_roots(path))
         if found is not None:
             return checkpoint_at(found, spec.n_arms)
     if checkpoint is None:
@@ -122,19 +124,27 @@ def recorded_checkpoint(spec: LearnerSpec) -> Checkpoint:
     raise ValueError(
         f"checkpoint {checkpoint.path} has changed since the learner was created "
         f"(sha256 {checkpoint.sha256[:12]}…, recorded {str(wanted)[:12]}…) and no checkpoint "
-        f"with the recorded hash is in {PRETRAINED_DIR} or {path.parent}: restore the original"
+        f"with the recorded hash is in {', '.join(map(str, _search_roots(path)))}: restore the "
+        "original"
     )
 
 
-_FOUND_BY_HASH: dict[tuple[str, str], Path] = {}
+def _search_roots(path: Path) -> tuple[Path, ...]:
+    """Where a replaced checkpoint may be: the shipped ones, the recorded checkpoint's own
+    directory (``<set>/online``) and its set's retired ones (``<set>/retired``). Bounded on
+    purpose: never a recursive search of whatever lies above a checkpoint."""
+    return (PRETRAINED_DIR, path.parent, path.parent.parent / RETIRED_DIR.name)
 
 
-def _checkpoint_with_hash(sha256: str, beside: str) -> Path | None:
+_FOUND_BY_HASH: dict[tuple[str, tuple[Path, ...]], Path] = {}
+
+
+def _checkpoint_with_hash(sha256: str, roots: tuple[Path, ...]) -> Path | None:
     """Search once per process for a hit (checkpoints are read-only data); a miss is searched
     again next time, so restoring the file fixes a running server."""
-    key = (sha256, beside)
+    key = (sha256, roots)
     if key not in _FOUND_BY_HASH:
-        found = find_by_sha256(sha256, [PRETRAINED_DIR, Path(beside)])
+        found = find_by_sha256(sha256, [root for root in roots if root.is_dir()])
         if found is None:
             return None
         _FOUND_BY_HASH[key] = found

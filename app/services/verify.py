@@ -100,18 +100,20 @@ moves the probabilities by many orders of magnitude more."""
 
 
 def _close(replayed: Any, stored: Any) -> bool:
-    """Equal structure and non-numeric values; numbers within :data:`FLOAT_TOLERANCE`."""
+    """Equal structure, strings, integers and booleans; floats within :data:`FLOAT_TOLERANCE`."""
     if isinstance(replayed, dict) and isinstance(stored, dict):
         return replayed.keys() == stored.keys() and all(
             _close(replayed[key], stored[key]) for key in replayed
         )
     if isinstance(replayed, list | tuple) and isinstance(stored, list | tuple):
         return len(replayed) == len(stored) and all(map(_close, replayed, stored))
-    if isinstance(replayed, bool) or isinstance(stored, bool):
-        return replayed is stored
-    if isinstance(replayed, int | float) and isinstance(stored, int | float):
+    if replayed == stored:
+        return type(replayed) is type(stored) or not (
+            isinstance(replayed, bool) or isinstance(stored, bool)
+        )
+    if isinstance(replayed, float) and isinstance(stored, float):
         return abs(replayed - stored) <= FLOAT_TOLERANCE * (1.0 + abs(stored))
-    return bool(replayed == stored)
+    return False
 
 
 class _Study:

@@ -189,3 +189,25 @@ def test_pretrain_bad_input_is_one_line(
     result = run(cli, "pretrain", "--out", str(tmp_path), *args)
     assert result.exit_code == EXIT_BAD_INPUT
     assert result.stderr.startswith("error: ") and message in result.stderr
+
+
+def test_pretrain_warns_when_calibration_cannot_reach_its_limit(
+    cli: typer.Typer, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import models.pretrain
+
+    def hopeless(theta: Any, layout: Any, args: Any) -> tuple[Any, dict[str, Any]]:
+        trial = {"scale": 0.5, "iterations_to_95": 13.0, "wrong_95": 0.5, "mean_p_correct": 0.3}
+        return theta, {"scale": 0.5, "within_limit": False, "trials": [trial]}
+
+    monkeypatch.setattr(models.pretrain, "calibrate_step_scale", hopeless)
+    monkeypatch.setattr(models.pretrain, "select_calibrated", lambda *args: None)
+    result = run(
+        cli,
+        *("pretrain", "--category", "generic", "--arms", "3", "--meta-batches", "1"),
+        *("--tasks-per-batch", "4", "--horizon", "2", "--out", str(tmp_path), "--seed", "1"),
+    )
+    assert result.exit_code == 0
+    assert "no step scale down to 0.5 brought wrong_95 within the calibration limit" in (
+        result.stderr
+    )

@@ -36,6 +36,17 @@ def test_a_replaced_checkpoint_is_found_by_its_hash_beside_the_recorded_path(
     np.testing.assert_array_equal(build(spec).probabilities(), before)
 
 
+def test_a_labs_own_retired_set_is_searched(tmp_path: Path) -> None:
+    """A lab retires its own set as docs/engine.md says: ``<set>/retired/<name>/...``."""
+    path = tmp_path / "lab-set" / "online" / "generic-k4"
+    original = make_checkpoint(path, seed=1)
+    retired = tmp_path / "lab-set" / "retired" / "first" / "generic-k4"
+    shutil.copytree(path, retired)
+    shutil.rmtree(path)
+    make_checkpoint(path, seed=2)
+    assert recorded_checkpoint(_spec(path, original.sha256)).path == retired
+
+
 def test_without_the_original_anywhere_the_error_says_what_changed(tmp_path: Path) -> None:
     path = tmp_path / "set" / "generic-k4"
     original = make_checkpoint(path, seed=1)

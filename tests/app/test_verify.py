@@ -95,3 +95,6 @@ def test_close_compares_structure_exactly_and_numbers_within_the_tolerance() -> 
     assert not verify._close("exp3", "meta")
     assert not verify._close(True, 1)
     assert verify._close(1e6, 1e6 * (1 + 1e-12))
+    assert not verify._close(5, 5.000000001)  # an integer is compared exactly
+    assert verify._close(3, 3) and verify._close(float("inf"), float("inf"))
+    assert not verify._close(2**62, 2**62 + 10**8)
