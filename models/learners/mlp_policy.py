@@ -50,7 +50,7 @@ Everything broadcasts over leading dimensions, so the learner (one participant) 
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 
@@ -62,8 +62,8 @@ PARAM_NAMES: tuple[str, str, str, str] = ("W1", "b1", "W2", "b2")
 
 UpdateRule = Literal["natural_expected", "natural", "gradient"]
 
-UPDATE_RULES: tuple[str, ...] = ("natural_expected", "natural", "gradient")
-"""Every rule a checkpoint may name (see the module docstring)."""
+UPDATE_RULES: tuple[str, ...] = get_args(UpdateRule)
+"""Every rule a checkpoint may name (see the module docstring), read off :data:`UpdateRule`."""
 
 HIDDEN_UNITS = 100
 """The issue's network: one hidden layer of 100 units."""
