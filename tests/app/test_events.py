@@ -3,44 +3,51 @@
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 
 from app import events
 from app.db import Database
 from app.events import RESYNC, Event, EventHub
 
 
-def test_committed_events_reach_subscribers_and_rolled_back_ones_do_not(
-    database: Database,
-) -> None:
+def _deliver(
+    database: Database, topic: str, publish: Callable[[], None], count: int
+) -> list[Event]:
+    """Subscribe to ``topic`` (through a LISTEN connection on PostgreSQL), run ``publish`` in a
+    thread as a request would, and collect the first ``count`` events (resyncs skipped)."""
+
     async def scenario() -> list[Event]:
-        hub = database.hub
         listener = None
         if not database.is_sqlite:
-            listener = events.PostgresListener(database.url, hub)
+            listener = events.PostgresListener(database.url, database.hub)
             listener.start()
         received: list[Event] = []
         try:
-            async with hub.subscribe(["study:1"]) as subscription:
-
-                def publish_twice() -> None:
-                    with database.write_session() as db:
-                        events.publish(db, topics=["study:1"], type="dropped", n=1)
-                        db.rollback()
-                        events.publish(db, topics=["study:1", "study:2"], type="kept", n=2)
-                        db.commit()
-
-                await asyncio.to_thread(publish_twice)
-                while True:
+            async with database.hub.subscribe([topic]) as subscription:
+                await asyncio.to_thread(publish)
+                while len(received) < count:
                     event = await asyncio.wait_for(subscription.next(), 5)
                     if event is not RESYNC:
                         received.append(event)
-                        break
         finally:
             if listener is not None:
                 listener.stop()
         return received
 
-    received = asyncio.run(scenario())
+    return asyncio.run(scenario())
+
+
+def test_committed_events_reach_subscribers_and_rolled_back_ones_do_not(
+    database: Database,
+) -> None:
+    def publish_twice() -> None:
+        with database.write_session() as db:
+            events.publish(db, topics=["study:1"], type="dropped", n=1)
+            db.rollback()
+            events.publish(db, topics=["study:1", "study:2"], type="kept", n=2)
+            db.commit()
+
+    received = _deliver(database, "study:1", publish_twice, 1)
     assert received == [Event(topic="study:1", type="kept", data={"n": 2})]
 
 
@@ -55,36 +62,18 @@ def test_a_transactions_events_arrive_in_order_from_one_notify(database: Databas
         if "pg_notify" in statement:
             notifies.append(statement)
 
-    async def scenario() -> list[Event]:
-        hub = database.hub
-        listener = None
-        if not database.is_sqlite:
-            listener = events.PostgresListener(database.url, hub)
-            listener.start()
-        received: list[Event] = []
-        sa_event.listen(database.engine, "before_cursor_execute", count)
-        try:
-            async with hub.subscribe(["study:7"]) as subscription:
+    def publish() -> None:
+        with database.write_session() as db:
+            for n in range(3):
+                events.publish(db, topics=["study:7"], type="step", n=n)
+            events.publish(db, topics=["study:7"], type="big", text="x" * 9000)
+            db.commit()
 
-                def publish() -> None:
-                    with database.write_session() as db:
-                        for n in range(3):
-                            events.publish(db, topics=["study:7"], type="step", n=n)
-                        events.publish(db, topics=["study:7"], type="big", text="x" * 9000)
-                        db.commit()
-
-                await asyncio.to_thread(publish)
-                while len(received) < 4:
-                    event = await asyncio.wait_for(subscription.next(), 5)
-                    if event is not RESYNC:
-                        received.append(event)
-        finally:
-            sa_event.remove(database.engine, "before_cursor_execute", count)
-            if listener is not None:
-                listener.stop()
-        return received
-
-    received = asyncio.run(scenario())
+    sa_event.listen(database.engine, "before_cursor_execute", count)
+    try:
+        received = _deliver(database, "study:7", publish, 4)
+    finally:
+        sa_event.remove(database.engine, "before_cursor_execute", count)
     assert [(e.type, e.data.get("n")) for e in received[:3]] == [("step", n) for n in range(3)]
     assert received[3].type == "big"
     assert len(notifies) == (0 if database.is_sqlite else 1)
