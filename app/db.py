@@ -32,7 +32,6 @@ log = logging.getLogger(__name__)
 
 WRITE_OPTION = "trustlab_write"
 """Execution option that marks connections of write sessions (``BEGIN IMMEDIATE`` on SQLite)."""
-_HOLDS_WRITER = "trustlab_holds_writer"
 WRITER_WAIT_SECONDS = 30.0
 
 WAL_CHECKPOINT_SECONDS = 0.5
@@ -52,13 +51,53 @@ def describe_url(url: str | URL) -> str:
     return make_url(url).render_as_string(hide_password=True)
 
 
+class _GatedConnection(sqlite3.Connection):
+    """A sqlite3 connection that hands the writer queue on only after COMMIT or ROLLBACK returned.
+
+    SQLAlchemy's "commit" event fires *before* the driver commits; releasing the queue there let
+    the next writer's ``BEGIN IMMEDIATE`` meet a still-held lock, and SQLite's busy handler then
+    sleeps (1, 2, 5, 10… ms): a tail latency of its own making. Here the release follows the
+    driver's own commit or rollback (the pool's reset rolls back too, so nothing leaks).
+    """
+
+    writers: threading.Lock | None = None
+    """The engine's writer queue, set when the connection opens."""
+    holds_writer = False
+
+    def commit(self) -> None:
+        try:
+            super().commit()
+        finally:
+            self.release_writer()
+
+    def rollback(self) -> None:
+        try:
+            super().rollback()
+        finally:
+            self.release_writer()
+
+    def close(self) -> None:
+        try:
+            super().close()
+        finally:
+            self.release_writer()
+
+    def release_writer(self) -> None:
+        """Let the next writer in (idempotent)."""
+        if self.holds_writer:
+            self.holds_writer = False
+            assert self.writers is not None
+            self.writers.release()
+
+
 def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: int) -> None:
     """WAL, foreign keys, a generous busy timeout, explicit BEGINs, and a fair writer queue.
 
     SQLite has one writer at a time and its busy handler polls with growing sleeps, so under
     contention an unlucky writer can starve for seconds. SQLite serves from one process by
     design, so writers first queue on an in-process lock and only then ``BEGIN IMMEDIATE``: the
-    lock is handed over the moment a write transaction commits or rolls back.
+    lock is handed over the moment a write transaction's COMMIT or ROLLBACK has returned
+    (:class:`_GatedConnection`).
 
     Durability: in WAL mode a committed transaction survives a crash of the process (SIGKILL)
     whatever ``synchronous`` says, because the WAL is written before COMMIT returns; FULL also
@@ -69,7 +108,8 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
     writers = threading.Lock()
 
     @event.listens_for(engine, "connect")
-    def _on_connect(dbapi_connection: sqlite3.Connection, _record: Any) -> None:
+    def _on_connect(dbapi_connection: _GatedConnection, _record: Any) -> None:
+        dbapi_connection.writers = writers
         # Let SQLAlchemy's "begin" event (below) issue BEGIN instead of the sqlite3 module.
         dbapi_connection.isolation_level = None
         cursor = dbapi_connection.cursor()
@@ -85,27 +125,15 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
         if connection.get_execution_options().get(WRITE_OPTION, False):
             if not writers.acquire(timeout=WRITER_WAIT_SECONDS):
                 raise OperationalError("BEGIN IMMEDIATE", {}, TimeoutError("writer queue full"))
-            connection.info[_HOLDS_WRITER] = True
+            dbapi_connection: _GatedConnection = connection.connection.driver_connection
+            dbapi_connection.holds_writer = True
             try:
                 connection.exec_driver_sql("BEGIN IMMEDIATE")
             except BaseException:
-                _release(connection.info)
+                dbapi_connection.release_writer()
                 raise
         else:
             connection.exec_driver_sql("BEGIN")
-
-    def _release(info: dict[str, Any]) -> None:
-        if info.pop(_HOLDS_WRITER, False):
-            writers.release()
-
-    @event.listens_for(engine, "commit")
-    @event.listens_for(engine, "rollback")
-    def _on_end(connection: Any) -> None:
-        _release(connection.info)
-
-    @event.listens_for(engine.pool, "reset")
-    def _on_reset(_dbapi_connection: Any, record: Any, _reset_state: Any) -> None:
-        _release(record.info)
 
 
 def create_db_engine(
@@ -122,7 +150,7 @@ def create_db_engine(
             Path(url.database).parent.mkdir(parents=True, exist_ok=True)
         engine = create_engine(
             url,
-            connect_args={"check_same_thread": False, "timeout": 30},
+            connect_args={"check_same_thread": False, "timeout": 30, "factory": _GatedConnection},
             pool_size=POOL_SIZE,
             max_overflow=POOL_OVERFLOW,
         )

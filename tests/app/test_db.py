@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
+from typing import Any
 
-from sqlalchemy import text
+from sqlalchemy import event, text
 
 from app.db import WAL_AUTOCHECKPOINT_PAGES, Database
 
@@ -58,5 +60,64 @@ def test_other_databases_keep_sqlites_own_checkpoints(tmp_path: Path) -> None:
         assert database.checkpointer is None and _autocheckpoint(database) == 1000
         database.start_background_work()  # nothing to start
         database.stop_background_work()
+    finally:
+        database.dispose()
+
+
+def test_writers_queue_until_the_previous_commit_has_returned(tmp_path: Path) -> None:
+    """With SQLite's busy handler off, a writer let in before the previous COMMIT finished would
+    fail at once with 'database is locked': the in-process queue must be the only wait."""
+    database = Database(f"sqlite:///{tmp_path}/q.sqlite3", sqlite_synchronous="FULL")
+
+    @event.listens_for(database.engine, "connect")
+    def _no_busy_wait(dbapi_connection: Any, _record: Any) -> None:
+        dbapi_connection.execute("PRAGMA busy_timeout=0")
+
+    try:
+        with database.writing() as db:
+            db.execute(text("CREATE TABLE t (id INTEGER PRIMARY KEY, v TEXT)"))
+            db.commit()
+        failures: list[BaseException] = []
+
+        def writer() -> None:
+            try:
+                _write(database, 60)
+            except BaseException as exc:  # reported below
+                failures.append(exc)
+
+        threads = [threading.Thread(target=writer) for _ in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert failures == []
+        with database.writing() as db:
+            assert db.execute(text("SELECT count(*) FROM t")).scalar_one() == 240
+    finally:
+        database.dispose()
+
+
+def test_the_writer_queue_is_held_through_commit_and_freed_by_rollback(tmp_path: Path) -> None:
+    database = Database(f"sqlite:///{tmp_path}/g.sqlite3")
+    held_at_commit: list[bool] = []
+
+    @event.listens_for(database.engine, "commit")
+    def _before_driver_commit(connection: Any) -> None:
+        held_at_commit.append(connection.connection.driver_connection.writers.locked())
+
+    try:
+        with database.writing() as db:
+            db.execute(text("CREATE TABLE t (id INTEGER PRIMARY KEY)"))
+            gate = db.connection().connection.driver_connection.writers
+            assert gate.locked()
+            db.commit()
+        assert held_at_commit == [True] and not gate.locked()
+        with database.writing() as db:
+            db.execute(text("INSERT INTO t DEFAULT VALUES"))
+            assert gate.locked()
+        assert not gate.locked()  # closed without commit: the pool's rollback frees it
+        with database.read_session() as db:
+            assert db.execute(text("SELECT count(*) FROM t")).scalar_one() == 0
+            assert not gate.locked()  # readers never take it
     finally:
         database.dispose()
