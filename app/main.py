@@ -12,6 +12,7 @@ from contextlib import asynccontextmanager
 from fastapi import APIRouter, FastAPI
 from fastapi.staticfiles import StaticFiles
 
+from app import collector
 from app.activity import ActivityRecorder
 from app.api import health, session, station, station_ws, stations, tablet
 from app.api import studies as studies_api
@@ -64,7 +65,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             listener.start()
         database.start_background_work()
         activity.start()
+        collector.freeze_startup_objects()
         yield
+        collector.thaw()
         activity.stop()
         database.stop_background_work()
         if listener is not None:
