@@ -65,7 +65,8 @@ RESYNC = Event(topic="*", type="resync")
 
 def publish(db: Session, *, topics: Iterable[str], type: str, **data: Any) -> None:
     """Queue an event on ``db``'s transaction for each topic; delivered only on commit."""
-    db.connection()  # make sure a transaction exists, so that its rollback discards the events
+    if db.get_transaction() is None:
+        db.connection()  # a transaction must exist, so that its rollback discards the events
     pending: list[Event] = db.info.setdefault(PENDING_KEY, [])
     for topic in topics:
         pending.append(Event(topic=topic, type=type, data=data))

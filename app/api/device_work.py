@@ -22,7 +22,8 @@ from app.db import Database
 from app.errors import NotAuthenticated
 from app.services import stations
 from app.services.audit import Actor
-from app.tables import ActorKind, Device
+from app.services.step_store import DeviceSeat
+from app.tables import ActorKind
 
 T = TypeVar("T")
 
@@ -48,9 +49,9 @@ async def device_key(
 DeviceKey = Annotated[str, Depends(device_key)]
 
 
-def device_actor(device: Device) -> Actor:
+def device_actor(device: DeviceSeat) -> Actor:
     """How a device appears in the audit log and the step log."""
-    return Actor(ActorKind.DEVICE, f"{device.station.name}/{device.label}"[:64])
+    return Actor(ActorKind.DEVICE, device.actor_name)
 
 
 def _work(
@@ -58,17 +59,17 @@ def _work(
     activity: ActivityRecorder | None,
     key: str,
     write: bool,
-    op: Callable[[Session, Device], T],
+    op: Callable[[Session, DeviceSeat], T],
 ) -> T:
     with database.write_session() if write else database.read_session() as db:
-        device = stations.authenticate_device(db, key=key)
+        device = stations.authenticate_seat(db, key=key)
         if activity is not None:
-            activity.note_device(device.id)
+            activity.note_device(device.device_id)
         return op(db, device)
 
 
 async def as_device(
-    app: ASGIApp, key: str, *, write: bool, op: Callable[[Session, Device], T]
+    app: ASGIApp, key: str, *, write: bool, op: Callable[[Session, DeviceSeat], T]
 ) -> T:
     """Run ``op(db, device)`` for the device holding ``key``, as one admitted unit of work."""
     state = app.state  # type: ignore[attr-defined]

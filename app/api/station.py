@@ -24,7 +24,7 @@ async def get_state(request: Request, key: DeviceKey) -> StationStateOut:
         request.app,
         key,
         write=False,
-        op=lambda db, device: station_ops.state(db, station=device.station),
+        op=lambda db, device: station_ops.state(db, station=device.seat),
     )
 
 
@@ -43,10 +43,10 @@ async def prompt(
         write=True,
         op=lambda db, device: station_ops.prompt(
             db,
-            station=device.station,
+            station=device.seat,
             body=body,
             actor=device_actor(device),
-            device_id=device.id,
+            device_id=device.device_id,
         ),
     )
     if not out.created:
@@ -63,11 +63,11 @@ async def answer(step_id: int, body: AnswerRequest, request: Request, key: Devic
         write=True,
         op=lambda db, device: station_ops.answer(
             db,
-            station=device.station,
+            station=device.seat,
             step_id=step_id,
             body=body,
             actor=device_actor(device),
-            device_id=device.id,
+            device_id=device.device_id,
         ),
     )
 
@@ -80,6 +80,6 @@ async def start_run(request: Request, key: DeviceKey) -> StationStateOut:
         key,
         write=True,
         op=lambda db, device: station_ops.start_run(
-            db, station=device.station, actor=device_actor(device)
+            db, station=device.seat, actor=device_actor(device)
         ),
     )

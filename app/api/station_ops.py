@@ -18,21 +18,22 @@ from app.api.runtime_schemas import (
 )
 from app.services import runtime
 from app.services.audit import Actor
-from app.tables import Device, Prompt, Station
+from app.services.step_store import Seat, Step
+from app.tables import Device, Station
 
-StationRef = str | Station
-"""A station by name (the experimenter's routes), or as a robot's device brings it: loaded with
-its seated participant and study, which spares the runtime looking them up again."""
+StationRef = str | Seat
+"""A station by name (the experimenter's routes), or its seat as a robot's device brings it
+(read in the same transaction), which spares the runtime looking it up again."""
 
 
-def _named(station: StationRef) -> tuple[str, Station | None]:
-    return (station, None) if isinstance(station, str) else (station.name, station)
+def _named(station: StationRef) -> tuple[str, Seat | None]:
+    return (station, None) if isinstance(station, str) else (station.station_name, station)
 
 
 def state(db: Session, *, station: StationRef) -> StationStateOut:
     """The station's state and what is expected next."""
     name, loaded = _named(station)
-    return state_out(runtime.station_view(db, station_name=name, station=loaded))
+    return state_out(runtime.station_view(db, station_name=name, seat=loaded))
 
 
 def prompt(
@@ -46,7 +47,7 @@ def prompt(
         category=body.category,
         actor=actor,
         device_id=device_id,
-        station=loaded,
+        seat=loaded,
     )
     return prompt_out(
         result.prompt, session=result.session_number, run=result.run_number, created=result.created
@@ -72,7 +73,7 @@ def answer(
         idempotency_key=body.idempotency_key,
         actor=actor,
         device_id=device_id,
-        station=loaded,
+        seat=loaded,
     )
     return answer_out(result, result.expected)
 
@@ -98,7 +99,7 @@ def expected_out(expected: runtime.Expected) -> ExpectedOut:
     )
 
 
-def prompt_out(prompt: Prompt, *, session: int, run: int, created: bool) -> PromptOut:
+def prompt_out(prompt: Step, *, session: int, run: int, created: bool) -> PromptOut:
     """Serialise a prompt."""
     return PromptOut(
         step_id=prompt.id,

@@ -34,6 +34,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 from sqlalchemy.exc import OperationalError
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from app.api import station_ops
@@ -43,6 +44,7 @@ from app.db import Database
 from app.errors import NotAuthenticated, TrustlabError
 from app.events import Event
 from app.services import stations
+from app.services.step_store import DeviceSeat
 
 log = logging.getLogger(__name__)
 
@@ -110,9 +112,12 @@ class _Device:
 
 def _authenticate(database: Database, key: str) -> _Device:
     with database.read_session() as db:
-        device = stations.authenticate_device(db, key=key)
+        device = stations.authenticate_seat(db, key=key)
         return _Device(
-            key=key, id=device.id, station=device.station.name, station_id=device.station_id
+            key=key,
+            id=device.device_id,
+            station=device.seat.station_name,
+            station_id=device.seat.station_id,
         )
 
 
@@ -144,7 +149,7 @@ class _Connection:
             self.websocket.app,
             self.device.key,
             write=False,
-            op=lambda db, device: station_ops.state(db, station=device.station),
+            op=lambda db, device: station_ops.state(db, station=device.seat),
         )
         return out.model_dump(mode="json")
 
@@ -220,10 +225,10 @@ class _Connection:
             def prompt_op(db: Any, device: Any) -> Any:
                 return station_ops.prompt(
                     db,
-                    station=device.station,
+                    station=device.seat,
                     body=body,
                     actor=device_actor(device),
-                    device_id=device.id,
+                    device_id=device.device_id,
                 )
 
             out = await as_device(self.websocket.app, self.device.key, write=True, op=prompt_op)
@@ -236,18 +241,18 @@ class _Connection:
             def answer_op(db: Any, device: Any) -> Any:
                 return station_ops.answer(
                     db,
-                    station=device.station,
+                    station=device.seat,
                     step_id=step_id,
                     body=answer_body,
                     actor=device_actor(device),
-                    device_id=device.id,
+                    device_id=device.device_id,
                 )
 
             out = await as_device(self.websocket.app, self.device.key, write=True, op=answer_op)
         else:
 
             def run_op(db: Any, device: Any) -> Any:
-                return station_ops.start_run(db, station=device.station, actor=device_actor(device))
+                return station_ops.start_run(db, station=device.seat, actor=device_actor(device))
 
             out = await as_device(self.websocket.app, self.device.key, write=True, op=run_op)
         result: dict[str, Any] = out.model_dump(mode="json")
@@ -353,8 +358,8 @@ async def station_socket(websocket: WebSocket) -> None:
 async def _mark(websocket: WebSocket, key: str, *, connected: bool) -> None:
     """Remember whether the device is connected (shown on the stations page)."""
 
-    def mark(db: Any, device: Any) -> None:
-        stations.mark_connection(db, device_id=device.id, connected=connected)
+    def mark(db: Session, device: DeviceSeat) -> None:
+        stations.mark_connection(db, device_id=device.device_id, connected=connected)
         db.commit()
 
     with contextlib.suppress(TrustlabError, OperationalError):

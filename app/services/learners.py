@@ -16,6 +16,7 @@ from __future__ import annotations
 import functools
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -187,11 +188,12 @@ class LearnerCache:
         self._capacity = capacity
         self._lock = threading.Lock()
 
-    def take(self, row: LearnerState) -> Learner:
-        """The learner at the row's version, removed from the cache (rebuilt if absent)."""
+    def take(self, row_id: int, version: int, rebuild: Callable[[], Learner]) -> Learner:
+        """The learner of row ``row_id`` at ``version``, removed from the cache (``rebuild()``
+        when absent)."""
         with self._lock:
-            learner = self._entries.pop((row.id, row.version), None)
-        return learner if learner is not None else restore(row)
+            learner = self._entries.pop((row_id, version), None)
+        return learner if learner is not None else rebuild()
 
     def put(self, row_id: int, version: int, learner: Learner) -> None:
         """Keep a learner known to match the committed row at ``version``."""

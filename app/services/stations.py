@@ -10,13 +10,13 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from sqlalchemy import bindparam, select, update
-from sqlalchemy.orm import Session, contains_eager
+from sqlalchemy import select, update
+from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
 from app.security import new_token, token_digest
-from app.services import audit
+from app.services import audit, step_store
 from app.services.audit import Actor
 from app.tables import (
     Device,
@@ -35,13 +35,18 @@ DEVICE_REVOKED = "device_revoked"
 device's open WebSocket at once (app.api.station_ws)."""
 KEY_MAX_LENGTH = 200
 """The longest bearer value taken for a device key (issued keys have 47 characters). The REST
-dependency and :func:`authenticate_device` both refuse longer ones unhashed: one limit, so a key
+dependency and :func:`authenticate_seat` both refuse longer ones unhashed: one limit, so a key
 that passes the first check is never turned away by the second."""
 
 
 def station_topic(station: Station) -> str:
     """The event topic of a station (robot WebSockets and operator consoles listen to it)."""
-    return f"station:{station.id}"
+    return station_topic_of(station.id)
+
+
+def station_topic_of(station_id: int) -> str:
+    """The event topic of the station with this id."""
+    return f"station:{station_id}"
 
 
 def study_topic(study_id: int) -> str:
@@ -149,36 +154,19 @@ def revoke_device(db: Session, *, device_id: int, actor: Actor) -> Device:
     return device
 
 
-_DEVICE_BY_KEY = (
-    select(Device)
-    .join(Device.station)
-    .outerjoin(Station.participant)
-    .outerjoin(Participant.study)
-    .options(
-        contains_eager(Device.station)
-        .contains_eager(Station.participant)
-        .contains_eager(Participant.study)
-    )
-    .where(Device.key_hash == bindparam("digest"))
-)
-"""A device with its station, the participant seated there and their study, in one statement:
-every robot request needs all four (app.services.runtime takes them from ``device.station``), and
-a separate query for each costs a round trip and as much CPU as the lookup itself."""
+def authenticate_seat(db: Session, *, key: str) -> step_store.DeviceSeat:
+    """The live device holding this key and its station's seat, in one statement (every robot
+    request needs them: app.api.device_work); NotAuthenticated otherwise, never saying why.
 
-
-def authenticate_device(db: Session, *, key: str) -> Device:
-    """The live device holding this key; NotAuthenticated otherwise (never saying why).
-
-    Looked up in the database on every request, never cached: a revoked key is refused on its
-    very next request, whichever worker process serves it. The device comes with its station,
-    the seated participant and their study loaded (no further queries to reach them).
+    Looked up on every request, never cached: a revoked key is refused on its very next request,
+    whichever worker process serves it.
     """
-    device = None
+    found = None
     if key.startswith(KEY_PREFIX) and len(key) <= KEY_MAX_LENGTH:
-        device = db.scalar(_DEVICE_BY_KEY, {"digest": token_digest(key)})
-    if device is None or device.revoked_at is not None:
+        found = step_store.device_seat(step_store.Cursor.of(db), digest=token_digest(key))
+    if found is None:
         raise NotAuthenticated("unknown or revoked device key")
-    return device
+    return found
 
 
 def _running_session(db: Session, participant_id: int) -> StudySession | None:

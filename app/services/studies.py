@@ -65,6 +65,18 @@ def protocol_of(study: Study) -> Protocol:
     return protocol
 
 
+def protocol_by_id(db: Session, *, study_id: int, protocol_sha256: str) -> Protocol:
+    """The protocol of a study known by id and protocol hash (a robot's seat, app.services.
+    step_store): from the process's cache, loading the study only on a miss."""
+    protocol = _protocol_cache.get((study_id, protocol_sha256))
+    if protocol is not None:
+        return protocol
+    study = db.get(Study, study_id)
+    if study is None:  # pragma: no cover - the seat was read in this transaction
+        raise NotFound(f"study {study_id} does not exist")
+    return protocol_of(study)
+
+
 def get_study(db: Session, name: str, *, for_update: bool = False) -> Study:
     """The study with this name, optionally row-locked; NotFound names the known studies."""
     query = select(Study).where(Study.name == name)

@@ -1,0 +1,662 @@
+"""The robot's hot path as a few hand-written statements on the driver's own cursor.
+
+A prompt or an answer needs who holds the device key, the run the step belongs to with that run's
+prompts, the learner's version (its state only when the process has no live copy), and then a few
+rows appended or updated. Through SQLAlchemy's ORM each of those small statements cost 100–400 µs
+of Python (compiled-statement lookup, row processing, identity map, the unit of work's flush),
+several times what SQLite or PostgreSQL spend executing it, and an answer cost 5–6 × a no-op
+request (docs/performance.md, "Robot API round trip"). Here they run on the DBAPI cursor of the
+request's own session, so they share its transaction: SQLite's ``BEGIN IMMEDIATE`` and writer
+queue (app.db), live events published on commit (app.events), and rollback on any error behave
+exactly as for ORM work.
+
+Values are written in the form the ORM's column types store them (app.tables: UTC timestamps,
+JSON/JSONB documents, booleans), so every other part of trustlab reads these rows through the ORM
+unchanged; ``tests/app/test_step_store.py`` checks that round trip on both engines. A write expires
+the session's ORM objects, so nothing loaded before it is served stale afterwards.
+
+The timeline's rules live in app.services.runtime, which does all its reading and writing here;
+the rest of trustlab (enrolment, questionnaires, dashboards, exports) uses the ORM.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from psycopg.types.json import Jsonb
+from sqlalchemy.exc import DBAPIError
+from sqlalchemy.orm import Session
+
+from app.tables import ParticipantStatus, RunStatus, SessionStatus, utcnow
+
+_NAMED = re.compile(r"(?<![:\w]):([a-z_]+)")
+
+
+class Statement:
+    """One SQL statement, written with ``:name`` parameters, in both drivers' styles.
+
+    ``{lock}`` in the text becomes ``FOR UPDATE OF …`` on PostgreSQL when the statement is run
+    with ``lock=True`` (SQLite's write transactions are exclusive already).
+    """
+
+    def __init__(self, sql: str, *, lock_of: str = "") -> None:
+        text = " ".join(sql.split())
+        lock = f" FOR UPDATE OF {lock_of}" if lock_of else ""
+        self._sqlite = text.replace(" {lock}", "")
+        postgres = _NAMED.sub(r"%(\1)s", text)
+        self._postgres = postgres.replace(" {lock}", "")
+        self._postgres_locked = postgres.replace(" {lock}", lock)
+
+    def text(self, postgres: bool, lock: bool = False) -> str:
+        """The statement for one driver."""
+        if not postgres:
+            return self._sqlite
+        return self._postgres_locked if lock else self._postgres
+
+
+_CURSOR_KEY = "trustlab_step_cursor"
+
+
+class Cursor:
+    """The driver cursor of a session's transaction, with the ORM column types' conversions.
+
+    Take it with :meth:`of`: one per transaction, shared by everything the request does in it.
+    Driver errors come out as SQLAlchemy's (``IntegrityError``, ``OperationalError``…), as they
+    would from ORM work, so the application's handlers (a lost database is a 503) apply; a lost
+    connection is invalidated so the pool never hands it out again.
+    """
+
+    def __init__(self, db: Session) -> None:
+        self.db = db
+        self._connection = db.connection()  # begins the transaction (BEGIN IMMEDIATE for writers)
+        self.transaction = db.get_transaction()
+        self._dialect = self._connection.dialect
+        self._dbapi_error: type[Exception] = self._dialect.loaded_dbapi.Error
+        self.postgres = self._dialect.name == "postgresql"
+        raw = self._connection.connection.driver_connection
+        assert raw is not None
+        self._raw_connection = raw
+        self._raw = raw.cursor()
+        # Statement counters (tests, bench/answer_cost.py) listen on SQLAlchemy's own event.
+        self._observers = list(self._connection.dispatch.before_cursor_execute)
+        self._now: datetime | None = None
+
+    @classmethod
+    def of(cls, db: Session) -> Cursor:
+        """The cursor of ``db``'s current transaction (begun if need be)."""
+        cached: Cursor | None = db.info.get(_CURSOR_KEY)
+        if cached is not None and cached.transaction is db.get_transaction():
+            return cached
+        cursor = db.info[_CURSOR_KEY] = cls(db)
+        return cursor
+
+    @property
+    def now(self) -> datetime:
+        """The transaction's clock: every row it writes carries the same UTC time."""
+        if self._now is None:
+            self._now = utcnow()
+        return self._now
+
+    def _execute(self, statement: Statement, params: dict[str, Any], lock: bool = False) -> None:
+        sql = statement.text(self.postgres, lock)
+        for observer in self._observers:
+            observer(self._connection, self._raw, sql, params, None, False)
+        try:
+            self._raw.execute(sql, params)
+        except self._dbapi_error as error:
+            lost = self._dialect.is_disconnect(error, self._raw_connection, self._raw)  # type: ignore[arg-type]
+            if lost:
+                self._connection.invalidate(error)
+            raise DBAPIError.instance(
+                sql,
+                params,
+                error,
+                self._dbapi_error,
+                connection_invalidated=lost,
+                dialect=self._dialect,
+            ) from error
+
+    def rows(
+        self, statement: Statement, params: dict[str, Any], *, lock: bool = False
+    ) -> list[Any]:
+        """Every row of a query."""
+        self._execute(statement, params, lock)
+        return list(self._raw.fetchall())
+
+    def row(self, statement: Statement, params: dict[str, Any], *, lock: bool = False) -> Any:
+        """The first row of a query, or None."""
+        self._execute(statement, params, lock)
+        return self._raw.fetchone()
+
+    def write(self, statement: Statement, params: dict[str, Any]) -> int:
+        """Run an INSERT/UPDATE; returns the number of rows it changed. Objects the session
+        loaded earlier are expired, so later ORM reads in this transaction see the change."""
+        self._execute(statement, params)
+        self.db.expire_all()
+        return int(self._raw.rowcount)
+
+    def insert(self, statement: Statement, params: dict[str, Any]) -> int:
+        """Run an ``INSERT … RETURNING id``; returns the new id."""
+        self._execute(statement, params)
+        new_id = self._raw.fetchone()[0]
+        self.db.expire_all()
+        return int(new_id)
+
+    # Conversions, as app.tables' column types do them.
+
+    def json(self, value: Any) -> Any:
+        """A JSON document parameter (JSON text on SQLite, JSONB on PostgreSQL)."""
+        return Jsonb(value) if self.postgres else json.dumps(value)
+
+    def parsed(self, value: Any) -> Any:
+        """A JSON document as read (PostgreSQL's driver parses JSONB itself)."""
+        return value if self.postgres or value is None else json.loads(value)
+
+    def timestamp(self, value: datetime | None = None) -> Any:
+        """A UTC timestamp parameter, by default the transaction's :attr:`now` (naive UTC text
+        on SQLite, in SQLAlchemy's format; an aware datetime for PostgreSQL's driver)."""
+        value = self.now if value is None else value
+        if self.postgres:
+            return value
+        return value.astimezone(UTC).replace(tzinfo=None).isoformat(" ", "microseconds")
+
+
+# ------------------------------------------------------------------------------------ the seat
+
+
+@dataclass(frozen=True, slots=True)
+class Seated:
+    """The participant seated at a station and their study."""
+
+    id: int
+    code: str
+    status: str
+    study_id: int
+    study_name: str
+    allocation_seed: str
+    protocol_sha256: str
+
+
+@dataclass(frozen=True, slots=True)
+class Seat:
+    """A station and whoever sits there (``participant`` None when nobody does)."""
+
+    station_id: int
+    station_name: str
+    participant: Seated | None
+
+
+@dataclass(frozen=True, slots=True)
+class DeviceSeat:
+    """A live device key's device, and its station's seat."""
+
+    device_id: int
+    label: str
+    seat: Seat
+
+    @property
+    def actor_name(self) -> str:
+        """How the device appears in the audit log and the step log."""
+        return f"{self.seat.station_name}/{self.label}"[:64]
+
+
+_SEAT_COLUMNS = """s.id, s.name, p.id, p.code, p.status, p.study_id, st.name, st.allocation_seed,
+    st.protocol_sha256"""
+_SEATED_JOINS = """LEFT JOIN participant p ON p.id = s.participant_id
+    LEFT JOIN study st ON st.id = p.study_id"""
+
+_DEVICE_SEAT = Statement(
+    f"""SELECT d.id, d.label, {_SEAT_COLUMNS} FROM device d JOIN station s ON s.id = d.station_id
+    {_SEATED_JOINS} WHERE d.key_hash = :digest AND d.revoked_at IS NULL"""
+)
+_STATION_SEAT = Statement(
+    f"SELECT {_SEAT_COLUMNS} FROM station s {_SEATED_JOINS} WHERE s.name = :name {{lock}}",
+    lock_of="s",
+)
+
+
+def _seat(columns: tuple[Any, ...]) -> Seat:
+    station_id, station_name, pid, code, status, study_id, study, seed, sha = columns
+    seated = None if pid is None else Seated(pid, code, status, study_id, study, seed, sha)
+    return Seat(station_id, station_name, seated)
+
+
+def device_seat(cursor: Cursor, *, digest: str) -> DeviceSeat | None:
+    """The unrevoked device whose key hashes to ``digest``, with its station's seat."""
+    found = cursor.row(_DEVICE_SEAT, {"digest": digest})
+    return None if found is None else DeviceSeat(found[0], found[1], _seat(tuple(found[2:])))
+
+
+def station_seat(cursor: Cursor, *, name: str, lock: bool = False) -> Seat | None:
+    """The station called ``name`` and its seat (None when there is no such station);
+    ``lock``: the station row is locked (PostgreSQL), serialising people's changes there."""
+    found = cursor.row(_STATION_SEAT, {"name": name}, lock=lock)
+    return None if found is None else _seat(tuple(found))
+
+
+# ------------------------------------------------------------------------------- runs and steps
+
+
+@dataclass(frozen=True, slots=True)
+class Step:
+    """A prompt (the first half of a step) and whether it has been answered."""
+
+    id: int
+    participant_id: int
+    category: str
+    action: int
+    question: str
+    probabilities: list[float]
+    learner_version: int
+    adapts: bool
+    answer_id: int | None
+
+
+@dataclass(slots=True)
+class RunState:
+    """A run, its session and its prompts so far (in the order asked)."""
+
+    session_id: int
+    session_number: int
+    session_status: str
+    run_id: int
+    run_number: int
+    run_status: str
+    steps: list[Step]
+
+    @property
+    def running(self) -> bool:
+        """Whether both the session and the run are running."""
+        return self.session_status == SessionStatus.RUNNING and self.run_status == RunStatus.RUNNING
+
+    def step(self, step_id: int) -> Step | None:
+        """The step with this id, if it belongs to this run."""
+        return next((s for s in self.steps if s.id == step_id), None)
+
+
+_RUN_COLUMNS = "ss.id, ss.number, ss.status, r.id, r.number, r.status"
+_LATEST_RUN = Statement(
+    f"""SELECT {_RUN_COLUMNS} FROM study_session ss JOIN run r ON r.session_id = ss.id
+    WHERE ss.participant_id = :participant ORDER BY ss.number DESC, r.number DESC LIMIT 1
+    {{lock}}""",
+    lock_of="r",
+)
+_RUN_OF_STEP = Statement(
+    f"""SELECT {_RUN_COLUMNS} FROM prompt pr JOIN run r ON r.id = pr.run_id
+    JOIN study_session ss ON ss.id = r.session_id
+    WHERE pr.id = :step AND pr.participant_id = :participant {{lock}}""",
+    lock_of="r",
+)
+_STEPS_OF_RUN = Statement(
+    """SELECT pr.id, pr.participant_id, pr.category, pr.action, pr.question, pr.probabilities,
+    pr.learner_version, pr.adapts, a.id FROM prompt pr LEFT JOIN answer a ON a.prompt_id = pr.id
+    WHERE pr.run_id = :run ORDER BY pr.id"""
+)
+
+
+def _run_with_steps(cursor: Cursor, head: Any) -> RunState | None:
+    """The run of ``head`` with its steps, read *after* the run row was locked: on PostgreSQL a
+    fresh statement sees whatever the transaction that held the lock committed."""
+    if head is None:
+        return None
+    steps = [
+        Step(
+            row[0],
+            row[1],
+            row[2],
+            row[3],
+            row[4],
+            cursor.parsed(row[5]),
+            row[6],
+            bool(row[7]),
+            row[8],
+        )
+        for row in cursor.rows(_STEPS_OF_RUN, {"run": head[3]})
+    ]
+    return RunState(head[0], head[1], head[2], head[3], head[4], head[5], steps)
+
+
+def latest_run(cursor: Cursor, *, participant_id: int, lock: bool = False) -> RunState | None:
+    """The participant's latest run and its steps; None before the first session. ``lock``: the
+    run row is locked (PostgreSQL) before its steps are read, which serialises a run's prompts and
+    answers."""
+    head = cursor.row(_LATEST_RUN, {"participant": participant_id}, lock=lock)
+    return _run_with_steps(cursor, head)
+
+
+def run_of_step(cursor: Cursor, *, step_id: int, participant_id: int) -> RunState | None:
+    """The run that step ``step_id`` of this participant belongs to (row-locked on PostgreSQL),
+    with its steps; None when the participant has no such step."""
+    head = cursor.row(_RUN_OF_STEP, {"step": step_id, "participant": participant_id}, lock=True)
+    return _run_with_steps(cursor, head)
+
+
+_OPEN_SESSION = Statement(
+    """INSERT INTO study_session (participant_id, station_id, number, status, started_at,
+    started_by, ended_by) VALUES (:participant, :station, :number, :status, :now, :actor, '')
+    RETURNING id"""
+)
+
+
+def open_session(
+    cursor: Cursor, *, participant_id: int, station_id: int, number: int, actor: str
+) -> int:
+    """Append session ``number`` (``UNIQUE(participant, number)`` refuses a second); its id."""
+    return cursor.insert(
+        _OPEN_SESSION,
+        {
+            "participant": participant_id,
+            "station": station_id,
+            "number": number,
+            "status": str(SessionStatus.RUNNING),
+            "now": cursor.timestamp(),
+            "actor": actor,
+        },
+    )
+
+
+_OPEN_RUN = Statement(
+    """INSERT INTO run (session_id, participant_id, number, status, started_at)
+    VALUES (:session, :participant, :number, :status, :now) RETURNING id"""
+)
+
+
+def open_run(cursor: Cursor, *, session_id: int, participant_id: int, number: int) -> int:
+    """Append run ``number`` to a session; its id."""
+    return cursor.insert(
+        _OPEN_RUN,
+        {
+            "session": session_id,
+            "participant": participant_id,
+            "number": number,
+            "status": str(RunStatus.RUNNING),
+            "now": cursor.timestamp(),
+        },
+    )
+
+
+_CLOSE_RUN = Statement("UPDATE run SET status = :status, ended_at = :now WHERE id = :run")
+_EARLY_RUNS = Statement(
+    "SELECT count(*) FROM run WHERE session_id = :session AND status = :ended_early"
+)
+_CLOSE_SESSION = Statement(
+    """UPDATE study_session SET status = :status, ended_at = :now, ended_by = :actor
+    WHERE id = :session"""
+)
+_COMPLETE_PARTICIPANT = Statement(
+    "UPDATE participant SET status = :completed WHERE id = :participant AND status = :active"
+)
+
+
+def close_run(cursor: Cursor, *, run_id: int, status: RunStatus) -> None:
+    """Mark a run completed or ended early."""
+    cursor.write(_CLOSE_RUN, {"status": str(status), "now": cursor.timestamp(), "run": run_id})
+
+
+def session_had_early_runs(cursor: Cursor, *, session_id: int) -> bool:
+    """Whether any run of the session was ended early."""
+    found = cursor.row(
+        _EARLY_RUNS, {"session": session_id, "ended_early": str(RunStatus.ENDED_EARLY)}
+    )
+    return bool(found[0])
+
+
+def close_session(cursor: Cursor, *, session_id: int, status: SessionStatus, actor: str) -> None:
+    """Mark a session completed or ended early, by whom."""
+    cursor.write(
+        _CLOSE_SESSION,
+        {
+            "status": str(status),
+            "now": cursor.timestamp(),
+            "actor": actor,
+            "session": session_id,
+        },
+    )
+
+
+def complete_participant(cursor: Cursor, *, participant_id: int) -> bool:
+    """An active participant has completed the study; whether they were active."""
+    changed = cursor.write(
+        _COMPLETE_PARTICIPANT,
+        {
+            "completed": str(ParticipantStatus.COMPLETED),
+            "active": str(ParticipantStatus.ACTIVE),
+            "participant": participant_id,
+        },
+    )
+    return changed == 1
+
+
+# ------------------------------------------------------------------------------------ learners
+
+
+@dataclass(frozen=True, slots=True)
+class LearnerRow:
+    """A learner's identity, structure and version; its state is read only when needed."""
+
+    id: int
+    kind: str
+    n_arms: int
+    config: dict[str, Any]
+    checkpoint_sha256: str | None
+    version: int
+
+
+_LEARNER = Statement(
+    """SELECT id, kind, n_arms, config, checkpoint_sha256, version FROM learner
+    WHERE participant_id = :participant AND category = :category"""
+)
+_LEARNER_STATE = Statement("SELECT state FROM learner WHERE id = :learner")
+_SAVE_LEARNER = Statement(
+    """UPDATE learner SET state = :state, version = :version, updated_at = :now
+    WHERE id = :learner AND version = :was"""
+)
+
+
+def learner(cursor: Cursor, *, participant_id: int, category: str) -> LearnerRow | None:
+    """The participant's learner for ``category`` (without its state)."""
+    found = cursor.row(_LEARNER, {"participant": participant_id, "category": category})
+    if found is None:
+        return None
+    row_id, kind, n_arms, config, sha256, version = found
+    return LearnerRow(row_id, kind, n_arms, cursor.parsed(config), sha256, version)
+
+
+def learner_state(cursor: Cursor, *, learner_id: int) -> dict[str, Any]:
+    """A learner's stored state (a cache miss: the process has no live copy at its version)."""
+    return dict(cursor.parsed(cursor.row(_LEARNER_STATE, {"learner": learner_id})[0]))
+
+
+def save_learner(cursor: Cursor, *, row: LearnerRow, state: dict[str, Any]) -> bool:
+    """Store the learner's new state as version ``row.version + 1``, only if the stored version
+    is still ``row.version``; whether it was."""
+    changed = cursor.write(
+        _SAVE_LEARNER,
+        {
+            "state": cursor.json(state),
+            "version": row.version + 1,
+            "now": cursor.timestamp(),
+            "learner": row.id,
+            "was": row.version,
+        },
+    )
+    return changed == 1
+
+
+# --------------------------------------------------------------------------- the appended rows
+
+
+_INSERT_PROMPT = Statement(
+    """INSERT INTO prompt (participant_id, run_id, category, action, question, probabilities,
+    learner_version, adapts, p_preferred, prompted_at, device_id, actor)
+    VALUES (:participant, :run, :category, :action, :question, :probabilities, :learner_version,
+    :adapts, :p_preferred, :now, :device, :actor) RETURNING id"""
+)
+
+
+def insert_prompt(
+    cursor: Cursor,
+    *,
+    participant_id: int,
+    run_id: int,
+    category: str,
+    action: int,
+    question: str,
+    probabilities: list[float],
+    learner_version: int,
+    adapts: bool,
+    p_preferred: float | None,
+    device_id: int | None,
+    actor: str,
+) -> Step:
+    """Append a prompt; the new step."""
+    step_id = cursor.insert(
+        _INSERT_PROMPT,
+        {
+            "participant": participant_id,
+            "run": run_id,
+            "category": category,
+            "action": action,
+            "question": question,
+            "probabilities": cursor.json(probabilities),
+            "learner_version": learner_version,
+            "adapts": adapts,
+            "p_preferred": p_preferred,
+            "now": cursor.timestamp(),
+            "device": device_id,
+            "actor": actor,
+        },
+    )
+    return Step(
+        step_id,
+        participant_id,
+        category,
+        action,
+        question,
+        probabilities,
+        learner_version,
+        adapts,
+        None,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class NewAnswer:
+    """The second half of a step, as appended."""
+
+    prompt_id: int
+    participant_id: int
+    answer: bool
+    reward: float
+    probabilities_after: list[float]
+    p_preferred: float | None
+    probability: float
+    confidence_level: int
+    confidence: str
+    reply: str
+    learner_version: int
+    idempotency_key: str
+    processing_ms: float
+    device_id: int | None
+    actor: str
+
+
+_INSERT_ANSWER = Statement(
+    """INSERT INTO answer (prompt_id, participant_id, answer, reward, probabilities_after,
+    p_preferred, probability, confidence_level, confidence, reply, learner_version,
+    idempotency_key, answered_at, processing_ms, device_id, actor)
+    VALUES (:prompt, :participant, :answer, :reward, :after, :p_preferred, :probability, :level,
+    :confidence, :reply, :learner_version, :key, :now, :processing_ms, :device, :actor)
+    RETURNING id"""
+)
+
+
+def insert_answer(cursor: Cursor, answer: NewAnswer) -> int:
+    """Append an answer (``UNIQUE(prompt_id)``: a second one for a step raises IntegrityError
+    through the session's commit or here); its id."""
+    return cursor.insert(
+        _INSERT_ANSWER,
+        {
+            "prompt": answer.prompt_id,
+            "participant": answer.participant_id,
+            "answer": answer.answer,
+            "reward": answer.reward,
+            "after": cursor.json(answer.probabilities_after),
+            "p_preferred": answer.p_preferred,
+            "probability": answer.probability,
+            "level": answer.confidence_level,
+            "confidence": answer.confidence,
+            "reply": answer.reply,
+            "learner_version": answer.learner_version,
+            "key": answer.idempotency_key,
+            "now": cursor.timestamp(),
+            "processing_ms": answer.processing_ms,
+            "device": answer.device_id,
+            "actor": answer.actor,
+        },
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class StoredAnswer:
+    """What a stored answer replies when its request is repeated."""
+
+    id: int
+    answer: bool
+    idempotency_key: str
+    reply: str
+    confidence_level: int
+    confidence: str
+    probability: float
+    probabilities_after: list[float]
+
+
+_STORED_ANSWER = Statement(
+    """SELECT id, answer, idempotency_key, reply, confidence_level, confidence, probability,
+    probabilities_after FROM answer WHERE id = :answer"""
+)
+
+
+def stored_answer(cursor: Cursor, *, answer_id: int) -> StoredAnswer:
+    """The answer with this id."""
+    found = cursor.row(_STORED_ANSWER, {"answer": answer_id})
+    assert found is not None, answer_id
+    row_id, answer, key, reply, level, confidence, probability, after = found
+    return StoredAnswer(
+        row_id, bool(answer), key, reply, level, confidence, probability, cursor.parsed(after)
+    )
+
+
+_INSERT_AUDIT = Statement(
+    """INSERT INTO audit_event (occurred_at, actor_kind, actor, action, study_id, subject, details)
+    VALUES (:now, :kind, :actor, :action, :study, :subject, :details) RETURNING id"""
+)
+
+
+def insert_audit(
+    cursor: Cursor,
+    *,
+    actor_kind: str,
+    actor: str,
+    action: str,
+    study_id: int | None,
+    subject: str,
+    details: dict[str, Any],
+) -> None:
+    """Append an audit event (as app.services.audit.record does through the ORM)."""
+    cursor.insert(
+        _INSERT_AUDIT,
+        {
+            "now": cursor.timestamp(),
+            "kind": actor_kind,
+            "actor": actor,
+            "action": action,
+            "study": study_id,
+            "subject": subject,
+            "details": cursor.json(details),
+        },
+    )
