@@ -122,18 +122,28 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
 
     @event.listens_for(engine, "begin")
     def _on_begin(connection: Any) -> None:
-        if connection.get_execution_options().get(WRITE_OPTION, False):
-            if not writers.acquire(timeout=WRITER_WAIT_SECONDS):
-                raise OperationalError("BEGIN IMMEDIATE", {}, TimeoutError("writer queue full"))
-            dbapi_connection: _GatedConnection = connection.connection.driver_connection
-            dbapi_connection.holds_writer = True
-            try:
-                connection.exec_driver_sql("BEGIN IMMEDIATE")
-            except BaseException:
-                dbapi_connection.release_writer()
-                raise
-        else:
-            connection.exec_driver_sql("BEGIN")
+        # BEGIN goes straight to the driver: through SQLAlchemy's execution machinery it cost
+        # as much as a small query, on every request.
+        dbapi_connection: _GatedConnection = connection.connection.driver_connection
+        if not connection.get_execution_options().get(WRITE_OPTION, False):
+            _begin(connection, dbapi_connection, "BEGIN")
+            return
+        if not writers.acquire(timeout=WRITER_WAIT_SECONDS):
+            raise OperationalError("BEGIN IMMEDIATE", {}, TimeoutError("writer queue full"))
+        dbapi_connection.holds_writer = True
+        try:
+            _begin(connection, dbapi_connection, "BEGIN IMMEDIATE")
+        except BaseException:
+            dbapi_connection.release_writer()
+            raise
+
+    def _begin(connection: Any, dbapi_connection: _GatedConnection, statement: str) -> None:
+        for observer in connection.dispatch.before_cursor_execute:  # statement counters
+            observer(connection, None, statement, (), None, False)
+        try:
+            dbapi_connection.execute(statement)
+        except sqlite3.Error as exc:
+            raise OperationalError(statement, (), exc) from exc
 
 
 def create_db_engine(
