@@ -34,6 +34,7 @@ from models.checkpoints import (
     load_checkpoint,
     shipped_checkpoint,
 )
+from models.learners import meta_policy
 from models.learners.base import Learner
 from models.learners.exp3 import Exp3
 from models.learners.meta_policy import MetaPolicyLearner
@@ -173,6 +174,12 @@ def restore(row: LearnerState, *, initial: bool = False) -> Learner:
     learner = build(spec_of(row))
     learner.load_state_dict(row.initial_state if initial else row.state)
     return learner
+
+
+def plain_state(state: dict[str, Any]) -> dict[str, Any]:
+    """A stored state in the one form :func:`app.services.verify` compares, whatever format
+    version wrote it (only the meta-policy has had two; other states come back unchanged)."""
+    return meta_policy.plain_state(state) if state.get("kind") == "meta" else state
 
 
 def probabilities_list(learner: Learner) -> list[float]:

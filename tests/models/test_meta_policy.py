@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 from pathlib import Path
@@ -12,7 +13,7 @@ import pytest
 
 from models.checkpoints import Checkpoint
 from models.learners.base import Learner
-from models.learners.meta_policy import MetaPolicyLearner
+from models.learners.meta_policy import MetaPolicyLearner, plain_state
 from models.learners.mlp_policy import (
     hidden_and_logits,
     logit_gram,
@@ -224,6 +225,43 @@ def test_state_of_another_checkpoint_is_refused(checkpoint: Checkpoint, tmp_path
         MetaPolicyLearner(checkpoint).load_state_dict(
             {**state, "params": {**state["params"], "W1": [[1.0]]}}
         )
+    with pytest.raises(ValueError, match="W1 holds 1 numbers"):
+        MetaPolicyLearner(checkpoint).load_state_dict(
+            {**state, "params": {**state["params"], "W1": "AAAAAAAA8D8="}}
+        )
+    with pytest.raises(ValueError, match="malformed"):
+        MetaPolicyLearner(checkpoint).load_state_dict(
+            {**state, "params": {**state["params"], "W1": "not base64!"}}
+        )
+
+
+def test_states_of_format_version_1_still_restore(checkpoint: Checkpoint) -> None:
+    """Version 1 (weights as JSON numbers) was written until 2026-12; those rows must restore
+    to the same bits, and compare equal to their version 2 rewrite."""
+    learner = MetaPolicyLearner(checkpoint)
+    for action, reward in ((0, 1.0), (2, 0.0), (0, 1.0)):
+        learner.update(action, reward)
+    current = learner.state_dict()
+    assert current["version"] == 2
+    assert all(isinstance(v, str) for v in current["params"].values())
+    old = {**current, "version": 1}
+    old["params"] = {
+        name: np.frombuffer(base64.b64decode(text), dtype="<f8")
+        .reshape(checkpoint.params[name].shape)
+        .tolist()
+        for name, text in current["params"].items()
+    }
+    restored = MetaPolicyLearner(checkpoint)
+    restored.load_state_dict(json.loads(json.dumps(old)))
+    assert restored.probabilities().tobytes() == learner.probabilities().tobytes()
+    assert restored.state_dict() == current
+    assert plain_state(old) == plain_state(current)
+    assert (
+        plain_state(old)["params"]
+        != plain_state(MetaPolicyLearner(checkpoint).state_dict())["params"]
+    )
+    with pytest.raises(ValueError, match="version"):
+        restored.load_state_dict({**current, "version": 3})
 
 
 def test_random_init_differs_but_uses_the_same_rule(checkpoint: Checkpoint) -> None:
