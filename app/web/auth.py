@@ -2,7 +2,10 @@
 
 The sign-in form is protected against cross-site posts by a signed double-submit token: the page
 sets a random nonce cookie and embeds the nonce's HMAC in the form; a post is accepted only when
-the two match. After sign-in, forms use the login's own CSRF token (see app.deps).
+the two match. After sign-in, forms use the login's own CSRF token (see app.deps). A sign-in reads
+the account first, checks the password (Argon2id, slow by design) with no transaction open, and
+then records the attempt and the new login in one write transaction, so it never holds SQLite's
+write lock while hashing.
 """
 
 from __future__ import annotations
@@ -85,18 +88,23 @@ def login(
             error="The form expired or did not come from this site; please sign in again.",
             status_code=403,
         )
+    address = request.client.host if request.client else ""
     try:
-        user = users.authenticate(
+        candidate = users.find_candidate(db, username=username, client_address=address)
+        db.commit()  # the read is over before the password is checked
+        new_login = users.sign_in_with_password(
             db,
-            username=username,
+            candidate=candidate,
             password=password,
-            client_address=request.client.host if request.client else "",
+            lifetime=timedelta(hours=settings.session_hours),
+            user_agent=request.headers.get("user-agent", ""),
+            client_address=address,
         )
     except TooManyAttempts as exc:
         return _login_page(
             request, next_url=next_url, username=username, error=exc.message, status_code=429
         )
-    if user is None:
+    if new_login is None:
         return _login_page(
             request,
             next_url=next_url,
@@ -104,13 +112,6 @@ def login(
             error=INVALID_CREDENTIALS,
             status_code=401,
         )
-    new_login = users.sign_in(
-        db,
-        user=user,
-        lifetime=timedelta(hours=settings.session_hours),
-        user_agent=request.headers.get("user-agent", ""),
-        client_address=request.client.host if request.client else "",
-    )
     response = RedirectResponse(next_url, status_code=303)
     set_session_cookie(response, request, settings, new_login.token)
     response.delete_cookie(LOGIN_NONCE_COOKIE)
