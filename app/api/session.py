@@ -2,29 +2,31 @@
 
 JSON only: a cross-site HTML form cannot send ``application/json``, so this route needs no CSRF
 token of its own; the response hands the client the login's CSRF token for later requests. Like
-the sign-in page, it reads the account first, checks the password with no transaction open, and
-records the attempt and the login in one write transaction.
+the sign-in page, it reads the account first (:func:`app.deps.identify`), checks the password with
+no transaction open, and records the attempt and the login in one write transaction.
 """
 
 from __future__ import annotations
 
 from datetime import timedelta
 
-from fastapi import APIRouter, Request, Response
+from fastapi import Request, Response
 from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
 from app.deps import (
     SESSION_COOKIE,
     CurrentLogin,
+    OneHopRouter,
     SessionDep,
     SettingsDep,
+    identify,
     set_session_cookie,
 )
 from app.errors import InvalidInput, NotAuthenticated
 from app.services import users
 
-router = APIRouter(prefix="/session", tags=["session"])
+router = OneHopRouter(prefix="/session", tags=["session"])
 
 
 class Credentials(RequestBody):
@@ -50,8 +52,10 @@ def sign_in(
     if not request.headers.get("content-type", "").startswith("application/json"):
         raise InvalidInput("send the credentials as application/json")
     address = request.client.host if request.client else ""
-    candidate = users.find_candidate(db, username=body.username, client_address=address)
-    db.commit()  # the read is over before the password is checked
+    candidate = identify(
+        db,
+        lambda read: users.find_candidate(read, username=body.username, client_address=address),
+    )
     new_login = users.sign_in_with_password(
         db,
         candidate=candidate,

@@ -6,7 +6,7 @@ through exactly the same operations as the robot's own routes (app/api/station_o
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, Response, status
+from fastapi import Request, Response, status
 from sqlalchemy import select
 
 from app.api import station_ops
@@ -25,13 +25,13 @@ from app.api.runtime_schemas import (
 )
 from app.api.schemas import TabletLink
 from app.api.station_ops import device_out
-from app.deps import AdminUser, ExperimenterUser, SessionDep, SettingsDep
+from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.services import enrolment, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Device, Participant, Study
 
-router = APIRouter(prefix="/stations", tags=["stations"])
-devices_router = APIRouter(prefix="/devices", tags=["stations"])
+router = OneHopRouter(prefix="/stations", tags=["stations"])
+devices_router = OneHopRouter(prefix="/devices", tags=["stations"])
 
 
 def _station_out(db: SessionDep, station_name: str) -> StationOut:

@@ -8,16 +8,15 @@ from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
-from app.deps import SessionDep
+from app.deps import OneHopRouter, SessionDep
 from app.services import questionnaires
 from app.tablet import BearerTablet, Tablet
 from app.web.tablet_pages import participant_actor
 
-router = APIRouter(prefix="/tablet", tags=["tablet"])
+router = OneHopRouter(prefix="/tablet", tags=["tablet"])
 
 
 class PageOut(BaseModel):

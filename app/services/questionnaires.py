@@ -11,7 +11,9 @@ options, lengths, unknown items) and then stored in one transaction: the long-fo
 submission record, audit entries for every changed value (with the old value), and a live event.
 Nothing partial is ever stored. Submitting a page again revises its answers. Locking a participant
 freezes their answers for analysis: every submission (consent, new pages and revisions) is refused
-until the experimenter unlocks them.
+until the experimenter unlocks them. A submission reads the participant again inside its own
+transaction (locked on PostgreSQL), so a lock or a withdrawal committed a moment earlier — after
+the tablet was identified, say — is always seen.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from sqlalchemy import select
+from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session
 
 from app import events
@@ -381,9 +383,35 @@ def _store(
     return SubmitResult(revision=revision, changed=changed)
 
 
-def _publish(db: Session, participant: Participant, instrument: str, session: int | None) -> None:
+_AS_NOW = (
+    select(Participant, Station)
+    .outerjoin(Station, Station.participant_id == Participant.id)
+    .where(Participant.id == bindparam("participant"))
+    .with_for_update(of=Participant)
+    .execution_options(populate_existing=True)
+)
+
+
+def _as_now(db: Session, participant: Participant) -> tuple[Participant, Station | None]:
+    """The participant as stored now, in this transaction, and the station where they sit.
+
+    A submission decides on the participant's lock and status, so it reads them inside its own
+    transaction, not from whenever the tablet was identified; the row lock (PostgreSQL; SQLite's
+    write transactions are exclusive anyway) makes a concurrent lock, unlock or withdrawal wait
+    for the submission or the submission for it.
+    """
+    found = db.execute(_AS_NOW, {"participant": participant.id}).one()
+    return found[0], found[1]
+
+
+def _publish(
+    db: Session,
+    participant: Participant,
+    station: Station | None,
+    instrument: str,
+    session: int | None,
+) -> None:
     topics = [study_topic(participant.study_id), participant_topic(participant.id)]
-    station = db.scalar(select(Station).where(Station.participant_id == participant.id))
     if station is not None:
         topics.append(station_topic(station))
     events.publish(
@@ -408,6 +436,7 @@ def accept_consent(
     db: Session, *, participant: Participant, protocol: Protocol, accepted: bool, actor: Actor
 ) -> SubmitResult:
     """Record consent to the protocol's consent text (its version is stored with it); commits."""
+    participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     if not accepted:
         raise QuestionnaireInvalid({"accept": "Please tick the box to take part."})
@@ -427,7 +456,7 @@ def accept_consent(
         subject=participant.code,
         details={"version": protocol.questionnaires.consent.version},
     )
-    _publish(db, participant, CONSENT, None)
+    _publish(db, participant, station, CONSENT, None)
     db.commit()
     return result
 
@@ -443,6 +472,7 @@ def submit(
     actor: Actor,
 ) -> SubmitResult:
     """Validate and store one questionnaire page all-or-nothing; commits."""
+    participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     instrument = _instrument(protocol, instrument_key)
     _check_timing(db, participant, protocol, instrument, session)
@@ -459,7 +489,7 @@ def submit(
         actor=actor,
         clear_missing=optional,
     )
-    _publish(db, participant, instrument.key, session)
+    _publish(db, participant, station, instrument.key, session)
     db.commit()
     return result
 

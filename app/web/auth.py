@@ -3,9 +3,9 @@
 The sign-in form is protected against cross-site posts by a signed double-submit token: the page
 sets a random nonce cookie and embeds the nonce's HMAC in the form; a post is accepted only when
 the two match. After sign-in, forms use the login's own CSRF token (see app.deps). A sign-in reads
-the account first, checks the password (Argon2id, slow by design) with no transaction open, and
-then records the attempt and the new login in one write transaction, so it never holds SQLite's
-write lock while hashing.
+the account first (:func:`app.deps.identify`), checks the password (Argon2id, slow by design) with
+no transaction open, and then records the attempt and the new login in one write transaction, so
+it never holds SQLite's write lock while hashing.
 """
 
 from __future__ import annotations
@@ -13,14 +13,16 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Form, Request
+from fastapi import Form, Request
 from fastapi.responses import RedirectResponse, Response
 
 from app.deps import (
     SESSION_COOKIE,
     CurrentLogin,
+    OneHopRouter,
     SessionDep,
     SettingsDep,
+    identify,
     set_session_cookie,
 )
 from app.errors import TooManyAttempts
@@ -28,7 +30,7 @@ from app.security import new_token, same, sign, unsign
 from app.services import users
 from app.web.templating import render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 LOGIN_NONCE_COOKIE = "tl_login_nonce"
 INVALID_CREDENTIALS = "Invalid username or password."
@@ -90,8 +92,9 @@ def login(
         )
     address = request.client.host if request.client else ""
     try:
-        candidate = users.find_candidate(db, username=username, client_address=address)
-        db.commit()  # the read is over before the password is checked
+        candidate = identify(
+            db, lambda read: users.find_candidate(read, username=username, client_address=address)
+        )
         new_login = users.sign_in_with_password(
             db,
             candidate=candidate,

@@ -10,13 +10,13 @@ from __future__ import annotations
 import uuid
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Form, Request
+from fastapi import Form, Request
 from fastapi.responses import Response
 from sqlalchemy import select
 
 from app.api import station_ops
 from app.api.runtime_schemas import AnswerRequest, PromptRequest
-from app.deps import AdminUser, ExperimenterUser, SessionDep, SettingsDep
+from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.errors import TrustlabError
 from app.services import enrolment, learners, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
@@ -24,7 +24,7 @@ from app.tables import Device, LearnerState, Participant, ParticipantStatus, Stu
 from app.web.qr import qr_svg
 from app.web.templating import redirect_with_notice, render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 def _stations_context(
