@@ -2,8 +2,8 @@
 
 Pages identify the tablet by a cookie set when a link is opened; the JSON API by a bearer token.
 Either way the identity resolves to exactly one participant (a kiosk: whoever is assigned to the
-station now), and the tablet can reach only that participant's pages. The token is looked up as
-the request's first read (:func:`app.deps.identify`).
+station now), and the tablet can reach only that participant's pages. The token is looked up with
+the participant and study in one query, as the request's first read (:func:`app.deps.identify`).
 """
 
 from __future__ import annotations
@@ -49,16 +49,14 @@ def resolve(db: Session, credential: str) -> Tablet:
     """The tablet behind a token (``tlp_…`` personal or ``tls_…`` kiosk)."""
     station = None
     if credential.startswith(tablet_tokens.KIOSK_PREFIX):
-        station = tablet_tokens.station_for_kiosk_token(db, credential)
-        if station.participant is None:
+        station, seated, seated_study = tablet_tokens.station_for_kiosk_token(db, credential)
+        if seated is None or seated_study is None:
             raise Conflict(
                 f"nobody is at station {station.name!r} yet: the experimenter assigns a participant"
             )
-        participant = station.participant
+        participant, study = seated, seated_study
     else:
-        participant = tablet_tokens.participant_for_token(db, credential)
-    study = db.get(Study, participant.study_id)
-    assert study is not None
+        participant, study = tablet_tokens.participant_for_token(db, credential)
     return Tablet(participant, study, protocol_of(study), station, credential)
 
 

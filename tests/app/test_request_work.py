@@ -20,7 +20,7 @@ from app.api import station_ops
 from app.db import WRITE_OPTION
 from app.deps import OneHopRouter, SecondWrite, SessionDep
 from app.errors import Conflict
-from app.services import questionnaires, runtime, studies
+from app.services import questionnaires, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Participant, Role, User, utcnow
 from app.tablet import TABLET_COOKIE
@@ -290,6 +290,53 @@ def test_session_start_and_station_state_add_only_the_login_lookup(lab: Lab, wat
     read = watch.request(lambda: lab.experimenter.get(f"/api/v1/stations/{lab.station}/state"))
     assert read.status_code == 200
     assert len(watch.statements) == service_state + 1, _sql(watch.statements)
+
+
+def test_the_tablet_page_takes_two_statements(lab: Lab, watch: Watch) -> None:
+    """A tablet's poll: its token with participant and study, then where the participant stands
+    (submitted pages and ended sessions in one query). A kiosk token costs the same."""
+    code = lab.enrol_and_assign()
+    tablet = _tablet(lab, code)
+    assert watch.request(lambda: tablet.get("/api/v1/tablet")).json()["kind"] == "wait"
+    assert len(watch.statements) == 2, _sql(watch.statements)
+    with lab.database.writing() as db:
+        kiosk = tablet_tokens.issue_kiosk_token(
+            db,
+            station=stations.get_station(db, lab.station),
+            secret=lab.app.state.settings.secret,
+            actor=Actor.system("tests"),
+        )
+    kiosk_tablet = TestClient(lab.app, headers={"Authorization": f"Bearer {kiosk}"})
+    page = watch.request(lambda: kiosk_tablet.get("/api/v1/tablet"))
+    assert page.json()["participant"] == code
+    assert len(watch.statements) == 2, _sql(watch.statements)
+
+
+def test_a_questionnaire_submission_takes_few_statements(lab: Lab, watch: Watch) -> None:
+    """A first submission: the token (before the write); then the participant as it is now (with
+    their station), where they stand, all the page's responses in one INSERT, the submission;
+    PostgreSQL adds its one pg_notify. Its response, the next page, needs nothing more."""
+    code = lab.enrol_and_assign()
+    tablet = _tablet(lab, code)
+    lab.start_session()
+    lab.run_session()
+    path = "/api/v1/tablet/questionnaires/trust"
+    lab.start_session()
+    lab.run_session()
+    submitted = watch.request(
+        lambda: tablet.post(path, json={"session": 1, "answers": TRUST_ANSWERS})
+    )
+    assert submitted.status_code == 200 and submitted.json()["kind"] == "wait"
+    postgres = not lab.database.is_sqlite
+    assert len(watch.statements) == 5 + postgres, _sql(watch.statements)
+    inserts = [s for s in watch.statements if s.startswith("INSERT INTO response")]
+    assert len(inserts) == 1
+    revised = watch.request(
+        lambda: tablet.post(path, json={"session": 1, "answers": {**TRUST_ANSWERS, "trust_2": "1"}})
+    )
+    assert revised.status_code == 200
+    # A revision also reads the page's stored values and its submission, and audits the change.
+    assert len(watch.statements) == 8 + postgres, _sql(watch.statements)
 
 
 def test_a_lock_committed_after_the_tablet_was_identified_refuses_the_submission(
