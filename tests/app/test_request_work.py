@@ -373,3 +373,39 @@ def test_a_lock_committed_after_the_tablet_was_identified_refuses_the_submission
                 answers=TRUST_ANSWERS,
                 actor=Actor.system("tests"),
             )
+
+
+def test_the_station_lists_take_as_many_statements_for_many_stations_as_for_one(
+    lab: Lab, watch: Watch, user_client: UserClientFactory
+) -> None:
+    """Seated participants and devices are read for all stations at once (was: per station)."""
+    admin = user_client(Role.ADMIN)
+    lab.enrol_and_assign("P1")
+
+    def counted(path: str) -> tuple[int, Any]:
+        response = watch.request(lambda: admin.get(path))
+        assert response.status_code == 200
+        return len(watch.statements), response
+
+    one_api, _ = counted("/api/v1/stations")
+    one_page, _ = counted("/stations")
+    for number in (2, 3, 4):
+        name = f"lab-{number}"
+        assert admin.post("/api/v1/stations", json={"name": name}).status_code == 201
+        assert admin.post(f"/api/v1/stations/{name}/devices", json={}).status_code == 201
+        code = f"P{number}"
+        assert admin.post("/api/v1/studies/rt/participants", json={"code": code}).status_code == 201
+        seated = admin.put(
+            f"/api/v1/stations/{name}/participant", json={"study": "rt", "code": code}
+        )
+        assert seated.status_code == 200 and seated.json()["participant"] == code
+    many_api, listed = counted("/api/v1/stations")
+    many_page, page = counted("/stations")
+    assert (many_api, many_page) == (one_api, one_page), _sql(watch.statements)
+    assert [
+        (s["name"], s["participant"], s["study"], len(s["devices"])) for s in listed.json()
+    ] == [
+        ("lab-1", "P1", "rt", 1),
+        *((f"lab-{n}", f"P{n}", "rt", 1) for n in (2, 3, 4)),
+    ]
+    assert all(f"P{n}" in page.text for n in (1, 2, 3, 4))
