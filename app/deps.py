@@ -16,9 +16,11 @@ one step, app/api/device_work.py):
    dependencies that check it (CSRF, idle timeout, roles) are coroutines around that one hop, so
    refusals still come before the request body is validated. For a write request that read is a
    transaction of its own, ended before the handler runs: a write session's transaction is, on
-   SQLite, the single write lock (``BEGIN IMMEDIATE``), and no lock or transaction may wait through
-   the hops between dependencies and handler. When a login was used, its ``last_seen_at`` is
-   written later by the activity recorder (app.activity), so reading it writes nothing.
+   SQLite, the single write lock (``BEGIN IMMEDIATE``), which must not wait through the hop from
+   dependencies to handler (on PostgreSQL the same rule keeps no transaction open across it; a
+   read request's one read transaction simply continues into its handler). When a login was
+   used, its ``last_seen_at`` is written later by the activity recorder (app.activity), so
+   reading it writes nothing.
 3. **The handler's work is the request's one write transaction**: it begins with the handler's
    first statement and ends with the service's commit (or a rollback). After that the session only
    reads (on SQLite a plain ``BEGIN``, not another turn in the writers' queue), so a response built
