@@ -1,29 +1,66 @@
-"""Request dependencies as ``Annotated`` aliases: the database session and who is asking.
+"""Request dependencies as ``Annotated`` aliases, and how a request uses the database.
 
 One transaction per request: ``SessionDep`` is a read session for safe methods (GET, HEAD,
 OPTIONS) and a write session otherwise, so a handler never has to choose. Every unsafe request
 authenticated by the login cookie must carry the login's CSRF token (form field ``csrf_token`` or
 header ``X-CSRF-Token``); that check lives in :func:`current_login`, which every signed-in route
 depends on, so no route can forget it.
+
+How a request meets the database, the same way for every route (the robots' routes do the same in
+one step, app/api/device_work.py):
+
+1. **Admission** (:func:`request_session`): requests queue as coroutines for one of a bounded
+   number of slots, so an admitted request always finds a connection and a thread (app.db).
+2. **Who is asking is read first**, in one thread-pool hop, through :func:`identify`: the login
+   cookie (:func:`current_login`), a tablet's token (app.tablet), or a sign-in's username. The
+   dependencies that check it (CSRF, idle timeout, roles) are coroutines around that one hop, so
+   refusals still come before the request body is validated. For a write request that read is a
+   transaction of its own, ended before the handler runs: a write session's transaction is, on
+   SQLite, the single write lock (``BEGIN IMMEDIATE``), which must not wait through the hop from
+   dependencies to handler (on PostgreSQL the same rule keeps no transaction open across it; a
+   read request's one read transaction simply continues into its handler). When a login was
+   used, its ``last_seen_at`` is written later by the activity recorder (app.activity), so
+   reading it writes nothing.
+3. **The handler's work is the request's one write transaction**: it begins with the handler's
+   first statement and ends with the service's commit (or a rollback). After that the session only
+   reads (on SQLite a plain ``BEGIN``, not another turn in the writers' queue), so a response built
+   from the committed state, or a page showing a refusal, costs no second write transaction; a
+   second write in the same request is a bug and raises :class:`SecondWrite`.
+4. **The handler runs in one hop that also ends its transaction** (:class:`OneHopRouter`, the
+   router of every page and API module with synchronous handlers): whatever is still open when
+   the handler returns or raises — a read, or a write that failed — is rolled back in that same
+   hop, so no transaction outlives it, and the response is validated on the event loop without a
+   further hop.
+
+A login revoked, or a participant's tablet link reissued, between step 2 and step 3 does not stop
+the request already admitted; the next one is refused. Whatever the handler *decides on* is read
+inside its own transaction (a questionnaire submission re-reads whether the participant's answers
+are locked: app.services.questionnaires).
 """
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
+import functools
+import inspect
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from datetime import timedelta
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
-from fastapi import Depends, Request, Response
-from sqlalchemy.orm import Session
+from fastapi import APIRouter, Depends, Request, Response
+from sqlalchemy import event
+from sqlalchemy.engine import Connection
+from sqlalchemy.orm import ORMExecuteState, Session, SessionTransaction
 from starlette.concurrency import run_in_threadpool
 
-from app.db import Database
+from app.db import WRITE_OPTION, Database
 from app.errors import NotAuthenticated, PermissionDenied
 from app.security import same
 from app.services import users
 from app.settings import Settings
 from app.tables import LoginSession, Role, User
+
+T = TypeVar("T")
 
 SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 SESSION_COOKIE = "tl_session"
@@ -64,23 +101,98 @@ SettingsDep = Annotated[Settings, Depends(get_settings)]
 DatabaseDep = Annotated[Database, Depends(get_database)]
 
 
-async def request_session(request: Request, database: DatabaseDep) -> AsyncIterator[Session]:
-    """The request's session: it reads for safe methods and may write otherwise.
+REQUEST_SESSION = "request_session"
+"""Where :func:`request_session` leaves the request's session on ``request.state`` (for
+:class:`OneHopRouter`)."""
+_REQUEST_WRITES = "trustlab.request_writes"
+_READS_WITH = "trustlab.reads_with"
+_TRANSACTION_WRITES = "trustlab.transaction_writes"
+_WROTE = "trustlab.wrote"
 
-    FastAPI runs each sync dependency and the handler in separate thread-pool hops, and a request
-    keeps its connection (and on SQLite, once it writes, the write lock) between hops. Unbounded,
-    requests holding connections or the lock would wait for threads that all wait for connections
-    or the lock. So requests first queue, as coroutines outside the thread pool, for admission:
-    fewer requests than the pool has connections and threads, so an admitted request always finds
-    both, and SQLite's writers queue fairly on the writer lock (app.db).
+
+class SecondWrite(RuntimeError):
+    """A request tried to write after its write transaction had ended (a programming error: one
+    request, one write transaction)."""
+
+
+async def request_session(request: Request, database: DatabaseDep) -> AsyncIterator[Session]:
+    """The request's session: it reads for safe methods and may write, once, otherwise.
+
+    FastAPI runs each sync dependency and the handler in separate thread-pool hops. Unbounded,
+    requests holding connections would wait for threads that all wait for connections. So
+    requests first queue, as coroutines outside the thread pool, for admission: fewer requests
+    than the pool has connections and threads, so an admitted request always finds both, and
+    SQLite's writers queue fairly on the writer lock (app.db). Closing needs a hop only when a
+    transaction is still open (routes outside :class:`OneHopRouter`).
     """
     writes = request.method not in SAFE_METHODS
     async with database.admission():
         session = database.write_session() if writes else database.read_session()
+        if writes:
+            session.info[_REQUEST_WRITES] = True
+            session.info[_READS_WITH] = database.engine
+            event.listen(session, "do_orm_execute", _refuse_a_second_statement)
+        setattr(request.state, REQUEST_SESSION, session)
         try:
             yield session
         finally:
-            await run_in_threadpool(session.close)
+            if session.in_transaction():
+                await run_in_threadpool(session.close)
+            else:
+                session.close()
+
+
+@event.listens_for(Session, "after_begin")
+def _note_transaction_kind(
+    session: Session, _transaction: SessionTransaction, connection: Connection
+) -> None:
+    if _REQUEST_WRITES in session.info:
+        writes = bool(connection.get_execution_options().get(WRITE_OPTION, False))
+        session.info[_TRANSACTION_WRITES] = writes
+
+
+@event.listens_for(Session, "after_commit")
+@event.listens_for(Session, "after_rollback")
+def _read_after_the_write(session: Session) -> None:
+    """A request session's write transaction ended: from now on the session reads (a page that
+    shows a refusal after rolling back, or a response built after the commit)."""
+    info = session.info
+    if info.get(_TRANSACTION_WRITES):
+        info[_TRANSACTION_WRITES] = False
+        info[_WROTE] = True
+        session.bind = info[_READS_WITH]
+
+
+@event.listens_for(Session, "before_flush")
+def _refuse_a_second_flush(session: Session, *_: Any) -> None:
+    if session.info.get(_WROTE) and (session.new or session.dirty or session.deleted):
+        raise SecondWrite("this request's write transaction has ended")
+
+
+def _refuse_a_second_statement(state: ORMExecuteState) -> None:
+    """Listens to write requests' sessions only: a listener per statement costs every session."""
+    if state.session.info.get(_WROTE) and (state.is_insert or state.is_update or state.is_delete):
+        raise SecondWrite("this request's write transaction has ended")
+
+
+def identify(db: Session, lookup: Callable[[Session], T]) -> T:
+    """``lookup(db)``, the request's first read: who is asking (call it in a worker thread).
+
+    For a write request's session the lookup reads in a transaction of its own (on SQLite a plain
+    ``BEGIN``, which takes no lock), committed at once: what it loaded stays loaded, and the
+    handler's write transaction begins only with the handler's first statement. Elsewhere (read
+    requests, or once a transaction is open) it is simply part of the current transaction.
+    """
+    if not db.info.get(_REQUEST_WRITES) or db.in_transaction():
+        return lookup(db)
+    db.connection(execution_options={WRITE_OPTION: False})
+    try:
+        found = lookup(db)
+    except BaseException:
+        db.rollback()
+        raise
+    db.commit()
+    return found
 
 
 SessionDep = Annotated[Session, Depends(request_session)]
@@ -110,7 +222,7 @@ class Viewer:
     csrf_token: str
 
 
-def current_login(
+async def current_login(
     request: Request,
     db: SessionDep,
     settings: SettingsDep,
@@ -118,11 +230,13 @@ def current_login(
 ) -> LoginSession:
     """The signed-in browser's login session; 401 without one, 403 on a missing CSRF token."""
     token = request.cookies.get(SESSION_COOKIE)
-    login = (
-        users.resolve_login(db, token=token, idle_timeout=timedelta(minutes=settings.idle_minutes))
-        if token
-        else None
-    )
+    idle_timeout = timedelta(minutes=settings.idle_minutes)
+
+    def lookup(read: Session) -> LoginSession | None:
+        assert token
+        return users.resolve_login(read, token=token, idle_timeout=idle_timeout)
+
+    login = await run_in_threadpool(identify, db, lookup) if token else None
     if login is None:
         raise NotAuthenticated("sign in first")
     if request.method not in SAFE_METHODS and (
@@ -169,7 +283,7 @@ async def streaming_user(request: Request) -> User:
 StreamingUser = Annotated[User, Depends(streaming_user)]
 
 
-def current_user(login: CurrentLogin) -> User:
+async def current_user(login: CurrentLogin) -> User:
     """The signed-in user."""
     return login.user
 
@@ -177,11 +291,11 @@ def current_user(login: CurrentLogin) -> User:
 CurrentUser = Annotated[User, Depends(current_user)]
 
 
-def require(*roles: Role) -> Callable[[User], User]:
+def require(*roles: Role) -> Callable[[User], Awaitable[User]]:
     """A dependency admitting the given roles (admins are always admitted)."""
     allowed = frozenset((*roles, Role.ADMIN))
 
-    def dependency(user: CurrentUser) -> User:
+    async def dependency(user: CurrentUser) -> User:
         if Role(user.role) not in allowed:
             names = " or ".join(sorted(r.value for r in allowed))
             raise PermissionDenied(f"this needs the {names} role; you are {user.role}")
@@ -208,3 +322,59 @@ async def form_fields(request: Request) -> dict[str, str]:
 
 
 FormFields = Annotated[dict[str, str], Depends(form_fields)]
+
+
+# ------------------------------------------------------------------ handlers in one thread-pool hop
+
+_REQUEST_PARAMETER = "_one_hop_request"
+
+
+def _run_and_close(
+    endpoint: Callable[..., Any], request: Request, arguments: dict[str, Any]
+) -> Any:
+    try:
+        return endpoint(**arguments)
+    finally:
+        session: Session | None = getattr(request.state, REQUEST_SESSION, None)
+        if session is not None:
+            session.close()
+
+
+def in_one_hop(endpoint: Callable[..., Any]) -> Callable[..., Any]:
+    """``endpoint`` (a sync handler) as a coroutine running it in one thread-pool hop that ends
+    the request's open transaction, if any, before the hop ends (see the module's docstring).
+
+    Its parameters, and so what FastAPI resolves, validates and documents, stay the handler's
+    own; the wrapper only asks for the request besides. Coroutines are returned unchanged.
+    """
+    if inspect.iscoroutinefunction(endpoint) or getattr(endpoint, "one_hop", False):
+        return endpoint
+    signature = inspect.signature(endpoint, eval_str=True)
+    parameters = list(signature.parameters.values())
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters):
+        raise TypeError(f"{endpoint.__qualname__}: handlers take no **kwargs")
+    # FastAPI hands the request to one parameter only: the handler's own if it has one.
+    own = next((p.name for p in parameters if p.annotation is Request), None)
+    if own is None:
+        parameters.append(
+            inspect.Parameter(
+                _REQUEST_PARAMETER, inspect.Parameter.KEYWORD_ONLY, annotation=Request
+            )
+        )
+
+    @functools.wraps(endpoint)
+    async def run(**arguments: Any) -> Any:
+        request = arguments[own] if own else arguments.pop(_REQUEST_PARAMETER)
+        return await run_in_threadpool(_run_and_close, endpoint, request, arguments)
+
+    run.__signature__ = signature.replace(parameters=parameters)  # type: ignore[attr-defined]
+    run.one_hop = True  # type: ignore[attr-defined]
+    return run
+
+
+class OneHopRouter(APIRouter):
+    """An APIRouter whose synchronous handlers each run as :func:`in_one_hop` does."""
+
+    def add_api_route(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
+        """Register ``endpoint`` (wrapped) like APIRouter does."""
+        super().add_api_route(path, in_one_hop(endpoint), **kwargs)

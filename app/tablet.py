@@ -2,7 +2,8 @@
 
 Pages identify the tablet by a cookie set when a link is opened; the JSON API by a bearer token.
 Either way the identity resolves to exactly one participant (a kiosk: whoever is assigned to the
-station now), and the tablet can reach only that participant's pages.
+station now), and the tablet can reach only that participant's pages. The token is looked up with
+the participant and study in one query, as the request's first read (:func:`app.deps.identify`).
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from typing import Annotated
 
 from fastapi import Depends, Request
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
-from app.deps import SessionDep, bearer_key
+from app.deps import SessionDep, bearer_key, identify
 from app.errors import Conflict, NotAuthenticated
 from app.protocol import Protocol
 from app.security import sign
@@ -47,35 +49,37 @@ def resolve(db: Session, credential: str) -> Tablet:
     """The tablet behind a token (``tlp_…`` personal or ``tls_…`` kiosk)."""
     station = None
     if credential.startswith(tablet_tokens.KIOSK_PREFIX):
-        station = tablet_tokens.station_for_kiosk_token(db, credential)
-        if station.participant is None:
+        station, seated, seated_study = tablet_tokens.station_for_kiosk_token(db, credential)
+        if seated is None or seated_study is None:
             raise Conflict(
                 f"nobody is at station {station.name!r} yet: the experimenter assigns a participant"
             )
-        participant = station.participant
+        participant, study = seated, seated_study
     else:
-        participant = tablet_tokens.participant_for_token(db, credential)
-    study = db.get(Study, participant.study_id)
-    assert study is not None
+        participant, study = tablet_tokens.participant_for_token(db, credential)
     return Tablet(participant, study, protocol_of(study), station, credential)
 
 
-def cookie_tablet(request: Request, db: SessionDep) -> Tablet:
+async def _resolved(db: Session, credential: str) -> Tablet:
+    return await run_in_threadpool(identify, db, lambda read: resolve(read, credential))
+
+
+async def cookie_tablet(request: Request, db: SessionDep) -> Tablet:
     """The tablet identified by its cookie (pages)."""
     credential = request.cookies.get(TABLET_COOKIE, "")
     if not credential:
         raise NotAuthenticated(
             "open the tablet link (or scan the QR code) the experimenter gave you"
         )
-    return resolve(db, credential)
+    return await _resolved(db, credential)
 
 
-def bearer_tablet(request: Request, db: SessionDep) -> Tablet:
+async def bearer_tablet(request: Request, db: SessionDep) -> Tablet:
     """The tablet identified by ``Authorization: Bearer tlp_…|tls_…`` (JSON API)."""
     credential = bearer_key(request)
     if not credential:
         raise NotAuthenticated("send the tablet token as 'Authorization: Bearer tlp_…'")
-    return resolve(db, credential)
+    return await _resolved(db, credential)
 
 
 CookieTablet = Annotated[Tablet, Depends(cookie_tablet)]

@@ -1,28 +1,32 @@
 """Sign-in for API clients (scripts, the bots): the same login session as the pages.
 
 JSON only: a cross-site HTML form cannot send ``application/json``, so this route needs no CSRF
-token of its own; the response hands the client the login's CSRF token for later requests.
+token of its own; the response hands the client the login's CSRF token for later requests. Like
+the sign-in page, it reads the account first (:func:`app.deps.identify`), checks the password with
+no transaction open, and records the attempt and the login in one write transaction.
 """
 
 from __future__ import annotations
 
 from datetime import timedelta
 
-from fastapi import APIRouter, Request, Response
+from fastapi import Request, Response
 from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
 from app.deps import (
     SESSION_COOKIE,
     CurrentLogin,
+    OneHopRouter,
     SessionDep,
     SettingsDep,
+    identify,
     set_session_cookie,
 )
 from app.errors import InvalidInput, NotAuthenticated
 from app.services import users
 
-router = APIRouter(prefix="/session", tags=["session"])
+router = OneHopRouter(prefix="/session", tags=["session"])
 
 
 class Credentials(RequestBody):
@@ -47,22 +51,23 @@ def sign_in(
     """Sign in; sets the session cookie."""
     if not request.headers.get("content-type", "").startswith("application/json"):
         raise InvalidInput("send the credentials as application/json")
-    user = users.authenticate(
+    address = request.client.host if request.client else ""
+    candidate = identify(
         db,
-        username=body.username,
-        password=body.password,
-        client_address=request.client.host if request.client else "",
+        lambda read: users.find_candidate(read, username=body.username, client_address=address),
     )
-    if user is None:
-        raise NotAuthenticated("invalid username or password")
-    new_login = users.sign_in(
+    new_login = users.sign_in_with_password(
         db,
-        user=user,
+        candidate=candidate,
+        password=body.password,
         lifetime=timedelta(hours=settings.session_hours),
         user_agent=request.headers.get("user-agent", ""),
-        client_address=request.client.host if request.client else "",
+        client_address=address,
     )
+    if new_login is None:
+        raise NotAuthenticated("invalid username or password")
     set_session_cookie(response, request, settings, new_login.token)
+    user = new_login.session.user
     return SignedIn(username=user.username, role=user.role, csrf_token=new_login.session.csrf_token)
 
 

@@ -6,7 +6,9 @@ through exactly the same operations as the robot's own routes (app/api/station_o
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, Response, status
+from collections import defaultdict
+
+from fastapi import Request, Response, status
 from sqlalchemy import select
 
 from app.api import station_ops
@@ -25,32 +27,49 @@ from app.api.runtime_schemas import (
 )
 from app.api.schemas import TabletLink
 from app.api.station_ops import device_out
-from app.deps import AdminUser, ExperimenterUser, SessionDep, SettingsDep
+from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.services import enrolment, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
-from app.tables import Device, Participant, Study
+from app.tables import Device, Participant, Station, Study
 
-router = APIRouter(prefix="/stations", tags=["stations"])
-devices_router = APIRouter(prefix="/devices", tags=["stations"])
+router = OneHopRouter(prefix="/stations", tags=["stations"])
+devices_router = OneHopRouter(prefix="/devices", tags=["stations"])
+
+
+def _stations_out(db: SessionDep, found: list[Station]) -> list[StationOut]:
+    """Stations with who is seated there and their devices: two queries, however many."""
+    ids = [station.id for station in found]
+    seated = {
+        station_id: (code, study)
+        for station_id, code, study in db.execute(
+            select(Station.id, Participant.code, Study.name)
+            .join(Participant, Participant.id == Station.participant_id)
+            .join(Study, Study.id == Participant.study_id)
+            .where(Station.id.in_(ids))
+        )
+    }
+    devices: dict[int, list[Device]] = defaultdict(list)
+    for device in db.scalars(select(Device).where(Device.station_id.in_(ids)).order_by(Device.id)):
+        devices[device.station_id].append(device)
+    return [
+        StationOut(
+            name=station.name,
+            participant=seated.get(station.id, (None, None))[0],
+            study=seated.get(station.id, (None, None))[1],
+            devices=[device_out(d, station) for d in devices[station.id]],
+        )
+        for station in found
+    ]
 
 
 def _station_out(db: SessionDep, station_name: str) -> StationOut:
-    station = stations.get_station(db, station_name)
-    participant = db.get(Participant, station.participant_id) if station.participant_id else None
-    study = db.get(Study, participant.study_id) if participant else None
-    devices = db.scalars(select(Device).where(Device.station_id == station.id).order_by(Device.id))
-    return StationOut(
-        name=station.name,
-        participant=participant.code if participant else None,
-        study=study.name if study else None,
-        devices=[device_out(d, station) for d in devices],
-    )
+    return _stations_out(db, [stations.get_station(db, station_name)])[0]
 
 
 @router.get("")
 def list_stations(db: SessionDep, user: ExperimenterUser) -> list[StationOut]:
     """Every station, who is assigned and its devices."""
-    return [_station_out(db, s.name) for s in stations.list_stations(db)]
+    return _stations_out(db, stations.list_stations(db))
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)

@@ -1,23 +1,23 @@
 """The tablet as JSON: for custom tablet apps and the bots. Same flow and rules as the pages.
 
 Authenticate with ``Authorization: Bearer tlp_…`` (a participant's link token) or ``tls_…`` (a
-station kiosk token, which speaks for whoever is assigned to the station).
+station kiosk token, which speaks for whoever is assigned to the station). A submission answers
+with the page that follows it, computed inside the submission's own transaction.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
-from app.deps import SessionDep
+from app.deps import OneHopRouter, SessionDep
 from app.services import questionnaires
 from app.tablet import BearerTablet, Tablet
 from app.web.tablet_pages import participant_actor
 
-router = APIRouter(prefix="/tablet", tags=["tablet"])
+router = OneHopRouter(prefix="/tablet", tags=["tablet"])
 
 
 class PageOut(BaseModel):
@@ -44,8 +44,7 @@ class AnswersIn(RequestBody):
     answers: dict[str, str | int | float]
 
 
-def _page(db: SessionDep, tablet: Tablet) -> PageOut:
-    page = questionnaires.next_page(db, tablet.participant, tablet.protocol)
+def _page_out(tablet: Tablet, page: questionnaires.Page) -> PageOut:
     spec = tablet.protocol.questionnaires
     return PageOut(
         participant=tablet.participant.code,
@@ -62,27 +61,27 @@ def _page(db: SessionDep, tablet: Tablet) -> PageOut:
 @router.get("")
 def current_page(db: SessionDep, tablet: BearerTablet) -> PageOut:
     """Where the participant is in the flow."""
-    return _page(db, tablet)
+    return _page_out(tablet, questionnaires.next_page(db, tablet.participant, tablet.protocol))
 
 
 @router.post("/consent")
 def consent(body: ConsentIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
     """Give consent; returns the next page."""
-    questionnaires.accept_consent(
+    result = questionnaires.accept_consent(
         db,
         participant=tablet.participant,
         protocol=tablet.protocol,
         accepted=body.accept,
         actor=participant_actor(tablet),
     )
-    return _page(db, tablet)
+    return _page_out(tablet, result.page)
 
 
 @router.post("/questionnaires/{instrument}", responses={422: {"description": "Per-item errors"}})
 def submit(instrument: str, body: AnswersIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
     """Submit (or revise) one questionnaire page; returns the next page. Refused (409) while the
     experimenter has locked the participant's answers, for new pages and revisions alike."""
-    questionnaires.submit(
+    result = questionnaires.submit(
         db,
         participant=tablet.participant,
         protocol=tablet.protocol,
@@ -91,4 +90,4 @@ def submit(instrument: str, body: AnswersIn, db: SessionDep, tablet: BearerTable
         answers={k: str(v) for k, v in body.answers.items()},
         actor=participant_actor(tablet),
     )
-    return _page(db, tablet)
+    return _page_out(tablet, result.page)

@@ -11,7 +11,13 @@ options, lengths, unknown items) and then stored in one transaction: the long-fo
 submission record, audit entries for every changed value (with the old value), and a live event.
 Nothing partial is ever stored. Submitting a page again revises its answers. Locking a participant
 freezes their answers for analysis: every submission (consent, new pages and revisions) is refused
-until the experimenter unlocks them.
+until the experimenter unlocks them. A submission reads the participant again inside its own
+transaction (locked on PostgreSQL), so a lock or a withdrawal committed a moment earlier — after
+the tablet was identified, say — is always seen.
+
+Where a participant stands (their submitted pages and ended sessions) is one query
+(:func:`progress`); a submission computes the page that follows from what it read and wrote, so
+its response needs no further query and no second transaction.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from sqlalchemy import select
+from sqlalchemy import CompoundSelect, bindparam, insert, null, select, union_all
 from sqlalchemy.orm import Session
 
 from app import events
@@ -93,42 +99,67 @@ def _submitted(db: Session, participant: Participant) -> set[tuple[str, int | No
     return {(instrument, session) for instrument, session in rows}
 
 
-def _closed_sessions(db: Session, participant: Participant) -> list[int]:
-    return list(
-        db.scalars(
-            select(StudySession.number)
-            .where(
-                StudySession.participant_id == participant.id,
-                StudySession.status != SessionStatus.RUNNING,
-            )
-            .order_by(StudySession.number)
-        )
-    )
+@dataclass
+class Progress:
+    """Where a participant stands: the pages they submitted and the sessions that are over."""
+
+    done: set[tuple[str, int | None]]
+    closed: list[int]
 
 
-def next_page(db: Session, participant: Participant, protocol: Protocol) -> Page:
-    """The one page this participant should be on."""
+_PROGRESS: CompoundSelect[str | None, int | None] = union_all(
+    select(Submission.instrument, Submission.session).where(
+        Submission.participant_id == bindparam("participant")
+    ),
+    # The ended sessions, as rows without an instrument: one round trip for both.
+    select(null(), StudySession.number).where(
+        StudySession.participant_id == bindparam("participant"),
+        StudySession.status != SessionStatus.RUNNING,
+    ),
+)
+
+
+def progress(db: Session, participant: Participant) -> Progress:
+    """The participant's :class:`Progress` (one query)."""
+    done: set[tuple[str, int | None]] = set()
+    closed: list[int] = []
+    for instrument, session in db.execute(_PROGRESS, {"participant": participant.id}):
+        if instrument is not None:
+            done.add((instrument, session))
+        elif session is not None:
+            closed.append(session)
+    return Progress(done, sorted(closed))
+
+
+def page_for(participant: Participant, protocol: Protocol, where: Progress) -> Page:
+    """The one page this participant should be on, given where they stand."""
     if participant.status == ParticipantStatus.WITHDRAWN:
         return Page("withdrawn")
-    done = _submitted(db, participant)
+    done = where.done
     if (CONSENT, None) not in done:
         return Page("consent")
     for instrument in protocol.instruments_at("pre"):
         if (instrument.key, None) not in done:
             return Page("questionnaire", instrument)
-    closed = _closed_sessions(db, participant)
-    for number in closed:
+    for number in where.closed:
         if number < 1:
             continue
         for instrument in protocol.instruments_at("session"):
             if (instrument.key, number) not in done:
                 return Page("questionnaire", instrument, number)
-    if protocol.schedule.sessions in closed:
+    if protocol.schedule.sessions in where.closed:
         for instrument in protocol.instruments_at("post"):
             if (instrument.key, None) not in done:
                 return Page("questionnaire", instrument)
         return Page("done")
     return Page("wait")
+
+
+def next_page(db: Session, participant: Participant, protocol: Protocol) -> Page:
+    """The one page this participant should be on (one query)."""
+    if participant.status == ParticipantStatus.WITHDRAWN:
+        return Page("withdrawn")
+    return page_for(participant, protocol, progress(db, participant))
 
 
 def session_blocker(db: Session, participant: Participant, protocol: Protocol, number: int) -> str:
@@ -251,11 +282,11 @@ def _instrument(protocol: Protocol, key: str) -> InstrumentSpec:
 
 
 def _check_timing(
-    db: Session,
     participant: Participant,
     protocol: Protocol,
     instrument: InstrumentSpec,
     session: int | None,
+    where: Progress,
 ) -> None:
     if instrument.when == "session":
         if session is None or not 1 <= session <= protocol.schedule.sessions:
@@ -263,7 +294,7 @@ def _check_timing(
                 f"{instrument.key} is asked after each session: give a session from 1 to "
                 f"{protocol.schedule.sessions}"
             )
-        if session not in _closed_sessions(db, participant):
+        if session not in where.closed:
             raise Conflict(
                 f"session {session} of {participant.code} has not finished yet; its "
                 "questionnaire opens when it ends"
@@ -271,20 +302,20 @@ def _check_timing(
         return
     if session is not None:
         raise InvalidInput(f"{instrument.key} is not asked per session: leave the session out")
-    if instrument.when == "post" and protocol.schedule.sessions not in _closed_sessions(
-        db, participant
-    ):
+    if instrument.when == "post" and protocol.schedule.sessions not in where.closed:
         raise Conflict(f"{instrument.key} opens after {participant.code}'s last session")
-    if (CONSENT, None) not in _submitted(db, participant):
+    if (CONSENT, None) not in where.done:
         raise Conflict("consent comes first")
 
 
 @dataclass(frozen=True)
 class SubmitResult:
-    """What a submission changed: whether it was an edit and how many values differ."""
+    """What a submission changed (its revision, how many values differ) and the page that follows
+    it, computed in its transaction."""
 
     revision: int
     changed: int
+    page: Page
 
 
 def _store(
@@ -296,40 +327,52 @@ def _store(
     values: Mapping[str, str],
     actor: Actor,
     clear_missing: frozenset[str] = frozenset(),
-) -> SubmitResult:
-    existing = {
-        row.item: row
-        for row in db.scalars(
-            select(Response).where(
-                Response.participant_id == participant.id,
-                Response.instrument == instrument,
-                Response.session.is_(None) if session is None else Response.session == session,
+    revising: bool,
+) -> tuple[int, int]:
+    """Store a page's values; (its revision, how many stored values changed).
+
+    ``revising``: the page was submitted before (from :func:`progress`, read after the
+    participant's row lock). A page's responses are only ever stored with its submission, so a
+    first submission has no stored values and no submission row to look up.
+    """
+    same_page = (
+        Response.participant_id == participant.id,
+        Response.instrument == instrument,
+        Response.session.is_(None) if session is None else Response.session == session,
+    )
+    existing = (
+        {row.item: row for row in db.scalars(select(Response).where(*same_page))}
+        if revising
+        else {}
+    )
+    submission = (
+        db.scalar(
+            select(Submission)
+            .where(
+                Submission.participant_id == participant.id,
+                Submission.instrument == instrument,
+                Submission.session.is_(None) if session is None else Submission.session == session,
             )
+            .with_for_update()
         )
-    }
-    submission = db.scalar(
-        select(Submission)
-        .where(
-            Submission.participant_id == participant.id,
-            Submission.instrument == instrument,
-            Submission.session.is_(None) if session is None else Submission.session == session,
-        )
-        .with_for_update()
+        if revising
+        else None
     )
     now = utcnow()
     changed = 0
+    new_rows: list[dict[str, object]] = []
     for item, value in values.items():
         row = existing.get(item)
         if row is None:
-            db.add(
-                Response(
-                    participant_id=participant.id,
-                    instrument=instrument,
-                    session=session,
-                    item=item,
-                    value=value,
-                    answered_at=now,
-                )
+            new_rows.append(
+                {
+                    "participant_id": participant.id,
+                    "instrument": instrument,
+                    "session": session,
+                    "item": item,
+                    "value": value,
+                    "answered_at": now,
+                }
             )
             changed += 1 if submission is not None else 0
         elif row.value != value:
@@ -368,22 +411,48 @@ def _store(
         )
         db.delete(row)
         changed += 1
+    if new_rows:  # one statement for all new values (their ids are not needed)
+        db.execute(insert(Response), new_rows)
     if submission is None:
         submission = Submission(
             participant_id=participant.id, instrument=instrument, session=session, submitted_at=now
         )
         db.add(submission)
-        revision = 1
-    else:
-        submission.revision += 1
-        submission.revised_at = now
-        revision = submission.revision
-    return SubmitResult(revision=revision, changed=changed)
+        return 1, changed
+    submission.revision += 1
+    submission.revised_at = now
+    return submission.revision, changed
 
 
-def _publish(db: Session, participant: Participant, instrument: str, session: int | None) -> None:
+_AS_NOW = (
+    select(Participant, Station)
+    .outerjoin(Station, Station.participant_id == Participant.id)
+    .where(Participant.id == bindparam("participant"))
+    .with_for_update(of=Participant)
+    .execution_options(populate_existing=True)
+)
+
+
+def _as_now(db: Session, participant: Participant) -> tuple[Participant, Station | None]:
+    """The participant as stored now, in this transaction, and the station where they sit.
+
+    A submission decides on the participant's lock and status, so it reads them inside its own
+    transaction, not from whenever the tablet was identified; the row lock (PostgreSQL; SQLite's
+    write transactions are exclusive anyway) makes a concurrent lock, unlock or withdrawal wait
+    for the submission or the submission for it.
+    """
+    found = db.execute(_AS_NOW, {"participant": participant.id}).one()
+    return found[0], found[1]
+
+
+def _publish(
+    db: Session,
+    participant: Participant,
+    station: Station | None,
+    instrument: str,
+    session: int | None,
+) -> None:
     topics = [study_topic(participant.study_id), participant_topic(participant.id)]
-    station = db.scalar(select(Station).where(Station.participant_id == participant.id))
     if station is not None:
         topics.append(station_topic(station))
     events.publish(
@@ -408,16 +477,19 @@ def accept_consent(
     db: Session, *, participant: Participant, protocol: Protocol, accepted: bool, actor: Actor
 ) -> SubmitResult:
     """Record consent to the protocol's consent text (its version is stored with it); commits."""
+    participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     if not accepted:
         raise QuestionnaireInvalid({"accept": "Please tick the box to take part."})
-    result = _store(
+    where = progress(db, participant)
+    revision, changed = _store(
         db,
         participant=participant,
         instrument=CONSENT,
         session=None,
         values={"accepted": "yes", "version": protocol.questionnaires.consent.version},
         actor=actor,
+        revising=(CONSENT, None) in where.done,
     )
     audit.record(
         db,
@@ -427,9 +499,11 @@ def accept_consent(
         subject=participant.code,
         details={"version": protocol.questionnaires.consent.version},
     )
-    _publish(db, participant, CONSENT, None)
+    _publish(db, participant, station, CONSENT, None)
+    where.done.add((CONSENT, None))
+    page = page_for(participant, protocol, where)
     db.commit()
-    return result
+    return SubmitResult(revision, changed, page)
 
 
 def submit(
@@ -443,14 +517,16 @@ def submit(
     actor: Actor,
 ) -> SubmitResult:
     """Validate and store one questionnaire page all-or-nothing; commits."""
+    participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     instrument = _instrument(protocol, instrument_key)
-    _check_timing(db, participant, protocol, instrument, session)
+    where = progress(db, participant)
+    _check_timing(participant, protocol, instrument, session, where)
     values = validate_answers(instrument, protocol, answers)
     optional = frozenset(
         key for item in instrument.items for key in (item.key, item.key + DESCRIPTION_SUFFIX)
     )
-    result = _store(
+    revision, changed = _store(
         db,
         participant=participant,
         instrument=instrument.key,
@@ -458,10 +534,13 @@ def submit(
         values=values,
         actor=actor,
         clear_missing=optional,
+        revising=(instrument.key, session) in where.done,
     )
-    _publish(db, participant, instrument.key, session)
+    _publish(db, participant, station, instrument.key, session)
+    where.done.add((instrument.key, session))
+    page = page_for(participant, protocol, where)
     db.commit()
-    return result
+    return SubmitResult(revision, changed, page)
 
 
 def set_locked(db: Session, *, participant: Participant, locked: bool, actor: Actor) -> None:

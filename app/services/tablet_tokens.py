@@ -12,14 +12,14 @@ import base64
 import hashlib
 import hmac
 
-from sqlalchemy import select
+from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, NotAuthenticated
 from app.security import token_digest
 from app.services import audit
 from app.services.audit import Actor
-from app.tables import Participant, ParticipantStatus, Station
+from app.tables import Participant, ParticipantStatus, Station, Study
 
 PARTICIPANT_PREFIX = "tlp_"
 KIOSK_PREFIX = "tls_"
@@ -78,16 +78,28 @@ def revoke_participant_token(db: Session, *, participant: Participant, actor: Ac
     db.commit()
 
 
-def participant_for_token(db: Session, token: str) -> Participant:
-    """The participant a personal token belongs to; NotAuthenticated otherwise."""
-    participant = None
-    if token.startswith(PARTICIPANT_PREFIX) and len(token) < 100:
-        participant = db.scalar(
-            select(Participant).where(Participant.token_hash == token_digest(token))
-        )
-    if participant is None:
+def _valid_form(token: str, prefix: str) -> bool:
+    return token.startswith(prefix) and len(token) < 100
+
+
+_BY_TOKEN = (
+    select(Participant, Study)
+    .join(Study, Study.id == Participant.study_id)
+    .where(Participant.token_hash == bindparam("digest"))
+)
+
+
+def participant_for_token(db: Session, token: str) -> tuple[Participant, Study]:
+    """The participant a personal token belongs to, with their study (one query);
+    NotAuthenticated otherwise."""
+    found = (
+        db.execute(_BY_TOKEN, {"digest": token_digest(token)}).first()
+        if _valid_form(token, PARTICIPANT_PREFIX)
+        else None
+    )
+    if found is None:
         raise NotAuthenticated("this tablet link is not valid (it may have been replaced)")
-    return participant
+    return found[0], found[1]
 
 
 def kiosk_token(secret: bytes, station: Station) -> str | None:
@@ -114,11 +126,24 @@ def issue_kiosk_token(db: Session, *, station: Station, secret: bytes, actor: Ac
     return token
 
 
-def station_for_kiosk_token(db: Session, token: str) -> Station:
-    """The station a kiosk token belongs to; NotAuthenticated otherwise."""
-    station = None
-    if token.startswith(KIOSK_PREFIX) and len(token) < 100:
-        station = db.scalar(select(Station).where(Station.kiosk_token_hash == token_digest(token)))
-    if station is None:
+_BY_KIOSK_TOKEN = (
+    select(Station, Participant, Study)
+    .outerjoin(Participant, Participant.id == Station.participant_id)
+    .outerjoin(Study, Study.id == Participant.study_id)
+    .where(Station.kiosk_token_hash == bindparam("digest"))
+)
+
+
+def station_for_kiosk_token(
+    db: Session, token: str
+) -> tuple[Station, Participant | None, Study | None]:
+    """The station a kiosk token belongs to, with whoever is seated there and their study (one
+    query); NotAuthenticated otherwise."""
+    found = (
+        db.execute(_BY_KIOSK_TOKEN, {"digest": token_digest(token)}).first()
+        if _valid_form(token, KIOSK_PREFIX)
+        else None
+    )
+    if found is None:
         raise NotAuthenticated("this kiosk link is not valid (it may have been replaced)")
-    return station
+    return found[0], found[1], found[2]

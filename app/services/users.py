@@ -106,6 +106,56 @@ def _throttle(db: Session, *, username: str, client_address: str) -> None:
             )
 
 
+@dataclass(frozen=True)
+class Candidate:
+    """Who a sign-in claims to be, read before its password is checked (:func:`find_candidate`)."""
+
+    username: str
+    client_address: str
+    user_id: int | None
+    password_hash: str | None
+
+
+def find_candidate(db: Session, *, username: str, client_address: str = "") -> Candidate:
+    """The first, read-only step of a sign-in: refused (TooManyAttempts) while the account or the
+    address has failed too often, otherwise the account the username names, if any."""
+    name = normalise_username(username)[:64]
+    address = client_address[:64]
+    _throttle(db, username=name, client_address=address)
+    user = db.scalar(select(User).where(User.username == name))
+    return Candidate(name, address, user.id if user else None, user.password_hash if user else None)
+
+
+def _attempt(db: Session, candidate: Candidate, password: str) -> User | None:
+    """Check the password, then record the attempt in the caller's write transaction.
+
+    The check (Argon2id: deliberately slow) runs before the write transaction begins, because on
+    SQLite that transaction is the single write lock; the caller must have no transaction open.
+    Inside the transaction the throttle is checked again and the account read again (locked on
+    PostgreSQL), so concurrent attempts cannot exceed the limits, and an account deactivated or
+    given a new password meanwhile is refused.
+    """
+    valid = verify_password(candidate.password_hash, password)
+    _throttle(db, username=candidate.username, client_address=candidate.client_address)
+    user = (
+        db.get(User, candidate.user_id, with_for_update=True, populate_existing=True)
+        if candidate.user_id is not None
+        else None
+    )
+    ok = (
+        user is not None
+        and valid
+        and user.is_active
+        and user.password_hash == candidate.password_hash
+    )
+    db.add(
+        LoginAttempt(
+            username=candidate.username, client_address=candidate.client_address, succeeded=ok
+        )
+    )
+    return user if ok else None
+
+
 def authenticate(
     db: Session, *, username: str, password: str, client_address: str = ""
 ) -> User | None:
@@ -114,14 +164,11 @@ def authenticate(
     Every attempt is recorded (and committed, successful or not); after repeated failures the
     account or the address is refused with TooManyAttempts before any password is checked.
     """
-    name = normalise_username(username)[:64]
-    _throttle(db, username=name, client_address=client_address[:64])
-    user = db.scalar(select(User).where(User.username == name))
-    valid = verify_password(user.password_hash if user else None, password)
-    ok = user is not None and valid and user.is_active
-    db.add(LoginAttempt(username=name, client_address=client_address[:64], succeeded=ok))
+    candidate = find_candidate(db, username=username, client_address=client_address)
+    db.commit()  # no transaction stays open while the password is checked
+    user = _attempt(db, candidate, password)
     db.commit()
-    return user if ok else None
+    return user
 
 
 @dataclass(frozen=True)
@@ -132,15 +179,9 @@ class NewLogin:
     session: LoginSession
 
 
-def sign_in(
-    db: Session,
-    *,
-    user: User,
-    lifetime: timedelta,
-    user_agent: str = "",
-    client_address: str = "",
+def _open_login(
+    db: Session, *, user: User, lifetime: timedelta, user_agent: str, client_address: str
 ) -> NewLogin:
-    """Open a login session for an authenticated user; commits."""
     token = new_token()
     now = utcnow()
     login = LoginSession(
@@ -153,11 +194,54 @@ def sign_in(
         user_agent=user_agent[:255],
         client_address=client_address[:64],
     )
+    login.user = user
     db.add(login)
     user.last_login_at = now
     audit.record(db, actor=Actor.of_user(user), action="user.signed_in", subject=user.username)
-    db.commit()
     return NewLogin(token=token, session=login)
+
+
+def sign_in(
+    db: Session,
+    *,
+    user: User,
+    lifetime: timedelta,
+    user_agent: str = "",
+    client_address: str = "",
+) -> NewLogin:
+    """Open a login session for an authenticated user; commits."""
+    new_login = _open_login(
+        db, user=user, lifetime=lifetime, user_agent=user_agent, client_address=client_address
+    )
+    db.commit()
+    return new_login
+
+
+def sign_in_with_password(
+    db: Session,
+    *,
+    candidate: Candidate,
+    password: str,
+    lifetime: timedelta,
+    user_agent: str = "",
+    client_address: str = "",
+) -> NewLogin | None:
+    """Check the password of a :func:`find_candidate` and, if it is right, open a login session:
+    the attempt, the login and its audit row in one write transaction; commits. None when the
+    credentials are wrong (never saying which part); TooManyAttempts when throttled meanwhile.
+
+    The caller must have no transaction open (the password is checked before the write begins).
+    """
+    user = _attempt(db, candidate, password)
+    new_login = (
+        _open_login(
+            db, user=user, lifetime=lifetime, user_agent=user_agent, client_address=client_address
+        )
+        if user is not None
+        else None
+    )
+    db.commit()
+    return new_login
 
 
 def resolve_login(db: Session, *, token: str, idle_timeout: timedelta) -> LoginSession | None:

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, Request, UploadFile
+from fastapi import File, Form, Request, UploadFile
 from fastapi.responses import Response
 from sqlalchemy import select
 
-from app.deps import AdminUser, SessionDep
+from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
 from app.protocol import ProtocolError, parse_protocol
 from app.services import studies, users
@@ -16,7 +16,7 @@ from app.services.audit import Actor
 from app.tables import Role, StudyStatus, User
 from app.web.templating import redirect_with_notice, render
 
-router = APIRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
+router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
 
 MAX_PROTOCOL_BYTES = 512 * 1024
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from fastapi import APIRouter, Request
+from fastapi import Request
 from fastapi.responses import Response
 from starlette.background import BackgroundTask
 from starlette.responses import FileResponse
@@ -13,14 +13,14 @@ from starlette.responses import FileResponse
 from analysis.errors import AnalysisError
 from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
 from analysis.study import analyse_study
-from app.deps import AnalystUser, SessionDep
+from app.deps import AnalystUser, OneHopRouter, SessionDep
 from app.errors import InvalidInput, NotFound
 from app.services import audit, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
 from app.web.templating import render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 @router.get("/studies/{name}/analysis")

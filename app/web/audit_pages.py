@@ -6,17 +6,17 @@ import csv
 import io
 import json
 
-from fastapi import APIRouter, Request
+from fastapi import Request
 from fastapi.responses import Response
 from sqlalchemy import Select, func, select
 
-from app.deps import AdminUser, SessionDep
+from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.services import audit
 from app.services.audit import Actor
 from app.tables import AuditEvent, Study
 from app.web.templating import render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 PAGE_SIZE = 100
 

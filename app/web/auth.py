@@ -2,7 +2,10 @@
 
 The sign-in form is protected against cross-site posts by a signed double-submit token: the page
 sets a random nonce cookie and embeds the nonce's HMAC in the form; a post is accepted only when
-the two match. After sign-in, forms use the login's own CSRF token (see app.deps).
+the two match. After sign-in, forms use the login's own CSRF token (see app.deps). A sign-in reads
+the account first (:func:`app.deps.identify`), checks the password (Argon2id, slow by design) with
+no transaction open, and then records the attempt and the new login in one write transaction, so
+it never holds SQLite's write lock while hashing.
 """
 
 from __future__ import annotations
@@ -10,14 +13,16 @@ from __future__ import annotations
 from datetime import timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Form, Request
+from fastapi import Form, Request
 from fastapi.responses import RedirectResponse, Response
 
 from app.deps import (
     SESSION_COOKIE,
     CurrentLogin,
+    OneHopRouter,
     SessionDep,
     SettingsDep,
+    identify,
     set_session_cookie,
 )
 from app.errors import TooManyAttempts
@@ -25,7 +30,7 @@ from app.security import new_token, same, sign, unsign
 from app.services import users
 from app.web.templating import render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 LOGIN_NONCE_COOKIE = "tl_login_nonce"
 INVALID_CREDENTIALS = "Invalid username or password."
@@ -85,18 +90,24 @@ def login(
             error="The form expired or did not come from this site; please sign in again.",
             status_code=403,
         )
+    address = request.client.host if request.client else ""
     try:
-        user = users.authenticate(
+        candidate = identify(
+            db, lambda read: users.find_candidate(read, username=username, client_address=address)
+        )
+        new_login = users.sign_in_with_password(
             db,
-            username=username,
+            candidate=candidate,
             password=password,
-            client_address=request.client.host if request.client else "",
+            lifetime=timedelta(hours=settings.session_hours),
+            user_agent=request.headers.get("user-agent", ""),
+            client_address=address,
         )
     except TooManyAttempts as exc:
         return _login_page(
             request, next_url=next_url, username=username, error=exc.message, status_code=429
         )
-    if user is None:
+    if new_login is None:
         return _login_page(
             request,
             next_url=next_url,
@@ -104,13 +115,6 @@ def login(
             error=INVALID_CREDENTIALS,
             status_code=401,
         )
-    new_login = users.sign_in(
-        db,
-        user=user,
-        lifetime=timedelta(hours=settings.session_hours),
-        user_agent=request.headers.get("user-agent", ""),
-        client_address=request.client.host if request.client else "",
-    )
     response = RedirectResponse(next_url, status_code=303)
     set_session_cookie(response, request, settings, new_login.token)
     response.delete_cookie(LOGIN_NONCE_COOKIE)

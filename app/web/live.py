@@ -6,16 +6,16 @@ no database connection while they wait for events.
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from app.db import Database
-from app.deps import StreamingUser
+from app.deps import OneHopRouter, StreamingUser
 from app.services import stations, studies
 from app.web.streams import event_stream
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 @router.get("/studies/{name}/events")

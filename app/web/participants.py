@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import Request
 from fastapi.responses import Response
 
-from app.deps import CurrentUser, ExperimenterUser, SessionDep, SettingsDep
+from app.deps import CurrentUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.services import enrolment, questionnaires, studies, tablet_tokens, timeline
 from app.services.audit import Actor
 from app.tables import Role
 from app.web.qr import qr_svg
 from app.web.templating import redirect_with_notice, render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 def _page_url(name: str, code: str) -> str:

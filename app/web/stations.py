@@ -8,45 +8,65 @@ apart from who the step log says did it.
 from __future__ import annotations
 
 import uuid
+from collections import defaultdict
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Form, Request
+from fastapi import Form, Request
 from fastapi.responses import Response
 from sqlalchemy import select
 
 from app.api import station_ops
 from app.api.runtime_schemas import AnswerRequest, PromptRequest
-from app.deps import AdminUser, ExperimenterUser, SessionDep, SettingsDep
+from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.errors import TrustlabError
 from app.services import enrolment, learners, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
-from app.tables import Device, LearnerState, Participant, ParticipantStatus, Study, User
+from app.tables import (
+    Device,
+    LearnerState,
+    Participant,
+    ParticipantStatus,
+    Station,
+    Study,
+    User,
+)
 from app.web.qr import qr_svg
 from app.web.templating import redirect_with_notice, render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 def _stations_context(
     request: Request, db: SessionDep, settings: SettingsDep, user: User
 ) -> dict[str, Any]:
     base = str(request.base_url).rstrip("/")
-    rows = []
-    for station in stations.list_stations(db):
-        devices = db.scalars(
-            select(Device).where(Device.station_id == station.id).order_by(Device.id)
+    found = stations.list_stations(db)
+    ids = [station.id for station in found]
+    seated = {
+        station_id: (participant, study)
+        for station_id, participant, study in db.execute(
+            select(Station.id, Participant, Study)
+            .join(Participant, Participant.id == Station.participant_id)
+            .join(Study, Study.id == Participant.study_id)
+            .where(Station.id.in_(ids))
         )
+    }
+    devices: dict[int, list[Device]] = defaultdict(list)
+    for device in db.scalars(select(Device).where(Device.station_id.in_(ids)).order_by(Device.id)):
+        devices[device.station_id].append(device)
+    rows = []
+    for station in found:
         kiosk = (
             tablet_tokens.kiosk_token(settings.secret, station) if user.role == "admin" else None
         )
         kiosk_url = f"{base}/k/{kiosk}" if kiosk else None
-        participant = station.participant
+        participant, study = seated.get(station.id, (None, None))
         rows.append(
             {
                 "station": station,
                 "participant": participant,
-                "study": db.get(Study, participant.study_id) if participant else None,
-                "devices": list(devices),
+                "study": study,
+                "devices": devices[station.id],
                 "kiosk_url": kiosk_url,
                 "kiosk_qr": qr_svg(kiosk_url) if kiosk_url else "",
             }

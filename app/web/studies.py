@@ -4,17 +4,17 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Form, Request
+from fastapi import Form, Request
 from fastapi.responses import Response
 
-from app.deps import CurrentUser, ExperimenterUser, FormFields, SessionDep
+from app.deps import CurrentUser, ExperimenterUser, FormFields, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
 from app.services import enrolment, overview, studies
 from app.services.audit import Actor
 from app.tables import Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
 
-router = APIRouter(tags=["pages"], include_in_schema=False)
+router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 STRATUM_FIELD_PREFIX = "stratum_"
 

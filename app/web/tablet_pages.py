@@ -12,11 +12,11 @@ import hashlib
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Form, Request
+from fastapi import Form, Request
 from fastapi.responses import RedirectResponse, Response
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import FormFields, SessionDep, SettingsDep
+from app.deps import FormFields, OneHopRouter, SessionDep, SettingsDep
 from app.errors import Conflict, NotAuthenticated, PermissionDenied, TrustlabError
 from app.protocol import InstrumentSpec
 from app.security import same
@@ -27,7 +27,7 @@ from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
 from app.web.streams import event_stream
 from app.web.templating import render
 
-router = APIRouter(tags=["tablet"], include_in_schema=False)
+router = OneHopRouter(tags=["tablet"], include_in_schema=False)
 
 
 def participant_actor(tablet: Tablet) -> Actor:

@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import threading
 from datetime import timedelta
 
+import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from sqlalchemy import select, update
+from sqlalchemy import event, select, update
 
 from app.db import Database
-from app.tables import AuditEvent, LoginSession, Role, utcnow
+from app.errors import TooManyAttempts
+from app.services import users
+from app.services.audit import Actor
+from app.tables import AuditEvent, LoginAttempt, LoginSession, Role, utcnow
 from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in
 
 
@@ -189,3 +195,77 @@ def test_signed_in_user_sees_login_form_fields_only_once(
     page = client.get("/")
     assert page.status_code == 200
     assert "ada" in page.text and "Sign out" in page.text
+
+
+def test_sign_in_checks_the_password_with_no_transaction_open(
+    app: FastAPI, client: TestClient, database: Database, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Argon2id is slow by design: no transaction — on SQLite, not the single write lock — waits
+    for it, through the API or the sign-in page, right password or wrong."""
+    make_user(database, "hasher", Role.ANALYST)
+    engine = app.state.database.engine
+    open_transactions: set[int] = set()
+    seen: list[bool] = []
+    verify = users.verify_password
+
+    def opened(conn: object) -> None:
+        if threading.current_thread().name != "trustlab-activity":
+            open_transactions.add(id(conn))
+
+    def closed(conn: object) -> None:
+        open_transactions.discard(id(conn))
+
+    def checked(password_hash: str | None, password: str) -> bool:
+        seen.append(bool(open_transactions))
+        return verify(password_hash, password)
+
+    monkeypatch.setattr(users, "verify_password", checked)
+    listeners = [("begin", opened), ("commit", closed), ("rollback", closed)]
+    for name, listener in listeners:
+        event.listen(engine, name, listener)
+    try:
+        for password in (PASSWORD, "wrong password"):
+            client.post("/api/v1/session", json={"username": "hasher", "password": password})
+        sign_in(TestClient(app), "hasher")
+    finally:
+        for name, listener in listeners:
+            event.remove(engine, name, listener)
+    assert seen == [False, False, False]
+
+
+def test_sign_in_refuses_an_account_deactivated_after_it_was_read(database: Database) -> None:
+    make_user(database, "leaving", Role.EXPERIMENTER)
+    with database.write_session() as db:
+        candidate = users.find_candidate(db, username="leaving", client_address="10.0.0.9")
+        db.commit()
+        with database.writing() as other:
+            users.deactivate_user(other, username="leaving", actor=Actor.system("tests"))
+        login = users.sign_in_with_password(
+            db, candidate=candidate, password=PASSWORD, lifetime=timedelta(hours=1)
+        )
+    assert login is None
+    with database.read_session() as db:
+        assert db.scalars(select(LoginAttempt.succeeded)).all() == [False]
+
+
+def test_sign_in_counts_failures_again_inside_its_write(database: Database) -> None:
+    """Attempts checked side by side cannot pass the throttle together: the limit is checked
+    again in the write transaction, and a throttled attempt records nothing."""
+    make_user(database, "guarded", Role.EXPERIMENTER)
+    limit = users.MAX_FAILURES_PER_ACCOUNT
+    with database.writing() as db:
+        for _ in range(limit - 1):
+            db.add(LoginAttempt(username="guarded", client_address="", succeeded=False))
+        db.commit()
+    with database.write_session() as db:
+        candidate = users.find_candidate(db, username="guarded")
+        db.commit()
+        with database.writing() as other:
+            other.add(LoginAttempt(username="guarded", client_address="", succeeded=False))
+            other.commit()
+        with pytest.raises(TooManyAttempts):
+            users.sign_in_with_password(
+                db, candidate=candidate, password=PASSWORD, lifetime=timedelta(hours=1)
+            )
+    with database.read_session() as db:
+        assert len(db.scalars(select(LoginAttempt)).all()) == limit
