@@ -28,7 +28,6 @@ from datetime import UTC, datetime
 from typing import Any
 
 from psycopg.types.json import Jsonb
-from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from app.tables import ParticipantStatus, RunStatus, SessionStatus, utcnow
@@ -74,12 +73,11 @@ class Cursor:
         self.db = db
         self._connection = db.connection()  # begins the transaction (BEGIN IMMEDIATE for writers)
         self.transaction = db.get_transaction()
-        self._dialect = self._connection.dialect
-        self._dbapi_error: type[Exception] = self._dialect.loaded_dbapi.Error
-        self.postgres = self._dialect.name == "postgresql"
+        dialect = self._connection.dialect
+        self._dbapi_error: type[Exception] = dialect.loaded_dbapi.Error
+        self.postgres = dialect.name == "postgresql"
         raw = self._connection.connection.driver_connection
         assert raw is not None
-        self._raw_connection = raw
         self._raw = raw.cursor()
         # Statement counters (tests, bench/answer_cost.py) listen on SQLAlchemy's own event.
         self._observers = list(self._connection.dispatch.before_cursor_execute)
@@ -108,17 +106,9 @@ class Cursor:
         try:
             self._raw.execute(sql, params)
         except self._dbapi_error as error:
-            lost = self._dialect.is_disconnect(error, self._raw_connection, self._raw)  # type: ignore[arg-type]
-            if lost:
-                self._connection.invalidate(error)
-            raise DBAPIError.instance(
-                sql,
-                params,
-                error,
-                self._dbapi_error,
-                connection_invalidated=lost,
-                dialect=self._dialect,
-            ) from error
+            # SQLAlchemy's own handler, as its execute() would call it: wraps the error, runs
+            # handle_error events, and on a lost connection invalidates it and the whole pool.
+            self._connection._handle_dbapi_exception(error, sql, params, self._raw, None)
 
     def rows(
         self, statement: Statement, params: dict[str, Any], *, lock: bool = False
