@@ -27,9 +27,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import psycopg
-from sqlalchemy import event, text
+from sqlalchemy import event
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
+
+from app.sql import Cursor, Statement
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +179,7 @@ class EventHub:
             return len(self._subscriptions)
 
 
-_NOTIFY_ALL = text(
+_NOTIFY_ALL = Statement(
     "SELECT pg_notify(:c, payload) FROM unnest(CAST(:payloads AS text[])) AS payload"
 )
 """Every event of a transaction in one statement (one round trip, however many events), in order:
@@ -207,7 +209,7 @@ def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres
             session.info[NOTIFIED_KEY] = [pending.topic for pending in pending_events]
             if pending_events:
                 payloads = [_notify_payload(pending) for pending in pending_events]
-                session.execute(_NOTIFY_ALL, {"c": CHANNEL, "payloads": payloads})
+                Cursor.of(session).rows(_NOTIFY_ALL, {"c": CHANNEL, "payloads": payloads})
 
         @event.listens_for(factory, "after_commit")
         def _count(session: Session) -> None:

@@ -42,8 +42,9 @@ from app.protocol import Protocol
 from app.services import learners, questionnaires, step_store
 from app.services.audit import Actor
 from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
-from app.services.step_store import Cursor, LearnerRow, RunState, Seat, Seated, Step, StoredAnswer
+from app.services.step_store import LearnerRow, RunState, Seat, Seated, Step, StoredAnswer
 from app.services.studies import protocol_by_id
+from app.sql import Cursor
 from app.tables import Answer, Participant, ParticipantStatus, Prompt, RunStatus, SessionStatus
 from models.learners.base import Learner
 from models.replies import confidence_level

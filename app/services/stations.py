@@ -18,6 +18,7 @@ from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
 from app.security import new_token, token_digest
 from app.services import audit, step_store
 from app.services.audit import Actor
+from app.sql import Cursor
 from app.tables import (
     Device,
     Participant,
@@ -163,7 +164,7 @@ def authenticate_seat(db: Session, *, key: str) -> step_store.DeviceSeat:
     """
     found = None
     if key.startswith(KEY_PREFIX) and len(key) <= KEY_MAX_LENGTH:
-        found = step_store.device_seat(step_store.Cursor.of(db), digest=token_digest(key))
+        found = step_store.device_seat(Cursor.of(db), digest=token_digest(key))
     if found is None:
         raise NotAuthenticated("unknown or revoked device key")
     return found

@@ -6,14 +6,13 @@ rows appended or updated. Through SQLAlchemy's ORM each of those small statement
 of Python (compiled-statement lookup, row processing, identity map, the unit of work's flush),
 several times what SQLite or PostgreSQL spend executing it, and an answer cost 5–6 × a no-op
 request (docs/performance.md, "Robot API round trip"). Here they run on the DBAPI cursor of the
-request's own session, so they share its transaction: SQLite's ``BEGIN IMMEDIATE`` and writer
-queue (app.db), live events published on commit (app.events), and rollback on any error behave
-exactly as for ORM work.
+request's own session (:class:`app.sql.Cursor`), so they share its transaction: SQLite's ``BEGIN
+IMMEDIATE`` and writer queue (app.db), live events published on commit (app.events), and rollback
+on any error behave exactly as for ORM work.
 
 Values are written in the form the ORM's column types store them (app.tables: UTC timestamps,
 JSON/JSONB documents, booleans), so every other part of trustlab reads these rows through the ORM
-unchanged; ``tests/app/test_step_store.py`` checks that round trip on both engines. A write expires
-the session's ORM objects, so nothing loaded before it is served stale afterwards.
+unchanged; ``tests/app/test_step_store.py`` checks that round trip on both engines.
 
 The timeline's rules live in app.services.runtime, which does all its reading and writing here;
 the rest of trustlab (enrolment, questionnaires, dashboards, exports) uses the ORM.
@@ -21,139 +20,11 @@ the rest of trustlab (enrolment, questionnaires, dashboards, exports) uses the O
 
 from __future__ import annotations
 
-import json
-import re
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from typing import Any
 
-from psycopg.types.json import Jsonb
-from sqlalchemy.orm import Session
-
-from app.tables import ParticipantStatus, RunStatus, SessionStatus, utcnow
-
-_NAMED = re.compile(r"(?<![:\w]):([a-z_]+)")
-
-
-class Statement:
-    """One SQL statement, written with ``:name`` parameters, in both drivers' styles.
-
-    ``{lock}`` in the text becomes ``FOR UPDATE OF …`` on PostgreSQL when the statement is run
-    with ``lock=True`` (SQLite's write transactions are exclusive already).
-    """
-
-    def __init__(self, sql: str, *, lock_of: str = "") -> None:
-        text = " ".join(sql.split())
-        lock = f" FOR UPDATE OF {lock_of}" if lock_of else ""
-        self._sqlite = text.replace(" {lock}", "")
-        postgres = _NAMED.sub(r"%(\1)s", text)
-        self._postgres = postgres.replace(" {lock}", "")
-        self._postgres_locked = postgres.replace(" {lock}", lock)
-
-    def text(self, postgres: bool, lock: bool = False) -> str:
-        """The statement for one driver."""
-        if not postgres:
-            return self._sqlite
-        return self._postgres_locked if lock else self._postgres
-
-
-_CURSOR_KEY = "trustlab_step_cursor"
-
-
-class Cursor:
-    """The driver cursor of a session's transaction, with the ORM column types' conversions.
-
-    Take it with :meth:`of`: one per transaction, shared by everything the request does in it.
-    Driver errors come out as SQLAlchemy's (``IntegrityError``, ``OperationalError``…), as they
-    would from ORM work, so the application's handlers (a lost database is a 503) apply; a lost
-    connection is invalidated so the pool never hands it out again.
-    """
-
-    def __init__(self, db: Session) -> None:
-        self.db = db
-        self._connection = db.connection()  # begins the transaction (BEGIN IMMEDIATE for writers)
-        self.transaction = db.get_transaction()
-        dialect = self._connection.dialect
-        self._dbapi_error: type[Exception] = dialect.loaded_dbapi.Error
-        self.postgres = dialect.name == "postgresql"
-        raw = self._connection.connection.driver_connection
-        assert raw is not None
-        self._raw = raw.cursor()
-        # Statement counters (tests, bench/answer_cost.py) listen on SQLAlchemy's own event.
-        self._observers = list(self._connection.dispatch.before_cursor_execute)
-        self._now: datetime | None = None
-
-    @classmethod
-    def of(cls, db: Session) -> Cursor:
-        """The cursor of ``db``'s current transaction (begun if need be)."""
-        cached: Cursor | None = db.info.get(_CURSOR_KEY)
-        if cached is not None and cached.transaction is db.get_transaction():
-            return cached
-        cursor = db.info[_CURSOR_KEY] = cls(db)
-        return cursor
-
-    @property
-    def now(self) -> datetime:
-        """The transaction's clock: every row it writes carries the same UTC time."""
-        if self._now is None:
-            self._now = utcnow()
-        return self._now
-
-    def _execute(self, statement: Statement, params: dict[str, Any], lock: bool = False) -> None:
-        sql = statement.text(self.postgres, lock)
-        for observer in self._observers:
-            observer(self._connection, self._raw, sql, params, None, False)
-        try:
-            self._raw.execute(sql, params)
-        except self._dbapi_error as error:
-            # SQLAlchemy's own handler, as its execute() would call it: wraps the error, runs
-            # handle_error events, and on a lost connection invalidates it and the whole pool.
-            self._connection._handle_dbapi_exception(error, sql, params, self._raw, None)
-
-    def rows(
-        self, statement: Statement, params: dict[str, Any], *, lock: bool = False
-    ) -> list[Any]:
-        """Every row of a query."""
-        self._execute(statement, params, lock)
-        return list(self._raw.fetchall())
-
-    def row(self, statement: Statement, params: dict[str, Any], *, lock: bool = False) -> Any:
-        """The first row of a query, or None."""
-        self._execute(statement, params, lock)
-        return self._raw.fetchone()
-
-    def write(self, statement: Statement, params: dict[str, Any]) -> int:
-        """Run an INSERT/UPDATE; returns the number of rows it changed. Objects the session
-        loaded earlier are expired, so later ORM reads in this transaction see the change."""
-        self._execute(statement, params)
-        self.db.expire_all()
-        return int(self._raw.rowcount)
-
-    def insert(self, statement: Statement, params: dict[str, Any]) -> int:
-        """Run an ``INSERT … RETURNING id``; returns the new id."""
-        self._execute(statement, params)
-        new_id = self._raw.fetchone()[0]
-        self.db.expire_all()
-        return int(new_id)
-
-    # Conversions, as app.tables' column types do them.
-
-    def json(self, value: Any) -> Any:
-        """A JSON document parameter (JSON text on SQLite, JSONB on PostgreSQL)."""
-        return Jsonb(value) if self.postgres else json.dumps(value)
-
-    def parsed(self, value: Any) -> Any:
-        """A JSON document as read (PostgreSQL's driver parses JSONB itself)."""
-        return value if self.postgres or value is None else json.loads(value)
-
-    def timestamp(self, value: datetime | None = None) -> Any:
-        """A UTC timestamp parameter, by default the transaction's :attr:`now` (naive UTC text
-        on SQLite, in SQLAlchemy's format; an aware datetime for PostgreSQL's driver)."""
-        value = self.now if value is None else value
-        if self.postgres:
-            return value
-        return value.astimezone(UTC).replace(tzinfo=None).isoformat(" ", "microseconds")
-
+from app.sql import Cursor, Statement
+from app.tables import ParticipantStatus, RunStatus, SessionStatus
 
 # ------------------------------------------------------------------------------------ the seat
 

@@ -19,7 +19,7 @@ from sqlalchemy.exc import OperationalError
 import app.db
 from app.db import Database
 from app.services import step_store
-from app.services.step_store import Cursor
+from app.sql import Cursor
 from tests.conftest import POSTGRES_SKIP_REASON, POSTGRES_URL
 
 

@@ -17,7 +17,7 @@ from sqlalchemy import event, select, text
 from sqlalchemy.exc import IntegrityError
 
 from app.services import step_store
-from app.services.step_store import Cursor, Statement
+from app.sql import Cursor, Statement
 from app.tables import Answer, AuditEvent, LearnerState, Prompt, Run, StudySession
 from tests.conftest import Lab
 
