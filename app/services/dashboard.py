@@ -193,8 +193,11 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
     protocol = protocol_of(study)
     labels = _labels(protocol, actor)
     items = session_items(protocol)
+    # Cells carry the label the actor may see instead of the condition, and are listed in label
+    # order: the ids, or rows ordered by them, would tell a blinded experimenter the mapping.
     trust = trust_cells(db, study, items)
-    trust[GROUP] = trust["condition"].map(labels)
+    trust.insert(0, GROUP, trust.pop("condition").map(labels))
+    trust = trust.sort_values([GROUP, "session", "item"], kind="stable")
     measures = []
     for spec in items:
         cells = trust[trust["item"] == spec.item.key]
@@ -217,6 +220,7 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
         )
     curves = adaptation_cells(db, study)
     curves["condition"] = curves["condition"].map(labels)
+    curves = curves.sort_values(["condition", "category", "iteration"], kind="stable")
     categories = [c.name for c in protocol.categories if c.preferred is not None]
     adaptation = adaptation_payload_from_curves(
         curves[curves["category"].isin(categories)], categories, confidence=CONFIDENCE
