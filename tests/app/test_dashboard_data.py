@@ -1,21 +1,155 @@
-"""The live dashboard's data: what a blinded experimenter may see of it."""
+"""The live dashboard's data: the same payloads as the computation it replaced (the analysis
+builders' DataFrame path, tests/app/dashboard_reference.py) on seeded studies, and what a blinded
+experimenter may see of it."""
 
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from typing import Any
 
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from sqlalchemy import delete, select, update
 
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import studies
+from app.services import dashboard, studies
 from app.services.audit import Actor
-from app.tables import Role
+from app.tables import (
+    ActorKind,
+    Answer,
+    Participant,
+    ParticipantStatus,
+    Prompt,
+    Response,
+    Role,
+    Run,
+    StudySession,
+)
+from bench.seed import seed_study
+from tests.app import dashboard_reference
 from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+
+EXPERIMENTER = Actor(ActorKind.USER, "exp", Role.EXPERIMENTER)
+ANALYST = Actor(ActorKind.USER, "ana", Role.ANALYST)
+
+
+def assert_same(fast: Any, reference: Any, path: str = "data") -> None:
+    """Equal payloads: same keys in the same order, same strings and integers, floats equal up to
+    the order in which the database summed them (PostgreSQL may pick another plan)."""
+    assert type(fast) is type(reference), (path, fast, reference)
+    if isinstance(fast, dict):
+        assert list(fast) == list(reference), path
+        for key in fast:
+            assert_same(fast[key], reference[key], f"{path}.{key}")
+    elif isinstance(fast, list):
+        assert len(fast) == len(reference), path
+        for index, (a, b) in enumerate(zip(fast, reference, strict=True)):
+            assert_same(a, b, f"{path}[{index}]")
+    elif isinstance(fast, float):
+        assert math.isclose(fast, reference, rel_tol=1e-12, abs_tol=1e-15), (path, fast, reference)
+    else:
+        assert fast == reference, (path, fast, reference)
+
+
+def _both(database: Database, name: str, actor: Actor) -> tuple[dict[str, Any], dict[str, Any]]:
+    with database.read_session() as db:
+        study = studies.get_study(db, name)
+        fast = json.loads(dashboard.encode(dashboard.dashboard_data(db, study=study, actor=actor)))
+        reference = dashboard_reference.dashboard_data(db, study=study, actor=actor)
+    return fast, reference
+
+
+@pytest.mark.parametrize("participants", [1, 2, 40])
+def test_fast_path_equals_the_previous_computation_on_seeded_studies(
+    database: Database, participants: int
+) -> None:
+    seed_study(database, name="seeded", participants=participants, seed=participants)
+    for actor in (EXPERIMENTER, ANALYST):
+        fast, reference = _both(database, "seeded", actor)
+        assert fast["answers"] > 0 and fast["questionnaires"] > 0
+        assert_same(fast, reference)
+
+
+def test_fast_path_equals_the_previous_computation_on_gaps_and_withdrawals(
+    database: Database,
+) -> None:
+    """Withdrawn participants, a session answered by one participant only (n = 1: no SD, no CI),
+    an item nobody answered in a session, and steps without p(preferred)."""
+    seed_study(database, name="gappy", participants=24, seed=5)
+    with database.writing() as db:
+        ids = db.scalars(select(Participant.id).order_by(Participant.id)).all()
+        db.execute(
+            update(Participant)
+            .where(Participant.id.in_(ids[:3]))
+            .values(status=ParticipantStatus.WITHDRAWN)
+        )
+        db.execute(
+            delete(Response).where(Response.session == 4, Response.participant_id.in_(ids[3:-1]))
+        )
+        db.execute(delete(Response).where(Response.item == "trust_2", Response.session == 3))
+        # Steps without p(preferred) (a category without a preferred question records none):
+        # a first prompt and a later version, both of which must count for nothing.
+        session_id = db.scalar(select(StudySession.id).where(StudySession.participant_id == ids[4]))
+        run = Run(session_id=session_id, participant_id=ids[4], number=99, status="completed")
+        db.add(run)
+        db.flush()
+        for version, category in ((0, "conation"), (57, "affection")):
+            prompt = Prompt(
+                participant_id=ids[4],
+                run_id=run.id,
+                category=category,
+                action=1,
+                question="?",
+                probabilities=[0.25] * 4,
+                learner_version=version,
+                adapts=True,
+                p_preferred=None,
+            )
+            db.add(prompt)
+            db.flush()
+            db.add(
+                Answer(
+                    prompt_id=prompt.id,
+                    participant_id=ids[4],
+                    answer=True,
+                    reward=1.0,
+                    probabilities_after=[0.25] * 4,
+                    p_preferred=None,
+                    probability=0.25,
+                    confidence_level=0,
+                    confidence="low",
+                    reply="fine",
+                    learner_version=version + 1,
+                    idempotency_key=f"k{version}",
+                    processing_ms=1.0,
+                )
+            )
+        db.commit()
+    fast, reference = _both(database, "gappy", ANALYST)
+    assert_same(fast, reference)
+    session_4 = [c for c in fast["measures"][0]["payload"]["cells"] if c["session"] == 4]
+    assert [c["n"] for c in session_4] == [1] and session_4[0]["sd"] is None
+    # adapting answers (4 sessions × 3 runs × 3 categories) of those not withdrawn, with p
+    assert fast["answers"] == (24 - 3) * 36
+
+
+def test_an_empty_study_gives_empty_figures(database: Database) -> None:
+    with database.writing() as db:
+        studies.create_study(
+            db,
+            name="empty",
+            loaded=parse_protocol(protocol_text(**EXP3_ONLY)),
+            actor=Actor.system(),
+        )
+    fast, reference = _both(database, "empty", EXPERIMENTER)
+    assert_same(fast, reference)
+    assert (fast["answers"], fast["questionnaires"]) == (0, 0)
+    assert all(m["payload"]["data"] == [] for m in fast["measures"])
+
 
 SWAPPED_LABELS = {
     "blinded = false": "blinded = true",
