@@ -13,11 +13,13 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import delete, select, update
+from sqlalchemy.orm import Session
 
 from app.db import Database
 from app.protocol import parse_protocol
 from app.services import dashboard, studies
 from app.services.audit import Actor
+from app.services.freshness import FreshnessCache
 from app.tables import (
     ActorKind,
     Answer,
@@ -214,3 +216,37 @@ def test_a_blinded_experimenter_sees_neither_condition_ids_nor_their_order(
     analyst = user_client(Role.ANALYST).get("/studies/blind/dashboard.json").json()
     assert [t["name"] for t in analyst["measures"][0]["payload"]["data"]] == ["C1", "C2"]
     assert json.dumps(analyst).count('"Group ') == 0
+
+
+def test_dashboards_share_one_computation_until_the_study_changes(lab: Lab) -> None:
+    lab.app.state.dashboard_data = shared = FreshnessCache[bytes](max_age=60.0)
+    lab.enrol_and_assign()
+    lab.start_session()
+    lab.run_session()
+    lab.start_session()
+    first = lab.experimenter.get("/studies/rt/dashboard.json")
+    assert first.headers["content-type"] == "application/json"
+    again = lab.experimenter.get("/studies/rt/dashboard.json")
+    assert (again.content, shared.computed) == (first.content, 1)  # nothing changed in between
+    step = lab.prompt("conation")
+    lab.answer(step["step_id"], "yes")
+    after = lab.experimenter.get("/studies/rt/dashboard.json")
+    assert shared.computed == 2
+    assert after.json()["answers"] == first.json()["answers"] + 1  # the reader's own change
+
+
+def test_the_computation_takes_a_snapshot_younger_than_the_change_count(
+    lab: Lab, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The request's transaction began with its sign-in check: had the computation kept it, a
+    # change committed in between would be counted in the version yet missing from the data.
+    seen: list[bool] = []
+    real = dashboard.compute
+
+    def compute(db: Session, plan: dashboard.Plan) -> dict[str, Any]:
+        seen.append(db.in_transaction())
+        return real(db, plan)
+
+    monkeypatch.setattr(dashboard, "compute", compute)
+    assert lab.experimenter.get("/studies/rt/dashboard.json").status_code == 200
+    assert seen == [False]
