@@ -6,6 +6,10 @@ requested in-process through the ASGI app, so the figure is the server's time, n
 The study overview page (the participants table) is measured too. Targets: p95 ≤ 100 ms at 24
 participants and ≤ 500 ms at 1,000, on SQLite and PostgreSQL.
 
+Besides wall-clock percentiles, each request's CPU time (this process, all threads) is reported as
+a median: on a shared machine it moves far less with the neighbours' load than the wall clock, so
+it is the figure to compare versions by (run both in the same sitting).
+
     .venv/bin/python bench/dashboard.py
     .venv/bin/python bench/dashboard.py --postgres postgresql+psycopg://postgres@127.0.0.1:5432/test
 """
@@ -15,6 +19,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import sys
 import tempfile
 import time
@@ -63,15 +68,17 @@ async def measure(url: str, study: str, repeats: int) -> dict[str, dict[str, flo
             for label, path in PAGES.items():
                 target = path.format(study=study)
                 await client.get(target)  # warm caches, as a dashboard left open would be
-                times = []
+                times, cpu = [], []
                 for _ in range(repeats):
-                    start = time.perf_counter()
+                    start, start_cpu = time.perf_counter(), time.process_time()
                     response = await client.get(target)
                     times.append(time.perf_counter() - start)
+                    cpu.append(time.process_time() - start_cpu)
                     assert response.status_code == 200, (target, response.status_code)
                 results[label] = {
                     "p50_ms": round(percentile(times, 0.5), 1),
                     "p95_ms": round(percentile(times, 0.95), 1),
+                    "cpu_p50_ms": round(percentile(cpu, 0.5), 1),
                     "bytes": len(response.content),
                 }
     return results
@@ -85,6 +92,7 @@ def main() -> None:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     report: dict[int, dict[str, object]] = {}
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/d.sqlite3"
         database = Database(url)
@@ -103,16 +111,22 @@ def main() -> None:
             }
         database.dispose()
     engine = "postgresql" if args.postgres else "sqlite"
+    load = {"before": round(load_before, 2), "after": round(os.getloadavg()[0], 2)}
     if args.json:
-        print(json.dumps({"engine": engine, "sizes": report}))
+        summary = {"engine": engine, "cores": os.cpu_count(), "load": load, "sizes": report}
+        print(json.dumps(summary))
         return
-    print(f"engine={engine} repeats={args.repeats}")
+    print(
+        f"engine={engine} repeats={args.repeats} cores={os.cpu_count()} "
+        f"load average {load['before']} before, {load['after']} after"
+    )
     for size, pages in report.items():
         for label, figures in pages.items():
             if isinstance(figures, dict):
                 print(
                     f"{size:>6} participants  {label:<15} p50 {figures['p50_ms']:>7} ms  "
-                    f"p95 {figures['p95_ms']:>7} ms  {figures['bytes']:>8} bytes"
+                    f"p95 {figures['p95_ms']:>7} ms  CPU p50 {figures['cpu_p50_ms']:>7} ms  "
+                    f"{figures['bytes']:>8} bytes"
                 )
 
 
