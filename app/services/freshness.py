@@ -15,16 +15,21 @@ arrives at time *t* knowing ``v`` changes is given a value only if
   ``max_age`` below the dashboard's refetch delay, the refetch that an answer's event triggers
   always sees that answer.
 
-At most one computation per key runs at a time. A request that finds one running waits for it: if
-it started after the request's changes, it shares it; otherwise it waits for the *next* one,
-which it shares with everyone else who arrived meanwhile. So a busy study costs at most one
-computation after another however many dashboards ask, and each request waits for at most two.
+At most one computation per key runs at a time, and with ``min_interval`` one starts at most that
+often. A request that finds one running (or waiting for its turn) waits for it: if it started
+after the request's changes (or has yet to start), it shares it; otherwise it waits for the
+*next* one, which it shares with everyone else who arrived meanwhile. So a study that changes many
+times a second costs at most one computation per ``min_interval``, however many dashboards ask;
+a request waits for at most ``min_interval`` and two computations. Waiting never weakens the
+guarantee: a computation that starts later only includes more.
+
 The caller's ``compute`` must take its snapshot after it is called (app/web/dashboard.py ends the
 request's read transaction first).
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable, Hashable
@@ -40,10 +45,11 @@ def _unversioned() -> int:
 
 @dataclass
 class _Computation(Generic[T]):
-    """A value being computed (``done`` False) or computed, with what its snapshot includes."""
+    """A value waiting for its turn, being computed (``done`` False) or computed, with what its
+    snapshot includes (read when it starts)."""
 
-    version: int
-    started: float
+    version: int = -1
+    started: float = math.inf
     done: bool = False
     failed: bool = False
     value: T | None = None
@@ -52,8 +58,15 @@ class _Computation(Generic[T]):
 class FreshnessCache(Generic[T]):
     """Values by key, shared while their version and age let them serve a request."""
 
-    def __init__(self, max_age: float, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        max_age: float,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        min_interval: float = 0.0,
+    ) -> None:
         self.max_age = max_age
+        self.min_interval = min_interval
         self._clock = clock
         self._latest: dict[Hashable, _Computation[T]] = {}
         self._running: dict[Hashable, _Computation[T]] = {}
@@ -91,8 +104,13 @@ class FreshnessCache(Generic[T]):
                     return cast(T, running.value)
                 # It began before this request's changes (or failed): look again, joining the
                 # next computation if another waiter has started it already.
-            mine: _Computation[T] = _Computation(version(), self._clock())
-            self._running[key] = mine
+            mine: _Computation[T] = _Computation()
+            self._running[key] = mine  # from now on, whoever arrives joins this one
+            if latest is not None:
+                turn = latest.started + self.min_interval
+                while (delay := turn - self._clock()) > 0:
+                    self._changed.wait(delay)
+            mine.version, mine.started = version(), self._clock()
         try:
             value = compute()
         except BaseException:

@@ -36,7 +36,8 @@ def dashboard_data(request: Request, db: SessionDep, user: CurrentUser, name: st
 
     Dashboards share one computation, and its encoded body, whenever it includes every change of
     the study this process had counted when they asked and is at most ``DASHBOARD_DATA_MAX_AGE``
-    old (app/main.py, app/services/freshness.py).
+    old; a newer one starts at most every ``DASHBOARD_DATA_MIN_INTERVAL`` (app/main.py,
+    app/services/freshness.py).
     """
     plan = dashboard.plan_for(studies.get_study(db, name), Actor.of_user(user))
     shared: FreshnessCache[bytes] = request.app.state.dashboard_data

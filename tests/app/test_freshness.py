@@ -158,3 +158,24 @@ def test_a_failed_computation_is_not_shared() -> None:
         cache.get("s", broken)
     assert cache.get("s", lambda: 3) == 3
     assert cache.computed == 1
+
+
+def test_computations_start_at_most_once_per_min_interval_and_waiters_share_them() -> None:
+    cache: FreshnessCache[int] = FreshnessCache(max_age=5.0, min_interval=0.1)
+    changes = 0
+    starts: list[float] = []
+
+    def compute() -> int:
+        starts.append(time.monotonic())
+        return len(starts)
+
+    assert cache.get("s", compute, version=lambda: changes) == 1
+    changes += 1  # a newer computation is needed, but not before its turn
+    results: list[int] = []
+    threads = _in_threads(4, lambda: results.append(cache.get("s", compute, version=lambda: 1)))
+    for thread in threads:
+        thread.join()
+    assert results == [2] * 4
+    assert cache.computed == 2
+    assert starts[1] - starts[0] >= 0.1
+    assert cache.get("s", compute, version=lambda: changes) == 2  # nothing newer: no wait
