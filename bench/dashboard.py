@@ -10,6 +10,12 @@ Besides wall-clock percentiles, each request's CPU time (this process, all threa
 a median: on a shared machine it moves far less with the neighbours' load than the wall clock, so
 it is the figure to compare versions by (run both in the same sitting).
 
+``--live SECONDS`` then watches each study as a busy lab would, with the sharing the app ships:
+``--dashboards`` dashboards each refetch the data 300 ms after their previous fetch while the
+study's change count rises ``--changes`` times a second (counted changes only, as
+bench/load.py's ~65 answers and ~65 prompts a second would; the data itself stays put). It
+reports how many computations the requests cost and the process's CPU seconds per second.
+
     .venv/bin/python bench/dashboard.py
     .venv/bin/python bench/dashboard.py --postgres postgresql+psycopg://postgres@127.0.0.1:5432/test
 """
@@ -20,6 +26,7 @@ import argparse
 import asyncio
 import json
 import os
+import random
 import sys
 import tempfile
 import time
@@ -33,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.main import create_app  # noqa: E402
-from app.services import users  # noqa: E402
+from app.services import stations, studies, users  # noqa: E402
 from app.services.freshness import FreshnessCache  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.tables import Role  # noqa: E402
@@ -84,12 +91,79 @@ async def measure(url: str, study: str, repeats: int) -> dict[str, dict[str, flo
     return results
 
 
+async def live(
+    url: str,
+    study: str,
+    seconds: float,
+    dashboards: int,
+    changes: float,
+    min_interval: float | None,
+) -> dict[str, float]:
+    """Dashboards refetching while the study's change count rises, with the app's own sharing
+    (or another minimum interval between computations)."""
+    app = create_app(Settings(_env_file=None, database_url=url, secret_key="b" * 40))
+    shared: FreshnessCache[bytes] = app.state.dashboard_data
+    if min_interval is not None:
+        shared = FreshnessCache(max_age=shared.max_age, min_interval=min_interval)
+        app.state.dashboard_data = shared
+    rng = random.Random(1)
+    times: list[float] = []
+    counted = 0
+    async with app.router.lifespan_context(app):
+        with app.state.database.read_session() as db:
+            topic = stations.study_topic(studies.get_study(db, study).id)
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://bench") as client:
+            signed = await client.post(
+                "/api/v1/session", json={"username": "bench", "password": PASSWORD}
+            )
+            assert signed.status_code == 200, signed.text
+            target = f"/studies/{study}/dashboard.json"
+            await client.get(target)
+            deadline = time.perf_counter() + seconds
+
+            async def change() -> None:
+                nonlocal counted
+                while time.perf_counter() < deadline:
+                    app.state.database.hub.note_changes([topic])
+                    counted += 1
+                    await asyncio.sleep(1.0 / changes)
+
+            async def dashboard() -> None:
+                await asyncio.sleep(rng.uniform(0.0, 0.3))  # dashboards opened at any moment
+                while time.perf_counter() < deadline:
+                    await asyncio.sleep(0.3)
+                    start = time.perf_counter()
+                    response = await client.get(target)
+                    times.append(time.perf_counter() - start)
+                    assert response.status_code == 200, response.status_code
+
+            computed, cpu, wall = shared.computed, time.process_time(), time.perf_counter()
+            await asyncio.gather(change(), *(dashboard() for _ in range(dashboards)))
+            wall = time.perf_counter() - wall
+            cpu = time.process_time() - cpu
+            computed = shared.computed - computed
+    return {
+        "changes_per_s": round(counted / wall, 1),
+        "requests": len(times),
+        "computations": computed,
+        "computations_per_s": round(computed / wall, 2),
+        "p50_ms": round(percentile(times, 0.5), 1),
+        "p99_ms": round(percentile(times, 0.99), 1),
+        "cpu_s_per_s": round(cpu / wall, 3),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--postgres", help="maintenance URL; benchmarks PostgreSQL instead")
     parser.add_argument("--sizes", default="24,1000")
     parser.add_argument("--repeats", type=int, default=40)
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--live", type=float, default=0.0, metavar="SECONDS")
+    parser.add_argument("--dashboards", type=int, default=5)
+    parser.add_argument("--changes", type=float, default=130.0, metavar="PER_SECOND")
+    parser.add_argument("--min-interval", type=float, help="instead of the app's (seconds)")
     args = parser.parse_args()
     report: dict[int, dict[str, object]] = {}
     load_before = os.getloadavg()[0]
@@ -109,6 +183,12 @@ def main() -> None:
                 **asyncio.run(measure(url, f"s{size}", args.repeats)),
                 "seeded_s": round(seeded, 1),
             }
+            if args.live:
+                report[size]["live"] = asyncio.run(
+                    live(
+                        url, f"s{size}", args.live, args.dashboards, args.changes, args.min_interval
+                    )
+                )
         database.dispose()
     engine = "postgresql" if args.postgres else "sqlite"
     load = {"before": round(load_before, 2), "after": round(os.getloadavg()[0], 2)}
@@ -122,7 +202,15 @@ def main() -> None:
     )
     for size, pages in report.items():
         for label, figures in pages.items():
-            if isinstance(figures, dict):
+            if label == "live" and isinstance(figures, dict):
+                print(
+                    f"{size:>6} participants  live: {args.dashboards} dashboards, "
+                    f"{figures['changes_per_s']} changes/s for {args.live:g} s: "
+                    f"{figures['requests']} requests, {figures['computations']} computations "
+                    f"({figures['computations_per_s']}/s), data p50 {figures['p50_ms']} ms "
+                    f"p99 {figures['p99_ms']} ms, CPU {figures['cpu_s_per_s']} s/s"
+                )
+            elif isinstance(figures, dict):
                 print(
                     f"{size:>6} participants  {label:<15} p50 {figures['p50_ms']:>7} ms  "
                     f"p95 {figures['p95_ms']:>7} ms  CPU p50 {figures['cpu_p50_ms']:>7} ms  "
