@@ -44,11 +44,13 @@ def dashboard_data(request: Request, db: SessionDep, user: CurrentUser, name: st
     hub: EventHub = request.app.state.database.hub
     topic = stations.study_topic(plan.study_id)
 
-    def compute() -> bytes:
-        # The request's read transaction began with its sign-in check, before the change count
-        # and clock were read: end it, so the computation's snapshot is younger than both.
-        db.rollback()
-        return dashboard.encode(dashboard.compute(db, plan))
-
-    body = shared.get(plan.key, compute, version=lambda: hub.version(topic))
+    # The request's read transaction began with its sign-in check. End it before asking: a
+    # computation's snapshot must be younger than the change count and clock the cache reads
+    # first, and a request waiting for a computation should hold no connection meanwhile.
+    db.rollback()
+    body = shared.get(
+        plan.key,
+        lambda: dashboard.encode(dashboard.compute(db, plan)),
+        version=lambda: hub.version(topic),
+    )
     return Response(body, media_type="application/json")
