@@ -33,6 +33,8 @@ import time
 from pathlib import Path
 
 import httpx
+import psycopg
+from sqlalchemy.engine import make_url
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -154,6 +156,14 @@ async def live(
     }
 
 
+def drop_postgres(admin_url: str, url: str) -> None:
+    """Drop the benchmark's own database (1,224 participants each run otherwise accumulate)."""
+    name = make_url(url).database
+    conninfo = make_url(admin_url).set(drivername="postgresql")
+    with psycopg.connect(conninfo.render_as_string(hide_password=False), autocommit=True) as conn:
+        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--postgres", help="maintenance URL; benchmarks PostgreSQL instead")
@@ -190,6 +200,8 @@ def main() -> None:
                     )
                 )
         database.dispose()
+        if args.postgres:
+            drop_postgres(args.postgres, url)
     engine = "postgresql" if args.postgres else "sqlite"
     load = {"before": round(load_before, 2), "after": round(os.getloadavg()[0], 2)}
     if args.json:
