@@ -19,7 +19,6 @@ the result into the response body once for every dashboard that shares it (app/w
 
 from __future__ import annotations
 
-import json
 import math
 import threading
 from collections.abc import Iterable, Sequence
@@ -27,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 import numpy as np
+import pydantic_core
 from sqlalchemy import Float, Select, and_, case, cast, func, select
 from sqlalchemy.orm import Session
 
@@ -364,9 +364,8 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
 
 
 def encode(data: dict[str, Any]) -> bytes:
-    """The response body: compact UTF-8 JSON, NaN as null (made once, sent to every sharer)."""
-    try:
-        text = json.dumps(data, ensure_ascii=False, allow_nan=False, separators=(",", ":"))
-    except ValueError:  # a NaN the builders did not expect: strict JSON all the same
-        text = json.dumps(json_safe(data), ensure_ascii=False, separators=(",", ":"))
-    return text.encode()
+    """The response body: compact UTF-8 JSON, NaN as null (made once, sent to every sharer).
+
+    pydantic's serialiser, as FastAPI's own responses use, is several times faster than
+    :func:`json.dumps` on these 40 kB payloads."""
+    return pydantic_core.to_json(data, inf_nan_mode="null")

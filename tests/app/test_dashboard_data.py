@@ -250,3 +250,8 @@ def test_the_computation_takes_a_snapshot_younger_than_the_change_count(
     monkeypatch.setattr(dashboard, "compute", compute)
     assert lab.experimenter.get("/studies/rt/dashboard.json").status_code == 200
     assert seen == [False]
+
+
+def test_the_body_is_strict_json() -> None:
+    body = dashboard.encode({"mean": float("nan"), "high": [float("inf"), 1.5], "range": "1–5"})
+    assert body == '{"mean":null,"high":[null,1.5],"range":"1–5"}'.encode()
