@@ -106,12 +106,12 @@ class FreshnessCache(Generic[T]):
                 # next computation if another waiter has started it already.
             mine: _Computation[T] = _Computation()
             self._running[key] = mine  # from now on, whoever arrives joins this one
-            if latest is not None:
-                turn = latest.started + self.min_interval
+        try:
+            with self._changed:
+                turn = -math.inf if latest is None else latest.started + self.min_interval
                 while (delay := turn - self._clock()) > 0:
                     self._changed.wait(delay)
-            mine.version, mine.started = version(), self._clock()
-        try:
+                mine.version, mine.started = version(), self._clock()
             value = compute()
         except BaseException:
             with self._changed:
