@@ -5,13 +5,18 @@ plus the summary numbers it shows. The live dashboard pushes the payload and cal
 ``Plotly.react(div, payload.data, payload.layout)`` in the browser; the report and notebooks
 turn the same payload into a :class:`plotly.graph_objects.Figure`. One builder, so the dashboard
 and the report can never disagree.
+
+The ``*_from_cells`` / ``*_from_curves`` builders take their table either as a DataFrame (the
+report, notebooks) or as plain columns (the live dashboard, which recomputes several times a second
+and for whom building a DataFrame of a few dozen cells would cost more than the figure). Both forms
+go through the same code, on numpy columns.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, TypeAlias
 
 import numpy as np
 import pandas as pd
@@ -30,6 +35,7 @@ from analysis.errors import InvalidInputError
 
 __all__ = [
     "PALETTE",
+    "Table",
     "adaptation_figure",
     "adaptation_payload",
     "adaptation_payload_from_curves",
@@ -102,9 +108,52 @@ def _json_list(values: Any) -> list[Any]:
     return out
 
 
-def _records(frame: pd.DataFrame) -> list[dict[str, Any]]:
-    cols = {c: _json_list(frame[c].to_numpy()) for c in frame.columns}
-    return [dict(zip(cols, row, strict=True)) for row in zip(*cols.values(), strict=True)]
+Table: TypeAlias = pd.DataFrame | Mapping[str, Sequence[Any]]
+"""A table of cells or curves: a DataFrame, or columns (name → values of one length) in order."""
+
+
+class _Table:
+    """A :data:`Table` as numpy columns, whichever form it came in (checked once)."""
+
+    def __init__(self, table: Table, required: Sequence[str], what: str) -> None:
+        if isinstance(table, pd.DataFrame):
+            require_columns(table, required, what)
+            self._frame: pd.DataFrame | None = table
+            self.columns = {c: table[c].to_numpy() for c in table.columns}
+        else:
+            missing = [c for c in required if c not in table]
+            if missing:
+                raise InvalidInputError(
+                    f"{what} has no column {', '.join(map(repr, missing))} "
+                    f"(columns: {', '.join(map(str, table))})"
+                )
+            self._frame = None
+            self.columns = {c: np.asarray(values) for c, values in table.items()}
+        lengths = {len(values) for values in self.columns.values()}
+        if len(lengths) > 1:
+            raise InvalidInputError(f"{what} has columns of different lengths")
+        self.length = lengths.pop() if lengths else 0
+
+    def levels(self, column: str) -> list[Any]:
+        """The column's levels as :func:`analysis._checks.ordered_levels` orders them."""
+        if self._frame is not None:  # keeps a categorical column's declared order
+            return ordered_levels(self._frame[column])
+        present = [
+            v for v in dict.fromkeys(self.columns[column].tolist()) if to_python(v) is not None
+        ]
+        try:
+            return sorted(present)
+        except TypeError:
+            return sorted(present, key=str)
+
+    def rows(self, column: str, value: Any) -> np.ndarray:
+        """Positions of the rows whose ``column`` equals ``value``, in table order."""
+        return np.flatnonzero(self.columns[column] == value)
+
+    def records(self) -> list[dict[str, Any]]:
+        """The rows as JSON-able dicts (NaN as None), columns in table order."""
+        cols = {c: _json_list(values) for c, values in self.columns.items()}
+        return [dict(zip(cols, row, strict=True)) for row in zip(*cols.values(), strict=True)]
 
 
 def figure_from_payload(payload: Mapping[str, Any]) -> go.Figure:
@@ -180,7 +229,7 @@ def mean_ci_payload(
 
 
 def mean_ci_payload_from_cells(
-    cells: pd.DataFrame,
+    cells: Table,
     *,
     dv: str,
     within: str,
@@ -193,12 +242,14 @@ def mean_ci_payload_from_cells(
     style: Literal["bar", "point"] = "bar",
     colors: Mapping[Any, str] | None = None,
 ) -> dict[str, Any]:
-    """:func:`mean_ci_payload` from an already computed :func:`cell_descriptives` frame."""
+    """:func:`mean_ci_payload` from already computed :func:`cell_descriptives` cells (a
+    :data:`Table`: the frame, or the same columns as plain values)."""
     if style not in ("bar", "point"):
         raise InvalidInputError(f"style must be 'bar' or 'point', got {style!r}")
-    require_columns(cells, [between, within, "n", "mean", "sd", "ci_low", "ci_high"], "cells")
-    conditions = ordered_levels(cells[between])
-    levels = ordered_levels(cells[within])
+    table = _Table(cells, [between, within, "n", "mean", "sd", "ci_low", "ci_high"], "cells")
+    columns = table.columns
+    conditions = table.levels(between)
+    levels = table.levels(within)
     palette = condition_colors(conditions, colors)
     level_label = within_label or within
     ticktext = [f"{level_label} {to_python(v)}" for v in levels]
@@ -207,24 +258,25 @@ def mean_ci_payload_from_cells(
     width = 0.8 / max(n_cond, 1)
     traces: list[dict[str, Any]] = []
     for k, condition in enumerate(conditions):
-        rows = cells[cells[between] == condition]
-        mean = rows["mean"].to_numpy(float)
-        upper = rows["ci_high"].to_numpy(float) - mean
-        lower = mean - rows["ci_low"].to_numpy(float)
+        rows = table.rows(between, condition)
+        at = columns[within][rows]
+        mean = np.asarray(columns["mean"][rows], dtype=float)
+        upper = np.asarray(columns["ci_high"][rows], dtype=float) - mean
+        lower = mean - np.asarray(columns["ci_low"][rows], dtype=float)
         hover = [
             f"{condition}, {level_label} {to_python(w)}<br>M = {m:.2f}, SD = {sd:.2f}, n = {n}"
             f"<br>{confidence:.0%} CI [{lo:.2f}, {hi:.2f}]"
             for w, m, sd, n, lo, hi in zip(
-                rows[within],
+                at,
                 mean,
-                rows["sd"],
-                rows["n"],
-                rows["ci_low"],
-                rows["ci_high"],
+                columns["sd"][rows],
+                columns["n"][rows],
+                columns["ci_low"][rows],
+                columns["ci_high"][rows],
                 strict=True,
             )
         ]
-        x = [pos[w] for w in rows[within]]
+        x = [pos[w] for w in at]
         trace: dict[str, Any] = {
             "name": str(to_python(condition)),
             "legendgroup": str(to_python(condition)),
@@ -274,7 +326,7 @@ def mean_ci_payload_from_cells(
         "within": within,
         "between": between,
         "confidence": confidence,
-        "cells": _records(cells),
+        "cells": table.records(),
         "data": traces,
         "layout": layout,
     }
@@ -481,16 +533,20 @@ def adaptation_payload(
 
 
 def adaptation_payload_from_curves(
-    curves: pd.DataFrame,
+    curves: Table,
     categories: Sequence[str],
     *,
     confidence: float = 0.95,
     title: str | None = None,
     colors: Mapping[Any, str] | None = None,
 ) -> dict[str, Any]:
-    """:func:`adaptation_payload` from an already computed curves frame."""
-    require_columns(curves, ["condition", "category", "iteration", "mean", "ci_low", "ci_high"])
-    conditions = ordered_levels(curves["condition"]) if len(curves) else []
+    """:func:`adaptation_payload` from already computed curves (a :data:`Table`: the frame of
+    :func:`analysis.adaptation.adaptation_curves`, or the same columns as plain values)."""
+    table = _Table(
+        curves, ["condition", "category", "iteration", "mean", "ci_low", "ci_high"], "data"
+    )
+    columns = table.columns
+    conditions = table.levels("condition") if table.length else []
     palette = condition_colors(conditions, colors)
     n_panels = max(len(categories), 1)
     gap = 0.04
@@ -526,13 +582,14 @@ def adaptation_payload_from_curves(
                 "showarrow": False,
             }
         )
+        in_category = columns["category"] == category
         for condition in conditions:
-            rows = curves[(curves["category"] == category) & (curves["condition"] == condition)]
-            if rows.empty:
+            rows = np.flatnonzero(in_category & (columns["condition"] == condition))
+            if rows.size == 0:
                 continue
-            x = _json_list(rows["iteration"].to_numpy())
-            low = _json_list(rows["ci_low"].to_numpy())
-            high = _json_list(rows["ci_high"].to_numpy())
+            x = _json_list(columns["iteration"][rows])
+            low = _json_list(columns["ci_low"][rows])
+            high = _json_list(columns["ci_high"][rows])
             color = palette[condition]
             common = {"xaxis": f"x{axis_id}", "yaxis": "y", "legendgroup": str(condition)}
             traces.append(
@@ -554,12 +611,12 @@ def adaptation_payload_from_curves(
                     "type": "scatter",
                     "mode": "lines+markers",
                     "x": x,
-                    "y": _json_list(rows["mean"].to_numpy()),
+                    "y": _json_list(columns["mean"][rows]),
                     "line": {"color": color, "width": 2},
                     "marker": {"size": 5, "color": color},
                     "name": str(condition),
                     "showlegend": i == 0,
-                    "customdata": _json_list(rows["n"].to_numpy()) if "n" in rows else None,
+                    "customdata": _json_list(columns["n"][rows]) if "n" in columns else None,
                     "hovertemplate": f"{condition}, {category}<br>iteration %{{x}}: "
                     "M = %{y:.3f}<br>n = %{customdata}<extra></extra>",
                     **common,
@@ -569,7 +626,7 @@ def adaptation_payload_from_curves(
         "kind": "adaptation",
         "confidence": confidence,
         "categories": list(categories),
-        "curves": _records(curves),
+        "curves": table.records(),
         "data": traces,
         "layout": layout,
     }

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
@@ -33,20 +31,26 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
 
 
 @router.get("/studies/{name}/dashboard.json")
-def dashboard_data(
-    request: Request, db: SessionDep, user: CurrentUser, name: str
-) -> dict[str, Any]:
+def dashboard_data(request: Request, db: SessionDep, user: CurrentUser, name: str) -> Response:
     """The figures' data (Plotly payloads), blinded for roles that may not see conditions.
 
-    Dashboards asking at nearly the same moment, with no change of the study in between, share
-    one computation (``DASHBOARD_DATA_MAX_AGE`` in app/main.py, app/services/freshness.py).
+    Dashboards share one computation, and its encoded body, whenever it includes every change of
+    the study this process had counted when they asked and is at most ``DASHBOARD_DATA_MAX_AGE``
+    old; a newer one starts at most every ``DASHBOARD_DATA_MIN_INTERVAL`` (app/main.py,
+    app/services/freshness.py).
     """
-    study = studies.get_study(db, name)
-    actor = Actor.of_user(user)
-    shared: FreshnessCache[dict[str, Any]] = request.app.state.dashboard_data
+    plan = dashboard.plan_for(studies.get_study(db, name), Actor.of_user(user))
+    shared: FreshnessCache[bytes] = request.app.state.dashboard_data
     hub: EventHub = request.app.state.database.hub
-    changes = hub.version(stations.study_topic(study.id))
-    return shared.get(
-        (dashboard.data_key(study, actor), changes),
-        lambda: dashboard.dashboard_data(db, study=study, actor=actor),
+    topic = stations.study_topic(plan.study_id)
+
+    # The request's read transaction began with its sign-in check. End it before asking: a
+    # computation's snapshot must be younger than the change count and clock the cache reads
+    # first, and a request waiting for a computation should hold no connection meanwhile.
+    db.rollback()
+    body = shared.get(
+        plan.key,
+        lambda: dashboard.encode(dashboard.compute(db, plan)),
+        version=lambda: hub.version(topic),
     )
+    return Response(body, media_type="application/json")

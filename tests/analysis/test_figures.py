@@ -9,6 +9,7 @@ import pandas as pd
 import plotly.graph_objects as go
 import pytest
 
+from analysis.adaptation import adaptation_curves
 from analysis.dataset import empty_steps
 from analysis.descriptives import cell_descriptives
 from analysis.errors import InvalidInputError
@@ -17,9 +18,11 @@ from analysis.figures import (
     PALETTE,
     adaptation_figure,
     adaptation_payload,
+    adaptation_payload_from_curves,
     condition_colors,
     mean_ci_figure,
     mean_ci_payload,
+    mean_ci_payload_from_cells,
     score_distribution_figure,
     score_distribution_payload,
     trajectories_figure,
@@ -155,3 +158,44 @@ def test_payloads_for_a_study_that_has_not_started() -> None:
     assert adaptation["curves"] == []
     assert adaptation["categories"] == ["conation", "cognition"]
     json.dumps(adaptation, allow_nan=False)
+
+
+def _columns(frame: pd.DataFrame) -> dict[str, list[object]]:
+    return {column: frame[column].tolist() for column in frame.columns}
+
+
+def test_plain_columns_give_the_frames_payload(dropouts: pd.DataFrame) -> None:
+    # The live dashboard passes plain columns, the report frames: one builder, one payload.
+    one = dropouts[dropouts.participant.isin(["P101", "P112", "P113"])]  # NaN SDs in C1
+    for data in (dropouts, one):
+        cells = cell_descriptives(data, **DKW).sample(frac=1.0, random_state=3)  # any row order
+        for style in ("bar", "point"):
+            kw = {**DKW, "style": style, "y_range": (1, 5), "within_label": "Session"}
+            framed = mean_ci_payload_from_cells(cells, **kw)  # type: ignore[arg-type]
+            plain = mean_ci_payload_from_cells(_columns(cells), **kw)  # type: ignore[arg-type]
+            assert json.dumps(plain) == json.dumps(framed)
+    steps = pd.DataFrame(
+        [
+            _step("P1", "C1", "conation", 1, 1, 0.25, 0.4),
+            _step("P2", "C1", "conation", 1, 1, 0.25, 0.7),
+            _step("P3", "C2", "cognition", 1, 2, 0.25, 0.6),
+        ]
+    )
+    curves = adaptation_curves(steps, PREFERRED)
+    framed = adaptation_payload_from_curves(curves, list(PREFERRED))
+    assert json.dumps(adaptation_payload_from_curves(_columns(curves), list(PREFERRED))) == (
+        json.dumps(framed)
+    )
+    empty = {column: [] for column in curves.columns}
+    assert adaptation_payload_from_curves(empty, list(PREFERRED))["data"] == []
+    with pytest.raises(InvalidInputError, match="no column 'iteration', 'mean'"):
+        adaptation_payload_from_curves({"condition": [], "category": []}, ["conation"])
+    with pytest.raises(InvalidInputError, match="different lengths"):
+        mean_ci_payload_from_cells({**_columns(cells), "n": [1]}, **DKW)
+
+
+def test_a_categorical_condition_keeps_its_declared_order(dropouts: pd.DataFrame) -> None:
+    cells = cell_descriptives(dropouts, **DKW)
+    cells["condition"] = pd.Categorical(cells["condition"], categories=["C2", "C1"])
+    names = [t["name"] for t in mean_ci_payload_from_cells(cells, **DKW)["data"]]
+    assert names == ["C2", "C1"]
