@@ -54,10 +54,10 @@ def test_rows_written_by_the_store_read_back_through_the_orm(lab: Lab) -> None:
     assert audit.actor == "lab-1/pepper" and audit.actor_kind == "device"
 
 
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
 def test_sqlite_timestamps_have_sqlalchemys_own_text_form(lab: Lab) -> None:
-    """Ordering by a timestamp compares text on SQLite: ORM and store rows must sort together."""
-    if not lab.database.is_sqlite:
-        pytest.skip("PostgreSQL stores timestamptz, not text")
+    """Ordering by a timestamp compares text on SQLite: ORM and store rows must sort together.
+    (PostgreSQL stores timestamptz, which its driver converts.)"""
     _answered_step(lab)
     with lab.database.read_session() as db:
         raw = db.execute(text("SELECT answered_at FROM answer")).scalar_one()
