@@ -81,8 +81,7 @@ def answer(
 def start_run(db: Session, *, station: StationRef, actor: Actor) -> StationStateOut:
     """Start the next run of the running session."""
     name, _ = _named(station)
-    runtime.start_run(db, station_name=name, actor=actor)
-    return state(db, station=name)
+    return state_out(runtime.start_run(db, station_name=name, actor=actor))
 
 
 # ------------------------------------------------------------------ service objects → bodies

@@ -106,15 +106,17 @@ def unassign(name: str, db: SessionDep, user: ExperimenterUser) -> StationOut:
 @router.post("/{name}/sessions", status_code=status.HTTP_201_CREATED)
 def start_session(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
     """Start the assigned participant's next session and its first run."""
-    runtime.start_session(db, station_name=name, actor=Actor.of_user(user))
-    return station_ops.state(db, station=name)
+    return station_ops.state_out(
+        runtime.start_session(db, station_name=name, actor=Actor.of_user(user))
+    )
 
 
 @router.post("/{name}/sessions/current/end")
 def end_session(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
     """End the running session early."""
-    runtime.end_session(db, station_name=name, actor=Actor.of_user(user))
-    return station_ops.state(db, station=name)
+    return station_ops.state_out(
+        runtime.end_session(db, station_name=name, actor=Actor.of_user(user))
+    )
 
 
 @router.post("/{name}/runs", status_code=status.HTTP_201_CREATED)
@@ -126,8 +128,7 @@ def start_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationState
 @router.post("/{name}/runs/current/end")
 def end_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
     """End the running run early (its unanswered categories stay unanswered)."""
-    runtime.end_run(db, station_name=name, actor=Actor.of_user(user))
-    return station_ops.state(db, station=name)
+    return station_ops.state_out(runtime.end_run(db, station_name=name, actor=Actor.of_user(user)))
 
 
 @router.post(

@@ -163,13 +163,19 @@ def next_page(db: Session, participant: Participant, protocol: Protocol) -> Page
 
 
 def session_blocker(db: Session, participant: Participant, protocol: Protocol, number: int) -> str:
-    """Why session ``number`` cannot start yet ('' when it can).
+    """Why session ``number`` cannot start yet ('' when it can); see :func:`blocker_given`."""
+    return blocker_given(_submitted(db, participant), participant.code, protocol, number)
+
+
+def blocker_given(
+    done: set[tuple[str, int | None]], code: str, protocol: Protocol, number: int
+) -> str:
+    """Why session ``number`` cannot start yet ('' when it can), given the (instrument, session)
+    pairs participant ``code`` has submitted.
 
     Consent always comes first. With ``questionnaire_gates_next_session`` the pre-study
     questionnaires must precede the first session and each session's questionnaire the next one.
     """
-    done = _submitted(db, participant)
-    code = participant.code
     if (CONSENT, None) not in done:
         return f"waiting for {code} to give consent on the tablet"
     if not protocol.schedule.questionnaire_gates_next_session:

@@ -45,7 +45,7 @@ from app.services.stations import get_station, participant_topic, station_topic_
 from app.services.step_store import LearnerRow, RunState, Seat, Seated, Step, StoredAnswer
 from app.services.studies import protocol_by_id
 from app.sql import Cursor
-from app.tables import Answer, Participant, ParticipantStatus, Prompt, RunStatus, SessionStatus
+from app.tables import Answer, ParticipantStatus, Prompt, RunStatus, SessionStatus
 from models.learners.base import Learner
 from models.replies import confidence_level
 
@@ -151,11 +151,11 @@ class Expected:
     session: int | None = None
 
 
-def session_gate(db: Session, participant: Seated, protocol: Protocol, number: int) -> str:
+def session_gate(ctx: Context, number: int) -> str:
     """Why session ``number`` cannot start yet ('' when it can): consent and questionnaires."""
-    orm_participant = db.get(Participant, participant.id)
-    assert orm_participant is not None
-    return questionnaires.session_blocker(db, orm_participant, protocol, number)
+    participant = ctx.participant
+    done = step_store.submitted(ctx.cursor, participant_id=participant.id)
+    return questionnaires.blocker_given(done, participant.code, ctx.protocol, number)
 
 
 def expected_next(db: Session, ctx: Context, progress: RunProgress | None = None) -> Expected:
@@ -195,7 +195,7 @@ def expected_next(db: Session, ctx: Context, progress: RunProgress | None = None
     next_number = first_session_number(protocol) if run is None else run.session_number + 1
     if next_number > protocol.schedule.sessions:
         return Expected("done", f"{code} has finished every session")
-    blocker = session_gate(db, participant, protocol, next_number)
+    blocker = session_gate(ctx, next_number)
     if blocker:
         return Expected("wait", blocker, session=next_number)
     return Expected(
@@ -235,8 +235,8 @@ def _running(db: Session, ctx: Context) -> RunState:
     return run
 
 
-def start_session(db: Session, *, station_name: str, actor: Actor) -> int:
-    """Start the participant's next session (and its first run); commits. Its number."""
+def start_session(db: Session, *, station_name: str, actor: Actor) -> StationView:
+    """Start the participant's next session (and its first run); commits. The station then."""
     ctx = _context(db, station_name, lock_station=True)
     participant = ctx.participant
     code = participant.code
@@ -263,13 +263,17 @@ def start_session(db: Session, *, station_name: str, actor: Actor) -> int:
     except IntegrityError as exc:
         db.rollback()
         raise Conflict(f"{session_label(number)} was started concurrently; reload") from exc
-    step_store.open_run(ctx.cursor, session_id=session_id, participant_id=participant.id, number=1)
+    run_id = step_store.open_run(
+        ctx.cursor, session_id=session_id, participant_id=participant.id, number=1
+    )
+    ctx.run = RunState(session_id, number, SessionStatus.RUNNING, run_id, 1, RunStatus.RUNNING, [])
     _audit(ctx, actor, "session.started", {"session": number, "station": ctx.seat.station_name})
     events.publish(
         db, topics=_topics(ctx), type="session_started", participant=code, session=number
     )
+    view = _view(db, ctx)
     db.commit()
-    return number
+    return view
 
 
 def _close_session(ctx: Context, run: RunState, status: SessionStatus, actor: Actor) -> None:
@@ -314,15 +318,17 @@ def _close_run(ctx: Context, run: RunState, status: RunStatus, actor: Actor) -> 
     return True
 
 
-def end_session(db: Session, *, station_name: str, actor: Actor) -> None:
-    """End the running session early (its open run too); commits."""
+def end_session(db: Session, *, station_name: str, actor: Actor) -> StationView:
+    """End the running session early (its open run too); commits. The station then."""
     ctx = _context(db, station_name, lock_station=True, lock_run=True)
     run = _running(db, ctx)
     if run.run_status == RunStatus.RUNNING:
         step_store.close_run(ctx.cursor, run_id=run.run_id, status=RunStatus.ENDED_EARLY)
         run.run_status = RunStatus.ENDED_EARLY
     _close_session(ctx, run, SessionStatus.ENDED_EARLY, actor)
+    view = _view(db, ctx)
     db.commit()
+    return view
 
 
 def _open_next_run(ctx: Context) -> RunState:
@@ -362,8 +368,8 @@ def _open_next_run(ctx: Context) -> RunState:
     return ctx.run
 
 
-def start_run(db: Session, *, station_name: str, actor: Actor) -> int:
-    """Start the next run of the running session; commits. Its number."""
+def start_run(db: Session, *, station_name: str, actor: Actor) -> StationView:
+    """Start the next run of the running session; commits. The station then."""
     ctx = _context(db, station_name, lock_station=True, lock_run=True)
     run = _running(db, ctx)
     if run.run_status == RunStatus.RUNNING:
@@ -373,13 +379,15 @@ def start_run(db: Session, *, station_name: str, actor: Actor) -> int:
             f"run {run.run_number} is still running (waiting for {', '.join(waiting)}); "
             "end it first or finish its categories"
         )
-    new_run = _open_next_run(ctx)
+    _open_next_run(ctx)
+    view = _view(db, ctx)
     db.commit()
-    return new_run.run_number
+    return view
 
 
-def end_run(db: Session, *, station_name: str, actor: Actor) -> None:
-    """End the running run early (unanswered categories stay unanswered); commits."""
+def end_run(db: Session, *, station_name: str, actor: Actor) -> StationView:
+    """End the running run early (unanswered categories stay unanswered); commits. The station
+    then."""
     ctx = _context(db, station_name, lock_station=True, lock_run=True)
     run = _running(db, ctx)
     if run.run_status != RunStatus.RUNNING:
@@ -387,7 +395,9 @@ def end_run(db: Session, *, station_name: str, actor: Actor) -> None:
             f"run {run.run_number} is already over; expected: {expected_next(db, ctx).message}"
         )
     _close_run(ctx, run, RunStatus.ENDED_EARLY, actor)
+    view = _view(db, ctx)
     db.commit()
+    return view
 
 
 # ------------------------------------------------------------------------------ prompts, answers
@@ -742,7 +752,12 @@ def station_view(db: Session, *, station_name: str, seat: Seat | None = None) ->
                 "assign", f"an experimenter assigns a participant to station {seat.station_name!r}"
             ),
         )
-    ctx = _context(db, station_name, seat=seat)
+    return _view(db, _context(db, station_name, seat=seat))
+
+
+def _view(db: Session, ctx: Context) -> StationView:
+    """The station as ``ctx`` has it: read in this transaction, or just changed by it (the
+    experimenter's session and run commands answer with this, built before they commit)."""
     session_info = run_info = None
     open_prompts: list[Step] = []
     run = ctx.run
@@ -763,7 +778,7 @@ def station_view(db: Session, *, station_name: str, seat: Seat | None = None) ->
         if run.run_status == RunStatus.RUNNING:
             open_prompts = progress.open
     return StationView(
-        seat.station_name,
+        ctx.seat.station_name,
         ctx.participant.code,
         ctx.participant.study_name,
         session_info,

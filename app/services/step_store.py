@@ -292,6 +292,18 @@ def complete_participant(cursor: Cursor, *, participant_id: int) -> bool:
     return changed == 1
 
 
+_SUBMITTED = Statement("SELECT instrument, session FROM submission WHERE participant_id = :p")
+
+
+def submitted(cursor: Cursor, *, participant_id: int) -> set[tuple[str, int | None]]:
+    """The (instrument, session) pairs the participant has submitted (the questionnaire gates
+    before each session: app.services.questionnaires.blocker_given)."""
+    return {
+        (instrument, session)
+        for instrument, session in cursor.rows(_SUBMITTED, {"p": participant_id})
+    }
+
+
 # ------------------------------------------------------------------------------------ learners
 
 

@@ -262,8 +262,7 @@ def test_session_start_and_station_state_add_only_the_login_lookup(lab: Lab, wat
     def direct_start() -> int:
         with database.write_session() as db:
             watch.reset()
-            runtime.start_session(db, station_name=lab.station, actor=actor)
-            station_ops.state(db, station=lab.station)
+            runtime.start_session(db, station_name=lab.station, actor=actor)  # with the state
             return len(watch.statements)
 
     def direct_end() -> None:
