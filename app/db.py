@@ -21,6 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import anyio.from_thread
 from sqlalchemy import Engine, create_engine, event, text
 from sqlalchemy.engine import URL, make_url
 from sqlalchemy.exc import DBAPIError, DisconnectionError, OperationalError
@@ -42,7 +43,7 @@ WAL_AUTOCHECKPOINT_PAGES = 10_000
 a safety net, should the thread fall behind, so the WAL stays bounded (about 40 MB)."""
 
 POOL_SIZE, POOL_OVERFLOW = 20, 20
-ADMITTED_REQUESTS = 30
+ADMITTED_REQUESTS = 6
 """Requests doing database work at once per process: below the connection pool (40) and the
 thread pool (40), so an admitted request always finds both; the rest wait as coroutines."""
 
@@ -316,6 +317,18 @@ class Database:
         if limit is None:
             limit = self._admissions[loop] = asyncio.Semaphore(ADMITTED_REQUESTS)
         return limit
+
+    @contextmanager
+    def admitted_from_thread(self) -> Iterator[None]:
+        """Hold an admission slot from a worker thread (one started by anyio, as FastAPI's
+        thread pool is), for work a request does in a thread without holding a slot all along:
+        it waits like any request, on the request's event loop."""
+        admission = anyio.from_thread.run_sync(self.admission)
+        anyio.from_thread.run(admission.acquire)
+        try:
+            yield
+        finally:
+            anyio.from_thread.run_sync(admission.release)
 
     def read_session(self) -> Session:
         """A session for requests that only read."""

@@ -255,29 +255,31 @@ CurrentLogin = Annotated[LoginSession, Depends(current_login)]
 
 
 async def streaming_user(request: Request) -> User:
-    """The signed-in user, for long-lived streams: checked in a short session of its own.
+    """The signed-in user, checked in a short session of its own: for requests that spend their
+    time waiting rather than in the database — event streams, which stay open for hours, and the
+    dashboard's data, which waits for a computation shared with other dashboards.
 
-    A stream must not hold a request session (and its admission slot) for hours, so it cannot
-    depend on :data:`SessionDep`; it needs no CSRF check because streams are GETs.
+    Such a request must not hold a request session (and its admission slot) while it waits, so it
+    cannot depend on :data:`SessionDep`; it needs no CSRF check because these are GETs.
     """
     database: Database = request.app.state.database
     settings: Settings = request.app.state.settings
     token = request.cookies.get(SESSION_COOKIE)
 
-    def resolve() -> User | None:
+    def resolve() -> LoginSession | None:
         if not token:
             return None
         with database.read_session() as db:
-            login = users.resolve_login(
+            return users.resolve_login(
                 db, token=token, idle_timeout=timedelta(minutes=settings.idle_minutes)
             )
-            return login.user if login else None
 
     async with database.admission():
-        user = await run_in_threadpool(resolve)
-    if user is None:
+        login = await run_in_threadpool(resolve)
+    if login is None:
         raise NotAuthenticated("sign in first")
-    return user
+    request.app.state.activity.note_login(login.id)
+    return login.user
 
 
 StreamingUser = Annotated[User, Depends(streaming_user)]

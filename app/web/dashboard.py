@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import functools
+
 from fastapi import APIRouter, Request
 from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
 
-from app.deps import CurrentUser, SessionDep
-from app.events import EventHub
+from app.db import Database
+from app.deps import CurrentUser, SessionDep, StreamingUser
 from app.services import dashboard, stations, studies
 from app.services.audit import Actor
 from app.services.freshness import FreshnessCache
@@ -31,26 +34,36 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
 
 
 @router.get("/studies/{name}/dashboard.json")
-def dashboard_data(request: Request, db: SessionDep, user: CurrentUser, name: str) -> Response:
+async def dashboard_data(request: Request, user: StreamingUser, name: str) -> Response:
     """The figures' data (Plotly payloads), blinded for roles that may not see conditions.
 
     Dashboards share one computation, and its encoded body, whenever it includes every change of
     the study this process had counted when they asked and is at most ``DASHBOARD_DATA_MAX_AGE``
     old; a newer one starts at most every ``DASHBOARD_DATA_MIN_INTERVAL`` (app/main.py,
-    app/services/freshness.py).
+    app/services/freshness.py). Waiting for one holds no admission slot, connection or snapshot:
+    only the reads and the computation itself are admitted like any request's database work
+    (while a dashboard waited holding a slot, other requests queued behind it).
     """
-    plan = dashboard.plan_for(studies.get_study(db, name), Actor.of_user(user))
+    database: Database = request.app.state.database
+    actor = Actor.of_user(user)
+
+    def plan_now() -> dashboard.Plan:
+        with database.read_session() as db:
+            return dashboard.plan_for(studies.get_study(db, name), actor)
+
+    async with database.admission():
+        plan = await run_in_threadpool(plan_now)
     shared: FreshnessCache[bytes] = request.app.state.dashboard_data
-    hub: EventHub = request.app.state.database.hub
     topic = stations.study_topic(plan.study_id)
 
-    # The request's read transaction began with its sign-in check. End it before asking: a
-    # computation's snapshot must be younger than the change count and clock the cache reads
-    # first, and a request waiting for a computation should hold no connection meanwhile.
-    db.rollback()
-    body = shared.get(
-        plan.key,
-        lambda: dashboard.encode(dashboard.compute(db, plan)),
-        version=lambda: hub.version(topic),
+    def compute() -> bytes:
+        # A fresh snapshot, taken after the cache read the change count and the clock.
+        with database.admitted_from_thread(), database.read_session() as db:
+            return dashboard.encode(dashboard.compute(db, plan))
+
+    body = await run_in_threadpool(
+        functools.partial(
+            shared.get, plan.key, compute, version=lambda: database.hub.version(topic)
+        )
     )
     return Response(body, media_type="application/json")
