@@ -43,7 +43,7 @@ WAL_AUTOCHECKPOINT_PAGES = 10_000
 a safety net, should the thread fall behind, so the WAL stays bounded (about 40 MB)."""
 
 POOL_SIZE, POOL_OVERFLOW = 20, 20
-ADMITTED_REQUESTS = 6
+ADMITTED_REQUESTS = 30
 """Requests doing database work at once per process: below the connection pool (40) and the
 thread pool (40), so an admitted request always finds both; the rest wait as coroutines."""
 

@@ -194,6 +194,21 @@ def _notify_payload(pending: Event) -> str:
     return payload
 
 
+def send_pending(db: Session) -> None:
+    """PostgreSQL: send the transaction's pending events now, as ``pg_notify`` calls in it, so
+    they can travel with the transaction's other statements (a write batch, app.sql); PostgreSQL
+    still delivers them only when, and if, the transaction commits. Commit sends whatever is left
+    pending; on SQLite events wait for the commit in any case."""
+    if db.get_bind().dialect.name != "postgresql":
+        return
+    pending_events: list[Event] = db.info.pop(PENDING_KEY, [])
+    if not pending_events:
+        return
+    db.info.setdefault(NOTIFIED_KEY, []).extend(pending.topic for pending in pending_events)
+    payloads = [_notify_payload(pending) for pending in pending_events]
+    Cursor.of(db).write(_NOTIFY_ALL, {"c": CHANNEL, "payloads": payloads})
+
+
 def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres: bool) -> None:
     """Make sessions from ``factory`` deliver their pending events on commit."""
 
@@ -205,11 +220,7 @@ def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres
 
         @event.listens_for(factory, "before_commit")
         def _notify(session: Session) -> None:
-            pending_events = session.info.pop(PENDING_KEY, [])
-            session.info[NOTIFIED_KEY] = [pending.topic for pending in pending_events]
-            if pending_events:
-                payloads = [_notify_payload(pending) for pending in pending_events]
-                Cursor.of(session).rows(_NOTIFY_ALL, {"c": CHANNEL, "payloads": payloads})
+            send_pending(session)
 
         @event.listens_for(factory, "after_commit")
         def _count(session: Session) -> None:

@@ -6,14 +6,17 @@ cost several times what the database spends on it. A :class:`Cursor` belongs to 
 current transaction, so its statements commit or roll back with the session's other work; it
 converts values as the ORM's column types (app.tables) store them, reports its statements to
 SQLAlchemy's ``before_cursor_execute`` listeners (the tests' and benchmarks' statement counters),
-and hands driver errors to SQLAlchemy's own handler. A write expires the session's ORM objects,
-so nothing loaded before it is served stale afterwards.
+and hands driver errors to SQLAlchemy's own handler. Like the ORM's autoflush, a statement first
+flushes the session's pending ORM changes; a write then expires the session's ORM objects, so
+nothing loaded before it is served stale afterwards.
 """
 
 from __future__ import annotations
 
 import json
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from typing import Any
 
@@ -68,10 +71,12 @@ class Cursor:
         self.postgres = dialect.name == "postgresql"
         raw = self._connection.connection.driver_connection
         assert raw is not None
+        self._raw_connection = raw
         self._raw = raw.cursor()
         # Statement counters (tests, bench/answer_cost.py) listen on SQLAlchemy's own event.
         self._observers = list(self._connection.dispatch.before_cursor_execute)
         self._now: datetime | None = None
+        self._batching = False
 
     @classmethod
     def of(cls, db: Session) -> Cursor:
@@ -89,16 +94,44 @@ class Cursor:
             self._now = utcnow()
         return self._now
 
-    def _execute(self, statement: Statement, params: dict[str, Any], lock: bool = False) -> None:
+    def _execute(
+        self, statement: Statement, params: dict[str, Any], lock: bool = False, cursor: Any = None
+    ) -> None:
+        db = self.db
+        if db.new or db.dirty or db.deleted:  # the ORM's autoflush: its changes go first
+            db.flush()
         sql = statement.text(self.postgres, lock)
+        target = self._raw if cursor is None else cursor
         for observer in self._observers:
-            observer(self._connection, self._raw, sql, params, None, False)
+            observer(self._connection, target, sql, params, None, False)
         try:
-            self._raw.execute(sql, params)
+            target.execute(sql, params)
         except self._dbapi_error as error:
-            # SQLAlchemy's own handler, as its execute() would call it: wraps the error, runs
-            # handle_error events, and on a lost connection invalidates it and the whole pool.
-            self._connection._handle_dbapi_exception(error, sql, params, self._raw, None)
+            self._failed(error, sql, params, target)
+
+    def _failed(self, error: Exception, sql: str, params: dict[str, Any], cursor: Any) -> None:
+        # SQLAlchemy's own handler, as its execute() would call it: wraps the error, runs
+        # handle_error events, and on a lost connection invalidates it and the whole pool.
+        self._connection._handle_dbapi_exception(error, sql, params, cursor, None)
+
+    @contextmanager
+    def batch(self) -> Iterator[None]:
+        """Send the statements run inside together: PostgreSQL's pipeline mode, one round trip
+        for several writes (each a wait for the server, which costs most when the machine is
+        busy); SQLite runs in-process, so there nothing changes. Inside, :meth:`write` returns a
+        :class:`Written` whose count is known once the batch has ended, and an error of any
+        statement surfaces when it ends. A read inside waits for everything before it."""
+        if not self.postgres or self._batching:
+            yield
+            return
+        self._batching = True
+        try:
+            with self._raw_connection.pipeline():
+                yield
+        except self._dbapi_error as error:
+            self._failed(error, "-- a batch of statements", {}, self._raw)
+        finally:
+            self._batching = False
 
     def rows(
         self, statement: Statement, params: dict[str, Any], *, lock: bool = False
@@ -112,15 +145,17 @@ class Cursor:
         self._execute(statement, params, lock)
         return self._raw.fetchone()
 
-    def write(self, statement: Statement, params: dict[str, Any]) -> int:
-        """Run an INSERT/UPDATE; returns the number of rows it changed. Objects the session
-        loaded earlier are expired, so later ORM reads in this transaction see the change."""
-        self._execute(statement, params)
+    def write(self, statement: Statement, params: dict[str, Any]) -> Written:
+        """Run an INSERT/UPDATE (or a SELECT whose rows nobody reads); how many rows it changed.
+        Objects the session loaded earlier are expired, so later ORM reads in this transaction
+        see the change."""
+        cursor = self._raw_connection.cursor() if self._batching else self._raw
+        self._execute(statement, params, cursor=cursor)
         self.db.expire_all()
-        return int(self._raw.rowcount)
+        return Written(cursor)
 
     def insert(self, statement: Statement, params: dict[str, Any]) -> int:
-        """Run an ``INSERT … RETURNING id``; returns the new id."""
+        """Run an ``INSERT … RETURNING id``; returns the new id (in a batch: waits for it)."""
         self._execute(statement, params)
         new_id = self._raw.fetchone()[0]
         self.db.expire_all()
@@ -143,3 +178,15 @@ class Cursor:
         if self.postgres:
             return value
         return value.astimezone(UTC).replace(tzinfo=None).isoformat(" ", "microseconds")
+
+
+class Written:
+    """What a write changed: its row count, read when asked (after a batch has ended)."""
+
+    def __init__(self, cursor: Any) -> None:
+        self._cursor = cursor
+
+    @property
+    def count(self) -> int:
+        """How many rows the statement changed."""
+        return int(self._cursor.rowcount)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import random
 import sys
 import tempfile
@@ -145,6 +146,9 @@ class Record:
     """Latencies (seconds) per operation, and what went wrong."""
 
     latencies: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    steady: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    """Latencies of requests sent after the warm-up (every robot connected, first sessions on)."""
+    steady_from: float = math.inf
     errors: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
 
     async def timed(
@@ -162,7 +166,10 @@ class Record:
         except (OSError, asyncio.IncompleteReadError) as failure:
             self.errors[operation].append(repr(failure))
             return 0, None
-        self.latencies[operation].append(time.perf_counter() - started)
+        latency = time.perf_counter() - started
+        self.latencies[operation].append(latency)
+        if started >= self.steady_from:
+            self.steady[operation].append(latency)
         if status not in ok:
             self.errors[operation].append(f"{status} {str(payload)[:200]}")
         return status, payload
@@ -308,11 +315,15 @@ async def sign_in(base: str) -> dict[str, str]:
     return {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
 
 
-async def run(base: str, lab: Lab, dashboards: int, think: float, seconds: float) -> Record:
+async def run(
+    base: str, lab: Lab, dashboards: int, think: float, seconds: float, warmup: float
+) -> Record:
     record = Record()
     staff = await sign_in(base)
     rng = random.Random(2026)
-    deadline = time.perf_counter() + seconds
+    began = time.perf_counter()
+    deadline = began + seconds
+    record.steady_from = began + warmup
     tasks = [
         robot(
             base, key, f"robot-{n:03d}", staff, think, deadline, record, random.Random(rng.random())
@@ -332,6 +343,7 @@ def summarise(record: Record, seconds: float) -> list[dict[str, Any]]:
     rows = []
     for operation in sorted(set(record.latencies) | set(record.errors)):
         samples = record.latencies.get(operation, [])
+        steady = record.steady.get(operation, [])
         timed = operation != "dashboard events"
         rows.append(
             {
@@ -340,6 +352,9 @@ def summarise(record: Record, seconds: float) -> list[dict[str, Any]]:
                 "per_s": round(len(samples) / seconds, 1),
                 "p50_ms": round(percentile(samples, 0.50), 2) if timed and samples else None,
                 "p99_ms": round(percentile(samples, 0.99), 2) if timed and samples else None,
+                "steady_count": len(steady),
+                "steady_p50_ms": round(percentile(steady, 0.50), 2) if timed and steady else None,
+                "steady_p99_ms": round(percentile(steady, 0.99), 2) if timed and steady else None,
                 "errors": len(record.errors.get(operation, [])),
                 "first_error": next(iter(record.errors.get(operation, [])), None),
             }
@@ -372,12 +387,21 @@ def main() -> None:
         help="mean seconds a participant takes to answer (default 3)",
     )
     parser.add_argument(
+        "--warmup",
+        type=float,
+        default=10.0,
+        help="seconds before the steady-state columns start counting (default 10: every robot "
+        "has connected and had its first session started)",
+    )
+    parser.add_argument(
         "--exp3-only",
         action="store_true",
         help="give both conditions Exp3 (isolates the meta-policy's cost)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
+    if not 0 <= args.warmup < args.seconds:
+        raise SystemExit("error: --warmup must be at least 0 and shorter than --seconds")
     if args.tablets > args.robots:
         raise SystemExit("error: --tablets cannot exceed --robots (each tablet is a robot's)")
     workers = args.workers or (2 if args.postgres else 1)
@@ -390,7 +414,9 @@ def main() -> None:
         server.start()
         print(f"running {args.seconds:.0f} s…", file=sys.stderr)
         try:
-            record = uvloop.run(run(server.url, lab, args.dashboards, args.think, args.seconds))
+            record = uvloop.run(
+                run(server.url, lab, args.dashboards, args.think, args.seconds, args.warmup)
+            )
         finally:
             server.stop()
         rows = summarise(record, args.seconds)
@@ -403,6 +429,7 @@ def main() -> None:
         "dashboards": args.dashboards,
         "seconds": args.seconds,
         "think_s": args.think,
+        "warmup_s": args.warmup,
         "operations": rows,
         "verify": checked,
     }
@@ -411,15 +438,22 @@ def main() -> None:
         return
     print(
         f"engine={engine} workers={workers} robots={args.robots} tablets={args.tablets} "
-        f"dashboards={args.dashboards} seconds={args.seconds:g} think={args.think:g}s"
+        f"dashboards={args.dashboards} seconds={args.seconds:g} think={args.think:g}s "
+        f"warmup={args.warmup:g}s"
     )
-    print(f"{'operation':<18}{'count':>8}{'per s':>8}{'p50 ms':>9}{'p99 ms':>9}{'errors':>8}")
+    print(
+        f"{'operation':<18}{'count':>8}{'per s':>8}{'p50 ms':>9}{'p99 ms':>9}{'errors':>8}"
+        f"   after warm-up: {'count':>6}{'p50 ms':>9}{'p99 ms':>9}"
+    )
+
+    def cell(value: float | None) -> str:
+        return "" if value is None else str(value)
+
     for row in rows:
-        p50 = "" if row["p50_ms"] is None else row["p50_ms"]
-        p99 = "" if row["p99_ms"] is None else row["p99_ms"]
         print(
-            f"{row['operation']:<18}{row['count']:>8}{row['per_s']:>8}{p50:>9}{p99:>9}"
-            f"{row['errors']:>8}"
+            f"{row['operation']:<18}{row['count']:>8}{row['per_s']:>8}{cell(row['p50_ms']):>9}"
+            f"{cell(row['p99_ms']):>9}{row['errors']:>8}{'':>18}{row['steady_count']:>6}"
+            f"{cell(row['steady_p50_ms']):>9}{cell(row['steady_p99_ms']):>9}"
         )
         if row["first_error"]:
             print(f"  first error: {row['first_error']}")

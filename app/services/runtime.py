@@ -281,9 +281,9 @@ def _close_session(ctx: Context, run: RunState, status: SessionStatus, actor: Ac
     step_store.close_session(ctx.cursor, session_id=run.session_id, status=status, actor=actor.name)
     run.session_status = status
     participant = ctx.participant
-    if run.session_number == ctx.protocol.schedule.sessions and step_store.complete_participant(
-        ctx.cursor, participant_id=participant.id
-    ):
+    last = run.session_number == ctx.protocol.schedule.sessions
+    if last and participant.status == ParticipantStatus.ACTIVE:
+        step_store.complete_participant(ctx.cursor, participant_id=participant.id)
         ctx.participant = dataclasses.replace(participant, status=ParticipantStatus.COMPLETED)
     _audit(ctx, actor, "session.ended", {"session": run.session_number, "status": status})
     events.publish(
@@ -645,34 +645,12 @@ def record_answer(
         learner = _live_learner(ctx, row)
         learner.update(step.action, reward)
         after = learners.probabilities_list(learner)
-        if not step_store.save_learner(ctx.cursor, row=row, state=learner.state_dict()):
-            raise Conflict(f"the {step.category} learner moved on since step {step_id}")
         version = row.version + 1
     else:
         after = list(step.probabilities)
     probability = _reply_probability(ctx, step, after)
     level = confidence_level(probability, ctx.protocol.replies.thresholds)
     reply = ctx.protocol.replies.levels[level]
-    run_done = session_done = False
-    if not remaining and not pending:
-        run_done = True
-        session_done = _close_run(ctx, run, RunStatus.COMPLETED, actor)
-    events.publish(
-        db,
-        topics=_topics(ctx),
-        type="answer_recorded",
-        participant=ctx.participant.code,
-        step_id=step.id,
-        category=step.category,
-        answer=answer,
-        confidence=reply.name,
-    )
-    _audit(
-        ctx,
-        actor,
-        "answer.recorded",
-        {"step_id": step.id, "answer": answer, "learner_version": version},
-    )
     stored = step_store.NewAnswer(
         prompt_id=step.id,
         participant_id=ctx.participant.id,
@@ -690,8 +668,37 @@ def record_answer(
         device_id=device_id,
         actor=actor.name,
     )
+    run_done = session_done = False
     try:
-        answer_id = step_store.insert_answer(ctx.cursor, stored)
+        # The writes, their events and the answer go to the database together (one round trip
+        # on PostgreSQL); only the learner's save is checked afterwards.
+        with ctx.cursor.batch():
+            saved = (
+                step_store.save_learner(ctx.cursor, row=row, state=learner.state_dict())
+                if learner is not None
+                else None
+            )
+            if not remaining and not pending:
+                run_done = True
+                session_done = _close_run(ctx, run, RunStatus.COMPLETED, actor)
+            events.publish(
+                db,
+                topics=_topics(ctx),
+                type="answer_recorded",
+                participant=ctx.participant.code,
+                step_id=step.id,
+                category=step.category,
+                answer=answer,
+                confidence=reply.name,
+            )
+            _audit(
+                ctx,
+                actor,
+                "answer.recorded",
+                {"step_id": step.id, "answer": answer, "learner_version": version},
+            )
+            events.send_pending(db)
+            answer_id = step_store.insert_answer(ctx.cursor, stored)
     except IntegrityError:  # pragma: no cover - the run lock serialises a step's answers
         db.rollback()
         ctx = _step_context(db, station_name, step_id, None)
@@ -699,6 +706,8 @@ def record_answer(
         recorded = ctx.run.step(step_id)
         assert recorded is not None and recorded.answer_id is not None
         return _replay(db, ctx, recorded, answer=answer, idempotency_key=key)
+    if saved is not None and saved.count != 1:  # pragma: no cover - guarded by the run lock
+        raise Conflict(f"the {step.category} learner moved on since step {step_id}")
     progress = RunProgress([*answered, step.category], remaining, pending)
     expected = expected_next(db, ctx, None if run_done else progress)
     db.commit()

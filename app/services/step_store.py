@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from app.sql import Cursor, Statement
+from app.sql import Cursor, Statement, Written
 from app.tables import ParticipantStatus, RunStatus, SessionStatus
 
 # ------------------------------------------------------------------------------------ the seat
@@ -279,9 +279,9 @@ def close_session(cursor: Cursor, *, session_id: int, status: SessionStatus, act
     )
 
 
-def complete_participant(cursor: Cursor, *, participant_id: int) -> bool:
-    """An active participant has completed the study; whether they were active."""
-    changed = cursor.write(
+def complete_participant(cursor: Cursor, *, participant_id: int) -> Written:
+    """An active participant has completed the study (a withdrawn one stays withdrawn)."""
+    return cursor.write(
         _COMPLETE_PARTICIPANT,
         {
             "completed": str(ParticipantStatus.COMPLETED),
@@ -289,7 +289,6 @@ def complete_participant(cursor: Cursor, *, participant_id: int) -> bool:
             "participant": participant_id,
         },
     )
-    return changed == 1
 
 
 _SUBMITTED = Statement("SELECT instrument, session FROM submission WHERE participant_id = :p")
@@ -344,10 +343,10 @@ def learner_state(cursor: Cursor, *, learner_id: int) -> dict[str, Any]:
     return dict(cursor.parsed(cursor.row(_LEARNER_STATE, {"learner": learner_id})[0]))
 
 
-def save_learner(cursor: Cursor, *, row: LearnerRow, state: dict[str, Any]) -> bool:
+def save_learner(cursor: Cursor, *, row: LearnerRow, state: dict[str, Any]) -> Written:
     """Store the learner's new state as version ``row.version + 1``, only if the stored version
-    is still ``row.version``; whether it was."""
-    changed = cursor.write(
+    is still ``row.version``: it was if the count is 1."""
+    return cursor.write(
         _SAVE_LEARNER,
         {
             "state": cursor.json(state),
@@ -357,7 +356,6 @@ def save_learner(cursor: Cursor, *, row: LearnerRow, state: dict[str, Any]) -> b
             "was": row.version,
         },
     )
-    return changed == 1
 
 
 # --------------------------------------------------------------------------- the appended rows
@@ -506,7 +504,7 @@ def stored_answer(cursor: Cursor, *, answer_id: int) -> StoredAnswer:
 
 _INSERT_AUDIT = Statement(
     """INSERT INTO audit_event (occurred_at, actor_kind, actor, action, study_id, subject, details)
-    VALUES (:now, :kind, :actor, :action, :study, :subject, :details) RETURNING id"""
+    VALUES (:now, :kind, :actor, :action, :study, :subject, :details)"""
 )
 
 
@@ -521,7 +519,7 @@ def insert_audit(
     details: dict[str, Any],
 ) -> None:
     """Append an audit event (as app.services.audit.record does through the ORM)."""
-    cursor.insert(
+    cursor.write(
         _INSERT_AUDIT,
         {
             "now": cursor.timestamp(),

@@ -18,7 +18,7 @@ from sqlalchemy.exc import IntegrityError
 
 from app.services import step_store
 from app.sql import Cursor, Statement
-from app.tables import Answer, AuditEvent, LearnerState, Prompt, Run, StudySession
+from app.tables import Answer, AuditEvent, LearnerState, Prompt, Run, Station, StudySession
 from tests.conftest import Lab
 
 
@@ -121,9 +121,10 @@ def test_a_store_write_expires_what_the_orm_loaded(lab: Lab) -> None:
             Cursor.of(db), participant_id=learner.participant_id, category=learner.category
         )
         assert row is not None
-        assert step_store.save_learner(Cursor.of(db), row=row, state={"moved": True})
+        assert step_store.save_learner(Cursor.of(db), row=row, state={"moved": True}).count == 1
         assert learner.version == 1  # reloaded, not the stale 0
-        assert not step_store.save_learner(Cursor.of(db), row=row, state={"moved": True})
+        again = step_store.save_learner(Cursor.of(db), row=row, state={"moved": True})
+        assert again.count == 0  # the stored version is no longer the one it started from
         db.rollback()
 
 
@@ -194,3 +195,21 @@ def test_a_repeated_answer_changes_nothing_and_takes_no_write(lab: Lab) -> None:
     again = responses[0].json()
     assert again["replayed"] is True and again["reply"] == reply["reply"]
     assert not [s for s in sql if s.lstrip().upper().startswith(("INSERT", "UPDATE"))], sql
+
+
+def test_store_statements_see_and_keep_the_sessions_pending_orm_changes(lab: Lab) -> None:
+    """Like the ORM's autoflush: pending changes are flushed before a statement, so the
+    statement sees them and a write's expiry cannot discard them (PostgreSQL's events at commit
+    run on this cursor after ORM work)."""
+    lab.enrol_and_assign()
+    with lab.database.writing() as db:
+        station = db.scalars(select(Station)).one()
+        station.name = "renamed"  # dirty, not flushed
+        assert step_store.station_seat(Cursor.of(db), name="renamed") is not None
+        station.name = "renamed again"
+        row = step_store.learner(Cursor.of(db), participant_id=1, category="conation")
+        assert row is not None
+        step_store.save_learner(Cursor.of(db), row=row, state={"moved": True})
+        db.commit()
+    with lab.database.read_session() as db:
+        assert db.scalars(select(Station.name)).one() == "renamed again"
