@@ -206,7 +206,7 @@ def send_pending(db: Session) -> None:
         return
     db.info.setdefault(NOTIFIED_KEY, []).extend(pending.topic for pending in pending_events)
     payloads = [_notify_payload(pending) for pending in pending_events]
-    Cursor.of(db).write(_NOTIFY_ALL, {"c": CHANNEL, "payloads": payloads})
+    Cursor.of(db).send(_NOTIFY_ALL, {"c": CHANNEL, "payloads": payloads})
 
 
 def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres: bool) -> None:

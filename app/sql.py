@@ -146,13 +146,22 @@ class Cursor:
         return self._raw.fetchone()
 
     def write(self, statement: Statement, params: dict[str, Any]) -> Written:
-        """Run an INSERT/UPDATE (or a SELECT whose rows nobody reads); how many rows it changed.
-        Objects the session loaded earlier are expired, so later ORM reads in this transaction
-        see the change."""
-        cursor = self._raw_connection.cursor() if self._batching else self._raw
-        self._execute(statement, params, cursor=cursor)
+        """Run an INSERT/UPDATE; how many rows it changed. Objects the session loaded earlier
+        are expired, so later ORM reads in this transaction see the change."""
+        cursor = self._send(statement, params)
         self.db.expire_all()
         return Written(cursor)
+
+    def send(self, statement: Statement, params: dict[str, Any]) -> None:
+        """Run a statement that changes no table and whose rows nobody reads (``pg_notify``):
+        it may travel in a batch, and the session's ORM objects stay as they are."""
+        self._send(statement, params)
+
+    def _send(self, statement: Statement, params: dict[str, Any]) -> Any:
+        # In a batch each write gets its own driver cursor, so its row count survives the next.
+        cursor = self._raw_connection.cursor() if self._batching else self._raw
+        self._execute(statement, params, cursor=cursor)
+        return cursor
 
     def insert(self, statement: Statement, params: dict[str, Any]) -> int:
         """Run an ``INSERT … RETURNING id``; returns the new id (in a batch: waits for it)."""
