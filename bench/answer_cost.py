@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.main import create_app  # noqa: E402
 from app.settings import Settings  # noqa: E402
-from bench.api import fresh_postgres, prepare  # noqa: E402
+from bench.api import bench_database, prepare  # noqa: E402
 
 
 class Asgi:
@@ -191,8 +191,10 @@ def main() -> None:
     parser.add_argument("--sql", action="store_true", help="print one answer's statements")
     parser.add_argument("--synchronous", default="FULL", help="SQLite PRAGMA synchronous")
     args = parser.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/cost.sqlite3"
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        bench_database(args.postgres, tmp, "cost") as url,
+    ):
         key = prepare(url, 1, exp3_only=True)[0]
         settings = Settings(
             database_url=url,

@@ -27,6 +27,8 @@ import sys
 import tempfile
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -222,14 +224,23 @@ async def measure(
     }
 
 
-def fresh_postgres(admin_url: str) -> str:
-    name = f"bench_{uuid.uuid4().hex[:10]}"
-    conninfo = (
-        make_url(admin_url).set(drivername="postgresql").render_as_string(hide_password=False)
-    )
+@contextmanager
+def bench_database(postgres: str | None, directory: str, name: str) -> Iterator[str]:
+    """A fresh, empty database for one benchmark run, and its URL: a SQLite file ``name`` in
+    ``directory``, or, given PostgreSQL's maintenance URL, a new database on that server that
+    is dropped again when the run ends (also when it fails)."""
+    if not postgres:
+        yield f"sqlite:///{directory}/{name}.sqlite3"
+        return
+    database = f"bench_{uuid.uuid4().hex[:10]}"
+    conninfo = make_url(postgres).set(drivername="postgresql").render_as_string(False)
     with psycopg.connect(conninfo, autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{name}"')
-    return make_url(admin_url).set(database=name).render_as_string(hide_password=False)
+        conn.execute(f'CREATE DATABASE "{database}"')
+    try:
+        yield make_url(postgres).set(database=database).render_as_string(hide_password=False)
+    finally:
+        with psycopg.connect(conninfo, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{database}" WITH (FORCE)')
 
 
 def main() -> None:
@@ -254,8 +265,10 @@ def main() -> None:
     args = parser.parse_args()
     levels = [int(c) for c in args.clients.split(",")]
     load_before = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory() as tmp:
-        url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/bench.sqlite3"
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        bench_database(args.postgres, tmp, "bench") as url,
+    ):
         keys = prepare(url, max(levels), args.exp3_only)
         env = (
             {"TRUSTLAB_SQLITE_SYNCHRONOUS": args.sqlite_synchronous}

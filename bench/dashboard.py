@@ -33,8 +33,6 @@ import time
 from pathlib import Path
 
 import httpx
-import psycopg
-from sqlalchemy.engine import make_url
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -46,7 +44,7 @@ from app.services import stations, studies, users  # noqa: E402
 from app.services.freshness import FreshnessCache  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.tables import Role  # noqa: E402
-from bench.api import fresh_postgres  # noqa: E402
+from bench.api import bench_database  # noqa: E402
 from bench.seed import SYSTEM, seed_study  # noqa: E402
 
 PASSWORD = "benchmark password"
@@ -156,14 +154,6 @@ async def live(
     }
 
 
-def drop_postgres(admin_url: str, url: str) -> None:
-    """Drop the benchmark's own database (1,224 participants each run otherwise accumulate)."""
-    name = make_url(url).database
-    conninfo = make_url(admin_url).set(drivername="postgresql")
-    with psycopg.connect(conninfo.render_as_string(hide_password=False), autocommit=True) as conn:
-        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--postgres", help="maintenance URL; benchmarks PostgreSQL instead")
@@ -177,8 +167,10 @@ def main() -> None:
     args = parser.parse_args()
     report: dict[int, dict[str, object]] = {}
     load_before = os.getloadavg()[0]
-    with tempfile.TemporaryDirectory() as tmp:
-        url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/d.sqlite3"
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        bench_database(args.postgres, tmp, "d") as url,
+    ):
         database = Database(url)
         schema.upgrade(database)
         with database.writing() as db:
@@ -200,8 +192,6 @@ def main() -> None:
                     )
                 )
         database.dispose()
-        if args.postgres:
-            drop_postgres(args.postgres, url)
     engine = "postgresql" if args.postgres else "sqlite"
     load = {"before": round(load_before, 2), "after": round(os.getloadavg()[0], 2)}
     if args.json:

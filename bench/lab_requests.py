@@ -42,10 +42,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import anyio.to_thread
-import psycopg
 import uvloop
 from sqlalchemy import event, select
-from sqlalchemy.engine import make_url
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -57,7 +55,7 @@ from app.services import users  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.tables import User  # noqa: E402
 from bench.answer_cost import Asgi, Statements  # noqa: E402
-from bench.api import fresh_postgres  # noqa: E402
+from bench.api import bench_database  # noqa: E402
 from bench.load import PASSWORD, SERVER_SECRET, prepare  # noqa: E402
 
 T = TypeVar("T")
@@ -333,44 +331,35 @@ def summary(driver: Driver, counter: LabCounter) -> dict[str, dict[str, float]]:
 
 def one_run(args: argparse.Namespace, run: int) -> tuple[dict[str, Any], dict[str, list[str]]]:
     """A fresh database and application, a warm-up, then the measured cycles."""
-    with tempfile.TemporaryDirectory() as tmp:
-        url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/lab.sqlite3"
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        bench_database(args.postgres, tmp, "lab") as url,
+    ):
+        lab = prepare(url, args.stations, args.stations, exp3_only=True)
+        settings = Settings(
+            _env_file=None,
+            database_url=url,
+            var_dir=Path(tmp) / "var",
+            secret_key=SERVER_SECRET.decode(),
+            sqlite_synchronous=args.synchronous,
+        )
+        app = create_app(settings)
+        counter = LabCounter(app.state.database.engine)
+        undo = instrument(counter)
+
+        async def measure() -> Driver:
+            async with app.router.lifespan_context(app):
+                await drive(app, lab, counter, args.warmup, 0)
+                counter.reset()
+                return await drive(app, lab, counter, args.cycles, args.sign_ins)
+
         try:
-            lab = prepare(url, args.stations, args.stations, exp3_only=True)
-            settings = Settings(
-                _env_file=None,
-                database_url=url,
-                var_dir=Path(tmp) / "var",
-                secret_key=SERVER_SECRET.decode(),
-                sqlite_synchronous=args.synchronous,
-            )
-            app = create_app(settings)
-            counter = LabCounter(app.state.database.engine)
-            undo = instrument(counter)
-
-            async def measure() -> Driver:
-                async with app.router.lifespan_context(app):
-                    await drive(app, lab, counter, args.warmup, 0)
-                    counter.reset()
-                    return await drive(app, lab, counter, args.cycles, args.sign_ins)
-
-            try:
-                driver = uvloop.run(measure())
-            finally:
-                undo()
-            print(f"run {run}: {sum(driver.requests.values())} requests", file=sys.stderr)
-            return summary(driver, counter), counter.sql
+            driver = uvloop.run(measure())
         finally:
-            if args.postgres:
-                drop_postgres(args.postgres, url)
-
-
-def drop_postgres(admin_url: str, url: str) -> None:
-    """Drop the benchmark's database."""
-    name = make_url(url).database
-    conninfo = make_url(admin_url).set(drivername="postgresql").render_as_string(False)
-    with psycopg.connect(conninfo, autocommit=True) as conn:
-        conn.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+            undo()
+            app.state.database.engine.dispose()
+        print(f"run {run}: {sum(driver.requests.values())} requests", file=sys.stderr)
+        return summary(driver, counter), counter.sql
 
 
 RUNS_PER_SESSION = 4

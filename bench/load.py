@@ -60,7 +60,7 @@ from app.services import (  # noqa: E402
 )
 from app.services.audit import Actor  # noqa: E402
 from app.tables import Role  # noqa: E402
-from bench.api import fresh_postgres, percentile  # noqa: E402
+from bench.api import bench_database, percentile  # noqa: E402
 from bench.rawhttp import RawHttp  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402
 
@@ -406,8 +406,10 @@ def main() -> None:
         raise SystemExit("error: --tablets cannot exceed --robots (each tablet is a robot's)")
     workers = args.workers or (2 if args.postgres else 1)
     engine = "postgresql" if args.postgres else "sqlite"
-    with tempfile.TemporaryDirectory() as tmp:
-        url = fresh_postgres(args.postgres) if args.postgres else f"sqlite:///{tmp}/load.sqlite3"
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        bench_database(args.postgres, tmp, "load") as url,
+    ):
         print(f"preparing {args.robots} stations on {engine}…", file=sys.stderr)
         lab = prepare(url, args.robots, args.tablets, args.exp3_only)
         server = ServerProcess(url, Path(tmp) / "var", workers=workers)
