@@ -15,7 +15,7 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, RedirectResponse, Response
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DataError, OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -128,6 +128,13 @@ def _describe_validation(errors: list[Any]) -> str:
     return "; ".join(parts) + more
 
 
+def refused_value_message(exc: DataError) -> str:
+    """One sentence for a value the database cannot store (PostgreSQL's text refuses NUL
+    characters; a number can be out of range): the request is refused and nothing is written."""
+    reason = str(exc.orig).strip().splitlines()[0] if exc.orig is not None else "invalid value"
+    return f"a value in the request cannot be stored: {reason}; nothing was changed"
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Map domain, validation, HTTP and database errors to clear responses."""
 
@@ -162,6 +169,10 @@ def install_error_handlers(app: FastAPI) -> None:
         for name, value in (exc.headers or {}).items():
             response.headers[name] = value
         return response
+
+    @app.exception_handler(DataError)
+    async def unstorable_value(request: Request, exc: DataError) -> Response:
+        return _error_response(request, 422, refused_value_message(exc))
 
     @app.exception_handler(OperationalError)
     async def database_error(request: Request, exc: OperationalError) -> Response:

@@ -150,7 +150,9 @@ class Cursor:
         are expired, so later ORM reads in this transaction see the change."""
         cursor = self._send(statement, params)
         self.db.expire_all()
-        return Written(cursor)
+        # In a batch the count is known once the batch has ended (the write has a cursor of its
+        # own); otherwise the shared cursor's count is read now, before another statement runs.
+        return Written(cursor) if self._batching else Written(None, int(cursor.rowcount))
 
     def send(self, statement: Statement, params: dict[str, Any]) -> None:
         """Run a statement that changes no table and whose rows nobody reads (``pg_notify``):
@@ -192,10 +194,13 @@ class Cursor:
 class Written:
     """What a write changed: its row count, read when asked (after a batch has ended)."""
 
-    def __init__(self, cursor: Any) -> None:
+    def __init__(self, cursor: Any, count: int | None = None) -> None:
         self._cursor = cursor
+        self._count = count
 
     @property
     def count(self) -> int:
         """How many rows the statement changed."""
-        return int(self._cursor.rowcount)
+        if self._count is None:
+            self._count = int(self._cursor.rowcount)
+        return self._count

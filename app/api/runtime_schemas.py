@@ -5,11 +5,18 @@ Pure pydantic: importing this module pulls in neither the database nor the adapt
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
+from fastapi import Path
 from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
+
+MAX_ROW_ID = 2**63 - 1
+"""The largest id a row can have (a signed 64-bit integer on both databases)."""
+
+StepIdPath = Annotated[int, Path(ge=1, le=MAX_ROW_ID, description="The step's id.")]
+"""A step id in a route's path: out of range is a 422, never a driver's overflow."""
 
 
 class PromptRequest(RequestBody):

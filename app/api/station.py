@@ -12,6 +12,7 @@ from app.api.runtime_schemas import (
     PromptOut,
     PromptRequest,
     StationStateOut,
+    StepIdPath,
 )
 
 router = APIRouter(prefix="/station", tags=["robot"])
@@ -55,7 +56,9 @@ async def prompt(
 
 
 @router.post("/steps/{step_id}/answer")
-async def answer(step_id: int, body: AnswerRequest, request: Request, key: DeviceKey) -> AnswerOut:
+async def answer(
+    step_id: StepIdPath, body: AnswerRequest, request: Request, key: DeviceKey
+) -> AnswerOut:
     """Record the participant's yes/no answer (exactly once) and get the robot's reply."""
     return await as_device(
         request.app,

@@ -33,16 +33,17 @@ from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DataError, OperationalError
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from app.api import station_ops
 from app.api.device_work import as_device, device_actor
-from app.api.runtime_schemas import AnswerRequest, PromptRequest
+from app.api.runtime_schemas import MAX_ROW_ID, AnswerRequest, PromptRequest
 from app.db import Database
 from app.errors import NotAuthenticated, TrustlabError
 from app.events import Event
+from app.http import refused_value_message
 from app.services import stations
 from app.services.step_store import DeviceSeat
 
@@ -78,7 +79,7 @@ class AnswerMessage(_Message):
     """Record an answer."""
 
     type: Literal["answer"]
-    step_id: int
+    step_id: int = Field(ge=1, le=MAX_ROW_ID)
     answer: Literal["yes", "no"]
     idempotency_key: str = Field(min_length=1, max_length=100)
 
@@ -200,6 +201,16 @@ class _Connection:
                     "id": message.id,
                     "status": exc.status_code,
                     "detail": exc.message,
+                }
+            )
+            return True
+        except DataError as exc:
+            await self.send(
+                {
+                    "type": "error",
+                    "id": message.id,
+                    "status": 422,
+                    "detail": refused_value_message(exc),
                 }
             )
             return True

@@ -24,6 +24,7 @@ from app.api.runtime_schemas import (
     StationCreate,
     StationOut,
     StationStateOut,
+    StepIdPath,
 )
 from app.api.schemas import TabletLink
 from app.api.station_ops import device_out
@@ -148,7 +149,7 @@ def prompt(
 
 @router.post("/{name}/steps/{step_id}/answer")
 def answer(
-    name: str, step_id: int, body: AnswerRequest, db: SessionDep, user: ExperimenterUser
+    name: str, step_id: StepIdPath, body: AnswerRequest, db: SessionDep, user: ExperimenterUser
 ) -> AnswerOut:
     """Wizard-of-Oz: record the participant's yes/no answer as the robot would."""
     return station_ops.answer(

@@ -11,7 +11,8 @@ Exactly-once adaptation:
 
 - a prompt request while the category has an open prompt in the run returns that prompt;
 - ``UNIQUE(run, category)`` on prompts and ``UNIQUE(prompt)`` on answers make duplicates impossible;
-- an answer locks its run (PostgreSQL; SQLite's write transactions are exclusive), updates the
+- prompts, answers and the experimenter's session and run commands lock the participant's
+  timeline first (PostgreSQL; SQLite's write transactions are exclusive); an answer updates the
   learner, stores its new state as the next version only if the stored version is still the one
   it started from, appends the answer and commits — all or nothing; repeating it (same
   idempotency key, or the same answer again) returns the stored reply without a second update; a
@@ -90,12 +91,13 @@ def _context(
     *,
     seat: Seat | None = None,
     lock_station: bool = False,
-    lock_run: bool = False,
+    lock_timeline: bool = False,
     latest_run: bool = True,
 ) -> Context:
     """The station's seat (as given, e.g. by a robot's device, or read), its protocol, and the
-    participant's latest run unless ``latest_run`` is False. ``lock_station`` and ``lock_run``
-    row-lock the station and the run on PostgreSQL (SQLite's write transactions are exclusive)."""
+    participant's latest run unless ``latest_run`` is False. ``lock_station`` row-locks the
+    station and ``lock_timeline`` the participant's timeline (step_store.lock_timeline) on
+    PostgreSQL, before anything else is read; SQLite's write transactions are exclusive."""
     cursor = Cursor.of(db)
     if seat is None or lock_station:
         seat = step_store.station_seat(cursor, name=station_name, lock=lock_station)
@@ -108,14 +110,14 @@ def _context(
             f"no participant is assigned to station {seat.station_name!r}: "
             "an experimenter assigns one first"
         )
+    if lock_timeline:
+        status = step_store.lock_timeline(cursor, participant_id=participant.id)
+        if status is not None and status != participant.status:  # changed before the lock
+            participant = dataclasses.replace(participant, status=status)
     protocol = protocol_by_id(
         db, study_id=participant.study_id, protocol_sha256=participant.protocol_sha256
     )
-    run = (
-        step_store.latest_run(cursor, participant_id=participant.id, lock=lock_run)
-        if latest_run
-        else None
-    )
+    run = step_store.latest_run(cursor, participant_id=participant.id) if latest_run else None
     return Context(cursor, seat, participant, protocol, run)
 
 
@@ -237,7 +239,7 @@ def _running(db: Session, ctx: Context) -> RunState:
 
 def start_session(db: Session, *, station_name: str, actor: Actor) -> StationView:
     """Start the participant's next session (and its first run); commits. The station then."""
-    ctx = _context(db, station_name, lock_station=True)
+    ctx = _context(db, station_name, lock_station=True, lock_timeline=True)
     participant = ctx.participant
     code = participant.code
     if participant.status != ParticipantStatus.ACTIVE:
@@ -320,7 +322,7 @@ def _close_run(ctx: Context, run: RunState, status: RunStatus, actor: Actor) -> 
 
 def end_session(db: Session, *, station_name: str, actor: Actor) -> StationView:
     """End the running session early (its open run too); commits. The station then."""
-    ctx = _context(db, station_name, lock_station=True, lock_run=True)
+    ctx = _context(db, station_name, lock_station=True, lock_timeline=True)
     run = _running(db, ctx)
     if run.run_status == RunStatus.RUNNING:
         step_store.close_run(ctx.cursor, run_id=run.run_id, status=RunStatus.ENDED_EARLY)
@@ -370,7 +372,7 @@ def _open_next_run(ctx: Context) -> RunState:
 
 def start_run(db: Session, *, station_name: str, actor: Actor) -> StationView:
     """Start the next run of the running session; commits. The station then."""
-    ctx = _context(db, station_name, lock_station=True, lock_run=True)
+    ctx = _context(db, station_name, lock_station=True, lock_timeline=True)
     run = _running(db, ctx)
     if run.run_status == RunStatus.RUNNING:
         progress = run_progress(run, ctx.protocol)
@@ -388,7 +390,7 @@ def start_run(db: Session, *, station_name: str, actor: Actor) -> StationView:
 def end_run(db: Session, *, station_name: str, actor: Actor) -> StationView:
     """End the running run early (unanswered categories stay unanswered); commits. The station
     then."""
-    ctx = _context(db, station_name, lock_station=True, lock_run=True)
+    ctx = _context(db, station_name, lock_station=True, lock_timeline=True)
     run = _running(db, ctx)
     if run.run_status != RunStatus.RUNNING:
         raise Conflict(
@@ -480,7 +482,7 @@ def request_prompt(
     """Choose the question for ``category`` with the participant's learner; commits.
 
     ``seat``: the station's seat as a robot's device brings it (read in this transaction)."""
-    ctx = _context(db, station_name, seat=seat, lock_run=True)
+    ctx = _context(db, station_name, seat=seat, lock_timeline=True)
     _refuse_withdrawn(ctx)
     index = _category_index(ctx, category)
     run = _running(db, ctx)
@@ -545,7 +547,7 @@ def _completed_by(ctx: Context, run: RunState, existing: StoredAnswer) -> tuple[
     """Whether ``existing`` completed its run and its session, from what is stored.
 
     A run completes in the transaction of its last answer, and a run's answers are serialised by
-    the run lock, so the answer that completed a completed run is the run's newest one; it
+    the timeline lock, so the answer that completed a completed run is the run's newest one; it
     completed the session too when that run is the session's last (however the session ended).
     """
     if run.run_status != RunStatus.COMPLETED:
@@ -588,8 +590,9 @@ def _reply_probability(ctx: Context, step: Step, after: list[float]) -> float:
 
 
 def _step_context(db: Session, station_name: str, step_id: int, seat: Seat | None) -> Context:
-    """The context of an answer: ``ctx.run`` is the step's run (row-locked on PostgreSQL)."""
-    ctx = _context(db, station_name, seat=seat, latest_run=False)
+    """The context of an answer: ``ctx.run`` is the step's run, read with the participant's
+    timeline locked (PostgreSQL)."""
+    ctx = _context(db, station_name, seat=seat, lock_timeline=True, latest_run=False)
     ctx.run = step_store.run_of_step(ctx.cursor, step_id=step_id, participant_id=ctx.participant.id)
     if ctx.run is None:
         raise NotFound(
@@ -615,8 +618,8 @@ def record_answer(
     ``seat``: the station's seat as a robot's device brings it (read in this transaction)."""
     started = time.perf_counter()
     key = idempotency_key.strip()
-    if not key or len(key) > 100:
-        raise InvalidInput("idempotency_key: give 1-100 characters, unique per answer")
+    if not key or len(key) > 100 or not key.isprintable():
+        raise InvalidInput("idempotency_key: give 1-100 printable characters, unique per answer")
     ctx = _step_context(db, station_name, step_id, seat)
     run = ctx.run
     assert run is not None
@@ -640,7 +643,7 @@ def record_answer(
     learner = None
     version = row.version
     if step.adapts:
-        if row.version != step.learner_version:  # pragma: no cover - guarded by the run lock
+        if row.version != step.learner_version:  # pragma: no cover - guarded by the timeline lock
             raise Conflict(f"the {step.category} learner moved on since step {step_id}")
         learner = _live_learner(ctx, row)
         learner.update(step.action, reward)
@@ -699,14 +702,14 @@ def record_answer(
             )
             events.send_pending(db)
             answer_id = step_store.insert_answer(ctx.cursor, stored)
-    except IntegrityError:  # pragma: no cover - the run lock serialises a step's answers
+    except IntegrityError:  # pragma: no cover - the timeline lock serialises a step's answers
         db.rollback()
         ctx = _step_context(db, station_name, step_id, None)
         assert ctx.run is not None
         recorded = ctx.run.step(step_id)
         assert recorded is not None and recorded.answer_id is not None
         return _replay(db, ctx, recorded, answer=answer, idempotency_key=key)
-    if saved is not None and saved.count != 1:  # pragma: no cover - guarded by the run lock
+    if saved is not None and saved.count != 1:  # pragma: no cover - guarded by the timeline lock
         raise Conflict(f"the {step.category} learner moved on since step {step_id}")
     progress = RunProgress([*answered, step.category], remaining, pending)
     expected = expected_next(db, ctx, None if run_done else progress)

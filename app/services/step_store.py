@@ -140,17 +140,15 @@ class RunState:
 
 
 _RUN_COLUMNS = "ss.id, ss.number, ss.status, r.id, r.number, r.status"
+_LOCK_PARTICIPANT = Statement("SELECT status FROM participant WHERE id = :participant FOR UPDATE")
 _LATEST_RUN = Statement(
     f"""SELECT {_RUN_COLUMNS} FROM study_session ss JOIN run r ON r.session_id = ss.id
-    WHERE ss.participant_id = :participant ORDER BY ss.number DESC, r.number DESC LIMIT 1
-    {{lock}}""",
-    lock_of="r",
+    WHERE ss.participant_id = :participant ORDER BY ss.number DESC, r.number DESC LIMIT 1"""
 )
 _RUN_OF_STEP = Statement(
     f"""SELECT {_RUN_COLUMNS} FROM prompt pr JOIN run r ON r.id = pr.run_id
     JOIN study_session ss ON ss.id = r.session_id
-    WHERE pr.id = :step AND pr.participant_id = :participant {{lock}}""",
-    lock_of="r",
+    WHERE pr.id = :step AND pr.participant_id = :participant"""
 )
 _STEPS_OF_RUN = Statement(
     """SELECT pr.id, pr.participant_id, pr.category, pr.action, pr.question, pr.probabilities,
@@ -159,9 +157,24 @@ _STEPS_OF_RUN = Statement(
 )
 
 
+def lock_timeline(cursor: Cursor, *, participant_id: int) -> str | None:
+    """Serialise every change to this participant's sessions, runs, prompts and answers; on
+    PostgreSQL also return their status as it is once the lock is held.
+
+    On PostgreSQL the participant's row is locked, and what the caller reads afterwards, in new
+    statements, sees whatever the previous holder committed. Locking a *run* row instead was not
+    enough: after a lock wait READ COMMITTED re-reads only the locked row, so a query that locked
+    "the latest run" could return a run that was no longer the latest (another one opened
+    meanwhile), joined to its session's status from before the wait. On SQLite write transactions
+    are exclusive and everything this one read is current: no statement, None."""
+    if not cursor.postgres:
+        return None
+    found = cursor.row(_LOCK_PARTICIPANT, {"participant": participant_id})
+    return None if found is None else str(found[0])
+
+
 def _run_with_steps(cursor: Cursor, head: Any) -> RunState | None:
-    """The run of ``head`` with its steps, read *after* the run row was locked: on PostgreSQL a
-    fresh statement sees whatever the transaction that held the lock committed."""
+    """The run of ``head`` with its steps."""
     if head is None:
         return None
     steps = [
@@ -181,18 +194,17 @@ def _run_with_steps(cursor: Cursor, head: Any) -> RunState | None:
     return RunState(head[0], head[1], head[2], head[3], head[4], head[5], steps)
 
 
-def latest_run(cursor: Cursor, *, participant_id: int, lock: bool = False) -> RunState | None:
-    """The participant's latest run and its steps; None before the first session. ``lock``: the
-    run row is locked (PostgreSQL) before its steps are read, which serialises a run's prompts and
-    answers."""
-    head = cursor.row(_LATEST_RUN, {"participant": participant_id}, lock=lock)
+def latest_run(cursor: Cursor, *, participant_id: int) -> RunState | None:
+    """The participant's latest run and its steps; None before the first session. Read after
+    :func:`lock_timeline` when the caller will change the timeline."""
+    head = cursor.row(_LATEST_RUN, {"participant": participant_id})
     return _run_with_steps(cursor, head)
 
 
 def run_of_step(cursor: Cursor, *, step_id: int, participant_id: int) -> RunState | None:
-    """The run that step ``step_id`` of this participant belongs to (row-locked on PostgreSQL),
-    with its steps; None when the participant has no such step."""
-    head = cursor.row(_RUN_OF_STEP, {"step": step_id, "participant": participant_id}, lock=True)
+    """The run that step ``step_id`` of this participant belongs to, with its steps; None when
+    the participant has no such step. Read after :func:`lock_timeline` when answering."""
+    head = cursor.row(_RUN_OF_STEP, {"step": step_id, "participant": participant_id})
     return _run_with_steps(cursor, head)
 
 

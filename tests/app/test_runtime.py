@@ -350,9 +350,10 @@ def test_a_withdrawn_participant_gets_no_more_prompts_or_updates(lab: Lab) -> No
 
 def test_an_answer_takes_a_fixed_small_number_of_statements(lab: Lab) -> None:
     """Guards the hot path (docs/performance.md, "Robot API round trip"): the device with its
-    station, participant and study; the latest session and run (row-locked on PostgreSQL); the
-    run's prompts with their answers' ids; the learner; then INSERT answer, INSERT audit row,
-    UPDATE learner; PostgreSQL adds one pg_notify for all events. BEGIN/COMMIT not counted."""
+    station, participant and study; the step's session and run; the run's prompts with their
+    answers' ids; the learner; then UPDATE learner, INSERT audit row, INSERT answer; PostgreSQL
+    adds the timeline lock (before the run is read) and one pg_notify for all events.
+    BEGIN/COMMIT not counted."""
     lab.enrol_and_assign()
     lab.start_session()
     lab.run_session()  # the familiarisation run: its answers do not adapt
@@ -376,4 +377,28 @@ def test_an_answer_takes_a_fixed_small_number_of_statements(lab: Lab) -> None:
     assert reply.status_code == 200, reply.text
     assert reply.json()["run_completed"] is False
     sql = [s for s in statements if not s.startswith("BEGIN")]
-    assert len(sql) == (7 if database.is_sqlite else 8), "\n".join(sql)
+    assert len(sql) == (7 if database.is_sqlite else 9), "\n".join(sql)
+
+
+def test_values_the_database_cannot_hold_get_a_clear_4xx_and_change_nothing(lab: Lab) -> None:
+    """An id beyond 64 bits (sqlite3 raised OverflowError: a 500) and a NUL character
+    (PostgreSQL's text refuses it: a 500) are refused on every engine, naming the problem."""
+    lab.enrol_and_assign()
+    lab.start_session()
+    step = lab.prompt("conation")
+    too_big = lab.robot.post(
+        "/api/v1/station/steps/99999999999999999999/answer",
+        json={"answer": "yes", "idempotency_key": "k"},
+    )
+    assert too_big.status_code == 422 and "step_id" in too_big.json()["detail"], too_big.text
+    nul_key = lab.robot.post(
+        f"/api/v1/station/steps/{step['step_id']}/answer",
+        json={"answer": "yes", "idempotency_key": "a\u0000"},
+    )
+    assert nul_key.status_code == 422 and "printable" in nul_key.json()["detail"], nul_key.text
+    nul_station = lab.experimenter.post("/api/v1/stations/x%00/runs")
+    assert 400 <= nul_station.status_code < 500, nul_station.text
+    assert nul_station.json()["detail"]
+    with lab.database.read_session() as db:
+        assert db.scalar(select(func.count()).select_from(Answer)) == 0
+    assert lab.answer(step["step_id"], "yes")["reply"]  # the step is still open and answerable

@@ -136,6 +136,14 @@ def test_malformed_messages_get_clear_errors(lab: Lab) -> None:
         ws.send_json({"id": 3, "type": "prompt", "category": "conation"})
         error = _receive(ws, "error")
         assert error["status"] == 409 and "no session is running" in error["detail"]
+        ws.send_json(
+            {"id": 4, "type": "answer", "step_id": 2**64, "answer": "yes", "idempotency_key": "k"}
+        )
+        error = _receive(ws, "error")
+        assert error["status"] == 422 and "step_id" in error["detail"]
+        ws.send_json({"id": 5, "type": "prompt", "category": "con\u0000ation"})
+        error = _receive(ws, "error")  # the socket stays open and says what is wrong
+        assert error["id"] == 5 and 400 <= error["status"] < 500 and error["detail"]
 
 
 def test_heartbeat_pings_and_times_out(app: FastAPI, lab: Lab) -> None:

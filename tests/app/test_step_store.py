@@ -161,8 +161,8 @@ def _statements_of(lab: Lab, request: object) -> list[str]:
 
 
 def test_a_prompt_takes_a_fixed_small_number_of_statements(lab: Lab) -> None:
-    """The device with its seat; the latest run (locked on PostgreSQL) and its prompts; the
-    learner; INSERT prompt; PostgreSQL adds one pg_notify. BEGIN/COMMIT not counted; the
+    """The device with its seat; the latest run and its prompts; the learner; INSERT prompt;
+    PostgreSQL adds the timeline lock and one pg_notify. BEGIN/COMMIT not counted; the
     learner's state is read only when this process has no live copy (not here: warmed up)."""
     lab.enrol_and_assign()
     lab.start_session()
@@ -176,7 +176,7 @@ def test_a_prompt_takes_a_fixed_small_number_of_statements(lab: Lab) -> None:
         ),
     )
     assert responses[0].status_code == 201, responses[0].text
-    expected = 5 if lab.database.is_sqlite else 6
+    expected = 5 if lab.database.is_sqlite else 7
     assert len(sql) == expected, "\n".join(sql)
 
 
