@@ -58,6 +58,7 @@ from app.errors import NotAuthenticated, PermissionDenied
 from app.security import same
 from app.services import users
 from app.settings import Settings
+from app.sql import WROTE_KEY, SecondWrite
 from app.tables import LoginSession, Role, User
 
 T = TypeVar("T")
@@ -107,12 +108,7 @@ REQUEST_SESSION = "request_session"
 _REQUEST_WRITES = "trustlab.request_writes"
 _READS_WITH = "trustlab.reads_with"
 _TRANSACTION_WRITES = "trustlab.transaction_writes"
-_WROTE = "trustlab.wrote"
-
-
-class SecondWrite(RuntimeError):
-    """A request tried to write after its write transaction had ended (a programming error: one
-    request, one write transaction)."""
+_WROTE = WROTE_KEY
 
 
 async def request_session(request: Request, database: DatabaseDep) -> AsyncIterator[Session]:

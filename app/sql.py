@@ -51,6 +51,14 @@ class Statement:
 
 
 _CURSOR_KEY = "trustlab_driver_cursor"
+WROTE_KEY = "trustlab.wrote"
+"""Set in a request session's ``info`` once its write transaction has ended (app.deps): from then
+on the session only reads, through the ORM and through a :class:`Cursor` alike."""
+
+
+class SecondWrite(RuntimeError):
+    """A request tried to write after its write transaction had ended (a programming error: one
+    request, one write transaction)."""
 
 
 class Cursor:
@@ -111,7 +119,10 @@ class Cursor:
 
     def _failed(self, error: Exception, sql: str, params: dict[str, Any], cursor: Any) -> None:
         # SQLAlchemy's own handler, as its execute() would call it: wraps the error, runs
-        # handle_error events, and on a lost connection invalidates it and the whole pool.
+        # handle_error events, and on a lost connection invalidates it and the whole pool. It
+        # also closes the driver cursor, so this Cursor is not handed out again.
+        if self.db.info.get(_CURSOR_KEY) is self:
+            del self.db.info[_CURSOR_KEY]
         self._connection._handle_dbapi_exception(error, sql, params, cursor, None)
 
     @contextmanager
@@ -148,11 +159,16 @@ class Cursor:
     def write(self, statement: Statement, params: dict[str, Any]) -> Written:
         """Run an INSERT/UPDATE; how many rows it changed. Objects the session loaded earlier
         are expired, so later ORM reads in this transaction see the change."""
+        self._refuse_after_the_write()
         cursor = self._send(statement, params)
         self.db.expire_all()
         # In a batch the count is known once the batch has ended (the write has a cursor of its
         # own); otherwise the shared cursor's count is read now, before another statement runs.
         return Written(cursor) if self._batching else Written(None, int(cursor.rowcount))
+
+    def _refuse_after_the_write(self) -> None:
+        if self.db.info.get(WROTE_KEY):
+            raise SecondWrite("this request's write transaction has ended")
 
     def send(self, statement: Statement, params: dict[str, Any]) -> None:
         """Run a statement that changes no table and whose rows nobody reads (``pg_notify``):
@@ -167,6 +183,7 @@ class Cursor:
 
     def insert(self, statement: Statement, params: dict[str, Any]) -> int:
         """Run an ``INSERT … RETURNING id``; returns the new id (in a batch: waits for it)."""
+        self._refuse_after_the_write()
         self._execute(statement, params)
         new_id = self._raw.fetchone()[0]
         self.db.expire_all()

@@ -22,6 +22,7 @@ from app.deps import OneHopRouter, SecondWrite, SessionDep
 from app.errors import Conflict
 from app.services import questionnaires, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
+from app.sql import Cursor, Statement
 from app.tables import Participant, Role, User, utcnow
 from app.tablet import TABLET_COOKIE
 from tests.conftest import (
@@ -243,9 +244,21 @@ def test_a_second_write_in_one_request_is_refused(app: FastAPI) -> None:
         db.execute(update(User).where(User.id == -1).values(is_active=True))
         return {"ok": True}
 
+    @router.post("/test/raw-second-write")
+    def raw_second_write(db: SessionDep) -> dict[str, bool]:
+        db.execute(update(User).where(User.id == -1).values(is_active=False))
+        db.commit()
+        cursor = Cursor.of(db)
+        cursor.rows(Statement('SELECT id FROM "user"'), {})  # reading afterwards is fine
+        cursor.write(Statement('UPDATE "user" SET is_active = :on WHERE id = -1'), {"on": True})
+        return {"ok": True}
+
     app.include_router(router)
-    with TestClient(app) as client, pytest.raises(SecondWrite):
-        client.post("/test/two-writes")
+    with TestClient(app) as client:
+        with pytest.raises(SecondWrite):
+            client.post("/test/two-writes")
+        with pytest.raises(SecondWrite):  # the step store's statements are held to it too
+            client.post("/test/raw-second-write")
 
 
 def _sql(statements: list[str]) -> str:

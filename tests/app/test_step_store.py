@@ -95,6 +95,12 @@ def test_driver_errors_surface_as_sqlalchemys(lab: Lab) -> None:
         )
         with pytest.raises(IntegrityError):
             step_store.insert_answer(cursor, duplicate)
+        # SQLAlchemy's handler closed the driver cursor: the transaction gets a fresh one (on
+        # SQLite it may go on after the failed statement; PostgreSQL needs the rollback first).
+        after = Cursor.of(db)
+        assert after is not cursor
+        if lab.database.is_sqlite:
+            assert after.row(Statement("SELECT count(*) FROM answer"), {})[0] == 1
         db.rollback()
     with lab.database.read_session() as db:
         assert len(db.scalars(select(Answer)).all()) == 1
