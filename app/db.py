@@ -161,7 +161,7 @@ def _ping_idle_connections(engine: Engine) -> None:
     every request (bench/answer_cost.py), to catch connections that died while idle — a server
     restart, an idle timeout, a dropped network. Connections in steady use need no ping: if the
     server goes away under them the request fails with a 503 (app.http), and SQLAlchemy then
-    invalidates the whole pool (app.services.step_store hands its errors to the same handler), so
+    invalidates the whole pool (app.sql hands the hot path's driver errors to the same handler), so
     the next requests connect afresh. A dead idle connection found here is replaced at once.
     """
 

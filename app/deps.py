@@ -108,7 +108,6 @@ REQUEST_SESSION = "request_session"
 _REQUEST_WRITES = "trustlab.request_writes"
 _READS_WITH = "trustlab.reads_with"
 _TRANSACTION_WRITES = "trustlab.transaction_writes"
-_WROTE = WROTE_KEY
 
 
 async def request_session(request: Request, database: DatabaseDep) -> AsyncIterator[Session]:
@@ -155,19 +154,21 @@ def _read_after_the_write(session: Session) -> None:
     info = session.info
     if info.get(_TRANSACTION_WRITES):
         info[_TRANSACTION_WRITES] = False
-        info[_WROTE] = True
+        info[WROTE_KEY] = True
         session.bind = info[_READS_WITH]
 
 
 @event.listens_for(Session, "before_flush")
 def _refuse_a_second_flush(session: Session, *_: Any) -> None:
-    if session.info.get(_WROTE) and (session.new or session.dirty or session.deleted):
+    if session.info.get(WROTE_KEY) and (session.new or session.dirty or session.deleted):
         raise SecondWrite("this request's write transaction has ended")
 
 
 def _refuse_a_second_statement(state: ORMExecuteState) -> None:
     """Listens to write requests' sessions only: a listener per statement costs every session."""
-    if state.session.info.get(_WROTE) and (state.is_insert or state.is_update or state.is_delete):
+    if state.session.info.get(WROTE_KEY) and (
+        state.is_insert or state.is_update or state.is_delete
+    ):
         raise SecondWrite("this request's write transaction has ended")
 
 
