@@ -12,7 +12,9 @@ from collections.abc import Callable
 from typing import Annotated, TypeVar
 
 from fastapi import Depends
+from fastapi.responses import Response
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from pydantic import BaseModel
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp
@@ -77,3 +79,19 @@ async def as_device(
     activity: ActivityRecorder | None = getattr(state, "activity", None)
     async with database.admission():
         return await run_in_threadpool(_work, database, activity, key, write, op)
+
+
+class ModelResponse(Response):
+    """A robot route's body, serialised straight from the model the operation built.
+
+    A route that returns its model lets FastAPI validate it against the response model again and
+    then serialise it: for the hot robot routes that second pass cost more CPU than the JSON
+    itself. The operations build these models from typed service results, so the check adds
+    nothing; the routes still declare ``response_model`` for the OpenAPI document, and the
+    schema tests (tests/app/test_api_fuzz.py) check the bodies against it.
+    """
+
+    media_type = "application/json"
+
+    def __init__(self, model: BaseModel, status_code: int = 200) -> None:
+        super().__init__(model.__pydantic_serializer__.to_json(model), status_code=status_code)

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, Response, status
+from fastapi import APIRouter, Request, status
 
 from app.api import station_ops
-from app.api.device_work import DeviceKey, as_device, device_actor
+from app.api.device_work import DeviceKey, ModelResponse, as_device, device_actor
 from app.api.runtime_schemas import (
     AnswerOut,
     AnswerRequest,
@@ -18,25 +18,25 @@ from app.api.runtime_schemas import (
 router = APIRouter(prefix="/station", tags=["robot"])
 
 
-@router.get("")
-async def get_state(request: Request, key: DeviceKey) -> StationStateOut:
+@router.get("", response_model=StationStateOut)
+async def get_state(request: Request, key: DeviceKey) -> ModelResponse:
     """The station's participant, session, run, open prompts and what to do next."""
-    return await as_device(
+    out = await as_device(
         request.app,
         key,
         write=False,
         op=lambda db, device: station_ops.state(db, station=device.seat),
     )
+    return ModelResponse(out)
 
 
 @router.post(
     "/prompts",
     status_code=status.HTTP_201_CREATED,
+    response_model=PromptOut,
     responses={200: {"description": "The category's open prompt, handed out again."}},
 )
-async def prompt(
-    body: PromptRequest, request: Request, key: DeviceKey, response: Response
-) -> PromptOut:
+async def prompt(body: PromptRequest, request: Request, key: DeviceKey) -> ModelResponse:
     """Choose the question for a category with the participant's learner."""
     out = await as_device(
         request.app,
@@ -50,17 +50,15 @@ async def prompt(
             device_id=device.device_id,
         ),
     )
-    if not out.created:
-        response.status_code = status.HTTP_200_OK
-    return out
+    return ModelResponse(out, status.HTTP_201_CREATED if out.created else status.HTTP_200_OK)
 
 
-@router.post("/steps/{step_id}/answer")
+@router.post("/steps/{step_id}/answer", response_model=AnswerOut)
 async def answer(
     step_id: StepIdPath, body: AnswerRequest, request: Request, key: DeviceKey
-) -> AnswerOut:
+) -> ModelResponse:
     """Record the participant's yes/no answer (exactly once) and get the robot's reply."""
-    return await as_device(
+    out = await as_device(
         request.app,
         key,
         write=True,
@@ -73,12 +71,13 @@ async def answer(
             device_id=device.device_id,
         ),
     )
+    return ModelResponse(out)
 
 
-@router.post("/runs", status_code=status.HTTP_201_CREATED)
-async def start_run(request: Request, key: DeviceKey) -> StationStateOut:
+@router.post("/runs", status_code=status.HTTP_201_CREATED, response_model=StationStateOut)
+async def start_run(request: Request, key: DeviceKey) -> ModelResponse:
     """Start the next run (optional: prompting after a finished run starts it too)."""
-    return await as_device(
+    out = await as_device(
         request.app,
         key,
         write=True,
@@ -86,3 +85,4 @@ async def start_run(request: Request, key: DeviceKey) -> StationStateOut:
             db, station=device.seat, actor=device_actor(device)
         ),
     )
+    return ModelResponse(out, status.HTTP_201_CREATED)

@@ -21,6 +21,23 @@ def test_openapi_document_and_local_docs(client: TestClient) -> None:
     assert "cdn" not in docs.text.lower()
 
 
+def test_openapi_documents_the_robot_routes_bodies(client: TestClient) -> None:
+    """The robot routes answer with pre-serialised JSON (app.api.device_work.ModelResponse), so
+    their bodies are documented by the routes' declared response models, not by inference."""
+    paths = client.get("/api/v1/openapi.json").json()["paths"]
+
+    def body_schema(path: str, method: str, status: str) -> str:
+        content = paths[path][method]["responses"][status]["content"]
+        return str(content["application/json"]["schema"].get("$ref", ""))
+
+    station = "/api/v1/station"
+    assert body_schema(station, "get", "200").endswith("/StationStateOut")
+    assert body_schema(f"{station}/prompts", "post", "201").endswith("/PromptOut")
+    assert "200" in paths[f"{station}/prompts"]["post"]["responses"]
+    assert body_schema(f"{station}/steps/{{step_id}}/answer", "post", "200").endswith("/AnswerOut")
+    assert body_schema(f"{station}/runs", "post", "201").endswith("/StationStateOut")
+
+
 def test_healthz_reports_the_database(client: TestClient, settings: Settings) -> None:
     assert client.get("/healthz").json() == {"status": "ok", "database": "ok"}
     broken = settings.model_copy(
