@@ -184,8 +184,8 @@ _NOTIFY_ALL = Statement(
 )
 """Every event of a transaction in one statement (one round trip, however many events), in order:
 an answer that ends a run and a session has six. The payloads travel as one JSON array of
-strings: the driver's text-array parameter escaped each payload with a regular expression, which
-cost more CPU per request than the rest of the statement."""
+strings: as a text-array parameter the driver escaped each payload with a regular expression,
+a measurable share of an answer's CPU (docs/performance.md)."""
 
 
 def _notify_payload(pending: Event) -> str:

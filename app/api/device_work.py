@@ -85,10 +85,10 @@ class ModelResponse(Response):
     """A robot route's body, serialised straight from the model the operation built.
 
     A route that returns its model lets FastAPI validate it against the response model again and
-    then serialise it: for the hot robot routes that second pass cost more CPU than the JSON
-    itself. The operations build these models from typed service results, so the check adds
-    nothing; the routes still declare ``response_model`` for the OpenAPI document, and the
-    schema tests (tests/app/test_api_fuzz.py) check the bodies against it.
+    then serialise it: on the hot robot routes that second pass cost about as much CPU as the JSON
+    itself (docs/performance.md). The operations build these models from typed service results,
+    so the check adds nothing; the routes still declare ``response_model`` for the OpenAPI
+    document, and the schema tests (tests/app/test_api_fuzz.py) check the bodies against it.
     """
 
     media_type = "application/json"
