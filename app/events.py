@@ -56,9 +56,15 @@ class Event:
 
     @classmethod
     def from_json(cls, raw: str) -> Event:
-        """Parse the wire form."""
-        value = json.loads(raw)
-        return cls(topic=value["topic"], type=value["type"], data=value.get("data", {}))
+        """Parse the wire form; ValueError when ``raw`` is not one."""
+        try:
+            value = json.loads(raw)
+            topic, kind, data = value["topic"], value["type"], value.get("data", {})
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"not a trustlab event: {raw[:80]!r}") from exc
+        if not isinstance(topic, str) or not isinstance(kind, str) or not isinstance(data, dict):
+            raise ValueError(f"not a trustlab event: {raw[:80]!r}")
+        return cls(topic=topic, type=kind, data=data)
 
 
 RESYNC = Event(topic="*", type="resync")
@@ -260,6 +266,16 @@ class PostgresListener:
         self._stop.set()
         self._thread.join(timeout=5)
 
+    def _deliver(self, payload: str) -> None:
+        # Anyone connected to the database may NOTIFY this channel: a payload that is not an
+        # event is logged and dropped, and the listener goes on (it used to die with it).
+        try:
+            received = Event.from_json(payload)
+        except ValueError as exc:
+            log.warning("event listener ignored a notification on %r: %s", CHANNEL, exc)
+            return
+        self._hub.deliver([received])
+
     def _run(self) -> None:
         delay = 0.5
         while not self._stop.is_set():
@@ -271,7 +287,7 @@ class PostgresListener:
                     self._hub.deliver([RESYNC])  # anything may have happened while disconnected
                     while not self._stop.is_set():
                         for notice in conn.notifies(timeout=0.5):
-                            self._hub.deliver([Event.from_json(notice.payload)])
+                            self._deliver(notice.payload)
             except psycopg.Error as exc:
                 log.warning("event listener lost PostgreSQL (%s); retrying in %.1fs", exc, delay)
                 self._stop.wait(delay)

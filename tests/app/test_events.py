@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections.abc import Callable
+
+import pytest
+from sqlalchemy import text
 
 from app import events
 from app.db import Database
@@ -79,6 +83,40 @@ def test_a_transactions_events_arrive_in_order_from_one_notify(database: Databas
     assert len(notifies) == (0 if database.is_sqlite else 1)
     if not database.is_sqlite:
         assert received[3].data == {"truncated": True}
+
+
+def test_a_foreign_notification_is_dropped_and_the_listener_goes_on(
+    database: Database, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Anyone connected to the database can NOTIFY the channel; what is not an event must not
+    stop the events after it (on SQLite there is no channel: the event arrives as always)."""
+
+    def publish() -> None:
+        with database.write_session() as db:
+            if not database.is_sqlite:
+                for junk in (
+                    "not json",
+                    '{"topic": "study:9"}',
+                    "[1, 2]",
+                    '{"topic": 1, "type": 2}',
+                ):
+                    db.execute(text("SELECT pg_notify(:c, :p)"), {"c": events.CHANNEL, "p": junk})
+            events.publish(db, topics=["study:9"], type="after_junk")
+            db.commit()
+
+    with caplog.at_level(logging.WARNING, logger="app.events"):
+        received = _deliver(database, "study:9", publish, 1)
+    assert received == [Event(topic="study:9", type="after_junk")]
+    ignored = [r for r in caplog.records if "ignored a notification" in r.getMessage()]
+    assert len(ignored) == (0 if database.is_sqlite else 4)
+
+
+def test_the_wire_form_is_parsed_or_refused() -> None:
+    event = Event(topic="study:1", type="kept", data={"n": 2})
+    assert Event.from_json(event.to_json()) == event
+    for junk in ("", "not json", "[]", '{"type": "x"}', '{"topic": "t", "type": "x", "data": 3}'):
+        with pytest.raises(ValueError, match="not a trustlab event"):
+            Event.from_json(junk)
 
 
 def test_a_slow_subscriber_is_told_to_resync() -> None:
