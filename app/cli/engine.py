@@ -247,6 +247,10 @@ def pretrain_command(
             "--preferred-prior", help="Comma-separated prior over the preferred question."
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option("--force", help="Overwrite checkpoint directories that already exist."),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Meta-train checkpoints (MAML with a TRPO outer step) and write them with their hash."""
@@ -275,9 +279,16 @@ def pretrain_command(
         ]
     except ValueError as error:
         raise _fail(str(error)) from None
+    targets = [root / checkpoint_name(args.category, args.arms) for args in jobs]
+    # Refused before anything is trained: studies enrolled with a checkpoint need it as it was.
+    taken = [str(target) for target in targets if target.exists() and any(target.iterdir())]
+    if taken and not force:
+        raise _fail(
+            f"{', '.join(taken)} already hold{'s' if len(taken) == 1 else ''} a checkpoint: "
+            "retire it first (docs/engine.md, 'Retraining and reproducing') or pass --force"
+        )
     written = []
-    for args in jobs:
-        target = root / checkpoint_name(args.category, args.arms)
+    for args, target in zip(jobs, targets, strict=True):
         try:
             checkpoint = _train_with_progress(args, target, show=not as_json)
         except (ValueError, OSError) as error:

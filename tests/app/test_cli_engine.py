@@ -174,6 +174,23 @@ def test_pretrain_tiny_run_writes_checkpoints(cli: typer.Typer, tmp_path: Path) 
     assert checkpoint.config["seed"] == 3
 
 
+def test_pretrain_refuses_to_overwrite_a_checkpoint_without_force(
+    cli: typer.Typer, tmp_path: Path
+) -> None:
+    tiny = ("--category", "affection", "--mode", "paper", "--arms", "3", "--meta-batches", "1")
+    tiny += ("--tasks-per-batch", "2", "--out", str(tmp_path), "--json")
+    first = one_json(run(cli, "pretrain", *tiny, "--seed", "1"))["checkpoints"][0]
+    refused = run(cli, "pretrain", *tiny, "--seed", "2")
+    assert refused.exit_code == EXIT_BAD_INPUT
+    assert refused.stderr.startswith("error: ") and "--force" in refused.stderr
+    assert str(tmp_path / "affection-k3") in refused.stderr
+    kept = load_checkpoint(tmp_path / "affection-k3", expected_arms=3)
+    assert kept.sha256 == first["sha256"] and kept.config["seed"] == 1
+    forced = one_json(run(cli, "pretrain", *tiny, "--seed", "2", "--force"))["checkpoints"][0]
+    replaced = load_checkpoint(tmp_path / "affection-k3", expected_arms=3)
+    assert replaced.sha256 == forced["sha256"] and replaced.config["seed"] == 2
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
