@@ -21,7 +21,8 @@ def free_port() -> int:
 
 
 class ServerProcess:
-    """``uvicorn app.main:create_app`` on a free port, startable, killable and restartable."""
+    """``uvicorn app.main:create_app`` (or another ``factory``) on a free port, startable, killable
+    and restartable."""
 
     def __init__(
         self,
@@ -30,10 +31,12 @@ class ServerProcess:
         *,
         workers: int = 1,
         extra_env: dict[str, str] | None = None,
+        factory: str = "app.main:create_app",
     ) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.workers = workers
+        self.factory = factory
         self.log_path = var_dir / f"server-{self.port}.log"
         var_dir.mkdir(parents=True, exist_ok=True)
         self.env = {
@@ -52,7 +55,7 @@ class ServerProcess:
             sys.executable,
             "-m",
             "uvicorn",
-            "app.main:create_app",
+            self.factory,
             "--factory",
             "--host",
             "127.0.0.1",
