@@ -350,7 +350,11 @@ def main() -> None:
             url,
             Path(tmp) / "var",
             workers=args.workers,
-            extra_env={ASYNC_COMMIT: "1"} if args.async_commit else None,
+            # The server imports this module: from the checkout, whatever the current directory.
+            extra_env={
+                "PYTHONPATH": str(ROOT),
+                **({ASYNC_COMMIT: "1"} if args.async_commit else {}),
+            },
             factory="bench.pg_floor:floor_app",
         )
         server.start()
