@@ -27,7 +27,7 @@ import sys
 import tempfile
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -179,6 +179,24 @@ def percentile(values: list[float], q: float) -> float:
     return 1000.0 * ordered[min(len(ordered) - 1, max(0, round(q * len(ordered)) - 1))]
 
 
+async def alternate(
+    base: str,
+    keys: list[str],
+    seconds: float,
+    rounds: int,
+    samples: Samples,
+    work: Callable[[int, float], Awaitable[None]],
+) -> None:
+    """Baseline and the measured loop (``work(client, deadline)``) alternate ``rounds`` times,
+    each alone and with one client per key: a background load that drifts weighs on both, and
+    the baseline gets half the measured loop's time in total."""
+    for _ in range(rounds):
+        deadline = time.perf_counter() + seconds / rounds / 2
+        await asyncio.gather(*(ping_loop(base, key, deadline, samples) for key in keys))
+        deadline = time.perf_counter() + seconds / rounds
+        await asyncio.gather(*(work(i, deadline) for i in range(len(keys))))
+
+
 async def measure(
     base: str, keys: list[str], clients: int, seconds: float, rounds: int
 ) -> dict[str, object]:
@@ -190,18 +208,16 @@ async def measure(
     await login.close()
     credentials = {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
     experimenters = [RawHttp(base, credentials) for _ in range(clients)]
-    # Baseline and robots alternate, each alone and at the same concurrency: the baseline gets
-    # half the robots' time in total.
-    for _ in range(rounds):
-        deadline = time.perf_counter() + seconds / rounds / 2
-        await asyncio.gather(*(ping_loop(base, keys[i], deadline, samples) for i in range(clients)))
-        deadline = time.perf_counter() + seconds / rounds
-        await asyncio.gather(
-            *(
-                robot_loop(base, keys[i], f"bench-{i}", experimenters[i], deadline, samples)
-                for i in range(clients)
-            )
-        )
+    await alternate(
+        base,
+        keys[:clients],
+        seconds,
+        rounds,
+        samples,
+        lambda i, deadline: robot_loop(
+            base, keys[i], f"bench-{i}", experimenters[i], deadline, samples
+        ),
+    )
     for experimenter in experimenters:
         await experimenter.close()
     answer_p99, ping_p99 = percentile(samples.answer, 0.99), percentile(samples.ping, 0.99)

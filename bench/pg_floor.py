@@ -33,7 +33,6 @@ but it separates the disk's share of the latency from the CPU's.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import os
 import sys
@@ -62,7 +61,7 @@ from app.security import token_digest  # noqa: E402
 from app.services import runtime, step_store  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.sql import Cursor  # noqa: E402
-from bench.api import SYSTEM, Samples, bench_database, percentile, ping_loop, prepare  # noqa: E402
+from bench.api import SYSTEM, Samples, alternate, bench_database, percentile, prepare  # noqa: E402
 from bench.rawhttp import RawHttp  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402
 
@@ -299,18 +298,16 @@ async def measure(
 ) -> dict[str, Any]:
     """One route at one concurrency: no-op and route phases alternating, as in bench/api.py."""
     samples = Samples()
-    for _ in range(rounds):
-        deadline = time.perf_counter() + seconds / rounds / 2
-        await asyncio.gather(*(ping_loop(base, keys[i], deadline, samples) for i in range(clients)))
-        deadline = time.perf_counter() + seconds / rounds
-        await asyncio.gather(
-            *(
-                route_loop(
-                    base, route, keys[i], bodies[i], deadline, samples.answer, samples.errors
-                )
-                for i in range(clients)
-            )
-        )
+    await alternate(
+        base,
+        keys[:clients],
+        seconds,
+        rounds,
+        samples,
+        lambda i, deadline: route_loop(
+            base, route, keys[i], bodies[i], deadline, samples.answer, samples.errors
+        ),
+    )
     route_p99, ping_p99 = percentile(samples.answer, 0.99), percentile(samples.ping, 0.99)
     return {
         "route": route,
