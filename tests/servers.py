@@ -32,6 +32,7 @@ class ServerProcess:
         workers: int = 1,
         extra_env: dict[str, str] | None = None,
         factory: str = "app.main:create_app",
+        source: Path | None = None,
     ) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -47,6 +48,11 @@ class ServerProcess:
             "TRUSTLAB_SECRET_KEY": "subprocess-test-secret-0123456789abcdef",
             **(extra_env or {}),
         }
+        self.source = source
+        """Serve the trustlab in this directory (a git worktree, say) instead of the one
+        imported here: it comes first on the server's module path."""
+        if source is not None:
+            self.env["PYTHONPATH"] = str(source)
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self, timeout: float = 60.0) -> None:
@@ -68,7 +74,7 @@ class ServerProcess:
             command += ["--workers", str(self.workers)]
         log = self.log_path.open("ab")
         self.process = subprocess.Popen(
-            command, env=self.env, stdout=log, stderr=log, start_new_session=True
+            command, env=self.env, stdout=log, stderr=log, start_new_session=True, cwd=self.source
         )
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

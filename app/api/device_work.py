@@ -1,9 +1,11 @@
 """A robot's request as one unit of work: authenticate its key, run the operation, commit, close.
 
-All of it happens in a single thread-pool hop, after admission (app.deps), so a request never holds
-a connection or SQLite's write lock while waiting for a thread, and the write lock is held only
-for the transaction itself. The REST routes and the station WebSocket both come through here, so a
-robot gets the same behaviour whichever transport it speaks.
+All of it happens in a single hop to a worker thread, after admission (app.deps), so a request never
+holds a connection or SQLite's write lock while waiting for a thread, and the write lock is held
+only for the transaction itself. On SQLite robots' writes take turns on one writer thread
+(app.db.WriterThread); everything else goes to the shared thread pool. The REST routes and the
+station WebSocket both come through here, so a robot gets the same behaviour whichever transport
+it speaks.
 """
 
 from __future__ import annotations
@@ -16,7 +18,6 @@ from fastapi.responses import Response
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel
 from sqlalchemy.orm import Session
-from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp
 
 from app.activity import ActivityRecorder
@@ -78,7 +79,9 @@ async def as_device(
     database: Database = state.database
     activity: ActivityRecorder | None = getattr(state, "activity", None)
     async with database.admission():
-        return await run_in_threadpool(_work, database, activity, key, write, op)
+        return await database.run_unit_of_work(
+            _work, database, activity, key, write, op, write=write
+        )
 
 
 class ModelResponse(Response):

@@ -17,7 +17,7 @@ from sqlalchemy import event, select, update
 from sqlalchemy.engine import Engine
 
 from app.api import station_ops
-from app.db import WRITE_OPTION
+from app.db import WRITE_OPTION, WriterThread
 from app.deps import OneHopRouter, SecondWrite, SessionDep
 from app.errors import Conflict
 from app.services import questionnaires, runtime, stations, studies, tablet_tokens
@@ -39,7 +39,8 @@ BACKGROUND = ("trustlab-activity", "trustlab-checkpoint")
 
 
 class Watch:
-    """Transactions and thread-pool hops of the requests sent while it watches.
+    """Transactions and thread hops (the thread pool's, SQLite's writer thread's) of the
+    requests sent while it watches.
 
     A write transaction is open from BEGIN (``BEGIN IMMEDIATE`` on SQLite) to COMMIT or ROLLBACK;
     a hop that begins meanwhile kept the transaction (on SQLite, every other writer) waiting for
@@ -78,12 +79,20 @@ class Watch:
     @contextmanager
     def watching(self) -> Iterator[Watch]:
         run_sync = anyio.to_thread.run_sync
+        run_on_writer = WriterThread.run
 
-        async def counted(func: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        def hop() -> None:
             self.hops += 1
             if self.open_writes:
                 self.held_hops += 1
+
+        async def counted(func: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+            hop()
             return await run_sync(func, *args, **kwargs)
+
+        async def counted_on_writer(writer: WriterThread, func: Callable[..., T], *args: Any) -> T:
+            hop()
+            return await run_on_writer(writer, func, *args)
 
         listeners: list[tuple[str, Callable[..., None]]] = [
             ("begin", self._begin),
@@ -94,10 +103,12 @@ class Watch:
         for name, listener in listeners:
             event.listen(self.engine, name, listener)
         anyio.to_thread.run_sync = counted  # type: ignore[assignment]
+        WriterThread.run = counted_on_writer  # type: ignore[method-assign]
         try:
             yield self
         finally:
             anyio.to_thread.run_sync = run_sync
+            WriterThread.run = run_on_writer  # type: ignore[method-assign]
             for name, listener in listeners:
                 event.remove(self.engine, name, listener)
 
@@ -146,6 +157,17 @@ def test_no_write_transaction_waits_through_a_hop(
         )
     )
     assert answered.status_code == 200
+    robot_step = watch.request(
+        lambda: lab.robot.post("/api/v1/station/prompts", json={"category": "affection"})
+    )
+    assert robot_step.status_code == 201 and watch.writes == 1 and watch.hops == 1
+    robot_answer = watch.request(
+        lambda: lab.robot.post(
+            f"/api/v1/station/steps/{robot_step.json()['step_id']}/answer",
+            json={"answer": "no", "idempotency_key": "watched-robot"},
+        )
+    )
+    assert robot_answer.status_code == 200 and watch.writes == 1 and watch.hops == 1
     ended = watch.request(lambda: staff.post(f"{station}/sessions/current/end"))
     assert ended.status_code == 200 and ended.json()["expected"]["action"] == "start_session"
 
