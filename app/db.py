@@ -136,7 +136,7 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
         if not connection.get_execution_options().get(WRITE_OPTION, False):
             _begin(connection, dbapi_connection, "BEGIN")
             return
-        if not writers.acquire(timeout=WRITER_WAIT_SECONDS):
+        if not writers.acquire(timeout=_writer_wait_left()):
             raise OperationalError("BEGIN IMMEDIATE", {}, TimeoutError("writer queue full"))
         dbapi_connection.holds_writer = True
         try:
@@ -278,6 +278,21 @@ class WalCheckpointer:
             log.warning("WAL checkpoint failed: %s", exc)
 
 
+_queued = threading.local()
+"""On a writer thread: when the unit of work it runs was queued (:class:`WriterThread`)."""
+
+
+def _writer_wait_left() -> float:
+    """How long a writer may still wait for the write lock: :data:`WRITER_WAIT_SECONDS` from when
+    its unit of work was queued on a writer thread, or from now. Time spent waiting for its turn
+    on that thread counts, so queued writes behind a stuck lock fail after 30 s together, not one
+    30 s after another."""
+    queued_at: float | None = getattr(_queued, "at", None)
+    if queued_at is None:
+        return WRITER_WAIT_SECONDS
+    return max(0.0, queued_at + WRITER_WAIT_SECONDS - time.monotonic())
+
+
 class WriterThread:
     """One thread that runs a SQLite database's robot write work, one unit after another.
 
@@ -295,16 +310,28 @@ class WriterThread:
         self._guard = threading.Lock()
 
     async def run(self, func: Callable[..., T], *args: Any) -> T:
-        """``func(*args)`` on the writer thread, in the caller's context variables."""
+        """``func(*args)`` on the writer thread, in the caller's context variables.
+
+        Cancelling the caller never drops the work, queued or running (asyncio.shield). As with
+        ``run_in_threadpool``, a caller cancelled through anyio's cancel scopes (a task group)
+        goes on waiting until the work has ended, so its admission slot is held exactly as long
+        as the work runs; a native ``task.cancel()`` lets it go at once, as it did there."""
+        queued_at = time.monotonic()
+
+        def unit() -> T:
+            _queued.at = queued_at
+            try:
+                return func(*args)
+            finally:
+                _queued.at = None
+
+        context = contextvars.copy_context()
         with self._guard:
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(1, thread_name_prefix="trustlab-writer")
-            executor = self._executor
-        future = executor.submit(contextvars.copy_context().run, func, *args)
-        # As anyio's worker threads are: a cancelled request still waits for its work to end,
-        # so the request's admission slot is held for exactly as long as the work runs.
+            future = self._executor.submit(context.run, unit)
         with anyio.CancelScope(shield=True):
-            result = await asyncio.wrap_future(future)
+            result = await asyncio.shield(asyncio.wrap_future(future))
         return result
 
     def stop(self) -> None:
@@ -416,11 +443,14 @@ class Database:
         if self._checkpointer is not None:
             self._checkpointer.start()
 
-    def stop_background_work(self) -> None:
-        """Stop what :meth:`start_background_work` started, and the writer thread (server
-        shutdown, after the last request)."""
+    def finish_requests(self) -> None:
+        """Let the writer thread finish the work queued on it, then end it (server shutdown,
+        after the last request; before the last flushes of anything that work feeds)."""
         if self._writer is not None:
             self._writer.stop()
+
+    def stop_background_work(self) -> None:
+        """Stop what :meth:`start_background_work` started (server shutdown)."""
         if self._checkpointer is not None:
             self._checkpointer.stop()
 

@@ -74,6 +74,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         collector.freeze_startup_objects()
         yield
         collector.thaw()
+        database.finish_requests()  # its robot work notes devices for the activity's last flush
         activity.stop()
         database.stop_background_work()
         if listener is not None:

@@ -52,7 +52,8 @@ class ServerProcess:
         """Serve the trustlab in this directory (a git worktree, say) instead of the one
         imported here: it comes first on the server's module path."""
         if source is not None:
-            self.env["PYTHONPATH"] = str(source)
+            given = self.env.get("PYTHONPATH")
+            self.env["PYTHONPATH"] = str(source) + (os.pathsep + given if given else "")
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self, timeout: float = 60.0) -> None:
