@@ -197,16 +197,23 @@ async def alternate(
         await asyncio.gather(*(work(i, deadline) for i in range(len(keys))))
 
 
+async def sign_in(base: str) -> dict[str, str]:
+    """The benchmark administrator's login: the headers an experimenter's requests carry."""
+    login = RawHttp(base)
+    status, signed = await login.request(
+        "POST", "/api/v1/session", {"username": "bench", "password": PASSWORD}
+    )
+    await login.close()
+    if status != 200:
+        raise SystemExit(f"error: could not sign in to the benchmark server: {status} {signed}")
+    return {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
+
+
 async def measure(
     base: str, keys: list[str], clients: int, seconds: float, rounds: int
 ) -> dict[str, object]:
     samples = Samples()
-    login = RawHttp(base)
-    _, signed = await login.request(
-        "POST", "/api/v1/session", {"username": "bench", "password": PASSWORD}
-    )
-    await login.close()
-    credentials = {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
+    credentials = await sign_in(base)
     experimenters = [RawHttp(base, credentials) for _ in range(clients)]
     await alternate(
         base,

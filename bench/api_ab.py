@@ -37,12 +37,12 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.api import (  # noqa: E402
-    PASSWORD,
     Samples,
     bench_database,
     percentile,
     prepare,
     robot_loop,
+    sign_in,
 )
 from bench.rawhttp import RawHttp  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402
@@ -50,12 +50,7 @@ from tests.servers import ServerProcess  # noqa: E402
 
 async def phase(base: str, keys: list[str], seconds: float) -> dict[str, Any]:
     """One closed-loop phase with one robot per key: throughput, answer p99, errors."""
-    login = RawHttp(base)
-    _, signed = await login.request(
-        "POST", "/api/v1/session", {"username": "bench", "password": PASSWORD}
-    )
-    await login.close()
-    credentials = {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
+    credentials = await sign_in(base)
     experimenters = [RawHttp(base, credentials) for _ in keys]
     samples = Samples()
     started = time.perf_counter()

@@ -60,11 +60,10 @@ from app.services import (  # noqa: E402
 )
 from app.services.audit import Actor  # noqa: E402
 from app.tables import Role  # noqa: E402
-from bench.api import bench_database, percentile  # noqa: E402
+from bench.api import PASSWORD, bench_database, percentile, sign_in  # noqa: E402
 from bench.rawhttp import RawHttp  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402
 
-PASSWORD = "benchmark password"
 SYSTEM = Actor.system("bench")
 STUDY = "load"
 SERVER_SECRET = b"subprocess-test-secret-0123456789abcdef"  # what ServerProcess configures
@@ -302,17 +301,6 @@ async def dashboard(base: str, staff: dict[str, str], deadline: float, record: R
             await listener
         writer.close()
         await data.close()
-
-
-async def sign_in(base: str) -> dict[str, str]:
-    login = RawHttp(base)
-    status, signed = await login.request(
-        "POST", "/api/v1/session", {"username": "bench", "password": PASSWORD}
-    )
-    await login.close()
-    if status != 200:
-        raise SystemExit(f"error: could not sign in to the benchmark server: {status} {signed}")
-    return {"Cookie": login.headers["Cookie"], "X-CSRF-Token": signed["csrf_token"]}
 
 
 async def run(

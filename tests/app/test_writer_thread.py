@@ -240,6 +240,7 @@ def test_a_queued_write_behind_a_held_lock_is_refused_once_the_wait_is_over(
 
 
 def test_finishing_requests_ends_the_writer_thread_after_its_queued_work(tmp_path: Path) -> None:
+    """And a later write starts a new writer thread."""
     database = Database(f"sqlite:///{tmp_path}/finish.sqlite3")
     names: list[str] = []
 
@@ -247,37 +248,19 @@ def test_finishing_requests_ends_the_writer_thread_after_its_queued_work(tmp_pat
         time.sleep(0.01)
         names.append(threading.current_thread().name)
 
-    async def queue_three() -> None:
-        await asyncio.gather(*(database.run_unit_of_work(unit, write=True) for _ in range(3)))
+    async def queue(count: int) -> None:
+        await asyncio.gather(*(database.run_unit_of_work(unit, write=True) for _ in range(count)))
 
     try:
-        asyncio.run(queue_three())
+        asyncio.run(queue(3))
         database.finish_requests()
-        assert len(names) == 3 and names[0].startswith("trustlab-writer")
+        assert len(names) == 3 and len(set(names)) == 1 and names[0].startswith("trustlab-writer")
         assert not any(t.name == names[0] for t in threading.enumerate())
+        asyncio.run(queue(1))
+        database.finish_requests()
+        assert len(names) == 4
     finally:
         database.dispose()
-
-
-def test_stop_lets_queued_work_finish_and_a_later_run_starts_a_new_thread() -> None:
-    writer = WriterThread()
-    names: list[str] = []
-
-    def unit() -> None:
-        time.sleep(0.01)
-        names.append(threading.current_thread().name)
-
-    async def queue_three() -> None:
-        await asyncio.gather(*(writer.run(unit) for _ in range(3)))
-
-    asyncio.run(queue_three())
-    writer.stop()
-    assert len(names) == 3 and len(set(names)) == 1
-    first_thread = names[0]
-    assert not any(t.name == first_thread for t in threading.enumerate())
-    asyncio.run(writer.run(unit))
-    writer.stop()
-    assert len(names) == 4
 
 
 def test_sqlite_hands_out_the_connection_returned_last(tmp_path: Path) -> None:
