@@ -279,7 +279,8 @@ class WalCheckpointer:
 
 
 _queued = threading.local()
-"""On a writer thread: when the unit of work it runs was queued (:class:`WriterThread`)."""
+"""On a writer thread: when the unit of work it runs was queued, and by which clock
+(:class:`WriterThread`)."""
 
 
 def _writer_wait_left() -> float:
@@ -290,7 +291,7 @@ def _writer_wait_left() -> float:
     queued_at: float | None = getattr(_queued, "at", None)
     if queued_at is None:
         return WRITER_WAIT_SECONDS
-    return max(0.0, queued_at + WRITER_WAIT_SECONDS - time.monotonic())
+    return max(0.0, queued_at + WRITER_WAIT_SECONDS - _queued.clock())
 
 
 class WriterThread:
@@ -305,9 +306,11 @@ class WriterThread:
     docs/performance.md ("One writer thread") has the measurements.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._executor: ThreadPoolExecutor | None = None
         self._guard = threading.Lock()
+        self._clock = clock
+        """Measures the time a unit waited for its turn (tests inject one they advance)."""
 
     async def run(self, func: Callable[..., T], *args: Any) -> T:
         """``func(*args)`` on the writer thread, in the caller's context variables.
@@ -316,10 +319,10 @@ class WriterThread:
         ``run_in_threadpool``, a caller cancelled through anyio's cancel scopes (a task group)
         goes on waiting until the work has ended, so its admission slot is held exactly as long
         as the work runs; a native ``task.cancel()`` lets it go at once, as it did there."""
-        queued_at = time.monotonic()
+        queued_at = self._clock()
 
         def unit() -> T:
-            _queued.at = queued_at
+            _queued.at, _queued.clock = queued_at, self._clock
             try:
                 return func(*args)
             finally:

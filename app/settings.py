@@ -68,6 +68,11 @@ class Settings(BaseSettings):
     websocket_heartbeat_seconds: float = Field(
         default=15.0, gt=0, description="How often robot WebSockets are pinged."
     )
+    websocket_auth_seconds: float = Field(
+        default=10.0,
+        gt=0,
+        description="How long a robot WebSocket without a key header has to send its auth message.",
+    )
     host: str = Field(default="127.0.0.1", description="Where `trustlab serve` listens.")
     port: int = Field(default=8000, ge=1, le=65535, description="The port `trustlab serve` uses.")
 

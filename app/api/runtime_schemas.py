@@ -11,12 +11,10 @@ from fastapi import Path
 from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
+from app.inputs import RowId
 
-MAX_ROW_ID = 2**63 - 1
-"""The largest id a row can have (a signed 64-bit integer on both databases)."""
-
-StepIdPath = Annotated[int, Path(ge=1, le=MAX_ROW_ID, description="The step's id.")]
-"""A step id in a route's path: out of range is a 422, never a driver's overflow."""
+StepIdPath = Annotated[RowId, Path(description="The step's id.")]
+"""A step id in a route's path: out of range or not plain digits is a 422 (app/inputs.py)."""
 
 
 class PromptRequest(RequestBody):

@@ -3,7 +3,8 @@
 Protocol (JSON text frames; docs/robot-integration.md has a transcript):
 
 - Authenticate with the header ``Authorization: Bearer tlk_…``, or, for clients that cannot set
-  headers, with ``{"type": "auth", "key": "tlk_…"}`` as the first message (within 10 s).
+  headers, with ``{"type": "auth", "key": "tlk_…"}`` as the first message (within
+  ``websocket_auth_seconds``, 10 s by default).
 - The server greets with ``{"type": "hello", "station": …, "heartbeat_seconds": …, "state": …}``.
 - Requests carry an ``id`` echoed in the reply: ``state``, ``prompt`` (``category``), ``answer``
   (``step_id``, ``answer``, ``idempotency_key``), ``start_run``, ``ping``. Replies are
@@ -20,6 +21,12 @@ Protocol (JSON text frames; docs/robot-integration.md has a transcript):
 
 A client that reconnects gets the current state (open prompts included) in ``hello``; prompts and
 answers are idempotent, so resuming never duplicates a step.
+
+A frame the server cannot use (binary, not JSON, nested too deeply, a number too long, a field of
+the wrong type) is answered with an error message (400 or 422, with the request's ``id`` whenever
+it can be read) and the connection stays open; only a socket that never authenticated is closed
+(4401, with the reason). Fields are checked exactly as the REST routes check them (app/inputs.py):
+``"step_id": true`` or ``8.0`` is a 422 here as ``/steps/true/answer`` is there.
 """
 
 from __future__ import annotations
@@ -39,11 +46,12 @@ from starlette.concurrency import run_in_threadpool
 
 from app.api import station_ops
 from app.api.device_work import as_device, device_actor
-from app.api.runtime_schemas import MAX_ROW_ID, AnswerRequest, PromptRequest
+from app.api.runtime_schemas import AnswerRequest, PromptRequest
 from app.db import Database
 from app.errors import NotAuthenticated, TrustlabError
 from app.events import Event
 from app.http import refused_value_message
+from app.inputs import MAX_DIGITS, Count, RowId
 from app.services import stations
 from app.services.step_store import DeviceSeat
 
@@ -51,15 +59,18 @@ log = logging.getLogger(__name__)
 
 router = APIRouter(tags=["robot"])
 
-AUTH_TIMEOUT_SECONDS = 10.0
 MISSED_HEARTBEATS = 3
 CLOSE_UNAUTHENTICATED = 4401
 CLOSE_HEARTBEAT_TIMEOUT = 4408
 
 
+RequestId = Annotated[str, Field(max_length=200)] | Count | None
+"""A request's ``id``: the client's string or whole number (``true`` is neither), echoed back."""
+
+
 class _Message(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    id: str | int | None = None
+    id: RequestId = None
 
 
 class StateMessage(_Message):
@@ -68,20 +79,17 @@ class StateMessage(_Message):
     type: Literal["state"]
 
 
-class PromptMessage(_Message):
-    """Ask for a category's question."""
+class PromptMessage(_Message, PromptRequest):
+    """Ask for a category's question (the fields of the REST route's body)."""
 
     type: Literal["prompt"]
-    category: str = Field(max_length=40)
 
 
-class AnswerMessage(_Message):
-    """Record an answer."""
+class AnswerMessage(_Message, AnswerRequest):
+    """Record an answer (the REST route's body, plus the step id its path carries)."""
 
     type: Literal["answer"]
-    step_id: int = Field(ge=1, le=MAX_ROW_ID)
-    answer: Literal["yes", "no"]
-    idempotency_key: str = Field(min_length=1, max_length=100)
+    step_id: RowId
 
 
 class StartRunMessage(_Message):
@@ -109,6 +117,52 @@ class _Device:
     id: int
     station: str
     station_id: int
+
+
+class BadFrame(Exception):
+    """A frame the server cannot read; ``detail`` says why in one line."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail)
+        self.detail = detail
+
+
+def _json_int(digits: str) -> int | str:
+    """JSON integers as Python ints, except one too long to be any id: kept as its text, which the
+    field's own check then refuses by name (json.loads would raise a bare ValueError past 4,300
+    digits, losing the request id)."""
+    return int(digits) if len(digits.lstrip("-")) <= MAX_DIGITS else digits
+
+
+def decode_frame(raw: str | None) -> Any:
+    """The JSON value of a text frame, or BadFrame (``None`` stands for a binary frame)."""
+    if raw is None:
+        raise BadFrame("binary frames are not supported: send JSON as text frames")
+    try:
+        return json.loads(raw, parse_int=_json_int)
+    except json.JSONDecodeError as exc:
+        raise BadFrame(f"not JSON: {exc.msg}") from None
+    except RecursionError:
+        raise BadFrame("not JSON this server reads: nested too deeply") from None
+    except ValueError as exc:  # e.g. an exponent too large for a float
+        raise BadFrame(f"not JSON this server reads: {exc}") from None
+
+
+def _request_id(data: Any) -> str | int | None:
+    """The ``id`` to echo: a client's string or integer id, None when there is none to echo."""
+    value = data.get("id") if isinstance(data, dict) else None
+    return value if isinstance(value, str | int) and not isinstance(value, bool) else None
+
+
+async def receive_frame(websocket: WebSocket) -> str | None:
+    """The next frame's text, ``None`` for a binary frame; WebSocketDisconnect when it closes.
+
+    ``receive_text`` fails with a KeyError on a binary frame, which used to drop the socket."""
+    message = await websocket.receive()
+    if message["type"] == "websocket.disconnect":
+        raise WebSocketDisconnect(message.get("code", 1000), message.get("reason"))
+    text = message.get("text")
+    return text if isinstance(text, str) else None
 
 
 def _authenticate(database: Database, key: str) -> _Device:
@@ -168,17 +222,15 @@ class _Connection:
             return True
         return True
 
-    async def handle(self, raw: str) -> bool:
+    async def handle(self, raw: str | None) -> bool:
         """Answer one client message; False when the connection was closed (key revoked)."""
-        request_id: Any = None
+        request_id: str | int | None = None
         try:
-            data = json.loads(raw)
-            request_id = data.get("id") if isinstance(data, dict) else None
+            data = decode_frame(raw)
+            request_id = _request_id(data)
             message = _parse.validate_python(data)
-        except json.JSONDecodeError as exc:
-            await self.send(
-                {"type": "error", "id": None, "status": 400, "detail": f"not JSON: {exc.msg}"}
-            )
+        except BadFrame as exc:
+            await self.send({"type": "error", "id": None, "status": 400, "detail": exc.detail})
             return True
         except ValidationError as exc:
             await self.send(
@@ -221,6 +273,17 @@ class _Connection:
                     "id": message.id,
                     "status": 503,
                     "detail": "the database is unavailable right now; please retry",
+                }
+            )
+            return True
+        except Exception:  # a defect, not the client's mistake: say so, log it, keep serving
+            log.exception("station %s: %s request failed", self.device.station, message.type)
+            await self.send(
+                {
+                    "type": "error",
+                    "id": message.id,
+                    "status": 500,
+                    "detail": "the server failed to handle this request; its log has the details",
                 }
             )
             return True
@@ -271,7 +334,7 @@ class _Connection:
 
     async def read_loop(self) -> None:
         while True:
-            raw = await self.websocket.receive_text()
+            raw = await receive_frame(self.websocket)
             self._heard = asyncio.get_running_loop().time()
             if not await self.handle(raw):
                 return
@@ -331,15 +394,26 @@ class _Connection:
                     await task
 
 
-async def _key_from_first_message(websocket: WebSocket) -> str:
+class Unauthenticated(Exception):
+    """Why a socket is closed before it authenticated (the close frame's reason)."""
+
+
+async def _key_from_first_message(websocket: WebSocket, timeout: float) -> str:
+    """The key of an ``auth`` first message, or Unauthenticated saying what was wrong."""
     try:
-        raw = await asyncio.wait_for(websocket.receive_text(), AUTH_TIMEOUT_SECONDS)
-        message = json.loads(raw)
-    except (TimeoutError, json.JSONDecodeError):
-        return ""
-    if isinstance(message, dict) and message.get("type") == "auth":
-        return str(message.get("key", ""))
-    return ""
+        raw = await asyncio.wait_for(receive_frame(websocket), timeout)
+    except TimeoutError:
+        raise Unauthenticated("no auth message in time") from None
+    try:
+        message = decode_frame(raw)
+    except BadFrame as exc:
+        raise Unauthenticated(exc.detail) from None
+    key = message.get("key") if isinstance(message, dict) else None
+    if message.get("type") != "auth" if isinstance(message, dict) else True:
+        raise Unauthenticated('the first message must be {"type": "auth", "key": …}')
+    if not isinstance(key, str) or not key:
+        raise Unauthenticated("the auth message has no key")
+    return key
 
 
 @router.websocket("/station/ws")
@@ -350,13 +424,20 @@ async def station_socket(websocket: WebSocket) -> None:
     scheme, _, key = websocket.headers.get("authorization", "").partition(" ")
     key = key.strip() if scheme.lower() == "bearer" else ""
     await websocket.accept()
-    if not key:
-        key = await _key_from_first_message(websocket)
     try:
-        device = await run_in_threadpool(_authenticate, database, key)
-    except NotAuthenticated:
-        await websocket.close(CLOSE_UNAUTHENTICATED, "unknown or revoked device key")
+        if not key:
+            key = await _key_from_first_message(
+                websocket, websocket.app.state.settings.websocket_auth_seconds
+            )
+        try:
+            device = await run_in_threadpool(_authenticate, database, key)
+        except NotAuthenticated:
+            raise Unauthenticated("unknown or revoked device key") from None
+    except Unauthenticated as refused:
+        await websocket.close(CLOSE_UNAUTHENTICATED, _close_reason(str(refused)))
         return
+    except WebSocketDisconnect:
+        return  # the client left before authenticating
     connection = _Connection(websocket, database, device, heartbeat)
     await _mark(websocket, device.key, connected=True)
     try:
@@ -364,6 +445,11 @@ async def station_socket(websocket: WebSocket) -> None:
             await connection.serve()
     finally:
         await _mark(websocket, device.key, connected=False)
+
+
+def _close_reason(text: str) -> str:
+    """A close frame's reason: at most 123 bytes of UTF-8 (RFC 6455, 5.5)."""
+    return text.encode()[:123].decode(errors="ignore")
 
 
 async def _mark(websocket: WebSocket, key: str, *, connected: bool) -> None:

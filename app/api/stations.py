@@ -29,6 +29,7 @@ from app.api.runtime_schemas import (
 from app.api.schemas import TabletLink
 from app.api.station_ops import device_out
 from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
+from app.inputs import RowId
 from app.services import enrolment, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Device, Participant, Station, Study
@@ -168,7 +169,7 @@ def issue_key(name: str, body: DeviceCreate, db: SessionDep, admin: AdminUser) -
 
 
 @devices_router.post("/{device_id}/revoke")
-def revoke_key(device_id: int, db: SessionDep, admin: AdminUser) -> DeviceOut:
+def revoke_key(device_id: RowId, db: SessionDep, admin: AdminUser) -> DeviceOut:
     """Revoke a device key at once (admin)."""
     device = stations.revoke_device(db, device_id=device_id, actor=Actor.of_user(admin))
     return device_out(device, device.station)

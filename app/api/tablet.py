@@ -13,6 +13,7 @@ from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
 from app.deps import OneHopRouter, SessionDep
+from app.inputs import SessionNumber
 from app.services import questionnaires
 from app.tablet import BearerTablet, Tablet
 from app.web.tablet_pages import participant_actor
@@ -40,7 +41,7 @@ class ConsentIn(RequestBody):
 class AnswersIn(RequestBody):
     """One questionnaire page's answers: item key → value (numbers may be sent as numbers)."""
 
-    session: int | None = None
+    session: SessionNumber | None = None
     answers: dict[str, str | int | float]
 
 

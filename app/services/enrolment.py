@@ -9,7 +9,6 @@ backs the lock up: no entry can ever be handed out twice.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, aliased
 
 from app.errors import Conflict, InvalidInput, NotFound
+from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
 from app.protocol import AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
 from app.services import audit, learners
@@ -33,9 +33,6 @@ from app.tables import (
     StudyStatus,
     utcnow,
 )
-
-CODE_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,31}$")
-STRATUM_VALUE_PATTERN = re.compile(r"^[^;=\s][^;=]{0,63}$")
 
 
 @dataclass(frozen=True)
@@ -76,8 +73,8 @@ def _validate_strata(spec: AllocationSpec, strata: Mapping[str, str]) -> dict[st
         allowed = spec.strata_values.get(factor)
         if allowed is not None and value not in allowed:
             raise InvalidInput(f"{factor}={value!r} is not one of: {', '.join(allowed)}")
-        if not STRATUM_VALUE_PATTERN.match(value):
-            raise InvalidInput(f"{factor}: a value has 1-64 characters and no ';' or '='")
+        if not STRATUM_VALUE.matches(value):
+            raise InvalidInput(f"{factor}: {STRATUM_VALUE.rule}")
         clean[factor] = value
     return clean
 
@@ -197,11 +194,7 @@ def enroll_participant(
     clean_strata = _validate_strata(protocol.allocation, strata or {})
     if code is not None:
         code = code.strip()
-        if not CODE_PATTERN.match(code):
-            raise InvalidInput(
-                f"participant code {code!r}: use 1-32 letters, digits, '_' or '-', "
-                "starting with a letter or digit"
-            )
+        PARTICIPANT_CODE.check(code)
         if _code_taken(db, study, code):
             raise Conflict(f"participant code {code!r} is already used in study {study.name!r}")
     participant = Participant(

@@ -7,7 +7,6 @@ creation; only their SHA-256 is stored, so a leaked database does not leak worki
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 from sqlalchemy import select, update
@@ -15,6 +14,7 @@ from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
+from app.inputs import STATION_NAME
 from app.security import new_token, token_digest
 from app.services import audit, step_store
 from app.services.audit import Actor
@@ -29,7 +29,6 @@ from app.tables import (
     utcnow,
 )
 
-STATION_NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{0,63}$")
 KEY_PREFIX = "tlk_"
 DEVICE_REVOKED = "device_revoked"
 """The station event announcing a revoked key (data: ``device_id``): every worker closes that
@@ -80,11 +79,7 @@ def list_stations(db: Session) -> list[Station]:
 
 def create_station(db: Session, *, name: str, actor: Actor) -> Station:
     """Create a station; commits."""
-    if not STATION_NAME_PATTERN.match(name):
-        raise InvalidInput(
-            f"station name {name!r}: use 1-64 lower-case letters, digits or '-', "
-            "starting with a letter or digit"
-        )
+    STATION_NAME.check(name)
     if db.scalar(select(Station.id).where(Station.name == name)) is not None:
         raise Conflict(f"a station named {name!r} already exists")
     station = Station(name=name)

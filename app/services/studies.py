@@ -2,29 +2,24 @@
 
 from __future__ import annotations
 
-import re
 import secrets
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict, InvalidInput, NotFound
+from app.errors import Conflict, NotFound
+from app.inputs import STUDY_NAME
 from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
 from app.services import audit
 from app.services.audit import Actor
 from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
-STUDY_NAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{1,63}$")
 DEFAULT_STUDY_NAME = "default"
 
 
 def create_study(db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor) -> Study:
     """Create an open study with a fresh secret allocation seed; commits."""
-    if not STUDY_NAME_PATTERN.match(name):
-        raise InvalidInput(
-            f"study name {name!r}: use 2-64 lower-case letters, digits or '-', "
-            "starting with a letter or digit"
-        )
+    STUDY_NAME.check(name)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:
         raise Conflict(f"a study named {name!r} already exists")
     study = Study(

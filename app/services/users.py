@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from datetime import timedelta
 
@@ -10,12 +9,11 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, NotFound, TooManyAttempts
+from app.inputs import USERNAME
 from app.security import hash_password, new_token, password_problem, token_digest, verify_password
 from app.services import audit
 from app.services.audit import Actor
 from app.tables import LoginAttempt, LoginSession, Role, User, utcnow
-
-USERNAME_PATTERN = re.compile(r"^[a-z0-9][a-z0-9._-]{1,63}$")
 
 
 def normalise_username(username: str) -> str:
@@ -28,11 +26,8 @@ def create_user(
 ) -> User:
     """Create an account; commits. Refuses bad names, weak passwords and duplicates."""
     name = normalise_username(username)
-    if not USERNAME_PATTERN.match(name):
-        raise InvalidInput(
-            "a username has 2-64 characters: letters, digits, '.', '_' or '-', "
-            "starting with a letter or digit"
-        )
+    if not USERNAME.matches(name):
+        raise InvalidInput(USERNAME.rule)
     try:
         role = Role(role)
     except ValueError:

@@ -15,6 +15,7 @@ from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
 from analysis.study import analyse_study
 from app.deps import AnalystUser, OneHopRouter, SessionDep
 from app.errors import InvalidInput, NotFound
+from app.inputs import Count
 from app.services import audit, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
@@ -25,7 +26,7 @@ router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 @router.get("/studies/{name}/analysis")
 def analysis_page(
-    request: Request, db: SessionDep, user: AnalystUser, name: str, ss: int = 3
+    request: Request, db: SessionDep, user: AnalystUser, name: str, ss: Count = 3
 ) -> Response:
     """The mixed ANOVA of every per-session measure, computed now from the stored data."""
     if ss not in (2, 3):

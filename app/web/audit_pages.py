@@ -11,6 +11,7 @@ from fastapi.responses import Response
 from sqlalchemy import Select, func, select
 
 from app.deps import AdminUser, OneHopRouter, SessionDep
+from app.inputs import PageNumber
 from app.services import audit
 from app.services.audit import Actor
 from app.tables import AuditEvent, Study
@@ -42,7 +43,7 @@ def audit_log(
     study: str = "",
     action: str = "",
     actor: str = "",
-    page: int = 1,
+    page: PageNumber = 1,
 ) -> Response:
     """Every recorded change, newest first."""
     page = max(page, 1)

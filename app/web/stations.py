@@ -19,6 +19,7 @@ from app.api import station_ops
 from app.api.runtime_schemas import AnswerRequest, PromptRequest
 from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.errors import TrustlabError
+from app.inputs import RowId
 from app.services import enrolment, learners, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import (
@@ -112,7 +113,7 @@ def issue_key(
 
 
 @router.post("/devices/{device_id}/revoke")
-def revoke_key(request: Request, db: SessionDep, admin: AdminUser, device_id: int) -> Response:
+def revoke_key(request: Request, db: SessionDep, admin: AdminUser, device_id: RowId) -> Response:
     """Revoke a device key at once."""
     device = stations.revoke_device(db, device_id=device_id, actor=Actor.of_user(admin))
     return redirect_with_notice(
@@ -347,7 +348,7 @@ def woz_answer(
     db: SessionDep,
     user: ExperimenterUser,
     name: str,
-    step_id: Annotated[int, Form()],
+    step_id: Annotated[RowId, Form()],
     answer: Annotated[Literal["yes", "no"], Form()],
     idempotency_key: Annotated[str, Form(max_length=100)],
 ) -> Response:

@@ -18,6 +18,7 @@ from starlette.concurrency import run_in_threadpool
 
 from app.deps import FormFields, OneHopRouter, SessionDep, SettingsDep
 from app.errors import Conflict, NotAuthenticated, PermissionDenied, TrustlabError
+from app.inputs import SessionNumber
 from app.protocol import InstrumentSpec
 from app.security import same
 from app.services import questionnaires
@@ -256,7 +257,7 @@ def session_questionnaire_page(
     tablet: CookieTablet,
     settings: SettingsDep,
     instrument: str,
-    session: int,
+    session: SessionNumber,
 ) -> Response:
     """A per-session instrument."""
     return _show(request, db, tablet, settings, instrument, session)
@@ -282,7 +283,7 @@ def submit_session_questionnaire(
     tablet: CookieTablet,
     settings: SettingsDep,
     instrument: str,
-    session: int,
+    session: SessionNumber,
     fields: FormFields,
 ) -> Response:
     """Submit (or revise) a per-session instrument."""

@@ -14,42 +14,24 @@ from typing import Any
 
 import pytest
 from fastapi import FastAPI
-from fastapi.routing import _IncludedRouter
 from fastapi.testclient import TestClient
-from starlette.routing import Mount
 from starlette.websockets import WebSocketDisconnect
 
 from app.access import POLICY, Principal
 from app.db import Database
 from app.tablet import form_token
 from tests.app.lab_world import World, build_world, client_for
+from tests.app.routes import served_routes
 from tests.conftest import CSRF_INPUT
 
 
 def app_routes(app: FastAPI) -> set[tuple[str, str]]:
     """(method, path) of every route the app serves (HEAD folded into GET)."""
     found: set[tuple[str, str]] = set()
-
-    def add(methods: set[str] | None, path: str, websocket: bool) -> None:
-        if websocket:
-            found.add(("WS", path))
-            return
-        for method in methods or set():
-            if method != "HEAD":
-                found.add((method, path))
-
-    for route in app.routes:
-        if isinstance(route, _IncludedRouter):
-            for context in route.effective_route_contexts():
-                original = context.original_route
-                is_ws = type(original).__name__.endswith("WebSocketRoute")
-                # a WebSocket's prefixed path lives on the Starlette route it was compiled to
-                path = context.path or getattr(context.starlette_route, "path", original.path)
-                add(context.methods, path, is_ws)
-        elif isinstance(route, Mount):
-            found.add(("GET", route.path))
-        else:
-            add(getattr(route, "methods", None), route.path, False)
+    for served in served_routes(app):
+        if served.websocket:
+            found.add(("WS", served.path))
+        found.update((method, served.path) for method in served.methods if method != "HEAD")
     return found
 
 
@@ -329,7 +311,8 @@ def test_the_station_socket_admits_devices_only(world: World) -> None:
         with client.websocket_connect("/api/v1/station/ws") as ws:
             if allowed:
                 assert ws.receive_json()["type"] == "hello"
-            else:
+            else:  # a browser's cookie is no key: its first request is refused at once
+                ws.send_json({"id": 1, "type": "state"})
                 with pytest.raises(WebSocketDisconnect) as closed:
                     ws.receive_json()
                 assert closed.value.code == 4401

@@ -161,12 +161,21 @@ def test_a_failed_computation_is_not_shared() -> None:
 
 
 def test_computations_start_at_most_once_per_min_interval_and_waiters_share_them() -> None:
-    cache: FreshnessCache[int] = FreshnessCache(max_age=5.0, min_interval=0.1)
+    read = threading.local()
+
+    def clock() -> float:
+        """The real clock, remembering per thread what it last said: the cache stamps a
+        computation's start right before computing, so ``compute`` sees the cache's own stamp
+        (a second reading of the clock could be later and make the interval look shorter)."""
+        read.now = time.monotonic()
+        return float(read.now)
+
+    cache: FreshnessCache[int] = FreshnessCache(max_age=5.0, min_interval=0.1, clock=clock)
     changes = 0
     starts: list[float] = []
 
     def compute() -> int:
-        starts.append(time.monotonic())
+        starts.append(read.now)
         return len(starts)
 
     assert cache.get("s", compute, version=lambda: changes) == 1

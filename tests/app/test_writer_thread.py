@@ -184,23 +184,31 @@ def test_a_natively_cancelled_caller_does_not_drop_its_queued_work() -> None:
 
 def test_waiting_for_the_writer_threads_turn_counts_towards_the_write_lock_wait() -> None:
     """Writes queued behind a stuck write lock fail together after the wait, not one wait
-    after another."""
-    writer = WriterThread()
+    after another. The clock is the test's: the unit ahead "takes" 5 s by advancing it."""
+    now = [1000.0]
+    writer = WriterThread(clock=lambda: now[0])
+    ahead_started, queued = threading.Event(), threading.Event()
 
     def slow() -> None:
-        time.sleep(0.2)
+        ahead_started.set()
+        queued.wait(10)  # the second unit is queued (at t = 1000) before this one ends
+        now[0] += 5.0
 
     async def main() -> float:
-        left = writer.run(_writer_wait_left)
-        _, waited = await asyncio.gather(writer.run(slow), left)
-        return waited
+        first = asyncio.ensure_future(writer.run(slow))
+        await asyncio.to_thread(ahead_started.wait, 10)
+        second = asyncio.ensure_future(writer.run(_writer_wait_left))
+        await asyncio.sleep(0)  # let the second unit be submitted (it reads the clock first)
+        queued.set()
+        await first
+        return await second
 
     try:
         left_after_queueing = asyncio.run(main())
     finally:
         writer.stop()
     assert _writer_wait_left() == WRITER_WAIT_SECONDS  # off the writer thread: the whole wait
-    assert left_after_queueing <= WRITER_WAIT_SECONDS - 0.2
+    assert left_after_queueing == WRITER_WAIT_SECONDS - 5.0
 
 
 def test_a_queued_write_behind_a_held_lock_is_refused_once_the_wait_is_over(
