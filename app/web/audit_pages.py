@@ -88,8 +88,8 @@ def audit_export(
 ) -> Response:
     """The (filtered) audit log as CSV, oldest first; the export itself is audited.
 
-    Written by :func:`analysis.exports.csv_bytes` like every CSV, so a subject or detail that
-    looks like a spreadsheet formula (a participant's free text, a user name) stays text.
+    Written by :func:`analysis.exports.csv_bytes` like every CSV, so an actor or subject that a
+    spreadsheet would run as a formula (the login name of whoever ran a command, say) stays text.
     """
     rows = [
         (
