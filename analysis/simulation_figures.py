@@ -19,6 +19,7 @@ import pandas as pd
 import plotly.graph_objects as go
 
 from analysis.errors import InvalidInputError
+from analysis.exports.csvfile import write_csv
 from analysis.figures import PALETTE
 
 __all__ = [
@@ -150,15 +151,16 @@ def write_outputs(
     """Write ``adaptation_curves.csv``, ``iterations_by_arms.csv`` and ``simulation.html``.
 
     ``result`` feeds figure (a), ``sweep_results`` (one result per K) figure (b). Returns the
-    paths written; ``out`` is created if needed.
+    paths written; ``out`` is created if needed. The CSVs are written like every export
+    (:func:`analysis.exports.csvfile.write_csv`).
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     curves = curves_frame(result)
     sweep = sweep_frame(sweep_results)
     paths = [out / "adaptation_curves.csv", out / "iterations_by_arms.csv", out / "simulation.html"]
-    curves.to_csv(paths[0], index=False)
-    sweep.to_csv(paths[1], index=False)
+    write_csv(curves, paths[0])
+    write_csv(sweep, paths[1])
     speed = adaptation_speed_figure(curves, int(result["arms"]))
     by_arms = iterations_by_arms_figure(sweep)
     body = speed.to_html(full_html=False, include_plotlyjs=True) + by_arms.to_html(

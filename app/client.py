@@ -228,6 +228,8 @@ class StationSocket:
         self._closing = False
         self.events: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
         self.state: dict[str, Any] | None = None
+        """The newest state received: from ``hello``, each event as it arrives, and each
+        :meth:`current_state` reply. A queued event's own ``state`` is as old as the event."""
 
     async def __aenter__(self) -> Self:
         await self.open()
@@ -424,8 +426,10 @@ class StationSocket:
         return AnswerOut.model_validate(data)
 
     async def current_state(self) -> StationStateOut:
-        """Ask for the station's state."""
-        return StationStateOut.model_validate(await self.request("state"))
+        """Ask for the station's state (kept in :attr:`state` too: the newest one received)."""
+        data = await self.request("state")
+        self.state = data
+        return StationStateOut.model_validate(data)
 
     async def next_event(self, timeout: float | None = None) -> dict[str, Any]:
         """The next pushed event (or reconnection notice); raises :class:`DeviceKeyRefused` once

@@ -33,6 +33,7 @@ from starlette.concurrency import run_in_threadpool
 
 from app.errors import DatabaseUnavailable
 from app.events import EventHub, attach_publishing
+from app.private_files import create_private
 
 log = logging.getLogger(__name__)
 
@@ -200,6 +201,9 @@ def create_db_engine(
     if url.get_backend_name() == "sqlite":
         if url.database and url.database != ":memory:":
             Path(url.database).parent.mkdir(parents=True, exist_ok=True)
+            # It holds seeds and password hashes: a new file is the owner's only (SQLite gives
+            # its -wal and -shm files the database file's mode).
+            create_private(Path(url.database))
         engine = create_engine(
             url,
             connect_args={"check_same_thread": False, "timeout": 30, "factory": _GatedConnection},

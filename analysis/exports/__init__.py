@@ -1,13 +1,21 @@
-"""Export formats for PIs: long, wide and step-log CSV, codebook (CSV/JSON), SPSS, HTML report."""
+"""Export formats for PIs: long, wide and step-log CSV, codebook (CSV/JSON), SPSS, HTML report.
+
+Every CSV (these and the app's others) is written by :mod:`analysis.exports.csvfile`.
+"""
 
 from analysis.exports.codebook import CODEBOOK_COLUMNS, codebook_json, codebook_table
+from analysis.exports.csvfile import (
+    CSV_TEXT_RULE,
+    csv_bytes,
+    neutralise_cell,
+    neutralise_formulas,
+    write_csv,
+)
 from analysis.exports.files import (
     EXPORT_FORMATS,
     ExportFormat,
-    csv_bytes,
     sha256_file,
     write_all_exports,
-    write_csv,
     write_export,
 )
 from analysis.exports.names import session_column, spss_name
@@ -24,6 +32,7 @@ from analysis.exports.tables import (
 
 __all__ = [
     "CODEBOOK_COLUMNS",
+    "CSV_TEXT_RULE",
     "EXPORT_FORMATS",
     "LONG_COLUMNS",
     "STEP_EXPORT_BASE_COLUMNS",
@@ -33,6 +42,8 @@ __all__ = [
     "codebook_table",
     "csv_bytes",
     "long_table",
+    "neutralise_cell",
+    "neutralise_formulas",
     "session_column",
     "sha256_file",
     "spss_name",

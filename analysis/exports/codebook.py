@@ -11,6 +11,7 @@ from typing import Any
 import pandas as pd
 
 from analysis.dataset import StudyDataset
+from analysis.exports.csvfile import CSV_TEXT_RULE
 from analysis.exports.tables import (
     LONG_COLUMNS,
     STEP_EXPORT_BASE_COLUMNS,
@@ -207,7 +208,8 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
     Columns :data:`CODEBOOK_COLUMNS`: the file (``wide``, ``long``, ``steps``), column name,
     label (item wording as administered), type, SPSS measure level, allowed values, value
     labels (``1=Strongly disagree; …``), reverse key, instrument, item, session, how a derived
-    column is computed, and the instrument's citation.
+    column is computed, and the instrument's citation. The derivation of every column that can
+    hold text states the CSV files' formula rule (:data:`~analysis.exports.csvfile.CSV_TEXT_RULE`).
     """
     columns = wide_columns(dataset)
     specs = {
@@ -231,7 +233,17 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
         ]
     out = pd.DataFrame(rows, columns=list(CODEBOOK_COLUMNS))
     out["session"] = out["session"].astype("Int64")
-    return out
+    return _with_csv_rule(out)
+
+
+def _with_csv_rule(book: pd.DataFrame) -> pd.DataFrame:
+    """State the CSV text rule where it applies: in every column that can hold text."""
+    text = book["type"].isin(("string", "mixed"))
+    book.loc[text, "derivation"] = [
+        f"{derivation} {CSV_TEXT_RULE}" if derivation else CSV_TEXT_RULE
+        for derivation in book.loc[text, "derivation"]
+    ]
+    return book
 
 
 def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
@@ -241,7 +253,8 @@ def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
     "per_session", "items": [{"key", "text", "kind", "minimum", "maximum", "reverse",
     "value_labels": {code: label}}]}], "scales": [...], "files": {"wide": [...], "long": [...],
     "steps": [...]}}``; file entries have the keys of :data:`CODEBOOK_COLUMNS` (``session``
-    null when not per session).
+    null when not per session). ``csv_text_cells`` states how the CSV files write text cells that
+    a spreadsheet would run as formulas (:data:`~analysis.exports.csvfile.CSV_TEXT_RULE`).
     """
     table = codebook_table(dataset)
     files: dict[str, list[dict[str, Any]]] = {}
@@ -252,6 +265,7 @@ def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
         "study": dataset.protocol["study"],
         "protocol_version": dataset.protocol.get("version", ""),
         "conditions": [dict(c) for c in dataset.protocol["conditions"]],
+        "csv_text_cells": CSV_TEXT_RULE,
         "instruments": [
             {
                 "name": spec.name,

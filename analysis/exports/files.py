@@ -13,11 +13,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-import pandas as pd
-
 from analysis.dataset import StudyDataset
 from analysis.errors import InvalidInputError
 from analysis.exports.codebook import codebook_json, codebook_table
+from analysis.exports.csvfile import write_csv
 from analysis.exports.spss import write_sav
 from analysis.exports.tables import long_table, steps_table, wide_table
 from analysis.report import write_report
@@ -25,24 +24,10 @@ from analysis.report import write_report
 __all__ = [
     "EXPORT_FORMATS",
     "ExportFormat",
-    "csv_bytes",
     "sha256_file",
     "write_all_exports",
-    "write_csv",
     "write_export",
 ]
-
-
-def csv_bytes(frame: pd.DataFrame) -> bytes:
-    """The exact bytes every CSV export uses: UTF-8, comma, ``\\n``, no index, empty = missing."""
-    return frame.to_csv(index=False, na_rep="", lineterminator="\n").encode("utf-8")
-
-
-def write_csv(frame: pd.DataFrame, path: str | Path) -> Path:
-    """Write ``frame`` with :func:`csv_bytes` and return the path."""
-    target = Path(path)
-    target.write_bytes(csv_bytes(frame))
-    return target
 
 
 def sha256_file(path: str | Path) -> str:

@@ -68,50 +68,73 @@ async def _console(url: str, key: str) -> None:
 
 
 async def _loop(socket: StationSocket) -> None:
-    """Prompt, ask and wait until the user quits; a refused request is shown and skipped."""
+    """Do what the server expects next until the user quits: answer the open prompt, prompt a
+    category, or wait for an event; a refused request is shown and the state re-read.
+
+    Only a state the robot asked for decides what comes next. A pushed event's state is a
+    snapshot from when the event happened, and the events queue up while the robot prompts and
+    asks: taking the oldest of them as the truth after the session's last answer asked that
+    session's first question again. So an event only means "something changed": the robot then
+    asks for the state (:func:`_fresh_state`).
+    """
+    state: dict[str, Any] = socket.state or {}
     while True:
-        state = socket.state or {}
-        expected = state.get("expected", {})
-        categories: list[str] = expected.get("categories") or []
-        if expected.get("action") == "answer" and state.get("open_prompts"):
-            open_prompt = state["open_prompts"][0]
-            await _ask(socket, open_prompt["step_id"], open_prompt["question"])
-            continue
-        if expected.get("action") != "prompt":
+        expected = state.get("expected") or {}
+        action = expected.get("action")
+        open_step = _open_step(state)
+        if action == "answer" and open_step is not None:
+            state = await _ask(socket, state, open_step["step_id"], open_step["question"])
+        elif action == "prompt" and expected.get("categories"):
+            chosen = await _choose(expected["categories"])
+            if chosen is None:
+                return
+            try:
+                step = await socket.prompt(chosen)
+            except DeviceKeyRefused:
+                raise
+            except ApiError as exc:
+                _refusal(exc, "choose the category again to retry")
+                state = await _fresh_state(socket, state)
+                continue
+            state = await _ask(socket, state, step.step_id, step.question)
+        else:
             typer.echo("  waiting for the experimenter… (Ctrl-C quits)")
             event = await socket.next_event()
-            if event.get("state"):
-                # the pushed state is newer than one re-read before it arrived
-                socket.state = event["state"]
             typer.echo(f"  event: {event.get('event', event['type'])}")
-            continue
-        menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
-        choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
-        if choice.lower() in {"q", "quit"}:
-            return
-        name = (
-            categories[int(choice) - 1]
-            if choice.isdigit() and 0 < int(choice) <= len(categories)
-            else choice
-        )
-        try:
-            step = await socket.prompt(name)
-        except DeviceKeyRefused:
-            raise
-        except ApiError as exc:
-            _refusal(exc, "choose the category again to retry")
-            continue
-        await _ask(socket, step.step_id, step.question)
+            # If the state cannot be read now, the event's snapshot is the newest news there is.
+            state = await _fresh_state(socket, event.get("state") or state)
 
 
-async def _ask(socket: StationSocket, step_id: int, question: str) -> None:
-    """Ask ``question``, send the typed answer; a refusal is shown and the state re-read.
+def _open_step(state: dict[str, Any]) -> dict[str, Any] | None:
+    """The open prompt the server expects an answer to (its ``expected.step_id``), if any."""
+    prompts: list[dict[str, Any]] = state.get("open_prompts") or []
+    wanted = (state.get("expected") or {}).get("step_id")
+    return next((p for p in prompts if p.get("step_id") == wanted), prompts[0] if prompts else None)
+
+
+async def _choose(categories: list[str]) -> str | None:
+    """The category the user picks from the expected ones (by number or name); None to quit."""
+    menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
+    choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
+    if choice.lower() in {"q", "quit"}:
+        return None
+    if choice.isdigit() and 0 < int(choice) <= len(categories):
+        return categories[int(choice) - 1]
+    return choice
+
+
+async def _ask(
+    socket: StationSocket, state: dict[str, Any], step_id: int, question: str
+) -> dict[str, Any]:
+    """Ask ``question``, send the typed answer; return the station's state afterwards.
 
     A busy server (503) asks for the answer again and resends it with the same idempotency key,
-    so an answer the server did record after all is not recorded twice.
+    so an answer the server did record after all is not recorded twice. Any other refusal is
+    shown and the state re-read.
     """
     typer.echo(f"  robot: {question}")
     idempotency_key = uuid.uuid4().hex
+    answered = _without_step(state, step_id)
     while True:
         said = (await asyncio.to_thread(input, "  participant (y/n)? ")).strip().lower()
         if said not in {"y", "yes", "n", "no"}:
@@ -126,31 +149,39 @@ async def _ask(socket: StationSocket, step_id: int, question: str) -> None:
                 _refusal(exc, "type the answer again to retry")
                 continue
             _refusal(exc, "")
-            await _refresh(socket)
-            return
+            return await _fresh_state(socket, answered)
         break
     typer.echo(
         f"  robot: {reply.reply}  (confidence {reply.confidence}, p = {reply.probability:.2f})"
     )
-    if not await _refresh(socket) and socket.state is not None:
-        # the answer is recorded: do not ask it again from the stale state
-        socket.state["open_prompts"] = [
-            p for p in socket.state.get("open_prompts") or [] if p.get("step_id") != step_id
-        ]
-        socket.state["expected"] = reply.expected.model_dump(mode="json")
     typer.echo(f"  next: {reply.expected.message}")
+    # the answer is recorded: should the state be unreadable, the reply says what comes next
+    answered["expected"] = reply.expected.model_dump(mode="json")
+    return await _fresh_state(socket, answered)
 
 
-async def _refresh(socket: StationSocket) -> bool:
-    """Re-read the station's state; False (with the refusal shown) when the server refuses."""
+def _without_step(state: dict[str, Any], step_id: int) -> dict[str, Any]:
+    """``state`` without the open prompt ``step_id`` (answered, or refused for good)."""
+    prompts = state.get("open_prompts") or []
+    return {**state, "open_prompts": [p for p in prompts if p.get("step_id") != step_id]}
+
+
+async def _fresh_state(socket: StationSocket, fallback: dict[str, Any]) -> dict[str, Any]:
+    """The station's state, read now; ``fallback`` (with the refusal shown) when refused.
+
+    The events received until now are dropped unread: the state read after them includes what
+    they report. Events arriving from now on stay queued, and each one read makes the robot ask
+    again, so a change made while this request travels is not missed.
+    """
+    while not socket.events.empty():
+        socket.events.get_nowait()
     try:
-        socket.state = (await socket.current_state()).model_dump(mode="json")
+        return (await socket.current_state()).model_dump(mode="json")
     except DeviceKeyRefused:
         raise
     except ApiError as exc:
         _refusal(exc, "carrying on with the last known state")
-        return False
-    return True
+        return fallback
 
 
 def robot(

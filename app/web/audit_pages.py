@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 
+import pandas as pd
 from fastapi import Request
 from fastapi.responses import Response
 from sqlalchemy import Select, func, select
 
+from analysis.exports import csv_bytes
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.inputs import PageNumber
 from app.services import audit
@@ -20,6 +20,18 @@ from app.web.templating import render
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 PAGE_SIZE = 100
+
+AUDIT_CSV_COLUMNS = (
+    "id",
+    "occurred_at",
+    "actor_kind",
+    "actor",
+    "action",
+    "study",
+    "subject",
+    "details",
+)
+"""Columns of ``/admin/audit.csv``."""
 
 
 def _filtered(study: str, action: str, actor: str) -> Select[AuditEvent, str]:
@@ -75,25 +87,25 @@ def audit_export(
     action: str = "",
     actor: str = "",
 ) -> Response:
-    """The (filtered) audit log as CSV, oldest first; the export itself is audited."""
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(
-        ["id", "occurred_at", "actor_kind", "actor", "action", "study", "subject", "details"]
-    )
-    for event, study_name in db.execute(_filtered(study, action, actor).order_by(AuditEvent.id)):
-        writer.writerow(
-            [
-                event.id,
-                event.occurred_at.isoformat(),
-                event.actor_kind,
-                event.actor,
-                event.action,
-                study_name or "",
-                event.subject,
-                json.dumps(event.details, sort_keys=True),
-            ]
+    """The (filtered) audit log as CSV, oldest first; the export itself is audited.
+
+    Written by :func:`analysis.exports.csv_bytes` like every CSV, so an actor or subject that a
+    spreadsheet would run as a formula (the login name of whoever ran a command, say) stays text.
+    """
+    rows = [
+        (
+            event.id,
+            event.occurred_at.isoformat(),
+            event.actor_kind,
+            event.actor,
+            event.action,
+            study_name or "",
+            event.subject,
+            json.dumps(event.details, sort_keys=True),
         )
+        for event, study_name in db.execute(_filtered(study, action, actor).order_by(AuditEvent.id))
+    ]
+    table = pd.DataFrame(rows, columns=list(AUDIT_CSV_COLUMNS))
     with request.app.state.database.write_session() as writer_db:
         audit.record(
             writer_db,
@@ -103,7 +115,7 @@ def audit_export(
         )
         writer_db.commit()
     return Response(
-        buffer.getvalue(),
+        csv_bytes(table),
         media_type="text/csv",
         headers={
             "Content-Disposition": 'attachment; filename="trustlab-audit.csv"',

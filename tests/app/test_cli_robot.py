@@ -136,8 +136,10 @@ Reply = tuple[str, Any]  # ("result", data) or ("error", (status, detail))
 
 
 def _serving(replies: dict[str, list[Reply]], seen: list[dict[str, Any]]) -> Script:
-    """Greet with a prompt state, then answer each request with the next scripted reply."""
+    """Greet with a prompt state, then answer each request with the next scripted reply; a
+    ``state`` request beyond the scripted ones gets the station's latest state."""
     prompting = _state("prompt", session=2, categories=["conation"])
+    latest = {"state": prompting}
 
     async def script(attempt: int, connection: ServerConnection) -> None:
         await connection.send(_hello(prompting))
@@ -146,7 +148,10 @@ def _serving(replies: dict[str, list[Reply]], seen: list[dict[str, Any]]) -> Scr
             if message["type"] == "pong":
                 continue
             seen.append(message)
-            kind, body = replies[message["type"]].pop(0)
+            scripted = replies.get(message["type"]) or []
+            if not scripted and message["type"] == "state":
+                scripted.append(("result", latest["state"]))
+            kind, body = scripted.pop(0)
             if kind == "error":
                 status, detail = body
                 reply = {"type": "error", "id": message["id"], "status": status, "detail": detail}
@@ -155,6 +160,7 @@ def _serving(replies: dict[str, list[Reply]], seen: list[dict[str, Any]]) -> Scr
             await connection.send(json.dumps(reply))
             if message["type"] == "state" and body["expected"]["action"] == "wait":
                 # the experimenter starts the next session: the robot prompts again
+                latest["state"] = prompting
                 event = {
                     "type": "event",
                     "event": "session_started",
@@ -229,14 +235,126 @@ def test_a_session_ended_meanwhile_is_shown_and_the_robot_waits() -> None:
 
 
 def test_a_refused_prompt_is_shown_and_the_menu_comes_back() -> None:
+    prompting = _state("prompt", session=2, categories=["conation"])
+    seen: list[dict[str, Any]] = []
+    replies: dict[str, list[Reply]] = {
+        "prompt": [("error", (503, "the database is unavailable right now; please retry"))],
+        "state": [("result", prompting)],
+    }
+    code, out, err, _ = _robot(_serving(replies, seen), stdin="1\nq\n")
+    assert code == 0, err
+    assert "  server unavailable: the database is unavailable right now; please retry" in out
+    assert out.count("category?") == 2
+    assert [m["type"] for m in seen] == ["prompt", "state"]
+
+
+def test_a_refused_prompt_rereads_the_state_and_waits_when_nothing_is_expected() -> None:
     seen: list[dict[str, Any]] = []
     replies: dict[str, list[Reply]] = {
         "prompt": [("error", (409, "no running session at station lab-1"))],
+        "state": [("result", _state("wait", session=2))],
     }
     code, out, err, _ = _robot(_serving(replies, seen), stdin="1\nq\n")
     assert code == 0, err
     assert "  refused: no running session at station lab-1" in out
+    after = out.split("refused:", 1)[1]
+    assert after.index("waiting for the experimenter") < after.index("category?")
+    assert "event: session_started" in after, "the menu comes back once a session is running"
     assert out.count("category?") == 2
+
+
+QUESTION = "Do you want to escape the room?"
+
+
+def _answering(step_id: int, *, open_steps: tuple[int, ...] | None = None) -> Any:
+    state = _state("answer", session=4, categories=["conation"])
+    state["open_prompts"] = [
+        {**_prompt(n), "question": f"question {n}" if n != 7 else QUESTION}
+        for n in open_steps or (step_id,)
+    ]
+    state["expected"]["step_id"] = step_id
+    return state
+
+
+def _finished() -> Any:
+    state = _state("done", session=4)
+    state["expected"]["message"] = "P01 has finished every session"
+    return state
+
+
+def _last_answer_station(seen: list[str]) -> Script:
+    """A station in the session's last run with one category left, pushing an event with the
+    state of the moment after each change, as the server does; once the robot has read the
+    finished state, the experimenter seats the next participant."""
+    prompting = _state("prompt", session=4, categories=["conation"])
+    current = {"state": prompting}
+
+    async def script(attempt: int, connection: ServerConnection) -> None:
+        async def push(event: str, state: Any) -> None:
+            current["state"] = state
+            await connection.send(
+                json.dumps({"type": "event", "event": event, "data": {}, "state": state})
+            )
+
+        async def reply(message: Any, data: Any) -> None:
+            await connection.send(json.dumps({"type": "result", "id": message["id"], "data": data}))
+
+        await connection.send(_hello(prompting))
+        async for raw in connection:
+            message = json.loads(raw)
+            if message["type"] == "pong":
+                continue
+            seen.append(message["type"])
+            if message["type"] == "prompt":
+                await reply(message, {**_prompt(), "question": QUESTION})
+                await push("prompt_opened", _answering(7))
+            elif message["type"] == "answer":
+                await reply(message, {**_answered(_finished()), "session_completed": True})
+                await push("answer_recorded", _finished())
+                await push("session_ended", _finished())
+            elif message["type"] == "state":
+                await reply(message, current["state"])
+                if current["state"]["expected"]["action"] == "done":
+                    seated = _state("prompt", session=1, categories=["conation", "cognition"])
+                    await push("participant_assigned", seated)
+
+    return script
+
+
+def test_after_the_last_answer_the_robot_waits_and_never_asks_again() -> None:
+    seen: list[str] = []
+    code, out, err, _ = _robot(_last_answer_station(seen), stdin="1\ny\n")
+    assert code == 0, err
+    assert "Traceback" not in out + err
+    assert out.count(f"robot: {QUESTION}") == 1, out
+    assert "next: P01 has finished every session" in out
+    after = out.split("finished every session", 1)[1]
+    assert "(y/n)?" not in after, "nothing is to be answered after the last answer"
+    assert "waiting for the experimenter" in after
+    # the next participant is seated: the robot follows the server to the new menu
+    assert "category? 1) conation  2) cognition" in after
+    assert seen[:3] == ["prompt", "answer", "state"]
+
+
+def test_the_robot_asks_the_step_the_server_expects() -> None:
+    seen: list[str] = []
+
+    async def script(attempt: int, connection: ServerConnection) -> None:
+        await connection.send(_hello(_answering(9, open_steps=(8, 9))))
+        async for raw in connection:
+            message = json.loads(raw)
+            if message["type"] == "pong":
+                continue
+            seen.append(f"{message['type']} {message.get('step_id', '')}".strip())
+            data = _answered(_finished(), 9) if message["type"] == "answer" else _finished()
+            await connection.send(json.dumps({"type": "result", "id": message["id"], "data": data}))
+            if message["type"] == "state":
+                await connection.close(4401, "device key revoked")
+
+    code, out, err, _ = _robot(script, stdin="n\n")
+    assert code == 2, err  # ended by the revoked key, once the robot waits
+    assert "robot: question 9" in out and "question 8" not in out
+    assert seen == ["answer 9", "state"]
 
 
 def test_a_lost_connection_ends_with_one_error_line(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -155,3 +155,38 @@ def test_backoff_is_jittered_and_bounded() -> None:
     assert delays[0] <= 0.2 and max(delays) > 2.0, "grows towards the cap"
     again = list(client.backoff_delays(0.2, 5.0, random.Random(4), attempts=12))
     assert delays != again, "two clients do not retry in lockstep"
+
+
+def test_socket_state_is_the_newest_state_received() -> None:
+    def station(action: str) -> dict[str, Any]:
+        expected = {"action": action, "message": action, "categories": [], "step_id": None}
+        return {
+            "station": "lab-1",
+            "participant": None,
+            "study": None,
+            "session": None,
+            "run": None,
+            "open_prompts": [],
+            "expected": {**expected, "session": None},
+        }
+
+    async def script(attempt: int, connection: ServerConnection) -> None:
+        await connection.send(json.dumps({**HELLO, "state": station("answer")}))
+        pushed = {"type": "event", "event": "prompt_opened", "data": {}, "state": station("answer")}
+        await connection.send(json.dumps(pushed))
+        async for raw in connection:
+            message = json.loads(raw)
+            reply = {"type": "result", "id": message["id"], "data": station("done")}
+            await connection.send(json.dumps(reply))
+
+    async def main() -> None:
+        async with (
+            scripted_server(script) as (url, _),
+            StationSocket(url, "k", **_fast()) as socket,
+        ):
+            queued = await socket.next_event()
+            assert (await socket.current_state()).expected.action == "done"
+            assert socket.state is not None and socket.state["expected"]["action"] == "done"
+            assert queued["state"]["expected"]["action"] == "answer"  # as old as the event
+
+    asyncio.run(main())
