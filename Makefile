@@ -32,8 +32,11 @@ lint: install
 typecheck: install
 	$(BIN)/mypy
 
+# Two parts: everything else spread over the machine's cores (pytest-xdist, worksteal), then the
+# tests marked `exclusive`, which restart the shared PostgreSQL and so must run alone.
 pytest: install
-	$(BIN)/pytest
+	$(BIN)/pytest -n auto --dist worksteal -m "not exclusive"
+	$(BIN)/pytest -m exclusive
 
 test: lint typecheck pytest
 

@@ -8,6 +8,7 @@ import typer
 
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import NotFound
+from app.inputs import MAX_ROW_ID
 from app.services import stations, verify
 from app.services.audit import Actor
 from app.settings import Settings
@@ -89,7 +90,11 @@ def device_create(
 
 
 @device_cli.command("revoke")
-def device_revoke(device_id: Annotated[int, typer.Argument(help="The device's id.")]) -> None:
+def device_revoke(
+    device_id: Annotated[
+        int, typer.Argument(min=1, max=MAX_ROW_ID, help="The id `device create` printed.")
+    ],
+) -> None:
     """Revoke a device key at once."""
     database = open_database(Settings())
     require_current_schema(database)

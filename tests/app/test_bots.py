@@ -98,12 +98,16 @@ def test_bots_revoke_their_keys_after_a_run_an_error_and_an_interruption(
             await run
 
     asyncio.run(interrupted())
-    assert [revoked for _, revoked in _bot_keys(database)] == [True] * 4
+    # The second lane may or may not have got its key before the first one's answer ended the
+    # run (that is up to the scheduler): whatever was issued is revoked.
+    keys = _bot_keys(database)
+    assert 3 <= len(keys) <= 4 and all(revoked for _, revoked in keys), keys
 
     monkeypatch.setattr(bots._Lane, "run_participant", _crash)
     with pytest.raises(RuntimeError, match="lane crashed"):
         asyncio.run(run_bots(_config(server, exp3_study, 2)))
-    assert [revoked for _, revoked in _bot_keys(database)] == [True] * 6
+    after_crash = _bot_keys(database)
+    assert len(after_crash) > len(keys) and all(revoked for _, revoked in after_crash), after_crash
 
 
 async def _crash(self: object) -> None:

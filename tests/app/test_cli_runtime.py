@@ -30,6 +30,15 @@ def test_device_create_makes_the_station_and_prints_one_json_object(database_url
     assert (code, err.strip()) == (1, f"error: device {issued['device_id']} is already revoked")
     code, _, err = run(database_url, "station", "create", "Bad Name")
     assert code == 2 and "station name 'Bad Name'" in err
+    code, _, err = run(database_url, "station", "create", "lab-9\n")
+    assert code == 2 and "station name 'lab-9\\n'" in err
+
+
+def test_an_id_no_row_can_have_is_refused_in_one_line(database_url: str) -> None:
+    """30 digits used to reach SQLite's driver (OverflowError, a traceback)."""
+    code, out, err = run(database_url, "device", "revoke", "1" + "0" * 29)
+    assert code == 2 and "Traceback" not in out + err
+    assert "device_id" in err.lower() or "DEVICE_ID" in err
 
 
 def test_verify_is_clean_then_flags_tampering(lab: Lab, database_url: str) -> None:

@@ -58,6 +58,7 @@ def ensure_postgres_running() -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.exclusive  # restarts the PostgreSQL every other test shares: never beside them
 def test_requests_get_503_during_a_restart_and_nothing_is_lost(
     database: Database, database_url: str, exp3_study: str, tmp_path: Path
 ) -> None:

@@ -68,7 +68,7 @@ def _meet(lab: Lab, first: Callable[[Session], Any], second: Callable[[Session],
     b = threading.Thread(target=run, args=("second", second, False))
     b.start()
     try:
-        _wait_until_blocked(lab, time.monotonic() + 10)
+        _wait_until_blocked(lab, time.monotonic() + 60)
     finally:
         go.set()
         a.join(10)
