@@ -25,7 +25,7 @@ from sqlalchemy.orm import Session
 from app.bots import BotConfig, BotSummary, run_bots
 from app.db import Database
 from app.protocol import default_protocol
-from app.services import studies, users
+from app.services import accounts, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -110,7 +110,7 @@ def run_demo(
     database = Database(settings.database_url)
     try:
         with database.writing() as db:
-            users.deactivate_user(db, username=plan.username, actor=Actor.system("demo"))
+            accounts.disable_user(db, username=plan.username, actor=Actor.system("demo"))
     finally:
         database.dispose()
     plan_path(settings).unlink(missing_ok=True)

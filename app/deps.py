@@ -12,7 +12,8 @@ one step, app/api/device_work.py):
 1. **Admission** (:func:`request_session`): requests queue as coroutines for one of a bounded
    number of slots, so an admitted request always finds a connection and a thread (app.db).
 2. **Who is asking is read first**, in one thread-pool hop, through :func:`identify`: the login
-   cookie (:func:`current_login`), a tablet's token (app.tablet), or a sign-in's username. The
+   cookie (:func:`current_login`) or a tablet's token (app.tablet). (A sign-in instead counts its
+   attempt in a short write transaction of its own: app.services.login_throttle.) The
    dependencies that check it (CSRF, idle timeout, roles) are coroutines around that one hop, so
    refusals still come before the request body is validated. For a write request that read is a
    transaction of its own, ended before the handler runs: a write session's transaction is, on

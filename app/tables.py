@@ -500,7 +500,9 @@ class Submission(Base):
 
 
 class LoginAttempt(Base):
-    """A sign-in attempt, kept to slow down password guessing (per account and per address)."""
+    """A password check (a sign-in or a password change), kept to slow down password guessing
+    per account and per address: recorded as a failure before the check, marked succeeded after a
+    right one (app.services.login_throttle)."""
 
     __tablename__ = "login_attempt"
     __table_args__ = (
@@ -513,3 +515,5 @@ class LoginAttempt(Base):
     client_address: Mapped[str] = mapped_column(String(64))
     succeeded: Mapped[bool]
     attempted_at: Mapped[datetime] = mapped_column(default=utcnow)
+    cleared_at: Mapped[datetime | None]
+    """When an admin unlocked the account: a cleared failure no longer counts (0006)."""

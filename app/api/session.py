@@ -2,8 +2,9 @@
 
 JSON only: a cross-site HTML form cannot send ``application/json``, so this route needs no CSRF
 token of its own; the response hands the client the login's CSRF token for later requests. Like
-the sign-in page, it reads the account first (:func:`app.deps.identify`), checks the password with
-no transaction open, and records the attempt and the login in one write transaction.
+the sign-in page (app.web.auth), it counts the attempt and reads the account in a short write
+transaction of its own, checks the password with no transaction open, and records the outcome and
+the login in the request's write transaction.
 """
 
 from __future__ import annotations
@@ -17,13 +18,13 @@ from app.api.schemas import RequestBody
 from app.deps import (
     SESSION_COOKIE,
     CurrentLogin,
+    DatabaseDep,
     OneHopRouter,
     SessionDep,
     SettingsDep,
-    identify,
     set_session_cookie,
 )
-from app.errors import InvalidInput, NotAuthenticated
+from app.errors import InvalidInput, NotAuthenticated, PermissionDenied
 from app.services import users
 
 router = OneHopRouter(prefix="/session", tags=["session"])
@@ -46,25 +47,30 @@ class SignedIn(BaseModel):
 
 @router.post("")
 def sign_in(
-    body: Credentials, request: Request, response: Response, db: SessionDep, settings: SettingsDep
+    body: Credentials,
+    request: Request,
+    response: Response,
+    db: SessionDep,
+    database: DatabaseDep,
+    settings: SettingsDep,
 ) -> SignedIn:
     """Sign in; sets the session cookie."""
     if not request.headers.get("content-type", "").startswith("application/json"):
         raise InvalidInput("send the credentials as application/json")
     address = request.client.host if request.client else ""
-    candidate = identify(
+    with database.writing() as counting:
+        check = users.begin_password_check(counting, username=body.username, client_address=address)
+    new_login = users.finish_sign_in(
         db,
-        lambda read: users.find_candidate(read, username=body.username, client_address=address),
-    )
-    new_login = users.sign_in_with_password(
-        db,
-        candidate=candidate,
+        check=check,
         password=body.password,
         lifetime=timedelta(hours=settings.session_hours),
         user_agent=request.headers.get("user-agent", ""),
         client_address=address,
     )
-    if new_login is None:
+    if new_login is users.Refusal.DISABLED:
+        raise PermissionDenied("this account is disabled; an admin can enable it again")
+    if isinstance(new_login, users.Refusal):
         raise NotAuthenticated("invalid username or password")
     set_session_cookie(response, request, settings, new_login.token)
     user = new_login.session.user

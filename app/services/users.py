@@ -4,21 +4,37 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import timedelta
+from enum import StrEnum
 
-from sqlalchemy import func, select, update
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, NotFound, TooManyAttempts
 from app.inputs import USERNAME
 from app.security import hash_password, new_token, password_problem, token_digest, verify_password
-from app.services import audit
+from app.services import audit, login_throttle
 from app.services.audit import Actor
-from app.tables import LoginAttempt, LoginSession, Role, User, utcnow
+from app.tables import LoginSession, Role, User, utcnow
 
 
 def normalise_username(username: str) -> str:
     """Usernames are case-insensitive: stored and compared in lower case."""
     return username.strip().lower()
+
+
+def named(db: Session, username: str, *, for_update: bool = False) -> User:
+    """The account a URL or a command names (NotFound otherwise). The name must be exactly a
+    username, in any case: nothing is stripped, so ``"ada\\n"`` is not ``ada``."""
+    name = username.lower()
+    user = None
+    if USERNAME.matches(name):
+        query = select(User).where(User.username == name)
+        if for_update:
+            query = query.with_for_update().execution_options(populate_existing=True)
+        user = db.scalar(query)
+    if user is None:
+        raise NotFound(f"no user named {username!r}")
+    return user
 
 
 def create_user(
@@ -37,29 +53,13 @@ def create_user(
     problem = password_problem(password)
     if problem:
         raise InvalidInput(problem)
+    password_hash = hash_password(password)  # slow: before the write transaction begins
     if db.scalar(select(User.id).where(User.username == name)) is not None:
         raise Conflict(f"a user named {name!r} already exists")
-    user = User(username=name, role=role, password_hash=hash_password(password))
+    user = User(username=name, role=role, password_hash=password_hash)
     db.add(user)
     db.flush()
     audit.record(db, actor=actor, action="user.created", subject=name, details={"role": role})
-    db.commit()
-    return user
-
-
-def deactivate_user(db: Session, *, username: str, actor: Actor) -> User:
-    """Stop an account from signing in (its history stays); commits."""
-    name = normalise_username(username)
-    user = db.scalar(select(User).where(User.username == name))
-    if user is None:
-        raise NotFound(f"no user named {name!r}")
-    user.is_active = False
-    db.execute(
-        update(LoginSession)
-        .where(LoginSession.user_id == user.id, LoginSession.revoked_at.is_(None))
-        .values(revoked_at=utcnow())
-    )
-    audit.record(db, actor=actor, action="user.deactivated", subject=name, details={})
     db.commit()
     return user
 
@@ -69,101 +69,125 @@ def count_users(db: Session) -> int:
     return db.scalar(select(func.count()).select_from(User)) or 0
 
 
-THROTTLE_WINDOW = timedelta(minutes=15)
-MAX_FAILURES_PER_ACCOUNT = 5
-MAX_FAILURES_PER_ADDRESS = 20
+SIGN_IN_FAILED = "user.sign_in_failed"
+PASSWORD_CHANGE_FAILED = "user.password_change_failed"
 
 
-def _throttle(db: Session, *, username: str, client_address: str) -> None:
-    """Refuse (429) while an account or an address has failed too often in the window."""
-    since = utcnow() - THROTTLE_WINDOW
-    for column, value, limit, what in (
-        (LoginAttempt.username, username, MAX_FAILURES_PER_ACCOUNT, "this account"),
-        (LoginAttempt.client_address, client_address, MAX_FAILURES_PER_ADDRESS, "this address"),
-    ):
-        if not value:
-            continue
-        failures = db.scalars(
-            select(LoginAttempt.attempted_at)
-            .where(
-                column == value,
-                LoginAttempt.attempted_at > since,
-                LoginAttempt.succeeded.is_(False),
-            )
-            .order_by(LoginAttempt.attempted_at.desc())
-            .limit(limit)
-        ).all()
-        if len(failures) >= limit:
-            wait = failures[-1] + THROTTLE_WINDOW - utcnow()
-            minutes = max(1, int(wait.total_seconds() // 60) + 1)
-            raise TooManyAttempts(
-                f"too many failed sign-ins from {what}; try again in {minutes} minutes"
-            )
+class Refusal(StrEnum):
+    """Why a password check failed, as the audit log records it (never the password tried)."""
+
+    WRONG_PASSWORD = "wrong password"
+    UNKNOWN_USER = "unknown user"
+    LOCKED = "locked"
+    DISABLED = "disabled"
 
 
 @dataclass(frozen=True)
-class Candidate:
-    """Who a sign-in claims to be, read before its password is checked (:func:`find_candidate`)."""
+class PasswordCheck:
+    """A counted attempt (:func:`begin_password_check`) and the account it names, if any."""
 
+    attempt_id: int
     username: str
     client_address: str
     user_id: int | None
     password_hash: str | None
 
 
-def find_candidate(db: Session, *, username: str, client_address: str = "") -> Candidate:
-    """The first, read-only step of a sign-in: refused (TooManyAttempts) while the account or the
-    address has failed too often, otherwise the account the username names, if any."""
+def _record_refusal(
+    db: Session,
+    *,
+    action: str,
+    username: str,
+    client_address: str,
+    refusal: Refusal,
+    **details: str,
+) -> None:
+    audit.record(
+        db,
+        actor=Actor.system("sign-in"),
+        action=action,
+        subject=username,
+        details={"reason": refusal.value, "client_address": client_address, **details},
+    )
+
+
+def begin_password_check(
+    db: Session, *, username: str, client_address: str = "", failed_action: str = SIGN_IN_FAILED
+) -> PasswordCheck:
+    """The first step of every password check: count the attempt (login_throttle.reserve) and
+    read the account it names, in one write transaction; commits.
+
+    Raises TooManyAttempts while the account or the address has failed too often; that refusal
+    is audited as ``failed_action`` with the reason ``locked``. The password is checked next, with
+    no transaction open (:func:`finish_sign_in`, app.services.accounts.change_own_password).
+    """
     name = normalise_username(username)[:64]
     address = client_address[:64]
-    _throttle(db, username=name, client_address=address)
+    reserved = login_throttle.reserve(db, username=name, client_address=address)
+    if isinstance(reserved, login_throttle.Locked):
+        _record_refusal(
+            db,
+            action=failed_action,
+            username=name,
+            client_address=address,
+            refusal=Refusal.LOCKED,
+            by=reserved.by,
+        )
+        db.commit()
+        raise TooManyAttempts(reserved.message())
     user = db.scalar(select(User).where(User.username == name))
-    return Candidate(name, address, user.id if user else None, user.password_hash if user else None)
+    db.commit()
+    return PasswordCheck(
+        reserved, name, address, user.id if user else None, user.password_hash if user else None
+    )
 
 
-def _attempt(db: Session, candidate: Candidate, password: str) -> User | None:
-    """Check the password, then record the attempt in the caller's write transaction.
+def check_password(
+    db: Session, check: PasswordCheck, password: str, *, failed_action: str = SIGN_IN_FAILED
+) -> User | Refusal:
+    """Check the password of a :func:`begin_password_check`, then, in the caller's write
+    transaction, read the account again (locked on PostgreSQL) and decide: the active account
+    whose password this still is, or why not (audited as ``failed_action``).
 
     The check (Argon2id: deliberately slow) runs before the write transaction begins, because on
     SQLite that transaction is the single write lock; the caller must have no transaction open.
-    Inside the transaction the throttle is checked again and the account read again (locked on
-    PostgreSQL), so concurrent attempts cannot exceed the limits, and an account deactivated or
-    given a new password meanwhile is refused.
+    An account disabled or given a new password meanwhile is refused.
     """
-    valid = verify_password(candidate.password_hash, password)
-    _throttle(db, username=candidate.username, client_address=candidate.client_address)
+    valid = verify_password(check.password_hash, password)
     user = (
-        db.get(User, candidate.user_id, with_for_update=True, populate_existing=True)
-        if candidate.user_id is not None
+        db.get(User, check.user_id, with_for_update=True, populate_existing=True)
+        if check.user_id is not None
         else None
     )
-    ok = (
-        user is not None
-        and valid
-        and user.is_active
-        and user.password_hash == candidate.password_hash
+    if user is None:
+        refusal = Refusal.UNKNOWN_USER
+    elif not valid or user.password_hash != check.password_hash:
+        refusal = Refusal.WRONG_PASSWORD
+    elif not user.is_active:
+        refusal = Refusal.DISABLED
+    else:
+        login_throttle.mark_succeeded(db, check.attempt_id)
+        return user
+    _record_refusal(
+        db,
+        action=failed_action,
+        username=check.username,
+        client_address=check.client_address,
+        refusal=refusal,
     )
-    db.add(
-        LoginAttempt(
-            username=candidate.username, client_address=candidate.client_address, succeeded=ok
-        )
-    )
-    return user if ok else None
+    return refusal
 
 
 def authenticate(
     db: Session, *, username: str, password: str, client_address: str = ""
 ) -> User | None:
-    """The active user with these credentials, or None (never saying which part was wrong).
-
-    Every attempt is recorded (and committed, successful or not); after repeated failures the
-    account or the address is refused with TooManyAttempts before any password is checked.
-    """
-    candidate = find_candidate(db, username=username, client_address=client_address)
-    db.commit()  # no transaction stays open while the password is checked
-    user = _attempt(db, candidate, password)
+    """The active user with these credentials, or None (scripts and tests; pages and the API
+    use :func:`begin_password_check` and :func:`finish_sign_in`). Commits; TooManyAttempts while
+    throttled."""
+    check = begin_password_check(db, username=username, client_address=client_address)
+    user = check_password(db, check, password)
     db.commit()
-    return user
+    return user if isinstance(user, User) else None
 
 
 @dataclass(frozen=True)
@@ -212,28 +236,29 @@ def sign_in(
     return new_login
 
 
-def sign_in_with_password(
+def finish_sign_in(
     db: Session,
     *,
-    candidate: Candidate,
+    check: PasswordCheck,
     password: str,
     lifetime: timedelta,
     user_agent: str = "",
     client_address: str = "",
-) -> NewLogin | None:
-    """Check the password of a :func:`find_candidate` and, if it is right, open a login session:
-    the attempt, the login and its audit row in one write transaction; commits. None when the
-    credentials are wrong (never saying which part); TooManyAttempts when throttled meanwhile.
+) -> NewLogin | Refusal:
+    """Check the password of a :func:`begin_password_check` and, if it is right, open a login
+    session: the attempt's outcome, the login and its audit row in one write transaction; commits.
+    A refusal is audited with its reason; pages show the same message for every reason but
+    :attr:`Refusal.DISABLED`, which only the holder of the right password gets to see.
 
     The caller must have no transaction open (the password is checked before the write begins).
     """
-    user = _attempt(db, candidate, password)
+    user = check_password(db, check, password)
     new_login = (
         _open_login(
             db, user=user, lifetime=lifetime, user_agent=user_agent, client_address=client_address
         )
-        if user is not None
-        else None
+        if isinstance(user, User)
+        else user
     )
     db.commit()
     return new_login

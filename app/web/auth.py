@@ -2,10 +2,11 @@
 
 The sign-in form is protected against cross-site posts by a signed double-submit token: the page
 sets a random nonce cookie and embeds the nonce's HMAC in the form; a post is accepted only when
-the two match. After sign-in, forms use the login's own CSRF token (see app.deps). A sign-in reads
-the account first (:func:`app.deps.identify`), checks the password (Argon2id, slow by design) with
-no transaction open, and then records the attempt and the new login in one write transaction, so
-it never holds SQLite's write lock while hashing.
+the two match. After sign-in, forms use the login's own CSRF token (see app.deps). A sign-in first
+counts the attempt and reads the account in a short write transaction of its own
+(app.services.login_throttle: so that no more attempts than the limit are ever checked), checks the
+password (Argon2id, slow by design) with no transaction open, and then records the outcome and the
+new login in the request's write transaction, so it never holds SQLite's write lock while hashing.
 """
 
 from __future__ import annotations
@@ -19,10 +20,10 @@ from fastapi.responses import RedirectResponse, Response
 from app.deps import (
     SESSION_COOKIE,
     CurrentLogin,
+    DatabaseDep,
     OneHopRouter,
     SessionDep,
     SettingsDep,
-    identify,
     set_session_cookie,
 )
 from app.errors import TooManyAttempts
@@ -34,6 +35,8 @@ router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 LOGIN_NONCE_COOKIE = "tl_login_nonce"
 INVALID_CREDENTIALS = "Invalid username or password."
+ACCOUNT_DISABLED = "This account is disabled; an admin can enable it again."
+"""Shown only to whoever gave the right password: nobody else learns that the account exists."""
 
 
 def _safe_next(target: str | None) -> str:
@@ -72,6 +75,7 @@ def login_form(request: Request, next: str = "/") -> Response:
 def login(
     request: Request,
     db: SessionDep,
+    database: DatabaseDep,
     settings: SettingsDep,
     username: Annotated[str, Form(max_length=200)] = "",
     password: Annotated[str, Form(max_length=1024)] = "",
@@ -92,28 +96,27 @@ def login(
         )
     address = request.client.host if request.client else ""
     try:
-        candidate = identify(
-            db, lambda read: users.find_candidate(read, username=username, client_address=address)
-        )
-        new_login = users.sign_in_with_password(
-            db,
-            candidate=candidate,
-            password=password,
-            lifetime=timedelta(hours=settings.session_hours),
-            user_agent=request.headers.get("user-agent", ""),
-            client_address=address,
-        )
+        with database.writing() as counting:
+            check = users.begin_password_check(counting, username=username, client_address=address)
     except TooManyAttempts as exc:
         return _login_page(
             request, next_url=next_url, username=username, error=exc.message, status_code=429
         )
-    if new_login is None:
+    new_login = users.finish_sign_in(
+        db,
+        check=check,
+        password=password,
+        lifetime=timedelta(hours=settings.session_hours),
+        user_agent=request.headers.get("user-agent", ""),
+        client_address=address,
+    )
+    if isinstance(new_login, users.Refusal):
         return _login_page(
             request,
             next_url=next_url,
             username=username,
-            error=INVALID_CREDENTIALS,
-            status_code=401,
+            error=ACCOUNT_DISABLED if new_login is users.Refusal.DISABLED else INVALID_CREDENTIALS,
+            status_code=403 if new_login is users.Refusal.DISABLED else 401,
         )
     response = RedirectResponse(next_url, status_code=303)
     set_session_cookie(response, request, settings, new_login.token)

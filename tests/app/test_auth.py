@@ -11,8 +11,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import event, select, update
 
 from app.db import Database
-from app.errors import TooManyAttempts
-from app.services import users
+from app.services import accounts, users
 from app.services.audit import Actor
 from app.tables import AuditEvent, LoginAttempt, LoginSession, Role, utcnow
 from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in
@@ -233,39 +232,16 @@ def test_sign_in_checks_the_password_with_no_transaction_open(
     assert seen == [False, False, False]
 
 
-def test_sign_in_refuses_an_account_deactivated_after_it_was_read(database: Database) -> None:
+def test_sign_in_refuses_an_account_disabled_after_it_was_read(database: Database) -> None:
     make_user(database, "leaving", Role.EXPERIMENTER)
-    with database.write_session() as db:
-        candidate = users.find_candidate(db, username="leaving", client_address="10.0.0.9")
-        db.commit()
-        with database.writing() as other:
-            users.deactivate_user(other, username="leaving", actor=Actor.system("tests"))
-        login = users.sign_in_with_password(
-            db, candidate=candidate, password=PASSWORD, lifetime=timedelta(hours=1)
+    with database.writing() as db:
+        check = users.begin_password_check(db, username="leaving", client_address="10.0.0.9")
+    with database.writing() as other:
+        accounts.disable_user(other, username="leaving", actor=Actor.system("tests"))
+    with database.writing() as db:
+        refused = users.finish_sign_in(
+            db, check=check, password=PASSWORD, lifetime=timedelta(hours=1)
         )
-    assert login is None
+    assert refused is users.Refusal.DISABLED
     with database.read_session() as db:
         assert db.scalars(select(LoginAttempt.succeeded)).all() == [False]
-
-
-def test_sign_in_counts_failures_again_inside_its_write(database: Database) -> None:
-    """Attempts checked side by side cannot pass the throttle together: the limit is checked
-    again in the write transaction, and a throttled attempt records nothing."""
-    make_user(database, "guarded", Role.EXPERIMENTER)
-    limit = users.MAX_FAILURES_PER_ACCOUNT
-    with database.writing() as db:
-        for _ in range(limit - 1):
-            db.add(LoginAttempt(username="guarded", client_address="", succeeded=False))
-        db.commit()
-    with database.write_session() as db:
-        candidate = users.find_candidate(db, username="guarded")
-        db.commit()
-        with database.writing() as other:
-            other.add(LoginAttempt(username="guarded", client_address="", succeeded=False))
-            other.commit()
-        with pytest.raises(TooManyAttempts):
-            users.sign_in_with_password(
-                db, candidate=candidate, password=PASSWORD, lifetime=timedelta(hours=1)
-            )
-    with database.read_session() as db:
-        assert len(db.scalars(select(LoginAttempt)).all()) == limit
