@@ -6,13 +6,15 @@ Nothing else in trustlab reads ``os.environ``; code that needs configuration rec
 
 from __future__ import annotations
 
+import ipaddress
 import os
 import secrets
 from functools import cached_property
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field, SecretStr, field_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 """The checkout (or image) root: migrations/, templates/ and static/ live beside the packages."""
@@ -75,6 +77,36 @@ class Settings(BaseSettings):
     )
     host: str = Field(default="127.0.0.1", description="Where `trustlab serve` listens.")
     port: int = Field(default=8000, ge=1, le=65535, description="The port `trustlab serve` uses.")
+    trusted_proxies: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(),
+        description=(
+            "Addresses or networks (comma-separated, e.g. 127.0.0.1,10.0.0.0/24) of the reverse "
+            "proxies in front of trustlab. Only requests from these may name the client's address "
+            "and scheme in X-Forwarded-For / X-Forwarded-Proto; by default nobody may, so no "
+            "local process can choose the address the sign-in throttle counts."
+        ),
+    )
+
+    @field_validator("trusted_proxies", mode="before")
+    @classmethod
+    def _proxy_networks(cls, value: object) -> tuple[str, ...]:
+        items = value.split(",") if isinstance(value, str) else value
+        if not isinstance(items, list | tuple):
+            raise ValueError("give addresses or networks separated by commas")
+        networks = []
+        for item in items:
+            text = str(item).strip()
+            if not text:
+                continue
+            try:
+                networks.append(
+                    str(ipaddress.ip_network(text, strict=False))
+                    if "/" in text
+                    else str(ipaddress.ip_address(text))
+                )
+            except ValueError:
+                raise ValueError(f"{text!r} is not an IP address or network") from None
+        return tuple(networks)
 
     @field_validator("sqlite_synchronous")
     @classmethod

@@ -144,7 +144,7 @@ def serve(
         host=host,
         port=port,
         workers=workers,
-        proxy_headers=True,
+        proxy_headers=False,  # the app trusts only TRUSTLAB_TRUSTED_PROXIES (app.main)
         log_level="info",
     )
 

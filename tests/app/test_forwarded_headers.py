@@ -1,0 +1,151 @@
+"""X-Forwarded-For and X-Forwarded-Proto count only from configured proxies
+(TRUSTLAB_TRUSTED_PROXIES, default none): otherwise any local process could choose the client
+address the sign-in throttle counts."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+from pydantic import ValidationError
+from sqlalchemy import select
+
+from app.db import Database
+from app.main import create_app
+from app.settings import Settings
+from app.tables import LoginAttempt, Role
+from tests.conftest import PASSWORD, make_user
+from tests.servers import ServerProcess
+
+SPOOFED = "203.0.113.9"
+
+
+def _recorded_addresses(database: Database) -> list[str]:
+    with database.read_session() as db:
+        return list(db.scalars(select(LoginAttempt.client_address).order_by(LoginAttempt.id)))
+
+
+def test_trusted_proxies_are_addresses_or_networks(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert Settings(_env_file=None).trusted_proxies == ()  # type: ignore[call-arg]
+    monkeypatch.setenv("TRUSTLAB_TRUSTED_PROXIES", " 10.1.2.3/24, ::1,192.0.2.1 ")
+    assert Settings(_env_file=None).trusted_proxies == (  # type: ignore[call-arg]
+        "10.1.2.0/24",
+        "::1",
+        "192.0.2.1",
+    )
+    monkeypatch.setenv("TRUSTLAB_TRUSTED_PROXIES", "127.0.0.1,proxy.example")
+    with pytest.raises(ValidationError, match=r"'proxy\.example' is not an IP address or network"):
+        Settings(_env_file=None)  # type: ignore[call-arg]
+
+
+@pytest.mark.parametrize(
+    ("trusted", "forwarded_for", "recorded"),
+    [
+        ((), SPOOFED, "127.0.0.1"),
+        (("127.0.0.1",), SPOOFED, SPOOFED),
+        # Each proxy appends the address it saw: the nearest untrusted one is the client.
+        (("127.0.0.1", "10.0.0.0/8"), f"198.51.100.1, {SPOOFED}, 10.2.3.4", SPOOFED),
+    ],
+)
+def test_the_throttle_counts_the_forwarded_address_only_from_trusted_proxies(
+    settings: Settings,
+    database: Database,
+    trusted: tuple[str, ...],
+    forwarded_for: str,
+    recorded: str,
+) -> None:
+    app = create_app(settings.model_copy(update={"trusted_proxies": trusted}))
+    with TestClient(app, client=("127.0.0.1", 40000)) as client:
+        response = client.post(
+            "/api/v1/session",
+            json={"username": "nobody", "password": "wrong password"},
+            headers={"X-Forwarded-For": forwarded_for},
+        )
+    assert response.status_code == 401
+    assert _recorded_addresses(database) == [recorded]
+
+
+@pytest.mark.parametrize(("trusted", "secure"), [((), False), (("127.0.0.1",), True)])
+def test_the_forwarded_scheme_counts_only_from_trusted_proxies(
+    settings: Settings, database: Database, trusted: tuple[str, ...], secure: bool
+) -> None:
+    """X-Forwarded-Proto decides the cookie's Secure flag, so it is trusted no more widely."""
+    make_user(database, "ada", Role.ANALYST)
+    app = create_app(settings.model_copy(update={"trusted_proxies": trusted}))
+    with TestClient(app, client=("127.0.0.1", 40000)) as client:
+        response = client.post(
+            "/api/v1/session",
+            json={"username": "ada", "password": PASSWORD},
+            headers={"X-Forwarded-Proto": "https"},
+        )
+    assert response.status_code == 200
+    assert ("secure" in response.headers["set-cookie"].lower()) is secure
+
+
+class TrustlabServe(ServerProcess):
+    """``trustlab serve`` itself (ServerProcess runs uvicorn's own command line, whose defaults
+    trust X-Forwarded-For from loopback)."""
+
+    def start(self, timeout: float = 60.0) -> None:
+        """Start and wait until /healthz answers 200."""
+        command = [sys.executable, "-c", "from app.cli import main; main()", "serve"]
+        log = self.log_path.open("ab")
+        self.process = subprocess.Popen(
+            [*command, "--host", "127.0.0.1", "--port", str(self.port)],
+            env=self.env,
+            stdout=log,
+            stderr=log,
+            start_new_session=True,
+        )
+        deadline = time.monotonic() + timeout  # a guard against a hang, not a timing assumption
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise RuntimeError(f"server exited early: {self.log_path.read_text()[-2000:]}")
+            try:
+                if httpx.get(f"{self.url}/healthz", timeout=1.0).status_code == 200:
+                    return
+            except httpx.TransportError:
+                pass
+            time.sleep(0.1)
+        raise RuntimeError(f"server did not start: {self.log_path.read_text()[-2000:]}")
+
+
+@contextmanager
+def _serving(url: str, var_dir: Path, env: dict[str, str]) -> Iterator[str]:
+    server = TrustlabServe(url, var_dir, extra_env=env)
+    server.start()
+    try:
+        yield server.url
+    finally:
+        server.stop()
+
+
+@pytest.mark.parametrize(("trusted", "recorded"), [("", "127.0.0.1"), ("127.0.0.1", SPOOFED)])
+def test_trustlab_serve_trusts_forwarded_headers_only_from_configured_proxies(
+    sqlite_template: Path, tmp_path: Path, trusted: str, recorded: str
+) -> None:
+    """Engine-independent, so on SQLite only: the server's own proxy handling, not the app's."""
+    path = tmp_path / "serve.sqlite3"
+    shutil.copyfile(sqlite_template, path)
+    url = f"sqlite:///{path}"
+    env = {"TRUSTLAB_TRUSTED_PROXIES": trusted} if trusted else {}
+    with _serving(url, tmp_path / "var", env) as base:
+        response = httpx.post(
+            f"{base}/api/v1/session",
+            json={"username": "nobody", "password": "wrong password"},
+            headers={"X-Forwarded-For": SPOOFED},
+        )
+    assert response.status_code == 401
+    database = Database(url)
+    try:
+        assert _recorded_addresses(database) == [recorded]
+    finally:
+        database.dispose()
