@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from app.cli import admin, analysis, engine, exports, robot, runtime
+from app.cli import accounts, admin, analysis, engine, exports, robot, runtime
 from app.cli.errors import ErrorsAsMessages
 
 cli = typer.Typer(
@@ -20,6 +20,7 @@ cli = typer.Typer(
     add_completion=False,
 )
 admin.register(cli)
+accounts.register(cli)
 runtime.register(cli)
 robot.register(cli)
 analysis.register(cli)

@@ -1,4 +1,5 @@
-"""Set-up and administration commands: init, serve, db, user, study, participant."""
+"""Set-up and administration commands: init, serve, db, study, participant (accounts:
+app.cli.accounts)."""
 
 from __future__ import annotations
 
@@ -22,7 +23,6 @@ from app.settings import Settings
 from app.tables import Role
 
 db_cli = typer.Typer(help="Database schema migrations.", no_args_is_help=True)
-user_cli = typer.Typer(help="Dashboard accounts.", no_args_is_help=True)
 study_cli = typer.Typer(help="Studies.", no_args_is_help=True)
 participant_cli = typer.Typer(help="Enrolment and withdrawal.", no_args_is_help=True)
 
@@ -56,7 +56,6 @@ def register(cli: typer.Typer) -> None:
     cli.command("init")(init)
     cli.command("serve")(serve)
     cli.add_typer(db_cli, name="db")
-    cli.add_typer(user_cli, name="user")
     cli.add_typer(study_cli, name="study")
     cli.add_typer(participant_cli, name="participant")
 
@@ -228,28 +227,6 @@ def db_restore(
         f"restored {where} from {source}: schema at {revision}; "
         "run `trustlab verify --study NAME` to check each study"
     )
-
-
-@user_cli.command("create")
-def user_create(
-    username: Annotated[str, typer.Option(help="Login name (case-insensitive).")],
-    role: Annotated[Role, typer.Option(help="admin, experimenter or analyst.")],
-    password_stdin: Annotated[
-        bool, typer.Option("--password-stdin", help="Read the password from standard input.")
-    ] = False,
-) -> None:
-    """Create a dashboard account."""
-    if not password_stdin:
-        raise InvalidInput("give the password on standard input with --password-stdin")
-    password = sys.stdin.readline().rstrip("\r\n")
-    settings = Settings()
-    database = open_database(settings)
-    require_current_schema(database)
-    with database.writing() as db:
-        user = users.create_user(
-            db, username=username, role=role, password=password, actor=Actor.command_line()
-        )
-        typer.echo(f"created {user.role} {user.username!r}")
 
 
 @study_cli.command("create")
