@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session
 
 from app.bots import BotConfig, BotSummary, run_bots
 from app.db import Database
+from app.errors import Conflict
 from app.protocol import default_protocol
 from app.services import accounts, studies, users
 from app.services.audit import Actor
@@ -62,6 +63,21 @@ def plan_demo(db: Session, settings: Settings, actor: Actor) -> DemoPlan:
     with os.fdopen(descriptor, "w", encoding="utf-8") as out:
         json.dump(plan.__dict__, out)
     return plan
+
+
+def retire(plan: DemoPlan, settings: Settings, echo: Callable[[str], None]) -> None:
+    """After the demo: disable the bots' account and remove the plan (it holds the password).
+    Should the bots' account have become the only active admin meanwhile, it stays enabled:
+    there is always an active admin (app.services.accounts)."""
+    database = Database(settings.database_url)
+    try:
+        with database.writing() as db:
+            accounts.disable_user(db, username=plan.username, actor=Actor.system("demo"))
+    except Conflict as exc:
+        echo(f"demo: the bots' account stays enabled: {exc.message}")
+    finally:
+        database.dispose()
+    plan_path(settings).unlink(missing_ok=True)
 
 
 def pending_demo(settings: Settings) -> DemoPlan | None:
@@ -107,13 +123,7 @@ def run_demo(
             )
         )
     )
-    database = Database(settings.database_url)
-    try:
-        with database.writing() as db:
-            accounts.disable_user(db, username=plan.username, actor=Actor.system("demo"))
-    finally:
-        database.dispose()
-    plan_path(settings).unlink(missing_ok=True)
+    retire(plan, settings, echo)
     problems = ""
     if summary.errors:
         problems = f", {len(summary.errors)} errors (first: {summary.errors[0]})"

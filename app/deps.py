@@ -252,10 +252,11 @@ async def current_login(
 CurrentLogin = Annotated[LoginSession, Depends(current_login)]
 
 
-async def streaming_user(request: Request) -> User:
-    """The signed-in user, checked in a short session of its own: for requests that spend their
-    time waiting rather than in the database — event streams, which stay open for hours, and the
-    dashboard's data, which waits for a computation shared with other dashboards.
+async def streaming_login(request: Request) -> LoginSession:
+    """The signed-in browser's login, checked in a short session of its own: for requests that
+    spend their time waiting rather than in the database — event streams, which stay open for
+    hours (and end with their login: app.web.streams), and the dashboard's data, which waits for a
+    computation shared with other dashboards.
 
     Such a request must not hold a request session (and its admission slot) while it waits, so it
     cannot depend on :data:`SessionDep`; it needs no CSRF check because these are GETs.
@@ -277,6 +278,14 @@ async def streaming_user(request: Request) -> User:
     if login is None:
         raise NotAuthenticated("sign in first")
     request.app.state.activity.note_login(login.id)
+    return login
+
+
+StreamingLogin = Annotated[LoginSession, Depends(streaming_login)]
+
+
+async def streaming_user(login: StreamingLogin) -> User:
+    """The user of :func:`streaming_login`."""
     return login.user
 
 

@@ -24,6 +24,7 @@ from app.http import BodyLimit, SecurityHeaders, install_error_handlers
 from app.services.freshness import FreshnessCache
 from app.settings import REPO_ROOT, Settings
 from app.web import (
+    accounts,
     admin,
     analysis_pages,
     audit_pages,
@@ -122,6 +123,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         live.router,
         station_pages.router,
         admin.router,
+        accounts.router,
         audit_pages.router,
         docs.router,
         tablet_pages.router,

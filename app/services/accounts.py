@@ -19,14 +19,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import datetime
 
-from sqlalchemy import select, update
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.security import hash_password, password_problem
 from app.services import audit, login_throttle, users
 from app.services.audit import Actor
-from app.tables import ActorKind, LoginSession, Role, User, utcnow
+from app.tables import ActorKind, LoginSession, Role, User
 
 
 @dataclass(frozen=True)
@@ -95,16 +95,6 @@ def _keep_an_admin(target: User, admins: list[User], change: str) -> None:
         )
 
 
-def _end_sessions(db: Session, user: User, *, keep: int | None = None) -> int:
-    """Revoke the user's live login sessions (but ``keep``); how many ended."""
-    query = update(LoginSession).where(
-        LoginSession.user_id == user.id, LoginSession.revoked_at.is_(None)
-    )
-    if keep is not None:
-        query = query.where(LoginSession.id != keep)
-    return int(db.execute(query.values(revoked_at=utcnow())).rowcount or 0)  # type: ignore[attr-defined]
-
-
 def disable_user(db: Session, *, username: str, actor: Actor) -> int:
     """Stop an account from signing in and end its login sessions (its history stays); commits.
     Returns how many sessions ended."""
@@ -113,7 +103,7 @@ def disable_user(db: Session, *, username: str, actor: Actor) -> int:
         raise Conflict(f"{user.username!r} is already disabled")
     _keep_an_admin(user, admins, "disabled")
     user.is_active = False
-    ended = _end_sessions(db, user)
+    ended = users.end_logins(db, user_id=user.id)
     audit.record(
         db, actor=actor, action="user.disabled", subject=user.username, details={"ended": ended}
     )
@@ -176,7 +166,7 @@ def set_password(
     password_hash = new_password_hash(password)
     user, _ = _lock_for_change(db, username, actor)
     user.password_hash = password_hash
-    ended = _end_sessions(db, user, keep=keep_login)
+    ended = users.end_logins(db, user_id=user.id, keep=keep_login)
     audit.record(
         db, actor=actor, action="user.password_set", subject=user.username, details={"ended": ended}
     )
@@ -207,7 +197,7 @@ def change_own_password(
         db.commit()
         return user
     user.password_hash = new_hash
-    ended = _end_sessions(db, user, keep=login.id)
+    ended = users.end_logins(db, user_id=user.id, keep=login.id)
     audit.record(
         db,
         actor=Actor.of_user(user),

@@ -6,9 +6,10 @@ from dataclasses import dataclass
 from datetime import timedelta
 from enum import StrEnum
 
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
+from app import events
 from app.errors import Conflict, InvalidInput, NotFound, TooManyAttempts
 from app.inputs import USERNAME
 from app.security import hash_password, new_token, password_problem, token_digest, verify_password
@@ -279,9 +280,37 @@ def resolve_login(db: Session, *, token: str, idle_timeout: timedelta) -> LoginS
     return login
 
 
+LOGIN_ENDED = "login.ended"
+"""The event that ends a login's open event streams (app.web.streams) when the login ends."""
+
+
+def login_topic(login_id: int) -> str:
+    """The event topic of one login session: its event streams listen to it."""
+    return f"login:{login_id}"
+
+
+def end_logins(db: Session, *, user_id: int, keep: int | None = None) -> int:
+    """Revoke the user's live login sessions (but ``keep``), in the caller's transaction: their
+    next request is signed out, and their open event streams end when it commits. Returns how
+    many ended."""
+    query = select(LoginSession.id).where(
+        LoginSession.user_id == user_id, LoginSession.revoked_at.is_(None)
+    )
+    if keep is not None:
+        query = query.where(LoginSession.id != keep)
+    ended = list(db.scalars(query))
+    if ended:
+        db.execute(
+            update(LoginSession).where(LoginSession.id.in_(ended)).values(revoked_at=utcnow())
+        )
+        events.publish(db, topics=[login_topic(i) for i in ended], type=LOGIN_ENDED)
+    return len(ended)
+
+
 def sign_out(db: Session, *, login: LoginSession) -> None:
-    """Revoke a login session; commits."""
+    """Revoke a login session (and end its event streams); commits."""
     login.revoked_at = utcnow()
+    events.publish(db, topics=[login_topic(login.id)], type=LOGIN_ENDED)
     audit.record(
         db, actor=Actor.of_user(login.user), action="user.signed_out", subject=login.user.username
     )

@@ -1,4 +1,5 @@
-"""Admin pages: accounts, new studies from protocol files, opening and closing studies."""
+"""Admin pages: the list of accounts and new ones (each account's own page: app.web.accounts),
+new studies from protocol files, opening and closing studies."""
 
 from __future__ import annotations
 
@@ -6,14 +7,13 @@ from typing import Annotated
 
 from fastapi import File, Form, Request, UploadFile
 from fastapi.responses import Response
-from sqlalchemy import select
 
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import studies, users
+from app.services import accounts, studies, users
 from app.services.audit import Actor
-from app.tables import Role, StudyStatus, User
+from app.tables import Role, StudyStatus
 from app.web.templating import redirect_with_notice, render
 
 router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
@@ -29,11 +29,15 @@ def _users_page(
     values: dict[str, str] | None = None,
     status_code: int = 200,
 ) -> Response:
-    accounts = db.scalars(select(User).order_by(User.username)).all()
     return render(
         request,
         "admin_users.html",
-        {"accounts": accounts, "roles": list(Role), "error": error, "values": values or {}},
+        {
+            "accounts": accounts.list_accounts(db),
+            "roles": list(Role),
+            "error": error,
+            "values": values or {},
+        },
         status_code=status_code,
     )
 

@@ -20,9 +20,14 @@ COALESCE_SECONDS = 0.1
 times a second, and a page refetches on each message, so at most ten a second reach it."""
 
 
-def event_stream(hub: EventHub, topics: Iterable[str]) -> StreamingResponse:
-    """An endless ``text/event-stream`` of ``changed`` events for ``topics`` (with keep-alives)."""
-    subscribed = list(topics)
+def event_stream(
+    hub: EventHub, topics: Iterable[str], *, ends_with: str | None = None
+) -> StreamingResponse:
+    """An endless ``text/event-stream`` of ``changed`` events for ``topics`` (with keep-alives),
+    which ends as soon as an event arrives on the topic ``ends_with``: a signed-in page's stream
+    ends with its login (app.services.users.login_topic), so a browser signed out, or whose
+    account is disabled, hears nothing more (the EventSource's reconnection is refused)."""
+    subscribed = [*topics, *([ends_with] if ends_with else [])]
 
     async def stream() -> AsyncIterator[str]:
         # Registered and released explicitly: a context manager nested in an async generator
@@ -36,8 +41,12 @@ def event_stream(hub: EventHub, topics: Iterable[str]) -> StreamingResponse:
                 except TimeoutError:
                     yield ": keepalive\n\n"
                     continue
-                await asyncio.sleep(COALESCE_SECONDS)
-                types = sorted({event.type, *(later.type for later in subscription.drain())})
+                if event.topic != ends_with:
+                    await asyncio.sleep(COALESCE_SECONDS)
+                batch = [event, *subscription.drain()]
+                if any(item.topic == ends_with for item in batch):
+                    return
+                types = sorted({item.type for item in batch})
                 yield f"event: changed\ndata: {json.dumps({'types': types})}\n\n"
         finally:
             hub.close(subscription)

@@ -224,6 +224,21 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/api/v1/devices/{device_id}/revoke"): send("POST", "/api/v1/devices/999999/revoke"),
     ("GET", "/admin/users"): get("/admin/users"),
     ("POST", "/admin/users"): send("POST", "/admin/users", data={}),
+    ("GET", "/admin/users/{username}"): get("/admin/users/ghost"),
+    **{
+        ("POST", f"/admin/users/{{username}}/{change}"): send(
+            "POST", f"/admin/users/ghost/{change}", data=data
+        )
+        for change, data in (
+            ("disable", {}),
+            ("enable", {}),
+            ("role", {"role": "analyst"}),
+            ("password", {"password": "ghost password", "confirm": "ghost password"}),
+            ("unlock", {}),
+        )
+    },
+    ("GET", "/account"): get("/account"),
+    ("POST", "/account/password"): send("POST", "/account/password", data={}),
     ("GET", "/admin/studies/new"): get("/admin/studies/new"),
     ("POST", "/admin/studies"): send("POST", "/admin/studies", data={}),
     ("POST", "/admin/studies/{name}/status"): send(

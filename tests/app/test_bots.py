@@ -15,7 +15,7 @@ from app import bots, demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
 from app.db import Database
-from app.services import users, verify
+from app.services import accounts, users, verify
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Answer, Device, Response, Role
@@ -177,6 +177,7 @@ def test_the_demo_fills_its_study_once_then_retires_its_account(
     database: Database, database_url: str, exp3_study: str, tmp_path: Path
 ) -> None:
     settings = Settings(database_url=database_url, var_dir=tmp_path / "var")
+    make_user(database, "admin", Role.ADMIN)  # as `trustlab init` does first
     with database.writing() as db:
         plan = demo.plan_demo(db, settings, Actor.system("test"))
     assert demo.pending_demo(settings) == plan
@@ -196,3 +197,24 @@ def test_the_demo_fills_its_study_once_then_retires_its_account(
     with database.read_session() as db:
         assert users.authenticate(db, username=demo.DEMO_ACCOUNT, password=plan.password) is None
         assert db.scalar(select(func.count()).select_from(Answer)) == 2 * 39
+
+
+def test_the_demo_keeps_its_account_if_it_became_the_only_active_admin(
+    database: Database, database_url: str, tmp_path: Path
+) -> None:
+    """Retiring the bots' account must not leave no admin (the real one was disabled since)."""
+    settings = Settings(database_url=database_url, var_dir=tmp_path / "var")
+    make_user(database, "admin", Role.ADMIN)
+    with database.writing() as db:
+        plan = demo.plan_demo(db, settings, Actor.system("test"))
+    with database.writing() as db:
+        accounts.disable_user(db, username="admin", actor=Actor.system("test"))
+    said: list[str] = []
+    demo.retire(plan, settings, said.append)
+    assert said == [
+        "demo: the bots' account stays enabled: 'demo-bots' is the last active admin and cannot "
+        "be disabled: make another account admin first"
+    ]
+    assert demo.pending_demo(settings) is None
+    with database.read_session() as db:
+        assert users.named(db, demo.DEMO_ACCOUNT).is_active
