@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from datetime import timedelta
 
 import pytest
@@ -245,3 +246,52 @@ def test_sign_in_refuses_an_account_disabled_after_it_was_read(database: Databas
     assert refused is users.Refusal.DISABLED
     with database.read_session() as db:
         assert db.scalars(select(LoginAttempt.succeeded)).all() == [False]
+
+
+def test_new_passwords_are_hashed_with_no_transaction_open(
+    app: FastAPI, user_client: UserClientFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Hashing is as slow as checking: creating an account, an admin's reset and one's own change
+    hash the new password before their write transaction begins."""
+    admin = user_client(Role.ADMIN)
+    make_user(app.state.database, "ada", Role.ANALYST)
+    engine = app.state.database.engine
+    open_transactions: set[int] = set()
+    seen: list[bool] = []
+
+    def opened(conn: object) -> None:
+        if threading.current_thread().name != "trustlab-activity":
+            open_transactions.add(id(conn))
+
+    def closed(conn: object) -> None:
+        open_transactions.discard(id(conn))
+
+    def hashing(hash_password: Callable[[str], str]) -> Callable[[str], str]:
+        def hashed(password: str) -> str:
+            seen.append(bool(open_transactions))
+            return hash_password(password)
+
+        return hashed
+
+    monkeypatch.setattr(users, "hash_password", hashing(users.hash_password))
+    monkeypatch.setattr(accounts, "hash_password", hashing(accounts.hash_password))
+    listeners = [("begin", opened), ("commit", closed), ("rollback", closed)]
+    for name, listener in listeners:
+        event.listen(engine, name, listener)
+    renewed = "a brand new passphrase"
+    try:
+        created = admin.post(
+            "/admin/users", data={"username": "bob", "role": "analyst", "password": renewed}
+        )
+        reset = admin.post(
+            "/admin/users/ada/password", data={"password": renewed, "confirm": renewed}
+        )
+        own = admin.post(
+            "/account/password",
+            data={"current_password": PASSWORD, "new_password": renewed, "confirm": renewed},
+        )
+    finally:
+        for name, listener in listeners:
+            event.remove(engine, name, listener)
+    assert [created.status_code, reset.status_code, own.status_code] == [200, 200, 200]
+    assert seen == [False, False, False]
