@@ -7,6 +7,7 @@ from datetime import timedelta
 from enum import StrEnum
 
 from sqlalchemy import func, select, update
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app import events
@@ -59,7 +60,11 @@ def create_user(
         raise Conflict(f"a user named {name!r} already exists")
     user = User(username=name, role=role, password_hash=password_hash)
     db.add(user)
-    db.flush()
+    try:
+        db.flush()  # PostgreSQL: a concurrent creation of the same name is refused here
+    except IntegrityError:
+        db.rollback()
+        raise Conflict(f"a user named {name!r} already exists") from None
     audit.record(db, actor=actor, action="user.created", subject=name, details={"role": role})
     db.commit()
     return user

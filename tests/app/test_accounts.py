@@ -262,3 +262,25 @@ def test_accounts_are_named_exactly(database: Database) -> None:
                 users.named(db, lookalike)
     with database.writing() as db, pytest.raises(NotFound):
         accounts.disable_user(db, username="ada\n", actor=CLI)
+
+
+def test_two_creations_of_one_name_at_once_refuse_the_second_clearly(database: Database) -> None:
+    """Both may read that the name is free; the unique index refuses one: a Conflict, not a 500."""
+    outcomes: list[str] = []
+    barrier = threading.Barrier(2)
+
+    def create(role: Role) -> None:
+        barrier.wait(timeout=60)  # a guard against a hang, not a timing assumption
+        try:
+            with database.writing() as db:
+                users.create_user(db, username="twin", role=role, password=PASSWORD, actor=CLI)
+            outcomes.append("created")
+        except Conflict as exc:
+            outcomes.append(exc.message)
+
+    threads = [threading.Thread(target=create, args=(r,)) for r in (Role.ANALYST, Role.ADMIN)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(outcomes) == ["a user named 'twin' already exists", "created"]
