@@ -58,3 +58,26 @@ def test_audit_log_is_append_only(database: Database) -> None:
             db.execute(text(statement))
     with database.read_session() as db:
         assert db.query(AuditEvent).one().action == "test.event"
+
+
+def test_0006_keeps_the_recorded_sign_in_attempts(blank_database_url: str) -> None:
+    """login_attempt.cleared_at (an admin's unlock) arrives empty: every recorded failure still
+    counts after the upgrade, and a downgrade keeps the attempts."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0005")
+    insert = text(
+        "INSERT INTO login_attempt (username, client_address, succeeded, attempted_at) "
+        "VALUES ('ada', '10.0.0.1', false, CURRENT_TIMESTAMP)"
+    )
+    with database.engine.begin() as connection:
+        connection.execute(insert)
+    schema.upgrade(database, "0006")
+    with database.engine.connect() as connection:
+        rows = connection.execute(text("SELECT username, cleared_at FROM login_attempt")).all()
+    assert [tuple(row) for row in rows] == [("ada", None)]
+    schema.downgrade(database, "0005")
+    with database.engine.connect() as connection:
+        assert connection.execute(text("SELECT count(*) FROM login_attempt")).scalar() == 1
+        columns = {c["name"] for c in inspect(connection).get_columns("login_attempt")}
+    assert "cleared_at" not in columns
+    database.dispose()
