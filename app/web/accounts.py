@@ -4,7 +4,8 @@ every user's own page (change their password).
 Accounts are named by username in URLs (exactly: app.services.users.named). Every change goes
 through app.services.accounts, which the command line shares, so the rules (the last active admin
 stays, disabling ends sessions at once) and the audit log are the same. Changes that end someone's
-sign-ins ask for confirmation first (``hx-confirm`` in the templates).
+sign-ins are made from a page of their own that says so (disabling asks "Disable ada?" first), as
+plain forms: a refusal is a page with a 4xx status, which a browser shows (htmx would not swap it).
 """
 
 from __future__ import annotations
@@ -58,6 +59,14 @@ def account_page(request: Request, db: SessionDep, admin: AdminUser, username: s
     return _account_page(request, db, username)
 
 
+@router.get("/admin/users/{username}/disable")
+def disable_form(request: Request, db: SessionDep, admin: AdminUser, username: str) -> Response:
+    """Ask for confirmation before disabling an account."""
+    return render(
+        request, "admin_user_disable.html", {"account": accounts.get_account(db, username)}
+    )
+
+
 @router.post("/admin/users/{username}/disable")
 def disable(request: Request, db: SessionDep, admin: AdminUser, username: str) -> Response:
     """Disable an account; its sign-ins end at once."""
@@ -91,7 +100,27 @@ def set_role(
         accounts.set_role(db, username=username, role=role, actor=Actor.of_user(admin))
     except (Conflict, PermissionDenied) as exc:
         return _refused(request, db, username, exc)
-    return _done(request, username, f"{username.lower()} is now {role.value}.")
+    notice = f"{username.lower()} is now {role.value}."
+    if username.lower() == admin.username and role != Role.ADMIN:
+        return redirect_with_notice(request, "/", notice)  # no longer allowed on admin pages
+    return _done(request, username, notice)
+
+
+def _password_page(
+    request: Request, db: SessionDep, username: str, *, error: str = "", status_code: int = 200
+) -> Response:
+    return render(
+        request,
+        "admin_user_password.html",
+        {"account": accounts.get_account(db, username), "error": error},
+        status_code=status_code,
+    )
+
+
+@router.get("/admin/users/{username}/password")
+def password_form(request: Request, db: SessionDep, admin: AdminUser, username: str) -> Response:
+    """The form to reset an account's password, saying that its sign-ins end."""
+    return _password_page(request, db, username)
 
 
 @router.post("/admin/users/{username}/password")
@@ -116,7 +145,8 @@ def set_password(
             keep_login=login.id,
         )
     except (InvalidInput, PermissionDenied) as exc:
-        return _refused(request, db, username, exc)
+        db.rollback()
+        return _password_page(request, db, username, error=exc.message, status_code=exc.status_code)
     return _done(
         request, username, f"New password set for {username.lower()} ({_sessions(ended)})."
     )

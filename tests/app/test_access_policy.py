@@ -225,6 +225,8 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/admin/users"): get("/admin/users"),
     ("POST", "/admin/users"): send("POST", "/admin/users", data={}),
     ("GET", "/admin/users/{username}"): get("/admin/users/ghost"),
+    ("GET", "/admin/users/{username}/disable"): get("/admin/users/ghost/disable"),
+    ("GET", "/admin/users/{username}/password"): get("/admin/users/ghost/password"),
     **{
         ("POST", f"/admin/users/{{username}}/{change}"): send(
             "POST", f"/admin/users/ghost/{change}", data=data

@@ -45,8 +45,11 @@ def test_disabling_signs_the_browser_out_at_once(
     ada = user_client(Role.EXPERIMENTER, "ada")
     assert ada.get("/").status_code == 200
     page = admin.get("/admin/users/ada")
-    assert page.status_code == 200
-    assert 'action="/admin/users/ada/disable"' in page.text and "hx-confirm=" in page.text
+    assert page.status_code == 200 and 'href="/admin/users/ada/disable"' in page.text
+    confirm = admin.get("/admin/users/ada/disable")  # asks first, without needing JavaScript
+    assert confirm.status_code == 200 and "Disable ada?" in confirm.text
+    assert 'method="post" action="/admin/users/ada/disable"' in confirm.text
+    assert ada.get("/").status_code == 200  # asking changed nothing
     done = admin.post("/admin/users/ada/disable", follow_redirects=False)
     assert done.status_code == 303 and done.headers["location"] == "/admin/users/ada"
     following = ada.get("/", follow_redirects=False)
@@ -106,10 +109,13 @@ def test_an_admin_resets_a_password_and_ends_its_sign_ins(
 ) -> None:
     admin = user_client(Role.ADMIN)
     ada = user_client(Role.ANALYST, "ada")
+    form = admin.get("/admin/users/ada/password")
+    assert form.status_code == 200 and "Every sign-in of ada ends" in form.text
     mismatch = admin.post(
         "/admin/users/ada/password", data={"password": NEW_PASSWORD, "confirm": "something else"}
     )
     assert mismatch.status_code == 422 and "the two new passwords differ" in mismatch.text
+    assert 'action="/admin/users/ada/password"' in mismatch.text  # the form again, to retry
     weak = admin.post("/admin/users/ada/password", data={"password": "short", "confirm": "short"})
     assert weak.status_code == 422 and "at least 10 characters" in weak.text
     assert ada.get("/").status_code == 200
@@ -266,3 +272,15 @@ def test_disabling_ends_the_accounts_open_event_streams(
     assert lines[0] == "retry: 3000"
     refused = ada.get(f"/studies/{study_name}/events", follow_redirects=False)
     assert refused.status_code == 303  # to the sign-in page: the EventSource gives up
+
+
+def test_an_admin_who_demotes_themselves_lands_on_a_page_they_may_see(
+    user_client: UserClientFactory,
+) -> None:
+    root = user_client(Role.ADMIN, "root")
+    user_client(Role.ADMIN, "spare")
+    done = root.post("/admin/users/root/role", data={"role": "analyst"}, follow_redirects=False)
+    assert done.status_code == 303 and done.headers["location"] == "/"
+    landed = root.get("/")
+    assert landed.status_code == 200 and "root is now analyst." in landed.text
+    assert root.get("/admin/users").status_code == 403
