@@ -152,6 +152,9 @@ class StudyDataset:
         Scores to compute (default: TIPI and NARS).
     excluded_statuses : frozenset of str
         Participants with these statuses are left out of the statistics and listed as excluded.
+    steps_withheld : str
+        Why ``steps`` is left empty although steps were recorded (a blinded study that has not
+        been unblinded); shown where the adaptation results would be. Empty: nothing withheld.
 
     Raises
     ------
@@ -168,6 +171,7 @@ class StudyDataset:
     instruments: tuple[InstrumentSpec, ...] = DEFAULT_INSTRUMENTS
     scales: tuple[ScaleSpec, ...] = DEFAULT_SCALES
     excluded_statuses: frozenset[str] = DEFAULT_EXCLUDED_STATUSES
+    steps_withheld: str = ""
 
     def __post_init__(self) -> None:
         for name in ("participants", "responses", "steps"):

@@ -403,6 +403,8 @@ def _as_categories(frame: pd.DataFrame, columns: tuple[str, ...]) -> pd.DataFram
 def _adaptation(
     dataset: StudyDataset, condition_of: pd.Series, confidence: float
 ) -> tuple[pd.DataFrame, str]:
+    if dataset.steps_withheld:
+        return pd.DataFrame(columns=list(CURVE_COLUMNS)), dataset.steps_withheld
     steps = _as_categories(dataset.steps, ("participant", "category"))
     steps = steps[steps["participant"].isin(condition_of.index)]
     if steps.empty:

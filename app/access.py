@@ -115,6 +115,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # admins: accounts, studies, stations and keys, the audit log
     ("POST", "/api/v1/studies"): ADMINS,
     ("POST", "/api/v1/studies/{name}/status"): ADMINS,
+    ("POST", "/api/v1/studies/{name}/unblind"): ADMINS,
     ("POST", "/api/v1/stations"): ADMINS,
     ("POST", "/api/v1/stations/{name}/devices"): ADMINS,
     ("POST", "/api/v1/stations/{name}/kiosk"): ADMINS,
@@ -132,6 +133,8 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/admin/studies/new"): ADMINS,
     ("POST", "/admin/studies"): ADMINS,
     ("POST", "/admin/studies/{name}/status"): ADMINS,
+    ("GET", "/admin/studies/{name}/unblind"): ADMINS,
+    ("POST", "/admin/studies/{name}/unblind"): ADMINS,
     ("GET", "/admin/audit"): ADMINS,
     ("GET", "/admin/audit.csv"): ADMINS,
     ("POST", "/stations"): ADMINS,

@@ -40,6 +40,7 @@ from app.api.runtime_schemas import (
     DeviceOut,
     IssuedDeviceOut,
     PromptOut,
+    StaffStationStateOut,
     StationStateOut,
 )
 
@@ -527,15 +528,15 @@ class ExperimenterClient:
         """Free a station."""
         await self.call("DELETE", f"/stations/{station}/participant")
 
-    async def start_session(self, station: str) -> StationStateOut:
+    async def start_session(self, station: str) -> StaffStationStateOut:
         """Start the assigned participant's next session."""
-        return StationStateOut.model_validate(
+        return StaffStationStateOut.model_validate(
             await self.call("POST", f"/stations/{station}/sessions")
         )
 
-    async def end_session(self, station: str) -> StationStateOut:
+    async def end_session(self, station: str) -> StaffStationStateOut:
         """End the running session early."""
-        return StationStateOut.model_validate(
+        return StaffStationStateOut.model_validate(
             await self.call("POST", f"/stations/{station}/sessions/current/end")
         )
 

@@ -170,6 +170,9 @@ class Study(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     created_by: Mapped[str] = mapped_column(String(64), default="")
     closed_at: Mapped[datetime | None]
+    # Set once, by an admin, when a blinded study's learner data may be shown (app.services.
+    # blinding); never cleared: what has been seen cannot be unseen.
+    unblinded_at: Mapped[datetime | None]
 
 
 class Participant(Base):

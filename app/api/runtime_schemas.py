@@ -61,35 +61,65 @@ class ExpectedOut(BaseModel):
     session: int | None
 
 
-class PromptOut(BaseModel):
-    """A step's question: ask it, then post the yes/no answer to ``step_id``."""
+WITHHELD = " Null for staff while the study is blinded (docs/experimenter-guide.md, Blinding)."
 
+
+class _PromptFields(BaseModel):
     step_id: int
     category: str
     action: int = Field(description="Index of the chosen question among the category's K.")
     question: str
-    probabilities: list[float] = Field(description="The learner's probabilities when choosing.")
     adapts: bool = Field(description="False in the familiarisation run: answers are not learned.")
     session: int
     run: int
     created: bool = Field(description="False when this is the category's open prompt again.")
 
 
-class AnswerOut(BaseModel):
-    """The robot's reply to an answer, and the learner's updated probabilities."""
+class PromptOut(_PromptFields):
+    """A step's question: ask it, then post the yes/no answer to ``step_id``."""
 
+    probabilities: list[float] = Field(description="The learner's probabilities when choosing.")
+
+
+class StaffPromptOut(_PromptFields):
+    """A prompt as the experimenter's Wizard-of-Oz routes return it."""
+
+    probabilities: list[float] | None = Field(
+        description="The learner's probabilities when choosing." + WITHHELD
+    )
+
+
+class _AnswerFields(BaseModel):
     step_id: int
     category: str
     answer: Literal["yes", "no"]
     reply: str
-    confidence_level: int
-    confidence: str
-    probability: float = Field(description="The probability the reply's confidence comes from.")
-    probabilities: list[float] = Field(description="The learner's probabilities after the answer.")
     replayed: bool = Field(description="True when this answer had been recorded before.")
     run_completed: bool
     session_completed: bool
     expected: ExpectedOut
+
+
+class AnswerOut(_AnswerFields):
+    """The robot's reply to an answer, and the learner's updated probabilities."""
+
+    confidence_level: int
+    confidence: str
+    probability: float = Field(description="The probability the reply's confidence comes from.")
+    probabilities: list[float] = Field(description="The learner's probabilities after the answer.")
+
+
+class StaffAnswerOut(_AnswerFields):
+    """An answer as the experimenter's Wizard-of-Oz routes return it."""
+
+    confidence_level: int | None = Field(description="The reply's level." + WITHHELD)
+    confidence: str | None = Field(description="The reply level's name." + WITHHELD)
+    probability: float | None = Field(
+        description="The probability the reply's confidence comes from." + WITHHELD
+    )
+    probabilities: list[float] | None = Field(
+        description="The learner's probabilities after the answer." + WITHHELD
+    )
 
 
 class SessionOut(BaseModel):
@@ -110,16 +140,25 @@ class RunOut(BaseModel):
     pending: list[str]
 
 
-class StationStateOut(BaseModel):
-    """Where a station stands (participant codes only: conditions are never shown to clients)."""
-
+class _StateFields(BaseModel):
     station: str
     participant: str | None
     study: str | None
     session: SessionOut | None
     run: RunOut | None
-    open_prompts: list[PromptOut]
     expected: ExpectedOut
+
+
+class StationStateOut(_StateFields):
+    """Where a station stands (participant codes only: conditions are never shown to clients)."""
+
+    open_prompts: list[PromptOut]
+
+
+class StaffStationStateOut(_StateFields):
+    """Where a station stands, as the experimenter's routes return it."""
+
+    open_prompts: list[StaffPromptOut]
 
 
 class DeviceOut(BaseModel):

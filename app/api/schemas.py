@@ -44,7 +44,10 @@ class StudySummary(BaseModel):
     status: str
     created_at: datetime
     protocol_sha256: str
-    blinded: bool
+    blinded: bool = Field(description="Whether the protocol blinds the study.")
+    unblinded_at: datetime | None = Field(
+        description="When an admin lifted the blinding; until then staff see no learner data."
+    )
     enrolment: list[ConditionCount]
 
 

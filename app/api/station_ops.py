@@ -14,9 +14,12 @@ from app.api.runtime_schemas import (
     PromptRequest,
     RunOut,
     SessionOut,
+    StaffAnswerOut,
+    StaffPromptOut,
+    StaffStationStateOut,
     StationStateOut,
 )
-from app.services import runtime
+from app.services import blinding, runtime
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.tables import Device, Station
@@ -166,3 +169,40 @@ def device_out(device: Device, station: Station) -> DeviceOut:
         revoked_at=device.revoked_at,
         last_seen_at=device.last_seen_at,
     )
+
+
+# ------------------------------------------------------------- what staff may see of them
+
+
+def staff_prompt(prompt: PromptOut, *, shows_learners: bool) -> StaffPromptOut:
+    """A prompt for the experimenter's routes: without the learner's probabilities while the
+    study is blinded (app.services.blinding)."""
+    data = prompt.model_dump()
+    if not shows_learners:
+        data["probabilities"] = None
+    return StaffPromptOut.model_validate(data)
+
+
+def staff_answer(answer: AnswerOut, *, shows_learners: bool) -> StaffAnswerOut:
+    """An answer for the experimenter's routes: the reply's words (the robot says them aloud),
+    but neither its level nor the probabilities while the study is blinded."""
+    data = answer.model_dump()
+    if not shows_learners:
+        data.update(confidence_level=None, confidence=None, probability=None, probabilities=None)
+    return StaffAnswerOut.model_validate(data)
+
+
+def staff_state(state: StationStateOut, *, shows_learners: bool) -> StaffStationStateOut:
+    """A station's state for the experimenter's routes (open prompts as :func:`staff_prompt`)."""
+    data = state.model_dump(exclude={"open_prompts"})
+    data["open_prompts"] = [
+        staff_prompt(p, shows_learners=shows_learners) for p in state.open_prompts
+    ]
+    return StaffStationStateOut.model_validate(data)
+
+
+def station_shows_learners(db: Session, station: str) -> bool:
+    """Whether staff may see the learners of the participant seated at ``station`` (no one
+    seated: nothing to hide)."""
+    study = blinding.seated_study(db, station)
+    return study is None or blinding.shows_learners(study)

@@ -13,14 +13,15 @@ from sqlalchemy import select
 
 from app.api import station_ops
 from app.api.runtime_schemas import (
-    AnswerOut,
     AnswerRequest,
     Assignment,
     DeviceCreate,
     DeviceOut,
     IssuedDeviceOut,
-    PromptOut,
     PromptRequest,
+    StaffAnswerOut,
+    StaffPromptOut,
+    StaffStationStateOut,
     StationCreate,
     StationOut,
     StationStateOut,
@@ -64,6 +65,12 @@ def _stations_out(db: SessionDep, found: list[Station]) -> list[StationOut]:
     ]
 
 
+def _for_staff(db: SessionDep, name: str, state: StationStateOut) -> StaffStationStateOut:
+    return station_ops.staff_state(
+        state, shows_learners=station_ops.station_shows_learners(db, name)
+    )
+
+
 def _station_out(db: SessionDep, station_name: str) -> StationOut:
     return _stations_out(db, [stations.get_station(db, station_name)])[0]
 
@@ -82,9 +89,10 @@ def create_station(body: StationCreate, db: SessionDep, admin: AdminUser) -> Sta
 
 
 @router.get("/{name}/state")
-def get_state(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
-    """The station's live state, as its robot sees it."""
-    return station_ops.state(db, station=name)
+def get_state(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
+    """The station's live state, as its robot sees it (without the learners' figures while the
+    seated participant's study is blinded)."""
+    return _for_staff(db, name, station_ops.state(db, station=name))
 
 
 @router.put("/{name}/participant")
@@ -106,31 +114,34 @@ def unassign(name: str, db: SessionDep, user: ExperimenterUser) -> StationOut:
 
 
 @router.post("/{name}/sessions", status_code=status.HTTP_201_CREATED)
-def start_session(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+def start_session(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """Start the assigned participant's next session and its first run."""
-    return station_ops.state_out(
+    state = station_ops.state_out(
         runtime.start_session(db, station_name=name, actor=Actor.of_user(user))
     )
+    return _for_staff(db, name, state)
 
 
 @router.post("/{name}/sessions/current/end")
-def end_session(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+def end_session(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """End the running session early."""
-    return station_ops.state_out(
+    state = station_ops.state_out(
         runtime.end_session(db, station_name=name, actor=Actor.of_user(user))
     )
+    return _for_staff(db, name, state)
 
 
 @router.post("/{name}/runs", status_code=status.HTTP_201_CREATED)
-def start_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+def start_run(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """Start the next run of the running session."""
-    return station_ops.start_run(db, station=name, actor=Actor.of_user(user))
+    return _for_staff(db, name, station_ops.start_run(db, station=name, actor=Actor.of_user(user)))
 
 
 @router.post("/{name}/runs/current/end")
-def end_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOut:
+def end_run(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """End the running run early (its unanswered categories stay unanswered)."""
-    return station_ops.state_out(runtime.end_run(db, station_name=name, actor=Actor.of_user(user)))
+    state = station_ops.state_out(runtime.end_run(db, station_name=name, actor=Actor.of_user(user)))
+    return _for_staff(db, name, state)
 
 
 @router.post(
@@ -140,21 +151,26 @@ def end_run(name: str, db: SessionDep, user: ExperimenterUser) -> StationStateOu
 )
 def prompt(
     name: str, body: PromptRequest, db: SessionDep, user: ExperimenterUser, response: Response
-) -> PromptOut:
+) -> StaffPromptOut:
     """Wizard-of-Oz: trigger a category as the robot would."""
     out = station_ops.prompt(db, station=name, body=body, actor=Actor.of_user(user), device_id=None)
     if not out.created:
         response.status_code = status.HTTP_200_OK
-    return out
+    return station_ops.staff_prompt(
+        out, shows_learners=station_ops.station_shows_learners(db, name)
+    )
 
 
 @router.post("/{name}/steps/{step_id}/answer")
 def answer(
     name: str, step_id: StepIdPath, body: AnswerRequest, db: SessionDep, user: ExperimenterUser
-) -> AnswerOut:
+) -> StaffAnswerOut:
     """Wizard-of-Oz: record the participant's yes/no answer as the robot would."""
-    return station_ops.answer(
+    out = station_ops.answer(
         db, station=name, step_id=step_id, body=body, actor=Actor.of_user(user), device_id=None
+    )
+    return station_ops.staff_answer(
+        out, shows_learners=station_ops.station_shows_learners(db, name)
     )
 
 

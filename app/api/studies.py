@@ -21,7 +21,7 @@ from app.api.schemas import (
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import enrolment, questionnaires, studies, tablet_tokens
+from app.services import blinding, enrolment, questionnaires, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Participant, Study, StudyStatus
 
@@ -37,9 +37,10 @@ def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
         created_at=study.created_at,
         protocol_sha256=study.protocol_sha256,
         blinded=protocol.study.blinded,
+        unblinded_at=study.unblinded_at,
         enrolment=[
             ConditionCount(
-                label=enrolment.condition_label(protocol, condition, actor=actor), **by_status
+                label=enrolment.condition_label(study, condition, actor=actor), **by_status
             )
             for condition, by_status in studies.enrolment_counts(db, study).items()
         ],
@@ -47,12 +48,9 @@ def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
 
 
 def _participant(study: Study, participant: Participant, actor: Actor) -> ParticipantOut:
-    protocol = studies.protocol_of(study)
     return ParticipantOut(
         code=participant.code,
-        condition=enrolment.condition_label(
-            protocol, participant.allocation.condition, actor=actor
-        ),
+        condition=enrolment.condition_label(study, participant.allocation.condition, actor=actor),
         stratum=participant.stratum,
         status=participant.status,
         enrolled_at=participant.enrolled_at,
@@ -91,7 +89,7 @@ def get_protocol(name: str, db: SessionDep, user: CurrentUser) -> dict[str, Any]
     study = studies.get_study(db, name)
     protocol = studies.protocol_of(study)
     data = protocol.model_dump(mode="json")
-    if protocol.study.blinded and not Actor.of_user(user).sees_conditions:
+    if not blinding.shows_conditions(study, Actor.of_user(user)):
         data["conditions"] = [
             {"id": protocol.neutral_label(c.id), "label": protocol.neutral_label(c.id)}
             for c in protocol.conditions
@@ -110,6 +108,14 @@ def set_status(
     return _summary(db, study, actor)
 
 
+@router.post("/{name}/unblind")
+def unblind(name: str, db: SessionDep, admin: AdminUser) -> StudySummary:
+    """Lift a closed blinded study's blinding for good (admin; audited): staff then see the
+    conditions and the learners' probabilities, confidence levels and reply history."""
+    actor = Actor.of_user(admin)
+    return _summary(db, blinding.unblind(db, name=name, actor=actor), actor)
+
+
 @router.get("/{name}/participants")
 def list_participants(name: str, db: SessionDep, user: CurrentUser) -> list[ParticipantOut]:
     """Participants in enrolment order."""
@@ -125,12 +131,12 @@ def enrol(name: str, body: EnrolmentRequest, db: SessionDep, user: ExperimenterU
     result = enrolment.enroll_participant(
         db, study_name=name, actor=actor, code=body.code, strata=body.strata
     )
-    protocol = studies.protocol_of(studies.get_study(db, name))
+    study = studies.get_study(db, name)
     replaced = result.allocation.replaces_participant_id
     replaced_code = db.scalar(select(Participant.code).where(Participant.id == replaced))
     return Enrolled(
         code=result.participant.code,
-        condition=enrolment.condition_label(protocol, result.condition, actor=actor),
+        condition=enrolment.condition_label(study, result.condition, actor=actor),
         allocation_index=result.allocation.sequence_index,
         stratum=result.participant.stratum,
         replaces=replaced_code,

@@ -17,7 +17,7 @@ from app.db import Database, describe_url
 from app.demo import pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
-from app.services import audit, enrolment, studies, users
+from app.services import audit, blinding, enrolment, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -275,6 +275,28 @@ def study_list(as_json: JsonFlag = False) -> None:
             for condition, by_status in enrolled.items()
         )
         typer.echo(f"{row['name']:<24} {row['status']:<7} {counts:<20} {row['title']}")
+
+
+@study_cli.command("unblind")
+def study_unblind(
+    name: Annotated[str, typer.Argument(help="The blinded study, closed for enrolment.")],
+    yes: Annotated[bool, typer.Option("--yes", help="Do not ask for confirmation.")] = False,
+) -> None:
+    """Lift a blinded study's blinding for good (audited): staff then see its conditions and
+    the learners' probabilities, confidence levels and reply history."""
+    database = open_database(Settings())
+    require_current_schema(database)
+    if not yes:
+        if not sys.stdin.isatty():
+            raise InvalidInput(f"unblinding {name!r} cannot be undone: add --yes to confirm")
+        typer.confirm(
+            f"Unblind {name!r}? Every signed-in person will see its conditions and learners; "
+            "this cannot be undone.",
+            abort=True,
+        )
+    with database.writing() as db:
+        study = blinding.unblind(db, name=name, actor=Actor.command_line())
+        typer.echo(f"unblinded study {study.name!r} at {study.unblinded_at:%Y-%m-%d %H:%M} UTC")
 
 
 def _parse_strata(pairs: list[str]) -> dict[str, str]:

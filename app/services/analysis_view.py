@@ -63,6 +63,7 @@ class AnalysisView:
     exclusions: list[dict[str, str]]
     person_scores: list[dict[str, str]]
     adaptation: dict[str, Any] | None
+    adaptation_problem: str
     analysed: int
 
 
@@ -138,5 +139,6 @@ def analysis_view(result: StudyAnalysis) -> AnalysisView:
             for r in result.person_summary.to_dict("records")
         ],
         adaptation=adaptation,
+        adaptation_problem=result.adaptation_problem,
         analysed=len(result.participants),
     )

@@ -7,7 +7,8 @@ the report can never disagree. Cost grows with the number of cells, not of parti
 
 Withdrawn participants are left out; in a blinded study, roles that may not see conditions get the
 neutral group labels, and the cells are listed by those labels (the condition ids, or rows in their
-order, would give the mapping away).
+order, would give the mapping away). Until a blinded study is unblinded nobody gets the adaptation
+curves (C1 starts at exactly 1/K and C2 does not: app.services.blinding).
 
 Live dashboards ask for this several times a second while robots answer in the same process, so
 the computation is kept lean: what depends only on the protocol and the labels (items, titles,
@@ -34,6 +35,7 @@ from analysis.descriptives import t_interval
 from analysis.figures import adaptation_payload_from_curves, mean_ci_payload_from_cells
 from app.protocol import ItemKind, ItemSpec, Protocol
 from app.services.audit import Actor
+from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.enrolment import condition_label
 from app.services.studies import protocol_of
 from app.tables import (
@@ -99,30 +101,34 @@ class Plan:
     """Categories with a preferred question (the ones with an adaptation curve), in order."""
     trust_query: Query
     adaptation_query: Query
+    learners: bool = True
+    """Whether the adaptation curves may be drawn (False while the study is blinded)."""
 
     @property
-    def key(self) -> tuple[int, tuple[tuple[str, str], ...]]:
+    def key(self) -> PlanKey:
         """What the result depends on besides the data (see :func:`data_key`)."""
-        return self.study_id, tuple(sorted(self.labels.items()))
+        return self.study_id, tuple(sorted(self.labels.items())), self.learners
 
 
-_plans: dict[tuple[int, str, str, tuple[tuple[str, str], ...]], Plan] = {}
+PlanKey: TypeAlias = tuple[int, tuple[tuple[str, str], ...], bool]
+_plans: dict[tuple[int, str, str, tuple[tuple[str, str], ...], bool], Plan] = {}
 _plans_guard = threading.Lock()
 MAX_PLANS = 256
 
 
-def _labels(protocol: Protocol, actor: Actor) -> dict[str, str]:
-    return {c.id: condition_label(protocol, c.id, actor=actor) for c in protocol.conditions}
+def _labels(study: Study, protocol: Protocol, actor: Actor) -> dict[str, str]:
+    return {c.id: condition_label(study, c.id, actor=actor) for c in protocol.conditions}
 
 
 def plan_for(study: Study, actor: Actor) -> Plan:
     """The study's :class:`Plan` for what ``actor`` may see (made once per protocol version)."""
     protocol = protocol_of(study)
-    labels = _labels(protocol, actor)
-    cache_key = (study.id, study.protocol_sha256, study.name, tuple(labels.items()))
+    labels = _labels(study, protocol, actor)
+    learners = shows_learners(study)
+    cache_key = (study.id, study.protocol_sha256, study.name, tuple(labels.items()), learners)
     plan = _plans.get(cache_key)
     if plan is None:
-        plan = _make_plan(study.id, study.name, protocol, labels)
+        plan = _make_plan(study.id, study.name, protocol, labels, learners=learners)
         with _plans_guard:
             if len(_plans) >= MAX_PLANS:
                 _plans.clear()
@@ -130,7 +136,9 @@ def plan_for(study: Study, actor: Actor) -> Plan:
     return plan
 
 
-def _make_plan(study_id: int, name: str, protocol: Protocol, labels: dict[str, str]) -> Plan:
+def _make_plan(
+    study_id: int, name: str, protocol: Protocol, labels: dict[str, str], *, learners: bool
+) -> Plan:
     items = session_items(protocol)
     measures = tuple(
         Measure(
@@ -150,12 +158,13 @@ def _make_plan(study_id: int, name: str, protocol: Protocol, labels: dict[str, s
         categories=tuple(c.name for c in protocol.categories if c.preferred is not None),
         trust_query=_trust_query(study_id, items),
         adaptation_query=_adaptation_query(study_id),
+        learners=learners,
     )
 
 
-def data_key(study: Study, actor: Actor) -> tuple[int, tuple[tuple[str, str], ...]]:
-    """What :func:`dashboard_data` depends on besides the data: the study and the labels the
-    actor may see (blinded roles get neutral ones)."""
+def data_key(study: Study, actor: Actor) -> PlanKey:
+    """What :func:`dashboard_data` depends on besides the data: the study, the labels the
+    actor may see (blinded roles get neutral ones) and whether the learners may be shown."""
     return plan_for(study, actor).key
 
 
@@ -352,7 +361,8 @@ def compute(db: Session, plan: Plan) -> dict[str, Any]:
     return {
         "study": plan.study_name,
         "measures": measures,
-        "adaptation": adaptation,
+        "adaptation": adaptation if plan.learners else None,
+        "learners_hidden": None if plan.learners else LEARNERS_SEALED,
         "answers": sum(r[3] for r in curves if r[2] > 0),
         "questionnaires": sum(r[3] for r in trust),
     }

@@ -21,7 +21,7 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
 from app.protocol import AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
-from app.services import audit, learners
+from app.services import audit, blinding, learners
 from app.services.audit import Actor
 from app.services.studies import get_study, protocol_of
 from app.tables import (
@@ -48,11 +48,12 @@ class Enrolment:
         return self.allocation.condition
 
 
-def condition_label(protocol: Protocol, condition_id: str, *, actor: Actor) -> str:
-    """What this actor may see of a condition: its id, or a neutral label in a blinded study."""
-    if protocol.study.blinded and not actor.sees_conditions:
-        return protocol.neutral_label(condition_id)
-    return condition_id
+def condition_label(study: Study, condition_id: str, *, actor: Actor) -> str:
+    """What this actor may see of a condition: its id, or a neutral label while the study is
+    blinded (app.services.blinding)."""
+    if blinding.shows_conditions(study, actor):
+        return condition_id
+    return protocol_of(study).neutral_label(condition_id)
 
 
 def _validate_strata(spec: AllocationSpec, strata: Mapping[str, str]) -> dict[str, str]:

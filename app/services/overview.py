@@ -140,7 +140,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
             started,
             participant.enrolled_at,
         )
-        group = condition_label(protocol, condition, actor=actor)
+        group = condition_label(study, condition, actor=actor)
         counts = overview.groups.setdefault(group, dict.fromkeys(ParticipantStatus, 0))
         counts[participant.status] += 1
         overview.rows.append(

@@ -116,6 +116,11 @@ def set_study_status(db: Session, *, name: str, status: StudyStatus, actor: Acto
     study = get_study(db, name, for_update=True)
     if study.status == status:
         return study
+    if status is StudyStatus.OPEN and study.unblinded_at is not None:
+        raise Conflict(
+            f"study {name!r} has been unblinded: participants enrolled now would run unblinded, "
+            "so it stays closed (create a new study for more participants)"
+        )
     study.status = status
     study.closed_at = utcnow() if status is StudyStatus.CLOSED else None
     audit.record(

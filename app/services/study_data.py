@@ -18,11 +18,12 @@ import pandas as pd
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from analysis.dataset import ProtocolSummary, StudyDataset
+from analysis.dataset import ProtocolSummary, StudyDataset, empty_steps
 from analysis.instruments import InstrumentSpec as AnalysisInstrument
 from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.scoring import ScaleSpec
 from app.protocol import InstrumentSpec, ItemKind, Protocol
+from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
 from app.services.studies import protocol_of
 from app.tables import (
@@ -276,15 +277,17 @@ def _data_sha256(*frames: pd.DataFrame) -> str:
     return digest.hexdigest()
 
 
-def load_dataset(db: Session, *, study: Study) -> StudyDataset:
-    """The whole study as the analysis package expects it (real condition ids, never blinded:
-    exports are for analysts and admins)."""
+def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> StudyDataset:
+    """The whole study as the analysis package expects it, with real condition ids (exports are
+    for analysts and admins). ``for_staff``: for a signed-in person, so while the study is
+    blinded the step log is withheld (app.services.blinding); the command line passes False."""
     protocol = protocol_of(study)
     instruments = instruments_of(protocol)
     summary = protocol_summary(study, protocol)
     participants = _participants(db, study, protocol)
     responses = _responses(db, study, instruments)
-    steps = _steps(db, study, set(summary["categories"]))
+    withheld = LEARNERS_SEALED if for_staff and not shows_learners(study) else ""
+    steps = empty_steps() if withheld else _steps(db, study, set(summary["categories"]))
     digests = db.scalars(
         select(LearnerState.checkpoint_sha256)
         .join(Participant, Participant.id == LearnerState.participant_id)
@@ -310,4 +313,5 @@ def load_dataset(db: Session, *, study: Study) -> StudyDataset:
         manifest=manifest,
         instruments=instruments,
         scales=scales_of(protocol),
+        steps_withheld=withheld,
     )

@@ -1,4 +1,8 @@
-"""One participant's whole record, in order: questionnaires, sessions, runs and steps."""
+"""One participant's whole record, in order: questionnaires, sessions, runs and steps.
+
+While the study is blinded (app.services.blinding) the steps carry neither the learner's
+probabilities nor the replies, their levels and the probabilities behind them: a reply history
+would show which condition the participant is in."""
 
 from __future__ import annotations
 
@@ -9,13 +13,15 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
+from app.services.blinding import shows_learners
 from app.services.studies import protocol_of
 from app.tables import Answer, Participant, Prompt, Response, Run, Study, StudySession, Submission
 
 
 @dataclass(frozen=True)
 class Step:
-    """A prompt and, once given, its answer and the robot's reply."""
+    """A prompt and, once given, its answer and the robot's reply (``probabilities`` empty and
+    the reply's fields None while the study is blinded)."""
 
     step_id: int
     category: str
@@ -100,6 +106,7 @@ def _questionnaires(
 def participant_timeline(db: Session, *, study: Study, participant: Participant) -> Timeline:
     """Everything recorded for a participant, oldest first."""
     protocol = protocol_of(study)
+    learners = shows_learners(study)
     questionnaires = _questionnaires(db, participant, protocol)
     sessions = {
         s.id: SessionRecord(s.number, s.status, s.started_at, s.ended_at)
@@ -121,18 +128,19 @@ def participant_timeline(db: Session, *, study: Study, participant: Participant)
         .where(Prompt.participant_id == participant.id)
         .order_by(Prompt.id)
     ):
+        shown = answer if learners else None
         runs[prompt.run_id].steps.append(
             Step(
                 prompt.id,
                 prompt.category,
                 prompt.question,
-                prompt.probabilities,
+                prompt.probabilities if learners else [],
                 prompt.prompted_at,
                 prompt.actor,
                 answer.answer if answer else None,
-                answer.reply if answer else None,
-                answer.confidence if answer else None,
-                answer.probability if answer else None,
+                shown.reply if shown else None,
+                shown.confidence if shown else None,
+                shown.probability if shown else None,
                 answer.answered_at if answer else None,
             )
         )

@@ -1,5 +1,5 @@
 """Admin pages: the list of accounts and new ones (each account's own page: app.web.accounts),
-new studies from protocol files, opening and closing studies."""
+new studies from protocol files, opening and closing studies, unblinding a blinded one."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from fastapi.responses import Response
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import accounts, studies, users
+from app.services import accounts, blinding, studies, users
 from app.services.audit import Actor
 from app.tables import Role, StudyStatus
 from app.web.templating import redirect_with_notice, render
@@ -124,3 +124,39 @@ def set_status(
     """Open or close a study for enrolment."""
     studies.set_study_status(db, name=name, status=status, actor=Actor.of_user(admin))
     return redirect_with_notice(request, f"/studies/{name}", f"Study is now {status.value}.")
+
+
+def _unblind_page(
+    request: Request, db: SessionDep, name: str, *, error: str = "", status_code: int = 200
+) -> Response:
+    study = studies.get_study(db, name)
+    return render(
+        request,
+        "admin_study_unblind.html",
+        {
+            "study": study,
+            "blinded": studies.protocol_of(study).study.blinded,
+            "active": blinding.unfinished_participants(db, study),
+            "error": error,
+        },
+        status_code=status_code,
+    )
+
+
+@router.get("/studies/{name}/unblind")
+def unblind_form(request: Request, db: SessionDep, admin: AdminUser, name: str) -> Response:
+    """Say what unblinding shows, to whom, and that it cannot be undone; ask to confirm."""
+    return _unblind_page(request, db, name)
+
+
+@router.post("/studies/{name}/unblind")
+def unblind(request: Request, db: SessionDep, admin: AdminUser, name: str) -> Response:
+    """Lift the blinding for good (audited); a refusal stays on the confirmation page."""
+    try:
+        blinding.unblind(db, name=name, actor=Actor.of_user(admin))
+    except Conflict as exc:
+        db.rollback()
+        return _unblind_page(request, db, name, error=exc.message, status_code=exc.status_code)
+    return redirect_with_notice(
+        request, f"/studies/{name}", "Unblinded: everyone now sees conditions and learners."
+    )

@@ -14,7 +14,7 @@ from analysis.errors import AnalysisError
 from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
 from analysis.study import analyse_study
 from app.deps import AnalystUser, OneHopRouter, SessionDep
-from app.errors import InvalidInput, NotFound
+from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
 from app.services import audit, studies, study_data
 from app.services.analysis_view import analysis_view
@@ -22,6 +22,9 @@ from app.services.audit import Actor
 from app.web.templating import render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
+
+STEP_LOG_EXPORT = "steps-csv"
+"""The export that is the learners' step log (refused while the study is blinded)."""
 
 
 @router.get("/studies/{name}/analysis")
@@ -32,7 +35,7 @@ def analysis_page(
     if ss not in (2, 3):
         raise InvalidInput("ss: the sums of squares are of type 3 (default) or 2")
     study = studies.get_study(db, name)
-    dataset = study_data.load_dataset(db, study=study)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True)
     try:
         view = analysis_view(analyse_study(dataset, ss_type=ss))  # type: ignore[arg-type]
         error = ""
@@ -47,6 +50,8 @@ def analysis_page(
             "error": error,
             "formats": EXPORT_FORMATS.values(),
             "manifest": dataset.manifest,
+            "step_log": STEP_LOG_EXPORT,
+            "steps_withheld": dataset.steps_withheld,
         },
     )
 
@@ -60,7 +65,9 @@ def download(
     if spec is None:
         raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
     study = studies.get_study(db, name)
-    dataset = study_data.load_dataset(db, study=study)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True)
+    if dataset.steps_withheld and export == STEP_LOG_EXPORT:
+        raise Conflict(f"no step log yet: {dataset.steps_withheld}")
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
     path = write_export(dataset, export, folder / spec.filename)
     digest = sha256_file(path)

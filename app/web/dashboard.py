@@ -10,7 +10,7 @@ from starlette.concurrency import run_in_threadpool
 
 from app.db import Database
 from app.deps import CurrentUser, SessionDep, StreamingUser
-from app.services import dashboard, stations, studies
+from app.services import blinding, dashboard, stations, studies
 from app.services.audit import Actor
 from app.services.freshness import FreshnessCache
 from app.web.templating import render
@@ -29,6 +29,7 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
             "study": study,
             "protocol": studies.protocol_of(study),
             "items": dashboard.session_items(studies.protocol_of(study)),
+            "learners_hidden": "" if blinding.shows_learners(study) else blinding.LEARNERS_SEALED,
         },
     )
 

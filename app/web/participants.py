@@ -6,7 +6,7 @@ from fastapi import Request
 from fastapi.responses import Response
 
 from app.deps import CurrentUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
-from app.services import enrolment, questionnaires, studies, tablet_tokens, timeline
+from app.services import blinding, enrolment, questionnaires, studies, tablet_tokens, timeline
 from app.services.audit import Actor
 from app.tables import Role
 from app.web.qr import qr_svg
@@ -31,7 +31,6 @@ def participant_page(
     """Everything recorded for one participant, and what can be done with them."""
     study = studies.get_study(db, name)
     participant = enrolment.get_participant(db, study, code)
-    protocol = studies.protocol_of(study)
     can_act = user.role in (Role.ADMIN, Role.EXPERIMENTER)
     token = tablet_tokens.participant_token(settings.secret, participant) if can_act else None
     link = f"{str(request.base_url).rstrip('/')}/t/{token}" if token else None
@@ -42,9 +41,10 @@ def participant_page(
             "study": study,
             "participant": participant,
             "group": enrolment.condition_label(
-                protocol, participant.allocation.condition, actor=Actor.of_user(user)
+                study, participant.allocation.condition, actor=Actor.of_user(user)
             ),
             "timeline": timeline.participant_timeline(db, study=study, participant=participant),
+            "shows_learners": blinding.shows_learners(study),
             "can_act": can_act,
             "link": link,
             "qr": qr_svg(link) if link else "",

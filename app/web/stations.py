@@ -199,6 +199,9 @@ def _console(
         ).all()
         candidates.append({"study": study.name, "codes": codes})
     last = runtime.last_step(db, participant_id=participant.id) if participant else None
+    # While the seated participant's study is blinded, the learners stay off the page entirely:
+    # bars, levels and probabilities would each show the condition (app.services.blinding).
+    learners_shown = station_ops.station_shows_learners(db, name)
     response = render(
         request,
         "console.html",
@@ -208,7 +211,8 @@ def _console(
             "participant": participant,
             "devices": devices,
             "candidates": candidates,
-            "bars": _probabilities(db, participant) if participant else [],
+            "bars": _probabilities(db, participant) if participant and learners_shown else [],
+            "learners_shown": learners_shown,
             "last": last,
             "error": error,
             "answer_key": uuid.uuid4().hex,

@@ -9,7 +9,7 @@ from fastapi.responses import Response
 
 from app.deps import CurrentUser, ExperimenterUser, FormFields, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
-from app.services import enrolment, overview, studies
+from app.services import blinding, enrolment, overview, studies
 from app.services.audit import Actor
 from app.tables import Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
@@ -25,13 +25,12 @@ def study_list(request: Request, db: SessionDep, user: CurrentUser) -> Response:
     actor = Actor.of_user(user)
     rows = []
     for study in studies.list_studies(db):
-        protocol = studies.protocol_of(study)
         counts = studies.enrolment_counts(db, study)
         rows.append(
             {
                 "study": study,
                 "counts": {
-                    enrolment.condition_label(protocol, condition, actor=actor): by_status
+                    enrolment.condition_label(study, condition, actor=actor): by_status
                     for condition, by_status in counts.items()
                 },
                 "total": sum(sum(by_status.values()) for by_status in counts.values()),
@@ -60,6 +59,8 @@ def _study_page(
             "study": study,
             "protocol": protocol,
             "overview": overview.study_overview(db, study=study, actor=Actor.of_user(user)),
+            "shows_conditions": blinding.shows_conditions(study, Actor.of_user(user)),
+            "sealed": blinding.is_sealed(study),
             "can_enrol": user.role in (Role.ADMIN, Role.EXPERIMENTER),
             "form_error": form_error,
             "form_values": form_values or {},
@@ -109,8 +110,7 @@ def enrol(
             form_values=fields,
             status_code=exc.status_code,
         )
-    protocol = studies.protocol_of(studies.get_study(db, name))
-    label = enrolment.condition_label(protocol, result.condition, actor=actor)
+    label = enrolment.condition_label(studies.get_study(db, name), result.condition, actor=actor)
     revealed = f"Enrolled {result.participant.code}: allocated to {label}."
     if is_htmx(request):  # the allocation is shown once, inside the part htmx swaps in
         return _study_page(request, db, user, name, revealed=revealed)

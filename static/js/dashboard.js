@@ -41,7 +41,15 @@
       Plotly.react(card.querySelector(".chart"), measure.payload.data, measure.payload.layout,
         config);
     }
-    Plotly.react("adaptation", latest.adaptation.data, latest.adaptation.layout, config);
+    // null while the study is blinded: the curves would show which group is which
+    const hidden = document.getElementById("adaptation-hidden");
+    hidden.hidden = latest.adaptation !== null;
+    if (latest.adaptation) {
+      Plotly.react("adaptation", latest.adaptation.data, latest.adaptation.layout, config);
+    } else {
+      Plotly.purge("adaptation");
+      hidden.textContent = `Adaptation curves: ${latest.learners_hidden}.`;
+    }
     root.dataset.answers = String(latest.answers);
     root.dataset.questionnaires = String(latest.questionnaires);
     status.textContent = `${latest.answers} answers learned and ${latest.questionnaires} ` +

@@ -21,6 +21,7 @@ from analysis.descriptives import t_interval
 from analysis.figures import adaptation_payload_from_curves, mean_ci_payload_from_cells
 from app.protocol import Protocol
 from app.services.audit import Actor
+from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.dashboard import SessionItem, session_items
 from app.services.enrolment import condition_label
 from app.services.studies import protocol_of
@@ -143,8 +144,8 @@ def adaptation_cells(db: Session, study: Study) -> pd.DataFrame:
     return _moments_to_cells(frame.reset_index(drop=True))
 
 
-def _labels(protocol: Protocol, actor: Actor) -> dict[str, str]:
-    return {c.id: condition_label(protocol, c.id, actor=actor) for c in protocol.conditions}
+def _labels(study: Study, protocol: Protocol, actor: Actor) -> dict[str, str]:
+    return {c.id: condition_label(study, c.id, actor=actor) for c in protocol.conditions}
 
 
 def json_safe(value: Any) -> Any:
@@ -161,7 +162,7 @@ def json_safe(value: Any) -> Any:
 def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]:
     """Everything the live dashboard draws, as JSON-able payloads."""
     protocol = protocol_of(study)
-    labels = _labels(protocol, actor)
+    labels = _labels(study, protocol, actor)
     items = session_items(protocol)
     # Cells carry the label the actor may see instead of the condition, and are listed in label
     # order: the ids, or rows ordered by them, would tell a blinded experimenter the mapping.
@@ -199,7 +200,9 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
         {
             "study": study.name,
             "measures": measures,
-            "adaptation": adaptation,
+            # a blinded study shows no curves until it is unblinded (app.services.blinding)
+            "adaptation": adaptation if shows_learners(study) else None,
+            "learners_hidden": None if shows_learners(study) else LEARNERS_SEALED,
             "answers": int(curves.loc[curves["iteration"] > 0, "n"].sum()) if len(curves) else 0,
             "questionnaires": int(trust["n"].sum()) if len(trust) else 0,
         }

@@ -216,6 +216,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/api/v1/studies/{name}/status"): send(
         "POST", "/api/v1/studies/ghost/status", json={"status": "open"}
     ),
+    ("POST", "/api/v1/studies/{name}/unblind"): send("POST", "/api/v1/studies/ghost/unblind"),
     ("POST", "/api/v1/stations"): send("POST", "/api/v1/stations", json={}),
     ("POST", "/api/v1/stations/{name}/devices"): send(
         "POST", "/api/v1/stations/ghost/devices", json={}
@@ -245,6 +246,10 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/admin/studies"): send("POST", "/admin/studies", data={}),
     ("POST", "/admin/studies/{name}/status"): send(
         "POST", "/admin/studies/ghost/status", data={"status": "open"}
+    ),
+    ("GET", "/admin/studies/{name}/unblind"): get("/admin/studies/ghost/unblind"),
+    ("POST", "/admin/studies/{name}/unblind"): send(
+        "POST", "/admin/studies/ghost/unblind", data={}
     ),
     ("GET", "/admin/audit"): get("/admin/audit"),
     ("GET", "/admin/audit.csv"): get("/admin/audit.csv?action=none"),

@@ -81,3 +81,36 @@ def test_0006_keeps_the_recorded_sign_in_attempts(blank_database_url: str) -> No
         columns = {c["name"] for c in inspect(connection).get_columns("login_attempt")}
     assert "cleared_at" not in columns
     database.dispose()
+
+
+def test_0007_leaves_every_study_blinded_as_it_was(blank_database_url: str) -> None:
+    """study.unblinded_at arrives empty (a blinded study stays sealed after the upgrade), and a
+    downgrade keeps the studies and what refers to them."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0006")
+    with database.engine.begin() as connection:
+        connection.execute(
+            text(
+                "INSERT INTO study (name, title, status, protocol, protocol_source, "
+                "protocol_sha256, allocation_seed, created_at, created_by) VALUES ('s', 'S', "
+                "'open', '{}', '', 'h', 'seed', CURRENT_TIMESTAMP, 'tests')"
+            )
+        )
+        connection.execute(
+            text(
+                "INSERT INTO participant (study_id, code, stratum, strata, status, enrolled_at, "
+                "enrolled_by, withdrawal_reason) SELECT id, 'P001', '', '{}', 'active', "
+                "CURRENT_TIMESTAMP, 'tests', '' FROM study"
+            )
+        )
+    schema.upgrade(database, "0007")
+    with database.engine.connect() as connection:
+        rows = connection.execute(text("SELECT name, unblinded_at FROM study")).all()
+    assert [tuple(row) for row in rows] == [("s", None)]
+    schema.downgrade(database, "0006")
+    with database.engine.connect() as connection:
+        assert connection.execute(text("SELECT name FROM study")).scalars().all() == ["s"]
+        assert connection.execute(text("SELECT count(*) FROM participant")).scalar() == 1
+        columns = {c["name"] for c in inspect(connection).get_columns("study")}
+    assert "unblinded_at" not in columns
+    database.dispose()
