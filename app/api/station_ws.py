@@ -199,6 +199,10 @@ class _Connection:
         async with self._send_lock:
             await self.websocket.send_text(json.dumps(message, default=str))
 
+    async def send_error(self, request_id: RequestId, status: int, detail: str) -> None:
+        """An error reply to one request; the connection stays open (docs/robot-integration.md)."""
+        await self.send({"type": "error", "id": request_id, "status": status, "detail": detail})
+
     async def state(self) -> dict[str, Any]:
         out = await as_device(
             self.websocket.app,
@@ -230,12 +234,10 @@ class _Connection:
             request_id = _request_id(data)
             message = _parse.validate_python(data)
         except BadFrame as exc:
-            await self.send({"type": "error", "id": None, "status": 400, "detail": exc.detail})
+            await self.send_error(None, 400, exc.detail)
             return True
         except ValidationError as exc:
-            await self.send(
-                {"type": "error", "id": request_id, "status": 422, "detail": _describe(exc)}
-            )
+            await self.send_error(request_id, 422, _describe(exc))
             return True
         if isinstance(message, PingMessage):
             if message.type == "ping":
@@ -247,44 +249,20 @@ class _Connection:
             await self.close_revoked()
             return False
         except TrustlabError as exc:
-            await self.send(
-                {
-                    "type": "error",
-                    "id": message.id,
-                    "status": exc.status_code,
-                    "detail": exc.message,
-                }
-            )
+            await self.send_error(message.id, exc.status_code, exc.message)
             return True
         except DataError as exc:
-            await self.send(
-                {
-                    "type": "error",
-                    "id": message.id,
-                    "status": 422,
-                    "detail": refused_value_message(exc),
-                }
-            )
+            await self.send_error(message.id, 422, refused_value_message(exc))
             return True
         except OperationalError:
-            await self.send(
-                {
-                    "type": "error",
-                    "id": message.id,
-                    "status": 503,
-                    "detail": "the database is unavailable right now; please retry",
-                }
+            await self.send_error(
+                message.id, 503, "the database is unavailable right now; please retry"
             )
             return True
         except Exception:  # a defect, not the client's mistake: say so, log it, keep serving
             log.exception("station %s: %s request failed", self.device.station, message.type)
-            await self.send(
-                {
-                    "type": "error",
-                    "id": message.id,
-                    "status": 500,
-                    "detail": "the server failed to handle this request; its log has the details",
-                }
+            await self.send_error(
+                message.id, 500, "the server failed to handle this request; its log has the details"
             )
             return True
         await self.send({"type": "result", "id": message.id, "op": message.type, "data": result})

@@ -42,24 +42,7 @@ class Account:
     """Until when failed sign-ins lock it out (app.services.login_throttle), or None."""
 
 
-def list_accounts(db: Session) -> list[Account]:
-    """Every account, by username."""
-    return [
-        Account(
-            user.username,
-            user.role,
-            user.is_active,
-            user.created_at,
-            user.last_login_at,
-            login_throttle.locked_until(db, username=user.username),
-        )
-        for user in db.scalars(select(User).order_by(User.username))
-    ]
-
-
-def get_account(db: Session, username: str) -> Account:
-    """One account (NotFound unless ``username`` is exactly an account's name)."""
-    user = users.named(db, username)
+def _account(db: Session, user: User) -> Account:
     return Account(
         user.username,
         user.role,
@@ -68,6 +51,16 @@ def get_account(db: Session, username: str) -> Account:
         user.last_login_at,
         login_throttle.locked_until(db, username=user.username),
     )
+
+
+def list_accounts(db: Session) -> list[Account]:
+    """Every account, by username."""
+    return [_account(db, user) for user in db.scalars(select(User).order_by(User.username))]
+
+
+def get_account(db: Session, username: str) -> Account:
+    """One account (NotFound unless ``username`` is exactly an account's name)."""
+    return _account(db, users.named(db, username))
 
 
 def _lock_for_change(db: Session, username: str, actor: Actor) -> tuple[User, list[User]]:
