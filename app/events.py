@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import logging
+import secrets
 import threading
 from collections import Counter
 from collections.abc import AsyncIterator, Iterable
@@ -40,19 +42,27 @@ PENDING_KEY = "trustlab_pending_events"
 NOTIFIED_KEY = "trustlab_notified_topics"
 MAX_PAYLOAD_BYTES = 7900  # PostgreSQL refuses NOTIFY payloads of 8000 bytes or more
 QUEUE_SIZE = 256
+MAX_ECHOES = 100_000
 
 
 @dataclass(frozen=True)
 class Event:
-    """Something that changed: on which topic, what kind of change, and its small payload."""
+    """Something that changed: on which topic, what kind of change, and its small payload.
+
+    ``id`` is set on the events a process NOTIFYs (PostgreSQL), so that it recognises its own
+    when they come back through LISTEN: it counted them at commit already (:class:`EventHub`)."""
 
     topic: str
     type: str
     data: dict[str, Any] = field(default_factory=dict)
+    id: str = field(default="", compare=False)
 
     def to_json(self) -> str:
         """The wire form (also the NOTIFY payload)."""
-        return json.dumps({"topic": self.topic, "type": self.type, "data": self.data}, default=str)
+        value: dict[str, Any] = {"topic": self.topic, "type": self.type, "data": self.data}
+        if self.id:
+            value["id"] = self.id
+        return json.dumps(value, default=str)
 
     @classmethod
     def from_json(cls, raw: str) -> Event:
@@ -60,11 +70,13 @@ class Event:
         try:
             value = json.loads(raw)
             topic, kind, data = value["topic"], value["type"], value.get("data", {})
+            event_id = value.get("id", "")
         except (ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"not a trustlab event: {raw[:80]!r}") from exc
-        if not isinstance(topic, str) or not isinstance(kind, str) or not isinstance(data, dict):
+        texts = (topic, kind, event_id)
+        if not all(isinstance(text, str) for text in texts) or not isinstance(data, dict):
             raise ValueError(f"not a trustlab event: {raw[:80]!r}")
-        return cls(topic=topic, type=kind, data=data)
+        return cls(topic=topic, type=kind, data=data, id=event_id)
 
 
 RESYNC = Event(topic="*", type="resync")
@@ -131,6 +143,8 @@ class EventHub:
         self._subscriptions: set[Subscription] = set()
         self._lock = threading.Lock()
         self._versions: Counter[str] = Counter()
+        self._echoes: set[str] = set()
+        """Ids of events this process committed and counted, whose NOTIFY has not come back."""
 
     def version(self, topic: str) -> int:
         """How many changes of ``topic`` (or resyncs) this process has seen: equal numbers mean
@@ -138,10 +152,16 @@ class EventHub:
         with self._lock:
             return self._versions[topic] + self._versions["*"]
 
-    def note_changes(self, topics: Iterable[str]) -> None:
-        """Count changes committed here whose events arrive later (PostgreSQL's NOTIFY)."""
+    def note_changes(self, notified: Iterable[tuple[str, str]]) -> None:
+        """Count changes committed here, as (topic, event id), whose events arrive later
+        (PostgreSQL's NOTIFY): counted now, so a reader sees its own change, and not again when
+        they arrive (a second count made every cache that shares by version compute twice)."""
         with self._lock:
-            self._versions.update(topics)
+            if len(self._echoes) > MAX_ECHOES:  # a listener that lost them; counting twice is safe
+                self._echoes.clear()
+            for topic, event_id in notified:
+                self._versions[topic] += 1
+                self._echoes.add(event_id)
 
     def open(self, topics: Iterable[str]) -> Subscription:
         """Start receiving events of these topics (call from the loop that will read them)."""
@@ -170,7 +190,11 @@ class EventHub:
         if not batch:
             return
         with self._lock:
-            self._versions.update(item.topic for item in batch)
+            for item in batch:
+                if item.id in self._echoes:
+                    self._echoes.discard(item.id)  # counted when this process committed it
+                else:
+                    self._versions[item.topic] += 1
             subscriptions = list(self._subscriptions)
         for subscription in subscriptions:
             for item in batch:
@@ -198,7 +222,7 @@ def _notify_payload(pending: Event) -> str:
     """The NOTIFY payload of an event; too large ones say only that they were truncated."""
     payload = pending.to_json()
     if len(payload.encode()) > MAX_PAYLOAD_BYTES:
-        payload = Event(pending.topic, pending.type, {"truncated": True}).to_json()
+        payload = Event(pending.topic, pending.type, {"truncated": True}, pending.id).to_json()
     return payload
 
 
@@ -209,10 +233,13 @@ def send_pending(db: Session) -> None:
     pending; on SQLite events wait for the commit in any case."""
     if db.get_bind().dialect.name != "postgresql":
         return
-    pending_events: list[Event] = db.info.pop(PENDING_KEY, [])
+    pending_events = [
+        dataclasses.replace(pending, id=secrets.token_hex(8))
+        for pending in db.info.pop(PENDING_KEY, [])
+    ]
     if not pending_events:
         return
-    db.info.setdefault(NOTIFIED_KEY, []).extend(pending.topic for pending in pending_events)
+    db.info.setdefault(NOTIFIED_KEY, []).extend((e.topic, e.id) for e in pending_events)
     payloads = [_notify_payload(pending) for pending in pending_events]
     Cursor.of(db).send(_NOTIFY_ALL, {"c": CHANNEL, "payloads": json.dumps(payloads)})
 

@@ -172,7 +172,31 @@ def test_the_hub_counts_changes_per_topic() -> None:
     hub = EventHub()
     assert hub.version("study:1") == 0
     hub.deliver([Event(topic="study:1", type="answer"), Event(topic="study:2", type="answer")])
-    hub.note_changes(["study:1"])  # committed here, its NOTIFY still on the way
+    hub.note_changes([("study:1", "e1")])  # committed here, its NOTIFY still on the way
     assert (hub.version("study:1"), hub.version("study:2")) == (2, 1)
+    hub.deliver([Event(topic="study:1", type="answer", id="e1")])  # it arrives: counted already
+    assert (hub.version("study:1"), hub.version("study:2")) == (2, 1)
+    hub.deliver([Event(topic="study:1", type="answer", id="e2")])  # another process's change
+    assert (hub.version("study:1"), hub.version("study:2")) == (3, 1)
     hub.deliver([RESYNC])  # anything may have changed
-    assert (hub.version("study:1"), hub.version("study:2")) == (3, 2)
+    assert (hub.version("study:1"), hub.version("study:2")) == (4, 2)
+
+
+def test_a_process_counts_its_own_notified_change_once(database: Database) -> None:
+    """A commit counts its events at once (a reader sees its own change) and never again, when on
+    PostgreSQL their NOTIFY comes back (a second count made the dashboards' shared computation
+    run twice per change, and a test that counted computations flaky)."""
+    topic = "study:77"
+    counted: list[int] = []
+
+    def publish_one() -> None:
+        counted.append(database.hub.version(topic))
+        with database.writing() as db:
+            events.publish(db, topics=[topic], type="answer")
+            db.commit()
+        counted.append(database.hub.version(topic))
+
+    received = _deliver(database, topic, publish_one, 1)
+    assert [event.type for event in received] == ["answer"]  # the NOTIFY has come back
+    before, at_commit = counted
+    assert (at_commit, database.hub.version(topic)) == (before + 1, before + 1)

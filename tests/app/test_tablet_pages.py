@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 import threading
-import time
 
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
@@ -116,15 +115,13 @@ def test_the_wait_page_is_told_when_a_session_ends(app: FastAPI, lab: Lab) -> No
     assert tablet.get("/tablet").url.path == "/tablet/wait"
     lab.start_session()
     lines: list[str] = []
-
-    def finish_the_session() -> None:
-        time.sleep(0.5)
-        lab.run_session()
-
-    worker = threading.Thread(target=finish_the_session)
+    worker = threading.Thread(target=lab.run_session)
     with tablet.stream("GET", "/tablet/events") as stream:
+        received = stream.iter_lines()
+        # the stream sends its retry hint once it has subscribed: no change can be missed now
+        assert next(received).startswith("retry:")
         worker.start()
-        for line in stream.iter_lines():
+        for line in received:
             lines.append(line)
             if line.startswith("data:") and "session_ended" in line:
                 break
