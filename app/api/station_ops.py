@@ -19,7 +19,7 @@ from app.api.runtime_schemas import (
     StaffStationStateOut,
     StationStateOut,
 )
-from app.services import blinding, runtime
+from app.services import runtime
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.tables import Device, Station
@@ -39,10 +39,9 @@ def state(db: Session, *, station: StationRef) -> StationStateOut:
     return state_out(runtime.station_view(db, station_name=name, seat=loaded))
 
 
-def prompt(
-    db: Session, *, station: StationRef, body: PromptRequest, actor: Actor, device_id: int | None
-) -> PromptOut:
-    """Choose a question for a category (or hand out its open one again)."""
+def _prompt(
+    db: Session, station: StationRef, body: PromptRequest, actor: Actor, device_id: int | None
+) -> tuple[runtime.PromptResult, PromptOut]:
     name, loaded = _named(station)
     result = runtime.request_prompt(
         db,
@@ -52,9 +51,47 @@ def prompt(
         device_id=device_id,
         seat=loaded,
     )
-    return prompt_out(
+    out = prompt_out(
         result.prompt, session=result.session_number, run=result.run_number, created=result.created
     )
+    return result, out
+
+
+def prompt(
+    db: Session, *, station: StationRef, body: PromptRequest, actor: Actor, device_id: int | None
+) -> PromptOut:
+    """Choose a question for a category (or hand out its open one again)."""
+    return _prompt(db, station, body, actor, device_id)[1]
+
+
+def wizard_prompt(
+    db: Session, *, station: str, body: PromptRequest, actor: Actor
+) -> StaffPromptOut:
+    """:func:`prompt` for an experimenter (Wizard-of-Oz), as :func:`staff_prompt` shows it."""
+    result, out = _prompt(db, station, body, actor, None)
+    return staff_prompt(out, shows_learners=result.learners_shown)
+
+
+def _answer(
+    db: Session,
+    station: StationRef,
+    step_id: int,
+    body: AnswerRequest,
+    actor: Actor,
+    device_id: int | None,
+) -> tuple[runtime.AnswerResult, AnswerOut]:
+    name, loaded = _named(station)
+    result = runtime.record_answer(
+        db,
+        station_name=name,
+        step_id=step_id,
+        answer=body.answer == "yes",
+        idempotency_key=body.idempotency_key,
+        actor=actor,
+        device_id=device_id,
+        seat=loaded,
+    )
+    return result, answer_out(result, result.expected)
 
 
 def answer(
@@ -67,18 +104,15 @@ def answer(
     device_id: int | None,
 ) -> AnswerOut:
     """Record an answer exactly once and return the reply."""
-    name, loaded = _named(station)
-    result = runtime.record_answer(
-        db,
-        station_name=name,
-        step_id=step_id,
-        answer=body.answer == "yes",
-        idempotency_key=body.idempotency_key,
-        actor=actor,
-        device_id=device_id,
-        seat=loaded,
-    )
-    return answer_out(result, result.expected)
+    return _answer(db, station, step_id, body, actor, device_id)[1]
+
+
+def wizard_answer(
+    db: Session, *, station: str, step_id: int, body: AnswerRequest, actor: Actor
+) -> StaffAnswerOut:
+    """:func:`answer` for an experimenter (Wizard-of-Oz), as :func:`staff_answer` shows it."""
+    result, out = _answer(db, station, step_id, body, actor, None)
+    return staff_answer(out, shows_learners=result.learners_shown)
 
 
 def start_run(db: Session, *, station: StationRef, actor: Actor) -> StationStateOut:
@@ -192,17 +226,11 @@ def staff_answer(answer: AnswerOut, *, shows_learners: bool) -> StaffAnswerOut:
     return StaffAnswerOut.model_validate(data)
 
 
-def staff_state(state: StationStateOut, *, shows_learners: bool) -> StaffStationStateOut:
+def staff_state(view: runtime.StationView) -> StaffStationStateOut:
     """A station's state for the experimenter's routes (open prompts as :func:`staff_prompt`)."""
+    state = state_out(view)
     data = state.model_dump(exclude={"open_prompts"})
     data["open_prompts"] = [
-        staff_prompt(p, shows_learners=shows_learners) for p in state.open_prompts
+        staff_prompt(p, shows_learners=view.learners_shown) for p in state.open_prompts
     ]
     return StaffStationStateOut.model_validate(data)
-
-
-def station_shows_learners(db: Session, station: str) -> bool:
-    """Whether staff may see the learners of the participant seated at ``station`` (no one
-    seated: nothing to hide)."""
-    study = blinding.seated_study(db, station)
-    return study is None or blinding.shows_learners(study)

@@ -24,7 +24,6 @@ from app.api.runtime_schemas import (
     StaffStationStateOut,
     StationCreate,
     StationOut,
-    StationStateOut,
     StepIdPath,
 )
 from app.api.schemas import TabletLink
@@ -65,12 +64,6 @@ def _stations_out(db: SessionDep, found: list[Station]) -> list[StationOut]:
     ]
 
 
-def _for_staff(db: SessionDep, name: str, state: StationStateOut) -> StaffStationStateOut:
-    return station_ops.staff_state(
-        state, shows_learners=station_ops.station_shows_learners(db, name)
-    )
-
-
 def _station_out(db: SessionDep, station_name: str) -> StationOut:
     return _stations_out(db, [stations.get_station(db, station_name)])[0]
 
@@ -92,7 +85,7 @@ def create_station(body: StationCreate, db: SessionDep, admin: AdminUser) -> Sta
 def get_state(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """The station's live state, as its robot sees it (without the learners' figures while the
     seated participant's study is blinded)."""
-    return _for_staff(db, name, station_ops.state(db, station=name))
+    return station_ops.staff_state(runtime.station_view(db, station_name=name))
 
 
 @router.put("/{name}/participant")
@@ -116,32 +109,33 @@ def unassign(name: str, db: SessionDep, user: ExperimenterUser) -> StationOut:
 @router.post("/{name}/sessions", status_code=status.HTTP_201_CREATED)
 def start_session(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """Start the assigned participant's next session and its first run."""
-    state = station_ops.state_out(
+    return station_ops.staff_state(
         runtime.start_session(db, station_name=name, actor=Actor.of_user(user))
     )
-    return _for_staff(db, name, state)
 
 
 @router.post("/{name}/sessions/current/end")
 def end_session(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """End the running session early."""
-    state = station_ops.state_out(
+    return station_ops.staff_state(
         runtime.end_session(db, station_name=name, actor=Actor.of_user(user))
     )
-    return _for_staff(db, name, state)
 
 
 @router.post("/{name}/runs", status_code=status.HTTP_201_CREATED)
 def start_run(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """Start the next run of the running session."""
-    return _for_staff(db, name, station_ops.start_run(db, station=name, actor=Actor.of_user(user)))
+    return station_ops.staff_state(
+        runtime.start_run(db, station_name=name, actor=Actor.of_user(user))
+    )
 
 
 @router.post("/{name}/runs/current/end")
 def end_run(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStationStateOut:
     """End the running run early (its unanswered categories stay unanswered)."""
-    state = station_ops.state_out(runtime.end_run(db, station_name=name, actor=Actor.of_user(user)))
-    return _for_staff(db, name, state)
+    return station_ops.staff_state(
+        runtime.end_run(db, station_name=name, actor=Actor.of_user(user))
+    )
 
 
 @router.post(
@@ -153,12 +147,10 @@ def prompt(
     name: str, body: PromptRequest, db: SessionDep, user: ExperimenterUser, response: Response
 ) -> StaffPromptOut:
     """Wizard-of-Oz: trigger a category as the robot would."""
-    out = station_ops.prompt(db, station=name, body=body, actor=Actor.of_user(user), device_id=None)
+    out = station_ops.wizard_prompt(db, station=name, body=body, actor=Actor.of_user(user))
     if not out.created:
         response.status_code = status.HTTP_200_OK
-    return station_ops.staff_prompt(
-        out, shows_learners=station_ops.station_shows_learners(db, name)
-    )
+    return out
 
 
 @router.post("/{name}/steps/{step_id}/answer")
@@ -166,11 +158,8 @@ def answer(
     name: str, step_id: StepIdPath, body: AnswerRequest, db: SessionDep, user: ExperimenterUser
 ) -> StaffAnswerOut:
     """Wizard-of-Oz: record the participant's yes/no answer as the robot would."""
-    out = station_ops.answer(
-        db, station=name, step_id=step_id, body=body, actor=Actor.of_user(user), device_id=None
-    )
-    return station_ops.staff_answer(
-        out, shows_learners=station_ops.station_shows_learners(db, name)
+    return station_ops.wizard_answer(
+        db, station=name, step_id=step_id, body=body, actor=Actor.of_user(user)
     )
 
 

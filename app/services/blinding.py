@@ -26,10 +26,11 @@ from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import Conflict
+from app.protocol import Protocol
 from app.services import audit, stations
 from app.services.audit import Actor
 from app.services.studies import get_study, protocol_of
-from app.tables import Participant, ParticipantStatus, Station, Study, StudyStatus, utcnow
+from app.tables import Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
 LEARNERS_SEALED = (
     "this study is blinded: the learners' probabilities and confidence levels are hidden until an "
@@ -38,9 +39,15 @@ LEARNERS_SEALED = (
 """Why learner data is missing, in the words every page and refusal uses."""
 
 
+def sealed(protocol: Protocol, *, unblinded: bool) -> bool:
+    """The rule itself: a blinded protocol whose study has not been unblinded (the runtime asks
+    with the seat it has read, app.services.step_store; pages with the study row)."""
+    return protocol.study.blinded and not unblinded
+
+
 def is_sealed(study: Study) -> bool:
     """Whether the study is blinded and has not been unblinded yet."""
-    return protocol_of(study).study.blinded and study.unblinded_at is None
+    return sealed(protocol_of(study), unblinded=study.unblinded_at is not None)
 
 
 def shows_conditions(study: Study, actor: Actor) -> bool:
@@ -51,16 +58,6 @@ def shows_conditions(study: Study, actor: Actor) -> bool:
 def shows_learners(study: Study) -> bool:
     """Whether staff may see the learners' probabilities, confidence levels and reply history."""
     return not is_sealed(study)
-
-
-def seated_study(db: Session, station_name: str) -> Study | None:
-    """The study of the participant seated at a station, if one is."""
-    return db.scalar(
-        select(Study)
-        .join(Participant, Participant.study_id == Study.id)
-        .join(Station, Station.participant_id == Participant.id)
-        .where(Station.name == station_name)
-    )
 
 
 def unfinished_participants(db: Session, study: Study) -> int:

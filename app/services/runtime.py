@@ -40,7 +40,7 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import Protocol
-from app.services import learners, questionnaires, step_store
+from app.services import blinding, learners, questionnaires, step_store
 from app.services.audit import Actor
 from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
 from app.services.step_store import LearnerRow, RunState, Seat, Seated, Step, StoredAnswer
@@ -83,6 +83,11 @@ class Context:
     participant: Seated
     protocol: Protocol
     run: RunState | None
+
+    @property
+    def learners_shown(self) -> bool:
+        """Whether staff may see this participant's learners (app.services.blinding)."""
+        return not blinding.sealed(self.protocol, unblinded=self.participant.unblinded)
 
 
 def _context(
@@ -452,6 +457,8 @@ class PromptResult:
     created: bool
     session_number: int
     run_number: int
+    learners_shown: bool = True
+    """Whether staff may see the learner's figures (False while the study is blinded)."""
 
 
 def _refuse_withdrawn(ctx: Context) -> None:
@@ -492,7 +499,7 @@ def request_prompt(
     for step in progress.open:
         if step.category == category:
             db.commit()
-            return PromptResult(step, False, run.session_number, run.run_number)
+            return PromptResult(step, False, run.session_number, run.run_number, ctx.learners_shown)
     if category in progress.answered:
         waiting = [s.category for s in progress.open] + progress.pending
         raise Conflict(
@@ -528,7 +535,7 @@ def request_prompt(
         action=action,
     )
     db.commit()
-    return PromptResult(step, True, run.session_number, run.run_number)
+    return PromptResult(step, True, run.session_number, run.run_number, ctx.learners_shown)
 
 
 @dataclass(frozen=True)
@@ -541,6 +548,8 @@ class AnswerResult:
     run_completed: bool
     session_completed: bool
     expected: Expected
+    learners_shown: bool = True
+    """Whether staff may see the reply's level and the learner's figures."""
 
 
 def _completed_by(ctx: Context, run: RunState, existing: StoredAnswer) -> tuple[bool, bool]:
@@ -581,7 +590,7 @@ def _replay(
         ctx.run = step_store.latest_run(ctx.cursor, participant_id=ctx.participant.id)
     expected = expected_next(db, ctx)
     db.rollback()
-    return AnswerResult(existing, step, True, run_done, session_done, expected)
+    return AnswerResult(existing, step, True, run_done, session_done, expected, ctx.learners_shown)
 
 
 def _reply_probability(ctx: Context, step: Step, after: list[float]) -> float:
@@ -726,7 +735,7 @@ def record_answer(
         probability,
         after,
     )
-    return AnswerResult(result, step, False, run_done, session_done, expected)
+    return AnswerResult(result, step, False, run_done, session_done, expected, ctx.learners_shown)
 
 
 # ---------------------------------------------------------------------------- the station view
@@ -743,6 +752,8 @@ class StationView:
     run: dict[str, Any] | None
     open_prompts: list[Step]
     expected: Expected
+    learners_shown: bool = True
+    """Whether staff may see the seated participant's learners (app.services.blinding)."""
 
 
 def station_view(db: Session, *, station_name: str, seat: Seat | None = None) -> StationView:
@@ -797,6 +808,7 @@ def _view(db: Session, ctx: Context) -> StationView:
         run_info,
         open_prompts,
         expected_next(db, ctx),
+        ctx.learners_shown,
     )
 
 

@@ -40,6 +40,8 @@ class Seated:
     study_name: str
     allocation_seed: str
     protocol_sha256: str
+    unblinded: bool
+    """Whether an admin has unblinded the study (app.services.blinding)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,7 +68,7 @@ class DeviceSeat:
 
 
 _SEAT_COLUMNS = """s.id, s.name, p.id, p.code, p.status, p.study_id, st.name, st.allocation_seed,
-    st.protocol_sha256"""
+    st.protocol_sha256, st.unblinded_at IS NOT NULL"""
 _SEATED_JOINS = """LEFT JOIN participant p ON p.id = s.participant_id
     LEFT JOIN study st ON st.id = p.study_id"""
 
@@ -81,8 +83,12 @@ _STATION_SEAT = Statement(
 
 
 def _seat(columns: tuple[Any, ...]) -> Seat:
-    station_id, station_name, pid, code, status, study_id, study, seed, sha = columns
-    seated = None if pid is None else Seated(pid, code, status, study_id, study, seed, sha)
+    station_id, station_name, pid, code, status, study_id, study, seed, sha, unblinded = columns
+    seated = (
+        None
+        if pid is None
+        else Seated(pid, code, status, study_id, study, seed, sha, bool(unblinded))
+    )
     return Seat(station_id, station_name, seated)
 
 

@@ -201,7 +201,7 @@ def _console(
     last = runtime.last_step(db, participant_id=participant.id) if participant else None
     # While the seated participant's study is blinded, the learners stay off the page entirely:
     # bars, levels and probabilities would each show the condition (app.services.blinding).
-    learners_shown = station_ops.station_shows_learners(db, name)
+    learners_shown = view.learners_shown
     response = render(
         request,
         "console.html",
