@@ -309,9 +309,11 @@ class PostgresListener:
             try:
                 with psycopg.connect(self._conninfo, autocommit=True, connect_timeout=5) as conn:
                     conn.execute(f"LISTEN {CHANNEL}")
+                    # anything may have happened while disconnected; said before start() returns,
+                    # so a computation made after the start is not counted stale by this resync
+                    self._hub.deliver([RESYNC])
                     self._ready.set()
                     delay = 0.5
-                    self._hub.deliver([RESYNC])  # anything may have happened while disconnected
                     while not self._stop.is_set():
                         for notice in conn.notifies(timeout=0.5):
                             self._deliver(notice.payload)
