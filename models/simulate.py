@@ -1,7 +1,11 @@
 """Objective measures: simulated participants answering the four learners (the paper's Results §A).
 
 Each simulated participant prefers one question (drawn from the task prior) and answers with the
-paper's Gaussian feedback. A learner asks ``iterations`` questions; after 0, 1, …, ``iterations``
+paper's Gaussian feedback, or as a :class:`Scenario` says: by a feedback model with slips and a
+hazard of changed preference (models/feedback.py), and optionally with a preference that changes
+after a given answer. The reference ``bayes`` is the exact posterior for the scenario's model: the
+plain posterior without slips or changes, the forward filter (models/learners/belief.py) with them.
+A learner asks ``iterations`` questions; after 0, 1, …, ``iterations``
 answers we record its probability of the preferred question and whether any other question
 reached 95 %. The learners run *batched* — one array row per participant — with exactly the update
 rules of the deployed classes (:class:`~models.learners.exp3.Exp3`,
@@ -20,6 +24,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from models.checkpoints import Checkpoint
+from models.feedback import FeedbackModel, draw_other
+from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
 from models.learners.mlp_policy import Params, init_params, probabilities, update_params
 from models.tasks import TaskDistribution
@@ -161,28 +167,85 @@ class Trajectories:
     p_other_max: np.ndarray
 
 
+@dataclass(frozen=True)
+class Scenario:
+    """How the simulated participants answer, beyond the task distribution.
+
+    Attributes
+    ----------
+    feedback
+        The feedback model (None: the task distribution's Gaussian rewards, the paper's).
+    change_after
+        After this many answers each participant's preferred question changes, to another drawn
+        by the prior (None: only the feedback model's hazard changes it).
+    """
+
+    feedback: FeedbackModel | None = None
+    change_after: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.change_after is not None and self.change_after < 1:
+            raise ValueError(f"--change-after must be at least 1, got {self.change_after}")
+
+    @property
+    def needs_filter(self) -> bool:
+        """Whether the plain Bayes posterior is not the exact reference here."""
+        return self.feedback is not None and self.feedback.has_slips_or_changes
+
+    def describe(self) -> str:
+        """One line for the output: who the participants are and what the reference assumes."""
+        if self.feedback is None:
+            model = "Gaussian feedback (the task distribution's), one preference"
+        else:
+            f = self.feedback
+            slips = (
+                f"slip {f.slips[0]:.3g}"
+                if len(f.slips) == 1
+                else f"slips {min(f.slips):.3g}–{max(f.slips):.3g}"
+            )
+            model = f"{f.kind} answers, {slips}, hazard {f.hazard:.3g}"
+        change = (
+            f"; preference changes after answer {self.change_after}" if self.change_after else ""
+        )
+        return model + change
+
+
 def run(
     learner: BatchLearner,
     tasks: TaskDistribution,
     preferred: np.ndarray,
     iterations: int,
     rng: np.random.Generator,
+    scenario: Scenario | None = None,
 ) -> Trajectories:
-    """Let ``learner`` ask each participant ``iterations`` questions and record its beliefs."""
+    """Let ``learner`` ask each participant ``iterations`` questions and record its beliefs (of
+    the question each participant prefers *now*, when their preference changes)."""
+    scenario = scenario or Scenario()
+    feedback = scenario.feedback
     n = len(preferred)
     rows = np.arange(n)
     p_pref = np.empty((n, iterations + 1))
     p_other = np.empty((n, iterations + 1))
+    current = np.asarray(preferred).copy()
+    slips = feedback.sample_slips(rng, n) if feedback is not None else None
     for t in range(iterations + 1):
         probs = np.broadcast_to(learner.probabilities(), (n, tasks.n_arms))
-        p_pref[:, t] = probs[rows, preferred]
+        p_pref[:, t] = probs[rows, current]
         others = probs.copy()
-        others[rows, preferred] = -1.0
+        others[rows, current] = -1.0
         p_other[:, t] = others.max(axis=1)
         if t == iterations:
             break
         actions = sample_actions(probs, rng)
-        learner.update(actions, tasks.rewards(rng, preferred, actions))
+        if feedback is None or slips is None:
+            rewards = tasks.rewards(rng, current, actions)
+        else:
+            rewards = feedback.rewards(rng, current, actions, slips)
+        learner.update(actions, rewards)
+        if feedback is not None:
+            current = feedback.change_preference(rng, current, tasks.prior)
+        if scenario.change_after == t + 1:
+            current = draw_other(rng, current, tasks.prior)
     return Trajectories(preferred, p_pref, p_other)
 
 
@@ -206,6 +269,19 @@ def summarise(trajectories: Trajectories, target: float = TARGET) -> dict[str, A
     }
 
 
+def summarise_change(
+    trajectories: Trajectories, change_after: int, target: float = TARGET
+) -> dict[str, Any]:
+    """For a preference changed after answer ``change_after``: ``recovered``, the share whose
+    probability of the new preferred question reached ``target`` by the last answer, and
+    ``p_new_final``, its mean after the last answer."""
+    after = trajectories.p_preferred[:, change_after + 1 :]
+    return {
+        "recovered": float((after >= target).any(axis=1).mean()),
+        "p_new_final": float(trajectories.p_preferred[:, -1].mean()),
+    }
+
+
 def mean_p_correct(summary: dict[str, Any]) -> float:
     """Mean of ``p_correct[1..T]``: the average belief in the right question after each answer."""
     values = summary["p_correct"][1:]
@@ -221,6 +297,7 @@ def simulate_learner(
     seed: int,
     checkpoint: Checkpoint | None = None,
     gamma: float | None = None,
+    scenario: Scenario | None = None,
 ) -> Trajectories:
     """Simulate one learner ``kind`` (see :data:`LEARNERS`) on ``participants`` participants.
 
@@ -242,6 +319,9 @@ def simulate_learner(
         if gamma is None:
             raise ValueError("exp3 needs gamma")
         learner = BatchExp3(participants, tasks.n_arms, gamma)
+    elif kind == "bayes" and scenario is not None and scenario.needs_filter:
+        assert scenario.feedback is not None
+        learner = BatchBelief(participants, tasks.n_arms, scenario.feedback, tasks.prior)
     elif kind == "bayes":
         learner = BatchBayes(participants, tasks)
     elif kind in ("meta", "random_init"):
@@ -258,7 +338,7 @@ def simulate_learner(
         learner = BatchMetaPolicy(checkpoint, params)
     else:
         raise ValueError(f"unknown learner {kind!r}: use one of {', '.join(LEARNERS)}")
-    return run(learner, tasks, preferred, iterations, np.random.default_rng([seed, 7]))
+    return run(learner, tasks, preferred, iterations, np.random.default_rng([seed, 7]), scenario)
 
 
 def simulate_adaptation(
@@ -270,12 +350,18 @@ def simulate_adaptation(
     checkpoint: Checkpoint,
     gamma: float,
     learners: tuple[str, ...] = LEARNERS,
+    scenario: Scenario | None = None,
 ) -> dict[str, Any]:
     """The ``trustlab simulate adaptation --json`` object for the given learners."""
+    scenario = scenario or Scenario()
     result: dict[str, Any] = {
         "arms": tasks.n_arms,
         "iterations": iterations,
         "participants": participants,
+        "participants_answer": scenario.describe(),
+        "reference": "forward filter over slips and changes"
+        if scenario.needs_filter
+        else "Bayes posterior",
         "learners": {},
     }
     for kind in learners:
@@ -287,6 +373,10 @@ def simulate_adaptation(
             seed=seed,
             checkpoint=checkpoint,
             gamma=gamma,
+            scenario=scenario,
         )
-        result["learners"][kind] = summarise(trajectories)
+        summary = summarise(trajectories)
+        if scenario.change_after is not None and scenario.change_after < iterations:
+            summary |= summarise_change(trajectories, scenario.change_after)
+        result["learners"][kind] = summary
     return result

@@ -33,9 +33,10 @@ from models.checkpoints import (
     load_checkpoint,
     shipped_checkpoint,
 )
+from models.feedback import FeedbackModel
 from models.learners.exp3 import DEFAULT_EXP3_GAMMA
-from models.simulate import simulate_adaptation
-from models.tasks import TaskDistribution
+from models.simulate import Scenario, simulate_adaptation
+from models.tasks import DEFAULT_VARIANCE, TaskDistribution
 
 __all__ = ["DEFAULT_CATEGORIES", "EXIT_BAD_INPUT", "register"]
 
@@ -72,6 +73,26 @@ def _prior(text: str | None, arms: int) -> tuple[float, ...] | None:
     if len(values) != arms:
         raise _fail(f"--preferred-prior needs {arms} numbers (one per question), got {len(values)}")
     return values
+
+
+def _scenario(kind: str | None, slip: float, hazard: float, change_after: int | None) -> Scenario:
+    """The participants the flags describe (ValueError says which flag is wrong)."""
+    if kind is None and (slip or hazard):
+        kind = "gaussian"
+    if kind is None:
+        return Scenario(change_after=change_after)
+    if kind not in ("binary", "gaussian"):
+        raise ValueError(f"--feedback must be binary or gaussian, got {kind!r}")
+    try:
+        model = FeedbackModel(
+            kind=kind,  # type: ignore[arg-type]
+            slips=(slip,),
+            hazard=hazard,
+            variance=DEFAULT_VARIANCE,
+        )
+    except ValueError as exc:
+        raise ValueError(f"--slip / --hazard: {exc}") from None
+    return Scenario(feedback=model, change_after=change_after)
 
 
 def _checkpoint(
@@ -115,11 +136,30 @@ def simulate_adaptation_command(
         Path | None,
         typer.Option("--checkpoint-dir", help="A retrained set (<mode>/<name>-k<K>/) to use."),
     ] = None,
+    feedback: Annotated[
+        str | None,
+        typer.Option(
+            "--feedback",
+            help="binary (yes 1 / no 0) or gaussian answers; unset: the paper's Gaussian model.",
+        ),
+    ] = None,
+    slip: Annotated[
+        float, typer.Option("--slip", help="Share of answers that say the opposite (0 ≤ P < .5).")
+    ] = 0.0,
+    hazard: Annotated[
+        float, typer.Option("--hazard", help="Chance per answer that the preference changes.")
+    ] = 0.0,
+    change_after: Annotated[
+        int | None,
+        typer.Option("--change-after", help="A new preferred question after answer N."),
+    ] = None,
 ) -> None:
-    """Simulate participants answering Exp3, the meta-policy, its random init and Bayes."""
+    """Simulate participants answering Exp3, the meta-policy, its random init and the exact
+    reference (Bayes; a forward filter when participants slip or change their minds)."""
     if participants < 1 or iterations < 1:
         raise _fail("--participants and --iterations must be at least 1")
     try:
+        scenario = _scenario(feedback, slip, hazard, change_after)
         tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
         ckpt = _checkpoint(arms, category, mode, checkpoint, checkpoint_dir)
         result = simulate_adaptation(
@@ -129,6 +169,7 @@ def simulate_adaptation_command(
             seed=seed,
             checkpoint=ckpt,
             gamma=gamma,
+            scenario=scenario,
         )
         sweep = []
         if out is not None:
@@ -177,16 +218,24 @@ def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
     lines = [
         f"{result['participants']} simulated participants, K = {result['arms']}, "
         f"{result['iterations']} answers; meta = {checkpoint.path} ({checkpoint.sha256[:12]})",
+        f"participants: {result['participants_answer']}; reference (bayes): {result['reference']}",
         "",
-        f"{'learner':<12} {'answers to 95%':>14} {'reached 95%':>12} {'wrong 95%':>10} "
-        f"{'mean p 1..T':>12}",
     ]
+    changed = any("recovered" in s for s in result["learners"].values())
+    header = (
+        f"{'learner':<12} {'answers to 95%':>14} {'reached 95%':>12} {'wrong 95%':>10} "
+        f"{'mean p 1..T':>12}"
+    )
+    lines.append(header + (f" {'recovered':>10} {'p new final':>12}" if changed else ""))
     for name, s in result["learners"].items():
         mean_p = sum(s["p_correct"][1:]) / (len(s["p_correct"]) - 1)
-        lines.append(
+        line = (
             f"{name:<12} {s['iterations_to_95']:>14.2f} {s['reached_95']:>12.3f} "
             f"{s['wrong_95']:>10.4f} {mean_p:>12.3f}"
         )
+        if changed:
+            line += f" {s['recovered']:>10.3f} {s['p_new_final']:>12.3f}"
+        lines.append(line)
     return "\n".join(lines)
 
 

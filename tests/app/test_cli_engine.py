@@ -65,7 +65,15 @@ def test_simulate_json_contract(cli: typer.Typer, checkpoints: Path) -> None:
             str(checkpoints),
         )
     )
-    assert set(out) == {"arms", "iterations", "participants", "learners"}
+    assert set(out) == {
+        "arms",
+        "iterations",
+        "participants",
+        "participants_answer",
+        "reference",
+        "learners",
+    }
+    assert out["reference"] == "Bayes posterior"
     assert (out["arms"], out["iterations"], out["participants"]) == (3, 5, 40)
     assert list(out["learners"]) == ["exp3", "meta", "random_init", "bayes"]
     for summary in out["learners"].values():
@@ -91,6 +99,35 @@ def test_simulate_json_contract(cli: typer.Typer, checkpoints: Path) -> None:
         )
     )
     assert again == out
+
+
+def test_simulate_participants_who_slip_and_change_their_minds(
+    cli: typer.Typer, checkpoints: Path
+) -> None:
+    common = ["simulate", "adaptation", "--participants", "400", "--json"]
+    common += ["--checkpoint-dir", str(checkpoints), "--feedback", "binary"]
+    slips = one_json(run(cli, *common, "--slip", "0.1"))
+    assert slips["participants_answer"] == "binary answers, slip 0.1, hazard 0"
+    assert slips["reference"] == "forward filter over slips and changes"
+    assert "recovered" not in slips["learners"]["bayes"]
+    changed = one_json(run(cli, *common, "--hazard", "0.02", "--change-after", "6"))
+    assert changed["participants_answer"].endswith("preference changes after answer 6")
+    for summary in changed["learners"].values():
+        assert 0 <= summary["recovered"] <= 1 and 0 <= summary["p_new_final"] <= 1
+    # the exact reference knows that people change their minds, and follows them
+    assert changed["learners"]["bayes"]["recovered"] > 0.85
+    table = run(
+        cli,
+        "simulate",
+        "adaptation",
+        "--participants",
+        "50",
+        "--change-after",
+        "6",
+        "--checkpoint-dir",
+        str(checkpoints),
+    )
+    assert table.exit_code == 0 and "recovered" in table.stdout and "p new final" in table.stdout
 
 
 def test_simulate_out_writes_both_figures(
@@ -125,6 +162,10 @@ def test_simulate_out_writes_both_figures(
         (["--gamma", "0"], "gamma"),
         (["--preferred-prior", "1,2"], "needs 4 numbers"),
         (["--checkpoint", "/nonexistent"], "does not exist"),
+        (["--feedback", "likert"], "--feedback must be binary or gaussian"),
+        (["--feedback", "binary", "--slip", "0.5"], "--slip / --hazard: slip rates must lie"),
+        (["--hazard", "-0.1"], "--slip / --hazard: the hazard must lie in [0, 1)"),
+        (["--change-after", "0"], "--change-after must be at least 1"),
     ],
 )
 def test_simulate_bad_input_is_one_line(

@@ -8,15 +8,19 @@ import numpy as np
 import pytest
 
 from models.checkpoints import Checkpoint
+from models.feedback import FeedbackModel
 from models.learners.bayes import BayesLearner
+from models.learners.belief import BatchBelief
 from models.learners.exp3 import Exp3
 from models.learners.meta_policy import MetaPolicyLearner
 from models.simulate import (
     BatchBayes,
     BatchExp3,
     BatchMetaPolicy,
+    Scenario,
     Trajectories,
     random_init_params,
+    run,
     sample_actions,
     simulate_adaptation,
     simulate_learner,
@@ -111,3 +115,43 @@ def test_bad_arguments_are_refused(checkpoint: Checkpoint) -> None:
         simulate_learner("meta", tasks, participants=5, iterations=2, seed=0, checkpoint=checkpoint)
     with pytest.raises(ValueError, match="at least 1"):
         simulate_learner("bayes", tasks, participants=0, iterations=2, seed=0)
+
+
+def test_participants_who_slip_get_the_filter_as_their_reference() -> None:
+    """With slips the exact reference is the forward filter: the plain posterior, which assumes
+    nobody slips, is confidently wrong far more often on the same participants."""
+    tasks = TaskDistribution(4)
+    slipping = Scenario(feedback=FeedbackModel(slips=(0.1,)))
+    args: dict[str, Any] = {"participants": 3000, "iterations": 12, "seed": 4}
+    plain = summarise(
+        simulate_learner("bayes", tasks, **args, scenario=Scenario(feedback=FeedbackModel()))
+    )
+    # the plain posterior's view on slipping participants: run BatchBayes by its own kind
+    naive = summarise(
+        run(
+            BatchBelief(3000, 4, FeedbackModel()),
+            tasks,
+            np.zeros(3000, dtype=int),
+            12,
+            np.random.default_rng(4),
+            slipping,
+        )
+    )
+    exact = summarise(simulate_learner("bayes", tasks, **args, scenario=slipping))
+    assert plain["wrong_95"] == 0.0  # consistent answers: never confidently wrong
+    assert exact["wrong_95"] < 0.05 < naive["wrong_95"]
+    assert exact["reached_95"] > 0.95
+
+
+def test_a_changed_preference_is_followed_by_the_reference_only_if_it_expects_changes() -> None:
+    tasks = TaskDistribution(4)
+    args: dict[str, Any] = {"participants": 3000, "iterations": 12, "seed": 5}
+    expects = Scenario(feedback=FeedbackModel(hazard=0.02, slips=(0.02,)), change_after=6)
+    result = simulate_adaptation(
+        tasks, **args, checkpoint=None, gamma=0.5, learners=("exp3", "bayes"), scenario=expects
+    )
+    reference = result["learners"]["bayes"]
+    assert reference["recovered"] > 0.85 and reference["p_new_final"] > 0.85
+    assert result["learners"]["exp3"]["recovered"] < reference["recovered"]
+    with pytest.raises(ValueError, match="at least 1"):
+        Scenario(change_after=0)
