@@ -89,11 +89,40 @@ class MetaSettings(_Strict):
     )
 
 
+class FeedbackSettings(_Strict):
+    """How participants answer, as C2's meta-training and the simulations assume
+    (models/feedback.py, docs/engine.md). The default is the seed paper's model, the one the
+    shipped checkpoints were trained for."""
+
+    kind: Literal["binary", "gaussian"] = Field(
+        default="gaussian",
+        description="'binary': yes/no through the reward map; 'gaussian': the paper's, σ² below.",
+    )
+    slip: float = Field(
+        default=0.0, ge=0.0, lt=0.5, description="Share of answers that say the opposite."
+    )
+    slip_values: list[float] | None = Field(
+        default=None, description="A prior over the slip rate instead of `slip`: its values…"
+    )
+    slip_weights: list[float] | None = Field(
+        default=None, description="…and their probabilities (summing to 1)."
+    )
+    hazard: float = Field(
+        default=0.0, ge=0.0, lt=1.0, description="Chance per answer that the preference changes."
+    )
+    variance: float = Field(default=0.1, gt=0.0, description="σ² of the Gaussian kind.")
+    accept_other_checkpoint: bool = Field(
+        default=False,
+        description="Use a checkpoint trained for another feedback model anyway (recorded).",
+    )
+
+
 class LearnerSettings(_Strict):
     """Per-algorithm settings shared by every category."""
 
     exp3: Exp3Settings = Field(default_factory=Exp3Settings)
     meta: MetaSettings = Field(default_factory=MetaSettings)
+    feedback: FeedbackSettings = Field(default_factory=FeedbackSettings)
 
 
 class CategorySpec(_Strict):
@@ -365,6 +394,31 @@ def _check_replies(replies: RepliesSpec) -> list[Problem]:
     return problems
 
 
+def _check_feedback(feedback: FeedbackSettings) -> list[Problem]:
+    path = "learners.feedback"
+    values, weights = feedback.slip_values, feedback.slip_weights
+    if values is None and weights is None:
+        return []
+    if values is None or weights is None:
+        return [Problem(path, "give slip_values and slip_weights together (a prior over slips)")]
+    problems = []
+    if feedback.slip:
+        problems.append(Problem(f"{path}.slip", "give either slip or a slip prior, not both"))
+    if not values or len(values) != len(weights):
+        problems.append(
+            Problem(f"{path}.slip_weights", "needs one weight per slip value, at least one")
+        )
+    if any(not (math.isfinite(v) and 0.0 <= v < 0.5) for v in values):
+        problems.append(Problem(f"{path}.slip_values", "every slip rate must lie in [0, 0.5)"))
+    if any(not (math.isfinite(w) and w >= 0) for w in weights) or not math.isclose(
+        sum(weights), 1.0
+    ):
+        problems.append(
+            Problem(f"{path}.slip_weights", "must be non-negative and sum to 1 (a distribution)")
+        )
+    return problems
+
+
 def _check_allocation(protocol: Protocol) -> list[Problem]:
     allocation = protocol.allocation
     n = len(protocol.conditions)
@@ -474,6 +528,7 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
     if not math.isfinite(protocol.reward.yes) or not math.isfinite(protocol.reward.no):
         problems.append(Problem("reward", "rewards must be finite numbers"))
     problems += _check_replies(protocol.replies)
+    problems += _check_feedback(protocol.learners.feedback)
     problems += _check_allocation(protocol)
     problems += _check_instruments(protocol.questionnaires)
     return problems

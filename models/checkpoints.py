@@ -31,7 +31,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from models.feedback import FeedbackModel
 from models.learners.mlp_policy import PARAM_NAMES, UPDATE_RULES, Params, UpdateRule, param_shapes
+from models.tasks import DEFAULT_VARIANCE
 
 Mode = Literal["online", "paper"]
 MODES: tuple[Mode, Mode] = ("online", "paper")
@@ -374,3 +376,17 @@ def shipped_checkpoint(
         + f" in {root}; generic checkpoints exist for K = {listing}. "
         "Train one with `trustlab pretrain` and set the protocol's checkpoint path."
     )
+
+
+def trained_feedback(checkpoint: Checkpoint) -> FeedbackModel:
+    """The feedback model a checkpoint was meta-trained for: recorded in its config as
+    ``feedback``; checkpoints from before issue 19 were trained on the paper's Gaussian model
+    with their config's ``variance``."""
+    recorded = checkpoint.config.get("feedback")
+    if isinstance(recorded, dict):
+        try:
+            return FeedbackModel.from_json(recorded)
+        except ValueError as exc:
+            raise ValueError(f"checkpoint {checkpoint.path}: config.json feedback: {exc}") from None
+    variance = checkpoint.config.get("variance", DEFAULT_VARIANCE)
+    return FeedbackModel.paper(float(variance))

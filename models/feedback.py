@@ -99,6 +99,61 @@ class FeedbackModel:
         grid = tuple(float(v) for v in np.linspace(low, high, points))
         return cls(slips=grid, slip_weights=(1.0 / points,) * points, **rest)  # type: ignore[arg-type]
 
+    def describe(self) -> str:
+        """In words, for messages: ``binary answers, slips 0–0.15, hazard 0.02``."""
+        slips = (
+            f"slip {self.slips[0]:g}"
+            if len(self.slips) == 1
+            else f"slips {min(self.slips):g}–{max(self.slips):g}"
+        )
+        kind = (
+            f"gaussian answers (σ² {self.variance:g})"
+            if self.kind == "gaussian"
+            else "binary answers"
+        )
+        return f"{kind}, {slips}, hazard {self.hazard:g}"
+
+    def same_as(self, other: FeedbackModel) -> bool:
+        """Whether two models describe the same participants (σ² matters for Gaussian only)."""
+        if self.kind != other.kind or len(self.slips) != len(other.slips):
+            return False
+        if self.kind == "gaussian" and not math.isclose(self.variance, other.variance):
+            return False
+        return (
+            bool(np.allclose(self.slips, other.slips))
+            and bool(np.allclose(self.slip_weights, other.slip_weights))
+            and math.isclose(self.hazard, other.hazard)
+            and (self.yes, self.no) == (other.yes, other.no)
+        )
+
+    def to_json(self) -> dict[str, object]:
+        """Plain JSON, as checkpoints record the model they were trained for."""
+        return {
+            "kind": self.kind,
+            "slips": list(self.slips),
+            "slip_weights": list(self.slip_weights),
+            "hazard": self.hazard,
+            "yes": self.yes,
+            "no": self.no,
+            "variance": self.variance,
+        }
+
+    @classmethod
+    def from_json(cls, value: dict[str, object]) -> FeedbackModel:
+        """The model :meth:`to_json` wrote (ValueError when it is not one)."""
+        try:
+            return cls(
+                kind=value["kind"],  # type: ignore[arg-type]
+                slips=tuple(float(v) for v in value["slips"]),  # type: ignore[attr-defined]
+                slip_weights=tuple(float(v) for v in value["slip_weights"]),  # type: ignore[attr-defined]
+                hazard=float(value["hazard"]),  # type: ignore[arg-type]
+                yes=float(value["yes"]),  # type: ignore[arg-type]
+                no=float(value["no"]),  # type: ignore[arg-type]
+                variance=float(value["variance"]),  # type: ignore[arg-type]
+            )
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"not a feedback model: {exc}") from None
+
     @property
     def slip_values(self) -> np.ndarray:
         """The slip rates, as an array (J,)."""

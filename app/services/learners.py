@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from app.errors import Conflict
 from app.protocol import CategorySpec, LearnerKind, Protocol
 from app.tables import LearnerState
 from models.checkpoints import (
@@ -33,7 +34,9 @@ from models.checkpoints import (
     find_by_sha256,
     load_checkpoint,
     shipped_checkpoint,
+    trained_feedback,
 )
+from models.feedback import FeedbackModel
 from models.learners import meta_policy
 from models.learners.base import Learner
 from models.learners.exp3 import Exp3
@@ -77,6 +80,39 @@ def _checkpoint_path(
     )
 
 
+def feedback_model(protocol: Protocol) -> FeedbackModel:
+    """The protocol's ``[learners.feedback]`` as the engine's model (with its reward map)."""
+    settings = protocol.learners.feedback
+    if settings.slip_values is not None and settings.slip_weights is not None:
+        slips, weights = tuple(settings.slip_values), tuple(settings.slip_weights)
+    else:
+        slips, weights = (settings.slip,), (1.0,)
+    return FeedbackModel(
+        kind=settings.kind,
+        slips=slips,
+        slip_weights=weights,
+        hazard=settings.hazard,
+        yes=protocol.reward.yes,
+        no=protocol.reward.no,
+        variance=settings.variance,
+    )
+
+
+def _check_trained_for(protocol: Protocol, checkpoint: Checkpoint) -> bool:
+    """Whether the checkpoint was meta-trained for the protocol's feedback model; a mismatch is
+    refused unless the protocol accepts it (then the learner's config records it)."""
+    declared, trained = feedback_model(protocol), trained_feedback(checkpoint)
+    if declared.same_as(trained):
+        return True
+    if protocol.learners.feedback.accept_other_checkpoint:
+        return False
+    raise Conflict(
+        f"checkpoint {checkpoint.path} was meta-trained for {trained.describe()}, but the "
+        f"protocol's learners.feedback declares {declared.describe()}: retrain C2 for it "
+        "(trustlab pretrain) or set learners.feedback.accept_other_checkpoint = true"
+    )
+
+
 def learner_spec(
     protocol: Protocol, condition_id: str, category: CategorySpec, checkpoint_dir: Path | None
 ) -> LearnerSpec:
@@ -88,6 +124,8 @@ def learner_spec(
     path = _checkpoint_path(protocol, category, checkpoint_dir)
     checkpoint = checkpoint_at(path, n_arms)
     config: dict[str, Any] = {"checkpoint": str(path)}
+    if not _check_trained_for(protocol, checkpoint):
+        config["trained_for_other_feedback"] = trained_feedback(checkpoint).to_json()
     if protocol.learners.meta.learning_rate is not None:
         config["learning_rate"] = protocol.learners.meta.learning_rate
     return LearnerSpec("meta", n_arms, config, checkpoint.sha256)

@@ -8,8 +8,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.services.learners import LearnerSpec, build, recorded_checkpoint
-from models.checkpoints import HASH_FILE, RETIRED_DIR, load_checkpoint, shipped_checkpoint
+from app.errors import Conflict
+from app.protocol import Protocol, default_protocol, parse_protocol
+from app.services.learners import (
+    LearnerSpec,
+    build,
+    feedback_model,
+    learner_spec,
+    recorded_checkpoint,
+)
+from models.checkpoints import (
+    HASH_FILE,
+    RETIRED_DIR,
+    load_checkpoint,
+    shipped_checkpoint,
+    trained_feedback,
+)
+from tests.conftest import protocol_text
 from tests.models.conftest import make_checkpoint
 
 
@@ -83,3 +98,42 @@ def test_learners_enrolled_with_a_retired_shipped_checkpoint_still_restore() -> 
         assert load_checkpoint(current).sha256 != old.sha256
         spec = LearnerSpec("meta", old.n_arms, {"checkpoint": str(current)}, old.sha256)
         assert recorded_checkpoint(spec).sha256 == old.sha256
+
+
+ROBUST = '[learners.feedback]\nkind = "binary"\nslip_values = [0.0, 0.1]\nslip_weights = [0.5, 0.5]'
+"""A feedback model the shipped checkpoints (the paper's Gaussian model) were not trained for."""
+
+
+def _protocol(feedback: str) -> Protocol:
+    text = protocol_text(**{'checkpoint = "shipped"': f'checkpoint = "shipped"\n\n{feedback}'})
+    return parse_protocol(text).protocol
+
+
+def test_a_checkpoint_trained_for_other_participants_is_refused_unless_accepted() -> None:
+    shipped = default_protocol().protocol
+    category = shipped.categories[0]
+    spec = learner_spec(shipped, "C2", category, None)
+    assert "trained_for_other_feedback" not in spec.config  # the paper's model: as trained
+    with pytest.raises(Conflict) as refused:
+        learner_spec(_protocol(ROBUST), "C2", category, None)
+    message = refused.value.message
+    assert "was meta-trained for gaussian answers (σ² 0.1), slip 0, hazard 0" in message
+    assert "declares binary answers, slips 0–0.1, hazard 0" in message
+    assert "learners.feedback.accept_other_checkpoint = true" in message
+    accepted = learner_spec(
+        _protocol(ROBUST + "\naccept_other_checkpoint = true"), "C2", category, None
+    )
+    assert accepted.config["trained_for_other_feedback"]["kind"] == "gaussian"  # recorded
+    assert build(accepted).probabilities().shape == (len(category.questions),)
+    exp3 = learner_spec(_protocol(ROBUST), "C1", category, None)  # Exp3 is not trained
+    assert exp3.kind == "exp3"
+
+
+def test_the_protocols_feedback_model_carries_its_reward_map() -> None:
+    protocol = _protocol(ROBUST)
+    model = feedback_model(protocol)
+    assert (model.kind, model.slips, model.slip_weights) == ("binary", (0.0, 0.1), (0.5, 0.5))
+    assert (model.yes, model.no) == (protocol.reward.yes, protocol.reward.no)
+    assert trained_feedback(load_checkpoint(shipped_checkpoint(4, category="conation"))).same_as(
+        feedback_model(default_protocol().protocol)
+    )
