@@ -28,6 +28,7 @@ from models.feedback import FeedbackModel, draw_other
 from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
 from models.learners.mlp_policy import Params, init_params, probabilities, update_params
+from models.replies import DEFAULT_THRESHOLDS, LEVEL_NAMES
 from models.tasks import TaskDistribution
 
 TARGET = 0.95
@@ -160,11 +161,15 @@ class Trajectories:
         (n, T + 1) probability of the preferred question after 0..T answers.
     p_other_max
         (n, T + 1) largest probability of any other question after 0..T answers.
+    p_asked
+        (n, T) probability of the question asked at each answer (which sets the robot's reply
+        level), or None.
     """
 
     preferred: np.ndarray
     p_preferred: np.ndarray
     p_other_max: np.ndarray
+    p_asked: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -226,6 +231,7 @@ def run(
     rows = np.arange(n)
     p_pref = np.empty((n, iterations + 1))
     p_other = np.empty((n, iterations + 1))
+    p_asked = np.empty((n, iterations))
     current = np.asarray(preferred).copy()
     slips = feedback.sample_slips(rng, n) if feedback is not None else None
     for t in range(iterations + 1):
@@ -237,6 +243,7 @@ def run(
         if t == iterations:
             break
         actions = sample_actions(probs, rng)
+        p_asked[:, t] = probs[rows, actions]
         if feedback is None or slips is None:
             rewards = tasks.rewards(rng, current, actions)
         else:
@@ -246,7 +253,7 @@ def run(
             current = feedback.change_preference(rng, current, tasks.prior)
         if scenario.change_after == t + 1:
             current = draw_other(rng, current, tasks.prior)
-    return Trajectories(preferred, p_pref, p_other)
+    return Trajectories(preferred, p_pref, p_other, p_asked)
 
 
 def summarise(trajectories: Trajectories, target: float = TARGET) -> dict[str, Any]:
@@ -261,12 +268,26 @@ def summarise(trajectories: Trajectories, target: float = TARGET) -> dict[str, A
     horizon = p.shape[1] - 1
     reached = p >= target
     first = np.where(reached.any(axis=1), reached.argmax(axis=1), horizon + 1)
-    return {
+    summary: dict[str, Any] = {
         "p_correct": [float(v) for v in p.mean(axis=0)],
         "iterations_to_95": float(first.mean()),
         "reached_95": float(reached.any(axis=1).mean()),
         "wrong_95": float((trajectories.p_other_max >= target).any(axis=1).mean()),
     }
+    if trajectories.p_asked is not None:
+        summary["reply_levels"] = reply_level_shares(trajectories.p_asked)
+    return summary
+
+
+def reply_level_shares(
+    p_asked: np.ndarray, thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS
+) -> dict[str, float]:
+    """The share of answers the robot replied to at each level of the default protocol (a
+    probability equal to a threshold belongs to the higher level, as
+    :func:`models.replies.confidence_level` says)."""
+    levels = np.searchsorted(np.asarray(thresholds), p_asked, side="right")
+    counts = np.bincount(levels.ravel(), minlength=len(LEVEL_NAMES))
+    return {name: float(c / levels.size) for name, c in zip(LEVEL_NAMES, counts, strict=True)}
 
 
 def summarise_change(

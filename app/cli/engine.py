@@ -236,6 +236,10 @@ def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
         if changed:
             line += f" {s['recovered']:>10.3f} {s['p_new_final']:>12.3f}"
         lines.append(line)
+    lines += ["", "share of replies at each level (low, medium-low, medium, high):"]
+    for name, s in result["learners"].items():
+        shares = " ".join(f"{v:6.3f}" for v in s["reply_levels"].values())
+        lines.append(f"{name:<12} {shares}")
     return "\n".join(lines)
 
 

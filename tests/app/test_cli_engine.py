@@ -77,7 +77,15 @@ def test_simulate_json_contract(cli: typer.Typer, checkpoints: Path) -> None:
     assert (out["arms"], out["iterations"], out["participants"]) == (3, 5, 40)
     assert list(out["learners"]) == ["exp3", "meta", "random_init", "bayes"]
     for summary in out["learners"].values():
-        assert set(summary) == {"p_correct", "iterations_to_95", "reached_95", "wrong_95"}
+        assert set(summary) == {
+            "p_correct",
+            "iterations_to_95",
+            "reached_95",
+            "wrong_95",
+            "reply_levels",
+        }
+        assert list(summary["reply_levels"]) == ["low", "medium-low", "medium", "high"]
+        assert abs(sum(summary["reply_levels"].values()) - 1) < 1e-9
         assert len(summary["p_correct"]) == 6
         assert 0 <= summary["iterations_to_95"] <= 6
     again = one_json(

@@ -20,6 +20,7 @@ from models.simulate import (
     Scenario,
     Trajectories,
     random_init_params,
+    reply_level_shares,
     run,
     sample_actions,
     simulate_adaptation,
@@ -155,3 +156,14 @@ def test_a_changed_preference_is_followed_by_the_reference_only_if_it_expects_ch
     assert result["learners"]["exp3"]["recovered"] < reference["recovered"]
     with pytest.raises(ValueError, match="at least 1"):
         Scenario(change_after=0)
+
+
+def test_reply_level_shares_follow_the_protocols_thresholds() -> None:
+    shares = reply_level_shares(np.array([[0.25, 0.5, 0.64, 0.65], [0.79, 0.8, 0.99, 0.1]]))
+    assert shares == {"low": 0.25, "medium-low": 0.25, "medium": 0.25, "high": 0.25}
+    tasks = TaskDistribution(4)
+    exp3 = summarise(
+        simulate_learner("exp3", tasks, participants=500, iterations=12, seed=0, gamma=0.5)
+    )
+    # γ = .5 with four questions never exceeds p = .625: C1 never sounds more than medium-low
+    assert exp3["reply_levels"]["medium"] == exp3["reply_levels"]["high"] == 0.0
