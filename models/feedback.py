@@ -21,6 +21,7 @@ with probability ``s``; for the Gaussian kind the meant value is blurred by N(0,
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -190,16 +191,10 @@ class FeedbackModel:
         """Each participant's slip rate, drawn from the prior."""
         return self.slip_values[rng.choice(len(self.slips), size=size, p=self.slip_prior)]
 
-    def rewards(
-        self,
-        rng: np.random.Generator,
-        preferred: np.ndarray,
-        actions: np.ndarray,
-        slips: np.ndarray,
-    ) -> np.ndarray:
-        """The rewards of asking ``actions`` to participants preferring ``preferred`` who slip at
-        rates ``slips`` (one uniform per answer for the slip, one normal for Gaussian noise)."""
-        hit = np.asarray(actions) == np.asarray(preferred)
+    def rewards(self, rng: np.random.Generator, hit: np.ndarray, slips: np.ndarray) -> np.ndarray:
+        """The rewards of participants asked a question they accept (``hit``) or not, who slip
+        at rates ``slips`` (one uniform per answer for the slip, one normal for Gaussian noise)."""
+        hit = np.asarray(hit, dtype=bool)
         slipped = rng.random(hit.shape) < slips
         says_yes = hit != slipped
         value = np.where(says_yes, self.yes, self.no)
@@ -242,3 +237,20 @@ def switch_matrix(prior: np.ndarray, hazard: float) -> np.ndarray:
     uniform = (1.0 - np.eye(k)) / (k - 1)
     others = np.where(total > 0, others / np.where(total > 0, total, 1.0), uniform)
     return (1.0 - hazard) * np.eye(k) + hazard * others
+
+
+def acceptable_sets(prior: np.ndarray, acceptable: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every set of ``acceptable`` questions a participant may say yes to, as a (S, K) boolean
+    matrix, with their prior probabilities (S,): proportional to the product of the questions'
+    priors (for one acceptable question: the identity and the prior itself, in question order)."""
+    k = prior.size
+    if not 1 <= acceptable < k:
+        raise ValueError(f"--acceptable must be between 1 and {k - 1} for {k} questions")
+    sets = list(itertools.combinations(range(k), acceptable))
+    members = np.zeros((len(sets), k), dtype=bool)
+    for row, chosen in enumerate(sets):
+        members[row, list(chosen)] = True
+    weights = np.where(members, prior, 1.0).prod(axis=1)
+    if weights.sum() <= 0:
+        raise ValueError(f"no set of {acceptable} questions has a positive prior")
+    return members, weights / weights.sum()

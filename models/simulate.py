@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from models.checkpoints import Checkpoint
-from models.feedback import FeedbackModel, draw_other
+from models.feedback import FeedbackModel, acceptable_sets, draw_other
 from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
 from models.learners.mlp_policy import Params, init_params, probabilities, update_params
@@ -183,19 +183,30 @@ class Scenario:
     change_after
         After this many answers each participant's preferred question changes, to another drawn
         by the prior (None: only the feedback model's hazard changes it).
+    acceptable
+        How many questions each participant says yes to (drawn by the prior: models.feedback.
+        acceptable_sets); their "preferred question" is then that set, and its probability the
+        sum over the set.
     """
 
     feedback: FeedbackModel | None = None
     change_after: int | None = None
+    acceptable: int = 1
 
     def __post_init__(self) -> None:
         if self.change_after is not None and self.change_after < 1:
             raise ValueError(f"--change-after must be at least 1, got {self.change_after}")
+        if self.acceptable < 1:
+            raise ValueError(f"--acceptable must be at least 1, got {self.acceptable}")
+        if self.acceptable > 1 and self.feedback is None:
+            raise ValueError("several acceptable questions need a feedback model (--feedback)")
 
     @property
     def needs_filter(self) -> bool:
         """Whether the plain Bayes posterior is not the exact reference here."""
-        return self.feedback is not None and self.feedback.has_slips_or_changes
+        return self.acceptable > 1 or (
+            self.feedback is not None and self.feedback.has_slips_or_changes
+        )
 
     def describe(self) -> str:
         """One line for the output: who the participants are and what the reference assumes."""
@@ -212,7 +223,8 @@ class Scenario:
         change = (
             f"; preference changes after answer {self.change_after}" if self.change_after else ""
         )
-        return model + change
+        accepts = f"; {self.acceptable} questions answered yes" if self.acceptable > 1 else ""
+        return model + change + accepts
 
 
 def run(
@@ -227,19 +239,19 @@ def run(
     the question each participant prefers *now*, when their preference changes)."""
     scenario = scenario or Scenario()
     feedback = scenario.feedback
+    members, set_prior = acceptable_sets(tasks.prior, scenario.acceptable)
     n = len(preferred)
     rows = np.arange(n)
     p_pref = np.empty((n, iterations + 1))
     p_other = np.empty((n, iterations + 1))
     p_asked = np.empty((n, iterations))
-    current = np.asarray(preferred).copy()
+    current = np.asarray(preferred).copy()  # a question, or a set of acceptable ones
     slips = feedback.sample_slips(rng, n) if feedback is not None else None
     for t in range(iterations + 1):
         probs = np.broadcast_to(learner.probabilities(), (n, tasks.n_arms))
-        p_pref[:, t] = probs[rows, current]
-        others = probs.copy()
-        others[rows, current] = -1.0
-        p_other[:, t] = others.max(axis=1)
+        accepted = members[current]
+        p_pref[:, t] = np.where(accepted, probs, 0.0).sum(axis=1)
+        p_other[:, t] = np.where(accepted, -1.0, probs).max(axis=1)
         if t == iterations:
             break
         actions = sample_actions(probs, rng)
@@ -247,12 +259,12 @@ def run(
         if feedback is None or slips is None:
             rewards = tasks.rewards(rng, current, actions)
         else:
-            rewards = feedback.rewards(rng, current, actions, slips)
+            rewards = feedback.rewards(rng, accepted[rows, actions], slips)
         learner.update(actions, rewards)
         if feedback is not None:
-            current = feedback.change_preference(rng, current, tasks.prior)
+            current = feedback.change_preference(rng, current, set_prior)
         if scenario.change_after == t + 1:
-            current = draw_other(rng, current, tasks.prior)
+            current = draw_other(rng, current, set_prior)
     return Trajectories(preferred, p_pref, p_other, p_asked)
 
 
@@ -334,7 +346,12 @@ def simulate_learner(
     if participants < 1 or iterations < 1:
         raise ValueError("participants and iterations must both be at least 1")
     rng = np.random.default_rng(seed)
-    preferred = tasks.sample_preferred(rng, participants)
+    acceptable = scenario.acceptable if scenario is not None else 1
+    if acceptable == 1:
+        preferred = tasks.sample_preferred(rng, participants)
+    else:  # each participant's set of acceptable questions, by its index
+        set_prior = acceptable_sets(tasks.prior, acceptable)[1]
+        preferred = rng.choice(set_prior.size, size=participants, p=set_prior)
     learner: BatchLearner
     if kind == "exp3":
         if gamma is None:
@@ -342,7 +359,9 @@ def simulate_learner(
         learner = BatchExp3(participants, tasks.n_arms, gamma)
     elif kind == "bayes" and scenario is not None and scenario.needs_filter:
         assert scenario.feedback is not None
-        learner = BatchBelief(participants, tasks.n_arms, scenario.feedback, tasks.prior)
+        learner = BatchBelief(
+            participants, tasks.n_arms, scenario.feedback, tasks.prior, scenario.acceptable
+        )
     elif kind == "bayes":
         learner = BatchBayes(participants, tasks)
     elif kind in ("meta", "random_init"):

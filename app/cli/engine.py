@@ -75,9 +75,11 @@ def _prior(text: str | None, arms: int) -> tuple[float, ...] | None:
     return values
 
 
-def _scenario(kind: str | None, slip: float, hazard: float, change_after: int | None) -> Scenario:
+def _scenario(
+    kind: str | None, slip: float, hazard: float, change_after: int | None, acceptable: int
+) -> Scenario:
     """The participants the flags describe (ValueError says which flag is wrong)."""
-    if kind is None and (slip or hazard):
+    if kind is None and (slip or hazard or acceptable != 1):
         kind = "gaussian"
     if kind is None:
         return Scenario(change_after=change_after)
@@ -92,7 +94,7 @@ def _scenario(kind: str | None, slip: float, hazard: float, change_after: int | 
         )
     except ValueError as exc:
         raise ValueError(f"--slip / --hazard: {exc}") from None
-    return Scenario(feedback=model, change_after=change_after)
+    return Scenario(feedback=model, change_after=change_after, acceptable=acceptable)
 
 
 def _checkpoint(
@@ -153,13 +155,17 @@ def simulate_adaptation_command(
         int | None,
         typer.Option("--change-after", help="A new preferred question after answer N."),
     ] = None,
+    acceptable: Annotated[
+        int,
+        typer.Option("--acceptable", help="Participants say yes to M questions (default 1)."),
+    ] = 1,
 ) -> None:
     """Simulate participants answering Exp3, the meta-policy, its random init and the exact
     reference (Bayes; a forward filter when participants slip or change their minds)."""
     if participants < 1 or iterations < 1:
         raise _fail("--participants and --iterations must be at least 1")
     try:
-        scenario = _scenario(feedback, slip, hazard, change_after)
+        scenario = _scenario(feedback, slip, hazard, change_after, acceptable)
         tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
         ckpt = _checkpoint(arms, category, mode, checkpoint, checkpoint_dir)
         result = simulate_adaptation(

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from models.feedback import FeedbackModel, switch_matrix
+from models.feedback import FeedbackModel, acceptable_sets, switch_matrix
 from models.learners.base import (
     check_action,
     check_n_arms,
@@ -36,29 +36,43 @@ _VERSION = 1
 
 
 class BatchBelief:
-    """The forward filter for ``n`` participants at once: ``log_alpha`` has shape (n, J, K)."""
+    """The forward filter for ``n`` participants at once: ``log_alpha`` has shape (n, J, S), S
+    the hypotheses about what a participant accepts: one question each (S = K, the usual case),
+    or every set of ``acceptable`` questions (:func:`models.feedback.acceptable_sets`)."""
 
     def __init__(
-        self, n: int, n_arms: int, feedback: FeedbackModel, prior: np.ndarray | None = None
+        self,
+        n: int,
+        n_arms: int,
+        feedback: FeedbackModel,
+        prior: np.ndarray | None = None,
+        acceptable: int = 1,
     ) -> None:
         self.n_arms = check_n_arms(n_arms)
         self.feedback = feedback
         self.prior = check_prior(prior, self.n_arms)
-        self.switch = switch_matrix(self.prior, feedback.hazard)
+        self.acceptable = acceptable
+        self.members, self.set_prior = acceptable_sets(self.prior, acceptable)  # (S, K), (S,)
+        self.switch = switch_matrix(self.set_prior, feedback.hazard)
         self._slips = feedback.slip_values[:, None]  # (J, 1)
         with np.errstate(divide="ignore"):
-            start = np.log(feedback.slip_prior)[:, None] + np.log(self.prior)[None, :]
+            start = np.log(feedback.slip_prior)[:, None] + np.log(self.set_prior)[None, :]
         self.log_alpha = np.tile(start, (n, 1, 1))
 
-    def probabilities(self) -> np.ndarray:
-        """(n, K): P(preferred at the next answer | the answers so far)."""
+    def set_probabilities(self) -> np.ndarray:
+        """(n, S): P(each hypothesis holds at the next answer | the answers so far)."""
         joint = np.exp(self.log_alpha - self.log_alpha.max(axis=(1, 2), keepdims=True))
         marginal = joint.sum(axis=1)
         return marginal / marginal.sum(axis=1, keepdims=True)
 
+    def probabilities(self) -> np.ndarray:
+        """(n, K): posterior sampling's chance of asking each question: draw a hypothesis, ask
+        one of its questions at random (for one acceptable question: P(preferred = each))."""
+        return (self.set_probabilities() @ self.members) / self.acceptable
+
     def update(self, actions: np.ndarray, rewards: np.ndarray) -> None:
-        """One answer per participant: likelihood under every (slip, preferred), then the switch."""
-        hit = np.asarray(actions)[:, None, None] == np.arange(self.n_arms)[None, None, :]
+        """One answer each: the likelihood under every (slip, hypothesis), then the switch."""
+        hit = self.members.T[np.asarray(actions)][:, None, :]  # (n, 1, S)
         likelihood = self.feedback.likelihood(
             np.asarray(rewards, np.float64)[:, None, None], hit, self._slips[None]
         )
@@ -86,12 +100,18 @@ class BeliefLearner:
         The feedback model whose slips and hazard the filter assumes.
     prior
         Prior over the preferred question (uniform if None).
+    acceptable
+        How many questions a participant says yes to (1: one preferred question).
     """
 
     def __init__(
-        self, n_arms: int, feedback: FeedbackModel, prior: np.ndarray | None = None
+        self,
+        n_arms: int,
+        feedback: FeedbackModel,
+        prior: np.ndarray | None = None,
+        acceptable: int = 1,
     ) -> None:
-        self._batch = BatchBelief(1, n_arms, feedback, prior)
+        self._batch = BatchBelief(1, n_arms, feedback, prior, acceptable)
         self.n_arms = self._batch.n_arms
         self._answers = 0
 

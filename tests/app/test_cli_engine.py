@@ -124,6 +124,9 @@ def test_simulate_participants_who_slip_and_change_their_minds(
         assert 0 <= summary["recovered"] <= 1 and 0 <= summary["p_new_final"] <= 1
     # the exact reference knows that people change their minds, and follows them
     assert changed["learners"]["bayes"]["recovered"] > 0.85
+    sets = one_json(run(cli, *common, "--acceptable", "2"))
+    assert sets["participants_answer"].endswith("2 questions answered yes")
+    assert sets["learners"]["bayes"]["reached_95"] > 0.95  # the set's probability reaches .95
     table = run(
         cli,
         "simulate",
@@ -174,6 +177,7 @@ def test_simulate_out_writes_both_figures(
         (["--feedback", "binary", "--slip", "0.5"], "--slip / --hazard: slip rates must lie"),
         (["--hazard", "-0.1"], "--slip / --hazard: the hazard must lie in [0, 1)"),
         (["--change-after", "0"], "--change-after must be at least 1"),
+        (["--acceptable", "4"], "--acceptable must be between 1 and 3"),
     ],
 )
 def test_simulate_bad_input_is_one_line(

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from models.feedback import FeedbackModel, draw_other, switch_matrix
+from models.feedback import FeedbackModel, acceptable_sets, draw_other, switch_matrix
 from models.learners.base import Learner
 from models.learners.bayes import BayesLearner
 from models.learners.belief import BatchBelief, BeliefLearner
@@ -62,6 +62,44 @@ def test_the_filter_equals_brute_force_enumeration(
         answers.append((action, reward))
         expected = _brute_force(feedback, np.array(prior), answers)
         assert np.allclose(learner.probabilities(), expected, rtol=1e-10, atol=1e-12)
+
+
+def _brute_force_sets(
+    feedback: FeedbackModel,
+    members: np.ndarray,
+    weights: np.ndarray,
+    answers: list[tuple[int, float]],
+) -> np.ndarray:
+    """As :func:`_brute_force`, over sets of acceptable questions; returns P(ask each question)."""
+    switch = switch_matrix(weights, feedback.hazard)
+    predictive = np.zeros(len(weights))
+    for slip, weight in zip(feedback.slips, feedback.slip_weights, strict=True):
+        for path in itertools.product(range(len(weights)), repeat=len(answers) + 1):
+            p = weight * weights[path[0]]
+            for t, (action, reward) in enumerate(answers):
+                hit = np.array(members[path[t], action])
+                p *= float(feedback.likelihood(np.array(reward), hit, slip))
+                p *= switch[path[t], path[t + 1]]
+            predictive[path[-1]] += p
+    return (predictive / predictive.sum()) @ members / members[0].sum()
+
+
+def test_participants_who_accept_several_questions_are_filtered_over_sets() -> None:
+    consistent = BeliefLearner(4, FeedbackModel(), acceptable=2)
+    consistent.update(0, 1.0)  # yes to question 0
+    consistent.update(1, 0.0)  # no to question 1: the set is {0, 2} or {0, 3}
+    assert np.allclose(consistent.probabilities(), [0.5, 0.0, 0.25, 0.25])
+    feedback = FeedbackModel(slips=(0.0, 0.1), slip_weights=(0.5, 0.5), hazard=0.1)
+    prior = np.array([0.4, 0.3, 0.2, 0.1])
+    learner = BeliefLearner(4, feedback, prior, acceptable=2)
+    members, weights = acceptable_sets(prior, 2)
+    answers = [(0, 1.0), (1, 0.0), (3, 1.0)]
+    for action, reward in answers:
+        learner.update(action, reward)
+    expected = _brute_force_sets(feedback, members, weights, answers)
+    assert np.allclose(learner.probabilities(), expected, rtol=1e-10)
+    with pytest.raises(ValueError, match="between 1 and 3"):
+        acceptable_sets(prior, 4)
 
 
 def test_without_slips_or_changes_it_is_the_bayes_posterior() -> None:
@@ -150,9 +188,7 @@ def test_simulated_participants_slip_and_change_at_the_declared_rates() -> None:
     feedback = FeedbackModel(slips=(0.1,), hazard=0.2)
     n = 200_000
     preferred = np.zeros(n, dtype=int)
-    said_yes = feedback.rewards(
-        rng, preferred, np.zeros(n, dtype=int), feedback.sample_slips(rng, n)
-    )
+    said_yes = feedback.rewards(rng, np.ones(n, dtype=bool), feedback.sample_slips(rng, n))
     assert abs((said_yes == 0.0).mean() - 0.1) < 0.005  # a hit answered "no": a slip
     moved = feedback.change_preference(rng, preferred, np.full(4, 0.25))
     assert abs((moved != 0).mean() - 0.2) < 0.005
