@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sqlalchemy import select, update
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app import events
@@ -84,6 +85,11 @@ def create_station(db: Session, *, name: str, actor: Actor) -> Station:
         raise Conflict(f"a station named {name!r} already exists")
     station = Station(name=name)
     db.add(station)
+    try:
+        db.flush()  # PostgreSQL: a concurrent creation of the same name is refused here
+    except IntegrityError:
+        db.rollback()
+        raise Conflict(f"a station named {name!r} already exists") from None
     audit.record(db, actor=actor, action="station.created", subject=name)
     db.commit()
     return station

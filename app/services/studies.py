@@ -5,6 +5,7 @@ from __future__ import annotations
 import secrets
 
 from sqlalchemy import func, select
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, NotFound
@@ -32,7 +33,11 @@ def create_study(db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor
         created_by=actor.name,
     )
     db.add(study)
-    db.flush()
+    try:
+        db.flush()  # PostgreSQL: a concurrent creation of the same name is refused here
+    except IntegrityError:
+        db.rollback()
+        raise Conflict(f"a study named {name!r} already exists") from None
     audit.record(
         db,
         actor=actor,
