@@ -37,6 +37,13 @@ class Tablet:
     station: Station | None
     credential: str
 
+    @property
+    def link_topic(self) -> str:
+        """The topic on which this tablet's link is replaced or revoked (its streams end)."""
+        if self.station is not None:
+            return tablet_tokens.kiosk_link_topic(self.station.id)
+        return tablet_tokens.participant_link_topic(self.participant.id)
+
     def topics(self) -> list[str]:
         """Live topics whose events should refresh this tablet."""
         topics = [f"participant:{self.participant.id}"]

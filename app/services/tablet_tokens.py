@@ -15,6 +15,7 @@ import hmac
 from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session
 
+from app import events
 from app.errors import Conflict, NotAuthenticated
 from app.security import token_digest
 from app.services import audit
@@ -23,6 +24,18 @@ from app.tables import Participant, ParticipantStatus, Station, Study
 
 PARTICIPANT_PREFIX = "tlp_"
 KIOSK_PREFIX = "tls_"
+LINK_REPLACED = "tablet_link_replaced"
+
+
+def participant_link_topic(participant_id: int) -> str:
+    """Where a participant's link being reissued or revoked is announced: open tablet streams
+    of the old link end on it (app/web/tablet_pages.py)."""
+    return f"tablet-link:participant:{participant_id}"
+
+
+def kiosk_link_topic(station_id: int) -> str:
+    """Where a station's kiosk link being reissued is announced."""
+    return f"tablet-link:station:{station_id}"
 
 
 def _derive(secret: bytes, prefix: str, kind: str, row_id: int, generation: int) -> str:
@@ -52,6 +65,7 @@ def issue_participant_token(
         secret, PARTICIPANT_PREFIX, "participant", participant.id, participant.token_generation
     )
     participant.token_hash = token_digest(token)
+    events.publish(db, topics=[participant_link_topic(participant.id)], type=LINK_REPLACED)
     audit.record(
         db,
         actor=actor,
@@ -68,6 +82,7 @@ def revoke_participant_token(db: Session, *, participant: Participant, actor: Ac
     """Make the participant's tablet link useless; commits."""
     participant.token_generation += 1
     participant.token_hash = None
+    events.publish(db, topics=[participant_link_topic(participant.id)], type=LINK_REPLACED)
     audit.record(
         db,
         actor=actor,
@@ -115,6 +130,7 @@ def issue_kiosk_token(db: Session, *, station: Station, secret: bytes, actor: Ac
     station.kiosk_generation += 1
     token = _derive(secret, KIOSK_PREFIX, "kiosk", station.id, station.kiosk_generation)
     station.kiosk_token_hash = token_digest(token)
+    events.publish(db, topics=[kiosk_link_topic(station.id)], type=LINK_REPLACED)
     audit.record(
         db,
         actor=actor,

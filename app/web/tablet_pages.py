@@ -314,13 +314,15 @@ async def tablet_events(request: Request) -> Response:
     database = request.app.state.database
     credential = request.cookies.get(TABLET_COOKIE, "")
 
-    def topics() -> list[str]:
+    def topics() -> tuple[list[str], str]:
         with database.read_session() as db:
-            return resolve(db, credential).topics()
+            tablet = resolve(db, credential)
+            return tablet.topics(), tablet.link_topic
 
     try:
-        subscribed = await run_in_threadpool(topics)
+        subscribed, link = await run_in_threadpool(topics)
     except TrustlabError as exc:
         return Response(exc.message, status_code=exc.status_code)
 
-    return event_stream(database.hub, subscribed)
+    # Ends when the link is reissued or revoked: its EventSource then reconnects and is refused.
+    return event_stream(database.hub, subscribed, ends_with=link)

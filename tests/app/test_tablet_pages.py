@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 import threading
 
+import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
@@ -128,3 +129,22 @@ def test_the_wait_page_is_told_when_a_session_ends(app: FastAPI, lab: Lab) -> No
     worker.join(timeout=30)
     assert "event: changed" in lines
     assert tablet.get("/tablet").url.path == "/tablet/wait"  # familiarisation has no questionnaire
+
+
+@pytest.mark.parametrize("how", ["revoke", "reissue"])
+def test_a_tablets_stream_ends_when_its_link_is_revoked_or_replaced(
+    app: FastAPI, lab: Lab, how: str
+) -> None:
+    """A revoked or replaced link must not keep hearing the participant's changes through a
+    stream it opened before (its EventSource's reconnection is then refused)."""
+    code = lab.enrol_and_assign()
+    tablet = _open(app, lab, code)
+    link = f"/api/v1/studies/{lab.study}/participants/{code}/link"
+    with tablet.stream("GET", "/tablet/events") as stream:
+        received = stream.iter_lines()
+        assert next(received).startswith("retry:")  # subscribed
+        changed = lab.experimenter.delete(link) if how == "revoke" else lab.experimenter.post(link)
+        assert changed.status_code in (200, 204), changed.text
+        rest = list(received)  # ends instead of waiting for the next change
+    assert not any(line.startswith("event:") for line in rest)
+    assert tablet.get("/tablet/events").status_code == 401
