@@ -152,16 +152,21 @@ class EventHub:
         with self._lock:
             return self._versions[topic] + self._versions["*"]
 
-    def note_changes(self, notified: Iterable[tuple[str, str]]) -> None:
-        """Count changes committed here, as (topic, event id), whose events arrive later
-        (PostgreSQL's NOTIFY): counted now, so a reader sees its own change, and not again when
-        they arrive (a second count made every cache that shares by version compute twice)."""
+    def expect_echoes(self, notified: Iterable[tuple[str, str]]) -> None:
+        """Before a commit: these (topic, event id)s are NOTIFYed by this process, so when they
+        come back through LISTEN they are not counted again (:meth:`note_changes` counts them).
+        Said before the commit, since the echo may arrive before the committing thread goes on
+        (a second count made every cache that shares by version compute twice)."""
         with self._lock:
-            if len(self._echoes) > MAX_ECHOES:  # a listener that lost them; counting twice is safe
-                self._echoes.clear()
-            for topic, event_id in notified:
-                self._versions[topic] += 1
-                self._echoes.add(event_id)
+            if len(self._echoes) > MAX_ECHOES:  # rolled back, or a listener that lost them:
+                self._echoes.clear()  # counting twice is safe
+            self._echoes.update(event_id for _, event_id in notified)
+
+    def note_changes(self, notified: Iterable[tuple[str, str]]) -> None:
+        """After a commit: count this process's own changes at once, so a reader sees them
+        (their events arrive later, through LISTEN, and are then not counted again)."""
+        with self._lock:
+            self._versions.update(topic for topic, _ in notified)
 
     def open(self, topics: Iterable[str]) -> Subscription:
         """Start receiving events of these topics (call from the loop that will read them)."""
@@ -256,6 +261,7 @@ def attach_publishing(factory: sessionmaker[Session], hub: EventHub, *, postgres
         @event.listens_for(factory, "before_commit")
         def _notify(session: Session) -> None:
             send_pending(session)
+            hub.expect_echoes(session.info.get(NOTIFIED_KEY, []))
 
         @event.listens_for(factory, "after_commit")
         def _count(session: Session) -> None:

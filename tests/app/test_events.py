@@ -172,6 +172,7 @@ def test_the_hub_counts_changes_per_topic() -> None:
     hub = EventHub()
     assert hub.version("study:1") == 0
     hub.deliver([Event(topic="study:1", type="answer"), Event(topic="study:2", type="answer")])
+    hub.expect_echoes([("study:1", "e1")])  # before the commit
     hub.note_changes([("study:1", "e1")])  # committed here, its NOTIFY still on the way
     assert (hub.version("study:1"), hub.version("study:2")) == (2, 1)
     hub.deliver([Event(topic="study:1", type="answer", id="e1")])  # it arrives: counted already
@@ -180,6 +181,10 @@ def test_the_hub_counts_changes_per_topic() -> None:
     assert (hub.version("study:1"), hub.version("study:2")) == (3, 1)
     hub.deliver([RESYNC])  # anything may have changed
     assert (hub.version("study:1"), hub.version("study:2")) == (4, 2)
+    hub.expect_echoes([("study:3", "e3")])
+    hub.deliver([Event(topic="study:3", type="answer", id="e3")])  # the echo beat the commit's end
+    hub.note_changes([("study:3", "e3")])
+    assert hub.version("study:3") - hub.version("study:unused") == 1
 
 
 def test_a_process_counts_its_own_notified_change_once(database: Database) -> None:
