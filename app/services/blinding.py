@@ -6,8 +6,8 @@ A protocol with ``[study] blinded = true`` hides two things from staff:
   analysts see the real ones (:attr:`app.services.audit.Actor.sees_conditions`);
 - **the learners**: their probabilities, the confidence level behind each reply and the history
   of replies. C1's Exp3 starts at exactly 1/K for every question and C2's policy does not, so any
-  of these would show an experimenter the condition at the first prompt. Nobody on the staff sees
-  them, whatever their role, until the study is *sealed* no more.
+  of these would show an experimenter the condition at the first prompt. While the study is
+  *sealed* (blinded and not yet unblinded) nobody on the staff sees them, whatever their role.
 
 The robot still receives everything it needs (its own routes and WebSocket are not staff
 responses), and the command line, run by whoever holds the server and its database, is not
