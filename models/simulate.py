@@ -213,13 +213,7 @@ class Scenario:
         if self.feedback is None:
             model = "Gaussian feedback (the task distribution's), one preference"
         else:
-            f = self.feedback
-            slips = (
-                f"slip {f.slips[0]:.3g}"
-                if len(f.slips) == 1
-                else f"slips {min(f.slips):.3g}–{max(f.slips):.3g}"
-            )
-            model = f"{f.kind} answers, {slips}, hazard {f.hazard:.3g}"
+            model = self.feedback.describe()
         change = (
             f"; preference changes after answer {self.change_after}" if self.change_after else ""
         )

@@ -98,14 +98,15 @@ def feedback_model(protocol: Protocol) -> FeedbackModel:
     )
 
 
-def _check_trained_for(protocol: Protocol, checkpoint: Checkpoint) -> bool:
-    """Whether the checkpoint was meta-trained for the protocol's feedback model; a mismatch is
-    refused unless the protocol accepts it (then the learner's config records it)."""
+def _accepted_mismatch(protocol: Protocol, checkpoint: Checkpoint) -> FeedbackModel | None:
+    """None when the checkpoint was meta-trained for the protocol's feedback model; the model
+    it was trained for when the protocol accepts the mismatch (the learner's config records
+    it); otherwise the mismatch is refused."""
     declared, trained = feedback_model(protocol), trained_feedback(checkpoint)
     if declared.same_as(trained):
-        return True
+        return None
     if protocol.learners.feedback.accept_other_checkpoint:
-        return False
+        return trained
     raise Conflict(
         f"checkpoint {checkpoint.path} was meta-trained for {trained.describe()}, but the "
         f"protocol's learners.feedback declares {declared.describe()}: retrain C2 for it "
@@ -124,8 +125,9 @@ def learner_spec(
     path = _checkpoint_path(protocol, category, checkpoint_dir)
     checkpoint = checkpoint_at(path, n_arms)
     config: dict[str, Any] = {"checkpoint": str(path)}
-    if not _check_trained_for(protocol, checkpoint):
-        config["trained_for_other_feedback"] = trained_feedback(checkpoint).to_json()
+    mismatch = _accepted_mismatch(protocol, checkpoint)
+    if mismatch is not None:
+        config["trained_for_other_feedback"] = mismatch.to_json()
     if protocol.learners.meta.learning_rate is not None:
         config["learning_rate"] = protocol.learners.meta.learning_rate
     return LearnerSpec("meta", n_arms, config, checkpoint.sha256)

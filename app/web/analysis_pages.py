@@ -16,7 +16,7 @@ from analysis.study import analyse_study
 from app.deps import AnalystUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
-from app.services import audit, studies, study_data
+from app.services import audit, blinding, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
 from app.web.templating import render
@@ -65,9 +65,9 @@ def download(
     if spec is None:
         raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
     study = studies.get_study(db, name)
+    if export == STEP_LOG_EXPORT and not blinding.shows_learners(study):
+        raise Conflict(f"no step log yet: {blinding.LEARNERS_SEALED}")  # before reading it all
     dataset = study_data.load_dataset(db, study=study, for_staff=True)
-    if dataset.steps_withheld and export == STEP_LOG_EXPORT:
-        raise Conflict(f"no step log yet: {dataset.steps_withheld}")
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
     path = write_export(dataset, export, folder / spec.filename)
     digest = sha256_file(path)
