@@ -27,6 +27,7 @@ __all__ = [
     "adaptation_speed_figure",
     "curves_frame",
     "iterations_by_arms_figure",
+    "reference_label",
     "sweep_frame",
     "write_outputs",
 ]
@@ -98,9 +99,28 @@ def sweep_frame(results: Sequence[Mapping[str, Any]]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns).sort_values(["learner", "arms"], kind="stable")
 
 
-def adaptation_speed_figure(curves: pd.DataFrame, arms: int) -> go.Figure:
-    """(a) Mean p(preferred question) after 0..T answers, one line per learner, 95 % marked."""
+def reference_label(result: Mapping[str, Any] | None) -> str:
+    """The reference's legend label, naming what it assumes: the plain Bayes posterior (the
+    paper's participants) or the forward filter for participants who slip or change their minds
+    (the result's ``reference``, as ``simulate_adaptation`` writes it)."""
+    reference = None if result is None else result.get("reference")
+    if not isinstance(reference, str) or not reference:
+        return LEARNER_LABELS["bayes"]
+    return f"reference: {reference}"
+
+
+def _label(name: str, reference: str) -> str:
+    return reference if name == "bayes" else LEARNER_LABELS.get(name, name)
+
+
+def adaptation_speed_figure(
+    curves: pd.DataFrame, arms: int, result: Mapping[str, Any] | None = None
+) -> go.Figure:
+    """(a) Mean p(preferred question) after 0..T answers, one line per learner, 95 % marked;
+    with the simulation's ``result``, the reference is labelled by its model and the subtitle
+    says how the participants answered."""
     figure = go.Figure()
+    reference = reference_label(result)
     for learner, group in curves.groupby("learner", sort=False):
         name = str(learner)
         figure.add_trace(
@@ -108,23 +128,31 @@ def adaptation_speed_figure(curves: pd.DataFrame, arms: int) -> go.Figure:
                 x=group["answers"].tolist(),
                 y=group["p_correct"].tolist(),
                 mode="lines+markers",
-                name=LEARNER_LABELS.get(name, name),
+                name=_label(name, reference),
                 line={"color": _COLORS.get(name, "#000000")},
             )
         )
     figure.add_hline(y=0.95, line_dash="dot", line_color="#888888", annotation_text="95 %")
+    participants = None if result is None else result.get("participants_answer")
+    title = f"Adaptation speed: belief in the preferred question (K = {arms})"
+    if isinstance(participants, str) and participants:
+        title += f"<br><sup>participants: {participants}</sup>"
     figure.update_layout(
         **_LAYOUT,
-        title=f"Adaptation speed: belief in the preferred question (K = {arms})",
+        title=title,
         xaxis={"title": "answers", "dtick": 1, "gridcolor": "#eeeeee"},
         yaxis={"title": "mean p(preferred question)", "range": [0, 1.02], "gridcolor": "#eeeeee"},
     )
     return figure
 
 
-def iterations_by_arms_figure(sweep: pd.DataFrame) -> go.Figure:
-    """(b) Mean answers until 95 % against K, one line per learner (13 = never within 12)."""
+def iterations_by_arms_figure(
+    sweep: pd.DataFrame, result: Mapping[str, Any] | None = None
+) -> go.Figure:
+    """(b) Mean answers until 95 % against K, one line per learner (13 = never within 12), the
+    reference labelled by its model as in figure (a)."""
     figure = go.Figure()
+    reference = reference_label(result)
     for learner, group in sweep.groupby("learner", sort=False):
         name = str(learner)
         figure.add_trace(
@@ -132,7 +160,7 @@ def iterations_by_arms_figure(sweep: pd.DataFrame) -> go.Figure:
                 x=group["arms"].tolist(),
                 y=group["iterations_to_95"].tolist(),
                 mode="lines+markers",
-                name=LEARNER_LABELS.get(name, name),
+                name=_label(name, reference),
                 line={"color": _COLORS.get(name, "#000000")},
             )
         )
@@ -161,8 +189,8 @@ def write_outputs(
     paths = [out / "adaptation_curves.csv", out / "iterations_by_arms.csv", out / "simulation.html"]
     write_csv(curves, paths[0])
     write_csv(sweep, paths[1])
-    speed = adaptation_speed_figure(curves, int(result["arms"]))
-    by_arms = iterations_by_arms_figure(sweep)
+    speed = adaptation_speed_figure(curves, int(result["arms"]), result)
+    by_arms = iterations_by_arms_figure(sweep, sweep_results[0] if sweep_results else result)
     body = speed.to_html(full_html=False, include_plotlyjs=True) + by_arms.to_html(
         full_html=False, include_plotlyjs=False
     )

@@ -91,8 +91,9 @@ class MetaSettings(_Strict):
 
 class FeedbackSettings(_Strict):
     """How participants answer, as C2's meta-training and the simulations assume
-    (models/feedback.py, docs/engine.md). The default is the seed paper's model, the one the
-    shipped checkpoints were trained for."""
+    (models/feedback.py, docs/engine.md). Without this table: the seed paper's model, which the
+    replication set was trained for, so protocols written before issue 19 keep their C2; the
+    shipped protocol declares yes/no answers that slip, with a hazard (the default set's)."""
 
     kind: Literal["binary", "gaussian"] = Field(
         default="gaussian",

@@ -30,7 +30,7 @@ sys.path.insert(0, str(_ROOT))
 import torch  # noqa: E402
 
 from bench.analysis import cpu_model  # noqa: E402
-from models.checkpoints import PRETRAINED_DIR  # noqa: E402
+from models.checkpoints import PRETRAINED_DIR, RETIRED_DIR  # noqa: E402
 from models.pretrain import PretrainArgs, pretrain  # noqa: E402
 
 PAPER_TARGET_S = 10.0
@@ -68,12 +68,12 @@ def main() -> None:
         seconds_online, _ = timed(online)
         print(f"online mode, conation K = 4: {seconds_online:.1f} s")
     print("recorded training times of the shipped checkpoints:")
-    for metrics in sorted(PRETRAINED_DIR.glob("*/*/metrics.json")):
+    for metrics in sorted(PRETRAINED_DIR.rglob("metrics.json")):
+        if RETIRED_DIR in metrics.parents:
+            continue
         recorded = json.loads(metrics.read_text())
-        print(
-            f"  {metrics.parent.parent.name}/{metrics.parent.name}: "
-            f"{recorded['train_seconds']:.1f} s"
-        )
+        where = metrics.parent.relative_to(PRETRAINED_DIR)
+        print(f"  {where}: {recorded['train_seconds']:.1f} s")
 
 
 if __name__ == "__main__":

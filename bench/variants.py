@@ -5,8 +5,10 @@ Run from the repository root (one training after another, one thread; 2–5 minu
     .venv/bin/python bench/variants.py
     .venv/bin/python bench/variants.py --variants reward reward_unlimited
 
-Trains conation K = 4 online-mode variants with the shipped configuration except for one choice,
-and evaluates each deployed (12 single answers) on 20,000 simulated participants, seed 2026:
+Trains conation K = 4 online-mode variants with the replication set's configuration (the paper's
+Gaussian participants, models/pretrained/replication) except for one choice, and evaluates each
+deployed (12 single answers) on 20,000 such simulated participants, seed 2026 (the default set's
+choices are measured by bench/robust.py and docs/engine.md, "C2 for real participants"):
 
 - ``shipped``: log-score objective, natural step on the expected gradient (``natural_expected``),
   step-scale calibration to wrong_95 ≤ .0075, selection of the snapshot fastest once calibrated;

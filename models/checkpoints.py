@@ -32,7 +32,15 @@ from typing import Any, Literal
 import numpy as np
 
 from models.feedback import FeedbackModel
-from models.learners.mlp_policy import PARAM_NAMES, UPDATE_RULES, Params, UpdateRule, param_shapes
+from models.learners.mlp_policy import (
+    PARAM_NAMES,
+    UPDATE_RULES,
+    Params,
+    UpdateRule,
+    anchor_offset,
+    param_shapes,
+    surprise,
+)
 from models.tasks import DEFAULT_VARIANCE
 
 Mode = Literal["online", "paper"]
@@ -47,6 +55,12 @@ FORMAT_VERSION = 1
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 """Where the shipped checkpoints live: ``<mode>/<category>-k<K>/`` and ``<mode>/generic-k<K>/``."""
+
+REPLICATION_DIR = PRETRAINED_DIR / "replication"
+"""The online set meta-trained for the seed paper's Gaussian feedback (σ² = .1), the replication
+setting: a protocol whose ``[learners.feedback]`` is the paper's model gets its C2 from here
+(:func:`shipped_set`). Same layout as :data:`PRETRAINED_DIR`. These are the checkpoints the
+default set was before issue 19, unchanged, so studies enrolled with them go on."""
 
 RETIRED_DIR = PRETRAINED_DIR / "retired"
 """Checkpoints that shipped once and were replaced by better ones. They stay so that learners
@@ -74,6 +88,29 @@ def observation_for(category: str, dim: int = OBSERVATION_DIM) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class SurpriseGates:
+    """How an answer's surprise (:func:`models.learners.mlp_policy.surprise`) changes the step it
+    gets and the forgetting after it, per answer ``t``::
+
+        α_t(u) = α_t · exp(v_t u)        ρ_t(u) = σ(logit ρ_t + w_t u)
+
+    An exact filter over slip rates does this implicitly: an answer that contradicts the belief
+    raises its estimate of how often this participant slips, so all the evidence counts for less.
+    ``yes``/``no`` are the rewards of the two answers (to measure the surprise), ``step`` is
+    ``v`` and ``retention`` is ``w``.
+    """
+
+    yes: float
+    no: float
+    step: np.ndarray
+    retention: np.ndarray
+
+    def of(self, p_asked: np.ndarray | float, reward: np.ndarray | float) -> np.ndarray:
+        """The surprise of ``reward`` for a question the policy asked with ``p_asked``."""
+        return surprise(p_asked, reward, self.yes, self.no)
+
+
+@dataclass(frozen=True)
 class Checkpoint:
     """A loaded, verified meta-policy checkpoint.
 
@@ -95,6 +132,16 @@ class Checkpoint:
         trained horizon reuse the last entry.
     damping
         λ of the natural-gradient step.
+    prior
+        The task prior the policy is anchored at (its logits are ``log prior + f_θ(x) −
+        f_θ₀(x)``, :func:`models.learners.mlp_policy.anchor_offset`); None for checkpoints from
+        before issue 19, whose logits are the network's own.
+    retention
+        ρ of the forgetting step after the 1st, 2nd, … answer
+        (:func:`models.learners.mlp_policy.retain`); None: no forgetting.
+    gates
+        How the surprise of an answer scales its step and forgetting (:class:`SurpriseGates`);
+        None: they depend on the answer's number only.
     config, metrics
         The training arguments and the figures training measured.
     """
@@ -110,8 +157,41 @@ class Checkpoint:
     step_sizes: np.ndarray
     baselines: np.ndarray
     damping: float
+    prior: np.ndarray | None = None
+    retention: np.ndarray | None = None
+    gates: SurpriseGates | None = None
     config: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
+
+    def offset_for(self, initial: Params) -> np.ndarray | None:
+        """The logit offset of a learner that starts at ``initial`` (None if not anchored)."""
+        if self.prior is None:
+            return None
+        return anchor_offset(self.prior, initial, self.observation)
+
+    def retention_after(self, answer_index: int) -> float:
+        """ρ of the forgetting step after answer number ``answer_index`` (0-based; 1: none),
+        before any surprise gate."""
+        if self.retention is None:
+            return 1.0
+        return float(self.retention[min(answer_index, self.retention.shape[0] - 1)])
+
+    def step_and_retention(
+        self, answer_index: int, p_asked: np.ndarray | float, reward: np.ndarray | float
+    ) -> tuple[np.ndarray | float, np.ndarray | float]:
+        """The step size and forgetting ρ for answer ``answer_index`` (0-based) with this reward
+        to a question asked with probability ``p_asked`` (arrays: one per batch row)."""
+        index = min(answer_index, self.horizon - 1)
+        step: np.ndarray | float = float(self.step_sizes[index])
+        rho: np.ndarray | float = self.retention_after(answer_index)
+        if self.gates is None:
+            return step, rho
+        u = self.gates.of(p_asked, reward)
+        step = step * np.exp(self.gates.step[index] * u)
+        with np.errstate(divide="ignore"):
+            logit = np.log(rho) - np.log1p(-rho)
+        rho = 1.0 / (1.0 + np.exp(-(logit + self.gates.retention[index] * u)))
+        return step, rho
 
     @property
     def hidden(self) -> int:
@@ -146,8 +226,14 @@ def write_checkpoint(
     damping: float,
     config: dict[str, Any],
     metrics: dict[str, Any],
+    prior: np.ndarray | None = None,
+    retention: np.ndarray | None = None,
+    gates: SurpriseGates | None = None,
 ) -> Checkpoint:
-    """Write a checkpoint directory (created if needed) and return it loaded back and verified."""
+    """Write a checkpoint directory (created if needed) and return it loaded back and verified.
+
+    ``prior``, ``retention`` and ``gates`` are written only when given, so a checkpoint without
+    them has the same bytes (and hash) as before they existed."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     weights: dict[str, Any] = {
@@ -164,6 +250,17 @@ def write_checkpoint(
     }
     for name in PARAM_NAMES:
         weights[name] = np.asarray(params[name], dtype=np.float64).tolist()
+    if prior is not None:
+        weights["prior"] = np.asarray(prior, dtype=np.float64).tolist()
+    if retention is not None:
+        weights["retention"] = np.asarray(retention, dtype=np.float64).tolist()
+    if gates is not None:
+        weights["surprise"] = {
+            "yes": float(gates.yes),
+            "no": float(gates.no),
+            "step": np.asarray(gates.step, dtype=np.float64).tolist(),
+            "retention": np.asarray(gates.retention, dtype=np.float64).tolist(),
+        }
     data = _dump(weights)
     (directory / WEIGHTS_FILE).write_bytes(data)
     (directory / HASH_FILE).write_text(f"{_digest(data)}  {WEIGHTS_FILE}\n")
@@ -288,6 +385,15 @@ def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Check
         or damping <= 0
     ):
         raise ValueError(f"checkpoint {weights_path}: damping must be a positive number")
+    prior = _array(weights, "prior", (n_arms,), weights_path) if "prior" in weights else None
+    if prior is not None and (np.any(prior <= 0) or not math.isclose(prior.sum(), 1.0)):
+        raise ValueError(f"checkpoint {weights_path}: 'prior' must be positive and sum to 1")
+    retention = None
+    if "retention" in weights:
+        retention = _array(weights, "retention", (horizon,), weights_path)
+        if np.any(retention <= 0) or np.any(retention > 1):
+            raise ValueError(f"checkpoint {weights_path}: 'retention' must lie in (0, 1]")
+    gates = _gates(weights.get("surprise"), horizon, weights_path, retention is not None)
     config = _read_json(directory / CONFIG_FILE)
     metrics = _read_json(directory / METRICS_FILE)
     if not isinstance(config, dict) or not isinstance(metrics, dict):
@@ -304,8 +410,27 @@ def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Check
         step_sizes=step_sizes,
         baselines=baselines,
         damping=float(damping),
+        prior=prior,
+        retention=retention,
+        gates=gates,
         config=config,
         metrics=metrics,
+    )
+
+
+def _gates(value: Any, horizon: int, where: Path, forgets: bool) -> SurpriseGates | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not forgets:
+        raise ValueError(f"checkpoint {where}: 'surprise' must be an object, with 'retention' set")
+    yes, no = value.get("yes"), value.get("no")
+    if not all(isinstance(v, int | float) and math.isfinite(v) for v in (yes, no)) or yes == no:
+        raise ValueError(f"checkpoint {where}: 'surprise' needs two different rewards yes and no")
+    return SurpriseGates(
+        yes=float(yes),  # type: ignore[arg-type]
+        no=float(no),  # type: ignore[arg-type]
+        step=_array(value, "step", (horizon,), where),
+        retention=_array(value, "retention", (horizon,), where),
     )
 
 
@@ -376,6 +501,14 @@ def shipped_checkpoint(
         + f" in {root}; generic checkpoints exist for K = {listing}. "
         "Train one with `trustlab pretrain` and set the protocol's checkpoint path."
     )
+
+
+def shipped_set(feedback: FeedbackModel) -> Path:
+    """The shipped set trained for ``feedback``: :data:`REPLICATION_DIR` for the paper's
+    Gaussian model, the default set (yes/no answers with slips and a hazard) otherwise. A
+    protocol's model that neither was trained for is refused where the learner is built, with
+    the difference in words (app/services/learners.py)."""
+    return REPLICATION_DIR if feedback.kind == "gaussian" else PRETRAINED_DIR
 
 
 def trained_feedback(checkpoint: Checkpoint) -> FeedbackModel:

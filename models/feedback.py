@@ -101,12 +101,24 @@ class FeedbackModel:
         return cls(slips=grid, slip_weights=(1.0 / points,) * points, **rest)  # type: ignore[arg-type]
 
     def describe(self) -> str:
-        """In words, for messages: ``binary answers, slips 0–0.15, hazard 0.02``."""
-        slips = (
-            f"slip {self.slips[0]:g}"
-            if len(self.slips) == 1
-            else f"slips {min(self.slips):g}–{max(self.slips):g}"
-        )
+        """In words, for messages: ``binary answers, slips 0/0.05/0.1 equally likely, hazard
+        0.02``; precise enough that two different models never read the same (a long grid reads
+        ``slips 0–0.15 (16 values)``, weighted ones give each weight)."""
+        values = [f"{v:g}" for v in self.slips]
+        uniform = bool(np.allclose(self.slip_prior, 1.0 / len(self.slips)))
+        if len(self.slips) == 1:
+            slips = f"slip {values[0]}"
+        elif len(self.slips) > 6:
+            weighting = "" if uniform else ", weighted"
+            slips = (
+                f"slips {min(self.slips):g}–{max(self.slips):g} ({len(values)} values{weighting})"
+            )
+        elif uniform:
+            slips = f"slips {'/'.join(values)} equally likely"
+        else:
+            slips = "slips " + "/".join(
+                f"{v} (p {w:g})" for v, w in zip(values, self.slip_weights, strict=True)
+            )
         kind = (
             f"gaussian answers (σ² {self.variance:g})"
             if self.kind == "gaussian"

@@ -21,17 +21,23 @@ import numpy as np
 import torch
 
 from models.learners.mlp_policy import PARAM_NAMES
-from models.meta_torch import DTYPE, Layout, apply_step, policy_logits
+from models.meta_torch import DTYPE, Layout, apply_step, baselines, policy_logits, retain
 from models.pretrain_config import PretrainArgs
 
 
 @dataclass(frozen=True)
 class OnlineBatch:
-    """Random draws of one online meta-batch: tasks, action uniforms, reward noise."""
+    """Random draws of one online meta-batch: tasks, action uniforms, reward noise, slips.
 
-    preferred: torch.Tensor  # (B,) long
+    ``preferred[:, t]`` is the question preferred when answer t + 1 is given (it changes along
+    the way when the feedback model has a hazard); ``slipped[:, t]`` whether that answer says the
+    opposite of what the participant means.
+    """
+
+    preferred: torch.Tensor  # (B, T) long
     uniforms: torch.Tensor  # (B, T)
     noise: torch.Tensor  # (B, T)
+    slipped: torch.Tensor  # (B, T) bool
 
 
 @dataclass
@@ -43,14 +49,30 @@ class Rollout:
 
 
 def sample_online_batch(args: PretrainArgs, rng: np.random.Generator) -> OnlineBatch:
-    """Draw tasks and the uniforms and noise that will decide actions and rewards."""
+    """Draw tasks and the uniforms, noise and slips that will decide actions and rewards.
+
+    Without a feedback model (the paper's Gaussian tasks) exactly the draws of the checkpoints
+    trained before issue 19 are made, in the same order, so their configs still reproduce them.
+    """
     assert args.tasks_per_batch is not None
     b, t = args.tasks_per_batch, args.horizon
-    preferred = args.tasks.sample_preferred(rng, b)
+    first = args.tasks.sample_preferred(rng, b)
+    uniforms = rng.random((b, t))
+    noise = rng.standard_normal((b, t))
+    preferred = np.repeat(first[:, None], t, axis=1)
+    slipped = np.zeros((b, t), dtype=bool)
+    if args.feedback is not None:
+        model = args.feedback_model
+        slipped = rng.random((b, t)) < model.sample_slips(rng, b)[:, None]
+        for step in range(1, t):
+            preferred[:, step] = model.change_preference(
+                rng, preferred[:, step - 1], args.tasks.prior
+            )
     return OnlineBatch(
         torch.as_tensor(preferred, dtype=torch.long),
-        torch.as_tensor(rng.random((b, t)), dtype=DTYPE),
-        torch.as_tensor(rng.standard_normal((b, t)), dtype=DTYPE),
+        torch.as_tensor(uniforms, dtype=DTYPE),
+        torch.as_tensor(noise, dtype=DTYPE),
+        torch.as_tensor(slipped),
     )
 
 
@@ -68,14 +90,23 @@ def online_rollout(
     them (re-evaluating the same trajectories at other meta-parameters).
     """
     p = layout.unflatten(theta)
-    net = {name: p[name] for name in PARAM_NAMES}
+    initial = {name: p[name] for name in PARAM_NAMES}
+    net = initial
     damping = p["log_damping"].exp().squeeze() if "log_damping" in p else None
-    sigma = math.sqrt(args.variance)
+    baseline = baselines(p, args)
+    retention_logit = p.get("retention_logit")
+    gated = "surprise_step" in p
+    offset = None
+    if args.anchor:  # log prior − f_θ₀(x): the start is the prior, whatever θ₀ is
+        log_prior = torch.as_tensor(np.log(args.tasks.prior), dtype=DTYPE)
+        offset = log_prior - policy_logits(initial, obs)
+    model = args.feedback_model
+    sigma = math.sqrt(model.variance) if model.kind == "gaussian" else 0.0
     n_arms = args.arms
     arange = torch.arange(n_arms)
     log_probs, taken = [], []
     for t in range(args.horizon + 1):
-        logp = torch.log_softmax(policy_logits(net, obs), dim=-1)
+        logp = torch.log_softmax(policy_logits(net, obs, offset), dim=-1)
         if logp.dim() == 1:
             logp = logp.expand(batch.preferred.shape[0], n_arms)
         log_probs.append(logp)
@@ -88,13 +119,27 @@ def online_rollout(
         else:
             a = actions[:, t]
         taken.append(a)
-        reward = (a == batch.preferred).to(DTYPE) + sigma * batch.noise[:, t]
+        says_yes = (a == batch.preferred[:, t]) != batch.slipped[:, t]
+        reward = torch.where(says_yes, model.yes, model.no).to(DTYPE)
+        if sigma:
+            reward = reward + sigma * batch.noise[:, t]
         onehot = (a.unsqueeze(-1) == arange).to(DTYPE)
         pi = logp.exp()
-        s = (onehot - pi) * (reward - p["baseline"][t]).unsqueeze(-1)
+        p_asked = (pi * onehot).sum(-1)
+        s = (onehot - pi) * (reward - baseline[t]).unsqueeze(-1)
         if args.online_rule == "natural_expected":
-            s = s * (pi * onehot).sum(-1, keepdim=True)
-        net = apply_step(net, obs, s, p["log_step"][t].exp().expand(s.shape[0]), damping)
+            s = s * p_asked.unsqueeze(-1)
+        log_step = p["log_step"][t].expand(s.shape[0])
+        if gated:  # models.checkpoints.SurpriseGates, the same arithmetic
+            u = (reward - (model.no + p_asked * (model.yes - model.no))).abs()
+            u = u / abs(model.yes - model.no)
+            log_step = log_step + p["surprise_step"][t] * u
+        net = apply_step(net, obs, s, log_step.exp(), damping, offset)
+        if retention_logit is not None:
+            z = retention_logit[t]
+            if gated:
+                z = z + p["surprise_retention"][t] * u
+            net = retain(net, initial, torch.sigmoid(z))
     return Rollout(log_probs, torch.stack(taken, dim=1))
 
 
@@ -109,18 +154,24 @@ def objective_terms(
     participants; the extra term charges confident wrong beliefs more than slow right ones.
     ``reward``: the expected reward of answers 1..T, ``Σ_a π_{t−1}(a) μ_a``.
     """
+    # The question preferred at answer t, which table t (before it) and t + 1 (after it) judge.
     index = batch.preferred.unsqueeze(-1)
     if objective == "log_score":
         tables = rollout.log_probs[1:]
-        terms = torch.stack([lp.gather(-1, index).squeeze(-1) for lp in tables], dim=1)
+        terms = torch.stack(
+            [lp.gather(-1, index[:, t]).squeeze(-1) for t, lp in enumerate(tables)], dim=1
+        )
         if wrong_penalty > 0:
             others = torch.stack(
-                [lp.exp().scatter(-1, index, 0.0).amax(-1) for lp in tables], dim=1
+                [lp.exp().scatter(-1, index[:, t], 0.0).amax(-1) for t, lp in enumerate(tables)],
+                dim=1,
             )
             terms = terms + wrong_penalty * torch.log1p(-others.clamp(max=1.0 - 1e-12))
         return terms
     tables = rollout.log_probs[:-1]
-    return torch.stack([lp.exp().gather(-1, index).squeeze(-1) for lp in tables], dim=1)
+    return torch.stack(
+        [lp.exp().gather(-1, index[:, t]).squeeze(-1) for t, lp in enumerate(tables)], dim=1
+    )
 
 
 def online_surrogate(

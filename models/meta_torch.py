@@ -19,19 +19,35 @@ from models.pretrain_config import PretrainArgs
 DTYPE = torch.float64
 
 
-def policy_logits(net: dict[str, torch.Tensor], obs: torch.Tensor) -> torch.Tensor:
-    """Logits of the policy network (batched over leading dimensions of the weights)."""
+Net = dict[str, torch.Tensor]
+
+
+def policy_logits(net: Net, obs: torch.Tensor, offset: torch.Tensor | None = None) -> torch.Tensor:
+    """Logits of the policy network (batched over leading dimensions of the weights), plus an
+    anchored policy's ``offset`` (:func:`models.learners.mlp_policy.anchor_offset`)."""
     h = torch.tanh(net["W1"] @ obs + net["b1"])
-    return (net["W2"] @ h.unsqueeze(-1)).squeeze(-1) + net["b2"]
+    logits = (net["W2"] @ h.unsqueeze(-1)).squeeze(-1) + net["b2"]
+    return logits if offset is None else logits + offset
+
+
+def retain(net: Net, initial: Net, retention: torch.Tensor) -> Net:
+    """The forgetting step ``θ₀ + ρ (θ − θ₀)`` (:func:`models.learners.mlp_policy.retain`),
+    ``retention`` a scalar or one per task."""
+    moved = {}
+    for name, value in net.items():
+        gate = retention.reshape(retention.shape + (1,) * (value.dim() - retention.dim()))
+        moved[name] = initial[name] + gate * (value - initial[name])
+    return moved
 
 
 def apply_step(
-    net: dict[str, torch.Tensor],
+    net: Net,
     obs: torch.Tensor,
     s: torch.Tensor,
     step_size: torch.Tensor,
     damping: torch.Tensor | None,
-) -> dict[str, torch.Tensor]:
+    offset: torch.Tensor | None = None,
+) -> Net:
     """``θ + α Jᵀ y`` with ``y = (M JJᵀ + λI)⁻¹ s`` (natural) or ``y = s`` (``damping=None``).
 
     ``s`` is the logit-space direction, e.g. ``(e_a − π)(r − b)`` for one answer; differentiable
@@ -42,6 +58,8 @@ def apply_step(
     eye = torch.eye(n_arms, dtype=s.dtype)
     if damping is not None:
         logits = (net["W2"] @ h.unsqueeze(-1)).squeeze(-1) + net["b2"]
+        if offset is not None:
+            logits = logits + offset
         pi = torch.softmax(logits, dim=-1)
         fisher = pi.unsqueeze(-1) * (eye - pi.unsqueeze(-2))
         v = net["W2"] * (1.0 - h * h).unsqueeze(-2)
@@ -99,11 +117,14 @@ def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
     """The meta-parameters of ``args.mode``: the network, plus the online update's own."""
     shapes = dict(param_shapes(obs_dim, args.hidden, args.arms))
     if args.mode == "online":
-        shapes.update(
-            {"log_step": (args.horizon,), "log_damping": (1,), "baseline": (args.horizon,)}
-        )
+        baseline = "baseline_logit" if args.bounded_baseline else "baseline"
+        shapes.update({"log_step": (args.horizon,), "log_damping": (1,), baseline: (args.horizon,)})
         if args.online_rule == "gradient":
             del shapes["log_damping"]
+        if args.forgetting:
+            shapes["retention_logit"] = (args.horizon,)
+        if args.surprise_gates:
+            shapes.update({"surprise_step": (args.horizon,), "surprise_retention": (args.horizon,)})
     return Layout(shapes)
 
 
@@ -116,8 +137,27 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
         values["log_step"] = np.full(args.horizon, math.log(step))
         if "log_damping" in layout.shapes:
             values["log_damping"] = np.array([math.log(args.init_damping)])
-        values["baseline"] = np.full(args.horizon, baseline)
+        if args.bounded_baseline:  # the same start, as a logistic between no and yes
+            model = args.feedback_model
+            share = (baseline - model.no) / (model.yes - model.no)
+            values["baseline_logit"] = np.full(args.horizon, math.log(share / (1.0 - share)))
+        else:
+            values["baseline"] = np.full(args.horizon, baseline)
+        if "retention_logit" in layout.shapes:
+            rho = initial_retention(args)
+            values["retention_logit"] = np.full(args.horizon, math.log(rho / (1.0 - rho)))
+        for name in ("surprise_step", "surprise_retention"):  # start as if there were no gates
+            if name in layout.shapes:
+                values[name] = np.zeros(args.horizon)
     return layout.flatten(values)
+
+
+def initial_retention(args: PretrainArgs) -> float:
+    """The forgetting step's starting ρ: the factor by which the exact filter's switch step
+    shrinks a belief toward the prior, ``1 − h K/(K − 1)`` for hazard ``h`` (at most .99, so
+    a model without a hazard can still learn to forget a little)."""
+    hazard = args.feedback_model.hazard
+    return min(0.99, 1.0 - hazard * args.arms / (args.arms - 1))
 
 
 def initial_update(args: PretrainArgs) -> tuple[float, float]:
@@ -130,9 +170,29 @@ def initial_update(args: PretrainArgs) -> tuple[float, float]:
     uniformly chosen question.
     """
     tasks = args.tasks
+    model = args.feedback_model
+    if args.online_rule == "natural_expected" and model.kind == "binary":
+        # The exact update for a participant who slips at the prior's mean rate: a yes adds, a
+        # no subtracts, log((1 − ε)/ε) on the asked question's logit.
+        slip = min(max(float(model.slip_values @ model.slip_prior), 0.01), 0.49)
+        evidence = math.log((1.0 - slip) / slip)
+        step = 2.0 * evidence / (model.yes - model.no)
+        start = args.init_step_size if args.init_step_size is not None else step
+        return start, (model.yes + model.no) / 2
     if args.online_rule == "natural_expected":
         bayes_step = (tasks.mu_preferred - tasks.mu_other) / tasks.variance
         step = args.init_step_size if args.init_step_size is not None else bayes_step
         return step, (tasks.mu_preferred + tasks.mu_other) / 2
     step = args.init_step_size if args.init_step_size is not None else 1.0
+    if model.kind == "binary":
+        return step, (model.yes + (args.arms - 1) * model.no) / args.arms
     return step, (tasks.mu_preferred + (args.arms - 1) * tasks.mu_other) / args.arms
+
+
+def baselines(values: dict[str, torch.Tensor], args: PretrainArgs) -> torch.Tensor:
+    """The online update's reward baselines b_1..b_T from the meta-parameters: free, or between
+    the rewards of no and yes when ``args.bounded_baseline``."""
+    if "baseline_logit" not in values:
+        return values["baseline"]
+    model = args.feedback_model
+    return model.no + (model.yes - model.no) * torch.sigmoid(values["baseline_logit"])

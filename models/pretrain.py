@@ -15,6 +15,11 @@ Two inner loops (issue 3):
     expected reward (the issue's wording, ``objective="reward"``) made C2 overconfident: the
     first implementation measured it confidently wrong for 4.5 % of simulated participants
     (docs/engine.md, "Deviations"; ``bench/variants.py`` re-measures it).
+    For participants who answer yes/no, slip and change their minds (a feedback model, issue 19;
+    the default set), the tasks answer by that model, the policy is anchored at the prior, a
+    forgetting step and its surprise gates are meta-learned with the rest, and the snapshot with
+    the best validation log score is kept, uncalibrated (docs/engine.md, "C2 for real
+    participants").
 ``paper``
     The paper's configuration: one plain policy-gradient inner step (fast lr 0.5) on 20 pulls per
     task with discounted (0.95), baselined and normalised advantages, 200 meta-batches × 40 tasks.
@@ -45,7 +50,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from models.checkpoints import Checkpoint, observation_for, write_checkpoint
+from models.checkpoints import Checkpoint, SurpriseGates, observation_for, write_checkpoint
 from models.inner_loops import (
     objective_terms,
     online_advantages,
@@ -57,9 +62,9 @@ from models.inner_loops import (
     sample_paper_batch,
 )
 from models.learners.mlp_policy import PARAM_NAMES, probabilities
-from models.meta_torch import DTYPE, Layout, initial_theta, layout_for
+from models.meta_torch import DTYPE, Layout, baselines, initial_theta, layout_for
 from models.pretrain_config import PretrainArgs
-from models.simulate import mean_p_correct, simulate_learner, summarise
+from models.simulate import Scenario, mean_p_correct, simulate_learner, summarise
 from models.trpo import trpo_step
 
 __all__ = ["PretrainArgs", "evaluate", "pretrain", "train"]
@@ -89,15 +94,20 @@ def checkpoint_values(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -
     raw reward minus a fixed baseline, the expected reward of the first answer under the prior
     and the meta-policy (the normalised advantage of one answer would be zero).
     """
-    values = {k: v.detach().numpy().copy() for k, v in layout.unflatten(theta).items()}
+    unpacked = layout.unflatten(theta)
+    values = {k: v.detach().numpy().copy() for k, v in unpacked.items()}
     params = {name: values[name] for name in PARAM_NAMES}
     if args.mode == "online":
+        retention = values.get("retention_logit")
         return {
             "params": params,
             "rule": args.online_rule,
             "step_sizes": np.exp(values["log_step"]),
-            "baselines": values["baseline"],
+            "baselines": baselines(unpacked, args).detach().numpy().copy(),
             "damping": float(np.exp(values["log_damping"][0])) if "log_damping" in values else 1.0,
+            "prior": args.tasks.prior if args.anchor else None,
+            "retention": None if retention is None else 1.0 / (1.0 + np.exp(-retention)),
+            "gates": _gates(values, args),
         }
     obs = observation_for(args.category)
     first = float(probabilities(params, obs) @ args.tasks.prior)
@@ -107,7 +117,22 @@ def checkpoint_values(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -
         "step_sizes": np.array([args.fast_lr]),
         "baselines": np.array([first]),
         "damping": 1.0,
+        "prior": None,
+        "retention": None,
+        "gates": None,
     }
+
+
+def _gates(values: dict[str, np.ndarray], args: PretrainArgs) -> SurpriseGates | None:
+    if "surprise_step" not in values:
+        return None
+    model = args.feedback_model
+    return SurpriseGates(
+        yes=model.yes,
+        no=model.no,
+        step=values["surprise_step"],
+        retention=values["surprise_retention"],
+    )
 
 
 def as_checkpoint(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -> Checkpoint:
@@ -125,28 +150,39 @@ def as_checkpoint(theta: torch.Tensor, layout: Layout, args: PretrainArgs) -> Ch
         step_sizes=values["step_sizes"],
         baselines=values["baselines"],
         damping=values["damping"],
+        prior=values["prior"],
+        retention=values["retention"],
+        gates=values["gates"],
     )
 
 
 def evaluate(
     theta: torch.Tensor, layout: Layout, args: PretrainArgs, participants: int, seed: int
 ) -> dict[str, Any]:
-    """The deployed learner's figures on simulated participants (12 answers, one at a time)."""
-    summary = summarise(
-        simulate_learner(
-            "meta",
-            args.tasks,
-            participants=participants,
-            iterations=args.horizon,
-            seed=seed,
-            checkpoint=as_checkpoint(theta, layout, args),
-        )
+    """The deployed learner's figures on simulated participants (12 answers, one at a time) who
+    answer by the run's feedback model; ``log_score`` is the mean log π(preferred) after each
+    answer, what ``selection = "log_score"`` maximises."""
+    scenario = None if args.feedback is None else Scenario(feedback=args.feedback_model)
+    trajectories = simulate_learner(
+        "meta",
+        args.tasks,
+        participants=participants,
+        iterations=args.horizon,
+        seed=seed,
+        checkpoint=as_checkpoint(theta, layout, args),
+        scenario=scenario,
     )
+    summary = summarise(trajectories)
     summary["mean_p_correct"] = mean_p_correct(summary)
+    p_after = np.clip(trajectories.p_preferred[:, 1:], 1e-12, 1.0)
+    summary["log_score"] = float(np.log(p_after).mean())
     return summary
 
 
-def _is_better(candidate: dict[str, Any], best: dict[str, Any] | None, limit: float) -> bool:
+def _is_better(candidate: dict[str, Any], best: dict[str, Any] | None, args: PretrainArgs) -> bool:
+    if args.selection == "log_score":
+        return best is None or candidate["log_score"] > best["log_score"]
+    limit = args.wrong_limit
     if candidate["wrong_95"] > limit:
         return False
     if best is None:
@@ -266,6 +302,7 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
     layout = layout_for(args, obs_np.shape[0])
     theta = initial_theta(args, layout, rng)
     result = TrainResult(theta, layout)
+    calibrating = args.mode == "online" and args.calibrate and args.selection == "answers"
     best: dict[str, Any] | None = None
     fallback: dict[str, Any] | None = None  # used only if no validation is within the limit
     fallback_theta = theta
@@ -310,16 +347,22 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
             result.validations.append(
                 {
                     key: figures[key]
-                    for key in ("iteration", "iterations_to_95", "wrong_95", "mean_p_correct")
+                    for key in (
+                        "iteration",
+                        "iterations_to_95",
+                        "wrong_95",
+                        "mean_p_correct",
+                        "log_score",
+                    )
                 }
             )
-            if args.calibrate:
+            if calibrating:
                 snapshots.append((figures, theta.clone()))
             if fallback is None or _excess(figures, args.wrong_limit) < _excess(
                 fallback, args.wrong_limit
             ):
                 fallback, fallback_theta = figures, theta.clone()
-            if _is_better(figures, best, args.wrong_limit):
+            if _is_better(figures, best, args):
                 best = figures
                 result.theta = theta.clone()
                 result.selected_iteration = iteration
@@ -332,7 +375,7 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
         result.validation = fallback
     elif best is not None:
         result.validation = best
-    if args.mode == "online" and args.calibrate:
+    if calibrating:
         chosen = select_calibrated(snapshots, layout, args)
         if chosen is None:
             result.theta, result.calibration = calibrate_step_scale(result.theta, layout, args)
@@ -394,4 +437,7 @@ def pretrain(
         damping=values["damping"],
         config=config,
         metrics=metrics,
+        prior=values["prior"],
+        retention=values["retention"],
+        gates=values["gates"],
     )

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 from models.checkpoints import GENERIC
+from models.feedback import FeedbackModel
 from models.learners.mlp_policy import HIDDEN_UNITS, UPDATE_RULES
 from models.tasks import DEFAULT_VARIANCE, TaskDistribution, check_prior
 
@@ -98,6 +100,30 @@ class PretrainArgs:
     """Calibration: the largest acceptable ``wrong_95``."""
     evaluation_participants: int = 20000
     """Simulated participants of the final evaluation written to metrics.json."""
+    feedback: dict[str, Any] | None = None
+    """``online``: the feedback model the tasks answer by (:meth:`FeedbackModel.to_json`); unset:
+    the paper's Gaussian rewards with ``variance`` (every checkpoint from before issue 19)."""
+    anchor: bool = False
+    """``online``: anchor the policy at the task prior, so it starts there exactly
+    (:func:`models.learners.mlp_policy.anchor_offset`). Off in the configs of older checkpoints,
+    which these defaults reproduce; the command line turns it on."""
+    forgetting: bool = False
+    """``online``: meta-learn a forgetting step ρ_t after each answer
+    (:func:`models.learners.mlp_policy.retain`); the command line turns it on."""
+    surprise_gates: bool = False
+    """``online``, with ``forgetting``: let each answer's surprise scale its step and the
+    forgetting after it (:class:`models.checkpoints.SurpriseGates`); the command line turns it on
+    with forgetting."""
+    bounded_baseline: bool = False
+    """``online``, yes/no answers: keep every reward baseline strictly between the rewards of no
+    and yes (meta-learned through a logistic), so a yes can never lower the asked question's
+    probability nor a no raise it; the command line turns it on for yes/no models."""
+    selection: str = "answers"
+    """``online``: how validation picks the snapshot. ``answers``: the fewest answers to 95 %
+    within the wrong-belief limit, then calibrated (the paper's Gaussian model); ``log_score``:
+    the best mean log π(preferred) on the training participants, uncalibrated — with slips and
+    changes of mind even the exact filter is sometimes confidently wrong, so a wrong-belief
+    limit would only slow the learner; the proper score makes it approximate the filter."""
 
     def resolved(self) -> PretrainArgs:
         """A copy with the mode-dependent defaults filled in, after checking every value."""
@@ -152,7 +178,33 @@ class PretrainArgs:
             )
         if args.cg_damping < 0:
             raise ValueError("cg_damping must not be negative")
+        if args.selection not in ("answers", "log_score"):
+            raise ValueError(f"selection must be 'answers' or 'log_score', not {args.selection!r}")
+        model = args.feedback_model  # raises ValueError for a malformed model
+        if not online and (args.feedback is not None or args.anchor or args.forgetting):
+            raise ValueError(
+                "paper mode trains on the paper's Gaussian feedback with the plain network: "
+                "a feedback model, anchoring and forgetting are for online mode"
+            )
+        if args.bounded_baseline and (args.feedback is None or model.kind != "binary"):
+            raise ValueError("a bounded baseline needs a yes/no feedback model")
+        if args.surprise_gates and not args.forgetting:
+            raise ValueError("surprise gates scale the forgetting step: they need forgetting")
+        if args.anchor and min(prior) <= 0:
+            raise ValueError("an anchored policy needs a prior above 0 for every question")
+        if model.kind == "gaussian" and not math.isclose(model.variance, args.variance):
+            raise ValueError("a Gaussian feedback model's variance must equal the run's variance")
         return args
+
+    @property
+    def feedback_model(self) -> FeedbackModel:
+        """The model the training participants answer by."""
+        if self.feedback is None:
+            return FeedbackModel.paper(self.variance)
+        try:
+            return FeedbackModel.from_json(self.feedback)
+        except ValueError as exc:
+            raise ValueError(f"feedback: {exc}") from None
 
     @property
     def tasks(self) -> TaskDistribution:

@@ -27,7 +27,14 @@ from models.checkpoints import Checkpoint
 from models.feedback import FeedbackModel, acceptable_sets, draw_other
 from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
-from models.learners.mlp_policy import Params, init_params, probabilities, update_params
+from models.learners.mlp_policy import (
+    Params,
+    anchor_offset,
+    init_params,
+    probabilities,
+    retain,
+    update_params,
+)
 from models.replies import DEFAULT_THRESHOLDS, LEVEL_NAMES
 from models.tasks import TaskDistribution
 
@@ -105,17 +112,27 @@ class BatchMetaPolicy:
 
     def __init__(self, checkpoint: Checkpoint, params: Params | None = None) -> None:
         self.checkpoint = checkpoint
-        self.params: Params = dict(checkpoint.params if params is None else params)
+        self.initial: Params = dict(checkpoint.params if params is None else params)
+        self.params: Params = dict(self.initial)
+        self.offset = None
+        if checkpoint.prior is not None:  # one anchor per participant when each has its own start
+            self.offset = anchor_offset(checkpoint.prior, self.initial, checkpoint.observation)
         self.answers = 0
 
     def probabilities(self) -> np.ndarray:
         """π for every participant (a single row while all still share the start)."""
-        return np.atleast_2d(probabilities(self.params, self.checkpoint.observation))
+        return np.atleast_2d(probabilities(self.params, self.checkpoint.observation, self.offset))
 
     def update(self, actions: np.ndarray, rewards: np.ndarray) -> None:
         """The checkpoint's update rule with the step size and baseline of this answer."""
         c = self.checkpoint
         index = min(self.answers, c.horizon - 1)
+        p_asked = np.take_along_axis(
+            np.broadcast_to(self.probabilities(), (len(actions), c.n_arms)),
+            np.asarray(actions)[:, None],
+            axis=1,
+        )[:, 0]
+        step, retention = c.step_and_retention(self.answers, p_asked, rewards)
         if self.params["b2"].ndim == 1:
             self.params = {
                 k: np.broadcast_to(v, (len(actions), *v.shape)) for k, v in self.params.items()
@@ -125,11 +142,14 @@ class BatchMetaPolicy:
             c.observation,
             actions,
             rewards,
-            step_size=float(c.step_sizes[index]),
+            step_size=step,
             baseline=float(c.baselines[index]),
             damping=c.damping,
             rule=c.rule,
+            offset=self.offset,
         )
+        if np.any(retention != 1.0):
+            self.params = retain(self.params, self.initial, retention)
         self.answers += 1
 
 
@@ -187,11 +207,16 @@ class Scenario:
         How many questions each participant says yes to (drawn by the prior: models.feedback.
         acceptable_sets); their "preferred question" is then that set, and its probability the
         sum over the set.
+    assumed
+        The model the reference assumes, when it is not the participants' own: e.g. the model a
+        deployed C2 was trained for, to compare C2 with the exact filter that knows no more than
+        it does (None: the reference knows how the participants answer).
     """
 
     feedback: FeedbackModel | None = None
     change_after: int | None = None
     acceptable: int = 1
+    assumed: FeedbackModel | None = None
 
     def __post_init__(self) -> None:
         if self.change_after is not None and self.change_after < 1:
@@ -200,12 +225,21 @@ class Scenario:
             raise ValueError(f"--acceptable must be at least 1, got {self.acceptable}")
         if self.acceptable > 1 and self.feedback is None:
             raise ValueError("several acceptable questions need a feedback model (--feedback)")
+        if self.assumed is not None and self.feedback is None:
+            raise ValueError("a reference's assumed model needs the participants' model too")
+
+    @property
+    def reference_model(self) -> FeedbackModel | None:
+        """The model the exact reference filters with."""
+        return self.assumed if self.assumed is not None else self.feedback
 
     @property
     def needs_filter(self) -> bool:
-        """Whether the plain Bayes posterior is not the exact reference here."""
+        """Whether the plain Bayes posterior (Gaussian rewards, one preference) is not the
+        exact reference here: yes/no answers, slips, changes or several acceptable questions."""
+        model = self.reference_model
         return self.acceptable > 1 or (
-            self.feedback is not None and self.feedback.has_slips_or_changes
+            model is not None and (model.kind == "binary" or model.has_slips_or_changes)
         )
 
     def describe(self) -> str:
@@ -352,9 +386,9 @@ def simulate_learner(
             raise ValueError("exp3 needs gamma")
         learner = BatchExp3(participants, tasks.n_arms, gamma)
     elif kind == "bayes" and scenario is not None and scenario.needs_filter:
-        assert scenario.feedback is not None
+        assert scenario.reference_model is not None
         learner = BatchBelief(
-            participants, tasks.n_arms, scenario.feedback, tasks.prior, scenario.acceptable
+            participants, tasks.n_arms, scenario.reference_model, tasks.prior, scenario.acceptable
         )
     elif kind == "bayes":
         learner = BatchBayes(participants, tasks)
@@ -375,6 +409,14 @@ def simulate_learner(
     return run(learner, tasks, preferred, iterations, np.random.default_rng([seed, 7]), scenario)
 
 
+def _reference_name(scenario: Scenario) -> str:
+    if not scenario.needs_filter:
+        return "Bayes posterior"
+    if scenario.assumed is not None:
+        return f"forward filter assuming {scenario.assumed.describe()}"
+    return "forward filter over slips and changes"
+
+
 def simulate_adaptation(
     tasks: TaskDistribution,
     *,
@@ -393,9 +435,7 @@ def simulate_adaptation(
         "iterations": iterations,
         "participants": participants,
         "participants_answer": scenario.describe(),
-        "reference": "forward filter over slips and changes"
-        if scenario.needs_filter
-        else "Bayes posterior",
+        "reference": _reference_name(scenario),
         "learners": {},
     }
     for kind in learners:

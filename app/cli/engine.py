@@ -19,6 +19,7 @@ torch is imported only inside ``pretrain``: the rest of the command line stays f
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -32,6 +33,7 @@ from models.checkpoints import (
     checkpoint_name,
     load_checkpoint,
     shipped_checkpoint,
+    shipped_set,
 )
 from models.feedback import FeedbackModel
 from models.learners.exp3 import DEFAULT_EXP3_GAMMA
@@ -97,10 +99,18 @@ def _scenario(
     return Scenario(feedback=model, change_after=change_after, acceptable=acceptable)
 
 
+def _checkpoint_set(mode: str, directory: Path | None, scenario: Scenario) -> Path:
+    """``--checkpoint-dir``, else the shipped set trained for how the participants answer (the
+    replication set for the paper's Gaussian participants, the default set for yes/no ones)."""
+    if directory is not None or mode != "online":
+        return PRETRAINED_DIR if directory is None else directory
+    return shipped_set(scenario.feedback or FeedbackModel.paper(DEFAULT_VARIANCE))
+
+
 def _checkpoint(
-    arms: int, category: str | None, mode: str, path: Path | None, directory: Path | None
+    arms: int, category: str | None, mode: str, path: Path | None, root: Path
 ) -> Checkpoint:
-    location = path if path is not None else shipped_checkpoint(arms, category, mode, directory)
+    location = path if path is not None else shipped_checkpoint(arms, category, mode, root)
     return load_checkpoint(location, expected_arms=arms)
 
 
@@ -167,7 +177,8 @@ def simulate_adaptation_command(
     try:
         scenario = _scenario(feedback, slip, hazard, change_after, acceptable)
         tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
-        ckpt = _checkpoint(arms, category, mode, checkpoint, checkpoint_dir)
+        root = _checkpoint_set(mode, checkpoint_dir, scenario)
+        ckpt = _checkpoint(arms, category, mode, checkpoint, root)
         result = simulate_adaptation(
             tasks,
             participants=participants,
@@ -179,7 +190,7 @@ def simulate_adaptation_command(
         )
         sweep = []
         if out is not None:
-            sweep = _sweep(participants, iterations, seed, mode, checkpoint_dir)
+            sweep = _sweep(participants, iterations, seed, mode, root, scenario)
     except ValueError as error:
         raise _fail(str(error)) from None
     if out is not None:
@@ -196,12 +207,13 @@ def simulate_adaptation_command(
 
 
 def _sweep(
-    participants: int, iterations: int, seed: int, mode: str, directory: Path | None
+    participants: int, iterations: int, seed: int, mode: str, root: Path, scenario: Scenario
 ) -> list[dict[str, Any]]:
-    """Figure (b)'s simulations: meta, random_init and bayes for every K with a checkpoint."""
+    """Figure (b)'s simulations: meta, random_init and bayes for every K with a checkpoint, on
+    the same participants as figure (a) (a preference changed after answer N only where there
+    are more answers than N)."""
     results = []
-    root = PRETRAINED_DIR if directory is None else directory
-    for k in available_arms(mode, directory):
+    for k in available_arms(mode, root):
         ckpt = load_checkpoint(root / mode / checkpoint_name(GENERIC, k), k)
         results.append(
             simulate_adaptation(
@@ -212,11 +224,17 @@ def _sweep(
                 checkpoint=ckpt,
                 gamma=DEFAULT_EXP3_GAMMA,
                 learners=SWEEP_LEARNERS,
+                scenario=_for_arms(scenario, k),
             )
         )
     if not results:
         raise ValueError(f"no generic {mode} checkpoints ship, so figure (b) cannot be drawn")
     return results
+
+
+def _for_arms(scenario: Scenario, arms: int) -> Scenario:
+    """``scenario`` for K = ``arms``: with at most K − 1 acceptable questions."""
+    return replace(scenario, acceptable=min(scenario.acceptable, arms - 1))
 
 
 def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
@@ -310,6 +328,44 @@ def pretrain_command(
         bool,
         typer.Option("--force", help="Overwrite checkpoint directories that already exist."),
     ] = False,
+    protocol: Annotated[
+        Path | None,
+        typer.Option(
+            "--protocol",
+            help="online: train for this protocol's [learners.feedback] and reward map "
+            "(default: the shipped protocol's).",
+        ),
+    ] = None,
+    paper_feedback: Annotated[
+        bool,
+        typer.Option(
+            "--paper-feedback",
+            help="online: train for the paper's Gaussian feedback instead, as the replication set.",
+        ),
+    ] = False,
+    anchor: Annotated[
+        bool | None,
+        typer.Option(
+            "--anchor/--no-anchor",
+            help="online: start exactly at the task prior (default on; off: --paper-feedback).",
+        ),
+    ] = None,
+    forgetting: Annotated[
+        bool | None,
+        typer.Option(
+            "--forgetting/--no-forgetting",
+            help="online: meta-learn a forgetting step (default: on for a model with slips or a "
+            "hazard).",
+        ),
+    ] = None,
+    surprise_gates: Annotated[
+        bool | None,
+        typer.Option(
+            "--surprise-gates/--no-surprise-gates",
+            help="online: let an answer's surprise scale its step and forgetting (default: on "
+            "with forgetting).",
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Meta-train checkpoints (MAML with a TRPO outer step) and write them with their hash."""
@@ -318,6 +374,9 @@ def pretrain_command(
     names = list(DEFAULT_CATEGORIES) if category == "all" else [category]
     root = out
     try:
+        training = _training_feedback(
+            mode, protocol, paper_feedback, anchor, forgetting, surprise_gates
+        )
         jobs = [
             PretrainArgs(
                 category=name,
@@ -333,6 +392,7 @@ def pretrain_command(
                 calibrate=calibrate,
                 wrong_penalty=wrong_penalty,
                 preferred_prior=_prior(preferred_prior, arms),
+                **training,
             ).resolved()
             for name in names
         ]
@@ -379,6 +439,53 @@ def pretrain_command(
                 )
     if as_json:
         typer.echo(json.dumps({"checkpoints": written}, allow_nan=False))
+
+
+def _training_feedback(
+    mode: str,
+    protocol: Path | None,
+    paper: bool,
+    anchor: bool | None,
+    forgetting: bool | None,
+    gates: bool | None,
+) -> dict[str, Any]:
+    """The ``PretrainArgs`` fields for the feedback model a run trains for.
+
+    The paper's Gaussian model (``--paper-feedback``, paper mode, or a protocol declaring it)
+    trains as every checkpoint before issue 19 did: plain rewards, calibrated selection. Any
+    other model trains anchored at the prior, with a forgetting step when participants may slip
+    or change their minds (and surprise gates on it), selected by the log score (docs/engine.md,
+    "C2 for real participants"). Explicit flags override these defaults.
+    """
+    from app.protocol import default_protocol, load_protocol_file
+    from app.services.learners import feedback_model
+
+    if mode != "online" or paper:
+        if protocol is not None:
+            raise ValueError("--protocol and --paper-feedback (or --mode paper) exclude each other")
+        return {
+            "anchor": bool(anchor),
+            "forgetting": bool(forgetting),
+            "surprise_gates": bool(gates),
+        }
+    loaded = default_protocol() if protocol is None else load_protocol_file(protocol)
+    model = feedback_model(loaded.protocol)
+    if model.kind == "gaussian" and not model.has_slips_or_changes:
+        return {
+            "variance": model.variance,
+            "anchor": bool(anchor),
+            "forgetting": bool(forgetting),
+            "surprise_gates": bool(gates),
+        }
+    forgets = model.has_slips_or_changes if forgetting is None else forgetting
+    return {
+        "feedback": model.to_json(),
+        "anchor": True if anchor is None else anchor,
+        "forgetting": forgets,
+        "surprise_gates": forgets if gates is None else gates,
+        "bounded_baseline": model.kind == "binary",
+        "selection": "log_score",
+    }
 
 
 def _train_with_progress(args: Any, target: Path, *, show: bool) -> Checkpoint:

@@ -34,6 +34,7 @@ from models.checkpoints import (
     find_by_sha256,
     load_checkpoint,
     shipped_checkpoint,
+    shipped_set,
     trained_feedback,
 )
 from models.feedback import FeedbackModel
@@ -75,6 +76,8 @@ def _checkpoint_path(
     setting = protocol.learners.meta.checkpoint
     if setting != "shipped":
         return Path(setting)
+    if checkpoint_dir is None:
+        checkpoint_dir = shipped_set(feedback_model(protocol))
     return shipped_checkpoint(
         len(category.questions), category=category.name, directory=checkpoint_dir
     )

@@ -30,6 +30,7 @@ from models.learners.mlp_policy import (
     init_params,
     param_shapes,
     probabilities,
+    retain,
     update_params,
 )
 
@@ -110,9 +111,13 @@ class MetaPolicyLearner:
         self.learning_rate = None if learning_rate is None else float(learning_rate)
         self._random = params is not None
         start = checkpoint.params if params is None else params
-        self._initial: Params = {name: np.array(start[name], dtype=np.float64) for name in start}
+        self._set_initial({name: np.array(start[name], dtype=np.float64) for name in start})
         self._params: Params = dict(self._initial)
         self._answers = 0
+
+    def _set_initial(self, initial: Params) -> None:
+        self._initial = initial
+        self._offset = self.checkpoint.offset_for(initial)
 
     @classmethod
     def from_checkpoint(
@@ -169,17 +174,18 @@ class MetaPolicyLearner:
 
     def probabilities(self) -> np.ndarray:
         """The policy's probability of asking each question (float64, sums to one)."""
-        return probabilities(self._params, self.checkpoint.observation)
+        return probabilities(self._params, self.checkpoint.observation, self._offset)
 
     def select(self, rng: np.random.Generator) -> int:
         """Draw the next question from :meth:`probabilities` using one uniform from ``rng``."""
         return sample_index(self.probabilities(), rng)
 
     def update(self, action: int, reward: float) -> None:
-        """Take the one-answer policy-gradient step for ``reward`` on question ``action``.
+        """Take the one-answer policy-gradient step for ``reward`` on question ``action``, then
+        the checkpoint's forgetting step, if it has one.
 
-        The reward enters raw (minus the meta-learned baseline), not clipped: meta-training saw the
-        simulated rewards N(μ, σ²) unclipped, and a study's reward map gives 0 or 1.
+        The reward enters raw (minus the meta-learned baseline), not clipped: meta-training saw
+        the rewards of its feedback model unclipped (models/feedback.py).
 
         Raises
         ------
@@ -188,16 +194,24 @@ class MetaPolicyLearner:
         """
         a = check_action(action, self.n_arms)
         r = check_reward(reward)
+        step, retention = self.checkpoint.step_and_retention(
+            self._answers, self.probabilities()[a], r
+        )
+        if self.learning_rate is not None:
+            step = self.learning_rate
         new = update_params(
             self._params,
             self.checkpoint.observation,
             np.asarray(a),
             np.asarray(r),
-            step_size=self.step_size(self._answers),
+            step_size=step,
             baseline=self.baseline(self._answers),
             damping=self.checkpoint.damping,
             rule=self.checkpoint.rule,
+            offset=self._offset,
         )
+        if np.any(retention != 1.0):
+            new = retain(new, self._initial, retention)
         if not all(np.all(np.isfinite(new[name])) for name in PARAM_NAMES):
             raise ValueError(f"update with reward {r!r} made the policy's weights non-finite")
         self._params = new
@@ -207,9 +221,10 @@ class MetaPolicyLearner:
         """The learner's weights and answer count as JSON, tied to the checkpoint's hash.
 
         The weights are bytes in base64 (format version 2, see :data:`_VERSION`): they read back
-        to the same bits.
+        to the same bits. A randomly initialised learner also records its starting weights, which
+        its anchor and forgetting step refer to.
         """
-        return {
+        state: dict[str, Any] = {
             "kind": _KIND,
             "version": _VERSION,
             "n_arms": self.n_arms,
@@ -219,6 +234,9 @@ class MetaPolicyLearner:
             "answers": self._answers,
             "params": {name: _encode(self._params[name]) for name in PARAM_NAMES},
         }
+        if self._random:
+            state["initial"] = {name: _encode(self._initial[name]) for name in PARAM_NAMES}
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a state from :meth:`state_dict` of a learner on the same checkpoint.
@@ -254,6 +272,12 @@ class MetaPolicyLearner:
                 params = {name: np.asarray(raw[name], dtype=np.float64) for name in PARAM_NAMES}
             else:
                 params = {name: _decode(name, raw[name], shapes[name]) for name in PARAM_NAMES}
+            start = state.get("initial")
+            initial = (
+                None
+                if start is None
+                else {name: _decode(name, start[name], shapes[name]) for name in PARAM_NAMES}
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"meta state is malformed: {exc}") from None
         for name, shape in shapes.items():
@@ -264,6 +288,8 @@ class MetaPolicyLearner:
         self._params = params
         self._answers = answers
         self._random = state.get("init") == "random"
+        if initial is not None:
+            self._set_initial(initial)
 
     def __repr__(self) -> str:
         return (

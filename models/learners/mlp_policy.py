@@ -93,11 +93,14 @@ def init_params(rng: np.random.Generator, obs_dim: int, hidden: int, n_arms: int
     return params
 
 
-def hidden_and_logits(params: Params, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the hidden activations ``h`` (…, H) and the logits (…, K)."""
+def hidden_and_logits(
+    params: Params, obs: np.ndarray, offset: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return the hidden activations ``h`` (…, H) and the logits (…, K), plus ``offset`` (K,)
+    when the checkpoint anchors its policy at the prior (:func:`anchor_offset`)."""
     h = np.tanh(params["W1"] @ obs + params["b1"])
     logits = (params["W2"] @ h[..., None])[..., 0] + params["b2"]
-    return h, logits
+    return h, logits if offset is None else logits + offset
 
 
 def softmax(logits: np.ndarray) -> np.ndarray:
@@ -106,9 +109,52 @@ def softmax(logits: np.ndarray) -> np.ndarray:
     return z / z.sum(axis=-1, keepdims=True)
 
 
-def probabilities(params: Params, obs: np.ndarray) -> np.ndarray:
+def probabilities(params: Params, obs: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
     """The policy π over the K questions (…, K), float64."""
-    return softmax(hidden_and_logits(params, obs)[1])
+    return softmax(hidden_and_logits(params, obs, offset)[1])
+
+
+def anchor_offset(prior: np.ndarray, initial: Params, obs: np.ndarray) -> np.ndarray:
+    """The constant ``log prior − f_θ₀(x)`` an anchored policy adds to its network's logits.
+
+    With it the logits are ``log prior + f_θ(x) − f_θ₀(x)``: at the starting weights θ₀ the
+    policy *is* the task prior, exactly and by construction (a uniform prior gives a uniform first
+    question, whatever the weights), and meta-training can shape only how the policy moves. The
+    offset is computed once per learner from its starting weights, so it costs nothing per answer.
+    """
+    values = np.asarray(prior, dtype=np.float64)
+    if not np.all(values > 0):
+        raise ValueError("an anchored policy needs a prior above 0 for every question")
+    return np.log(values) - hidden_and_logits(initial, obs)[1]
+
+
+def retain(params: Params, initial: Params, retention: np.ndarray | float) -> Params:
+    """``θ₀ + ρ (θ − θ₀)``: the forgetting step that moves the weights back toward the start
+    (``retention`` a number, or one per batch row).
+
+    An exact filter with a hazard of changed preference mixes its belief toward the prior after
+    every answer, which caps how sure it gets and so keeps it able to leave a belief the next
+    answers contradict; this step is that mixing in the network's weights (docs/engine.md, "A
+    belief that can be left"). ρ = 1 forgets nothing.
+    """
+    rho = np.asarray(retention, dtype=np.float64)
+    moved = {}
+    for name, value in params.items():
+        gate = rho.reshape(rho.shape + (1,) * (np.ndim(value) - rho.ndim)) if rho.ndim else rho
+        moved[name] = initial[name] + gate * (value - initial[name])
+    return moved
+
+
+def surprise(
+    p_asked: np.ndarray | float, reward: np.ndarray | float, yes: float, no: float
+) -> np.ndarray:
+    """How unexpected an answer was to the policy itself, in [0, 1] for yes/no answers:
+    ``|r − r̂| / |yes − no|`` with ``r̂ = no + π_a (yes − no)``, the reward the policy expected if
+    its probability of the asked question were its belief that the question is preferred. A
+    "no" to the question it is sure of, or a "yes" to one it had written off, is a surprise near 1.
+    """
+    expected = no + np.asarray(p_asked, dtype=np.float64) * (yes - no)
+    return np.abs(np.asarray(reward, dtype=np.float64) - expected) / abs(yes - no)
 
 
 def logit_gram(params: Params, obs: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -135,12 +181,14 @@ def update_params(
     baseline: np.ndarray | float,
     damping: float,
     rule: UpdateRule,
+    offset: np.ndarray | None = None,
 ) -> Params:
     """Return the weights after one answer (``action``, ``reward``); ``params`` is not changed.
 
-    ``action`` and ``reward`` have the batch shape of ``params`` (or are scalars for one network).
+    ``action`` and ``reward`` have the batch shape of ``params`` (or are scalars for one network);
+    ``offset`` is an anchored policy's (:func:`anchor_offset`).
     """
-    h, logits = hidden_and_logits(params, obs)
+    h, logits = hidden_and_logits(params, obs, offset)
     pi = softmax(logits)
     n_arms = pi.shape[-1]
     onehot = np.asarray(action)[..., None] == np.arange(n_arms)

@@ -75,3 +75,16 @@ def test_write_outputs(tmp_path: Path) -> None:
     html = paths[2].read_text()
     assert html.count("Plotly.newPlot") == 2
     assert "Adaptation speed" in html
+
+
+def test_the_reference_is_labelled_by_its_model() -> None:
+    result = _result(4) | {
+        "reference": "forward filter over slips and changes",
+        "participants_answer": "binary answers, slip 0.1, hazard 0",
+    }
+    speed = adaptation_speed_figure(curves_frame(result), 4, result)
+    names = [t.name for t in speed.data]
+    assert names == ["C2: meta-policy", "reference: forward filter over slips and changes"]
+    assert "participants: binary answers, slip 0.1, hazard 0" in speed.layout.title.text
+    by_arms = iterations_by_arms_figure(sweep_frame([result]), result)
+    assert by_arms.data[0].name == "reference: forward filter over slips and changes"

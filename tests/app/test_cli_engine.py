@@ -11,7 +11,9 @@ import typer
 from typer.testing import CliRunner, Result
 
 from app.cli.engine import EXIT_BAD_INPUT, register
-from models.checkpoints import load_checkpoint
+from models.checkpoints import load_checkpoint, trained_feedback
+from models.feedback import FeedbackModel
+from tests.conftest import protocol_text
 from tests.models.conftest import make_checkpoint
 
 
@@ -276,8 +278,57 @@ def test_pretrain_warns_when_calibration_cannot_reach_its_limit(
         cli,
         *("pretrain", "--category", "generic", "--arms", "3", "--meta-batches", "1"),
         *("--tasks-per-batch", "4", "--horizon", "2", "--out", str(tmp_path), "--seed", "1"),
+        "--paper-feedback",  # calibration is the paper's model's selection
     )
     assert result.exit_code == 0
     assert "no step scale down to 0.5 brought wrong_95 within the calibration limit" in (
         result.stderr
     )
+
+
+def test_pretrain_trains_for_the_protocols_feedback_model(cli: typer.Typer, tmp_path: Path) -> None:
+    """By default the shipped protocol's model: anchored, with forgetting, chosen by log score;
+    ``--paper-feedback`` trains as the replication set was trained."""
+    tiny = ("--category", "generic", "--arms", "3", "--meta-batches", "1", "--horizon", "3")
+    tiny += ("--tasks-per-batch", "4", "--validate-every", "1", "--json")
+    run(cli, "pretrain", *tiny, "--out", str(tmp_path / "robust"))
+    robust = load_checkpoint(tmp_path / "robust" / "generic-k3", expected_arms=3)
+    model = trained_feedback(robust)
+    assert model.kind == "binary" and model.hazard == 0.02 and max(model.slips) == 0.1
+    assert robust.config["anchor"] and robust.config["forgetting"]
+    assert robust.config["selection"] == "log_score" and robust.config["bounded_baseline"]
+    assert robust.prior is not None and robust.retention is not None
+    assert robust.retention.shape == (3,) and "log_score" in robust.metrics["validations"][0]
+    run(cli, "pretrain", *tiny, "--out", str(tmp_path / "paper"), "--paper-feedback")
+    paper = load_checkpoint(tmp_path / "paper" / "generic-k3", expected_arms=3)
+    assert trained_feedback(paper).same_as(FeedbackModel.paper(0.1))
+    assert paper.prior is None and paper.retention is None and "feedback" in paper.config
+    assert paper.config["feedback"] is None and not paper.config["anchor"]
+    run(cli, "pretrain", *tiny, "--out", str(tmp_path / "plain"), "--no-forgetting")
+    assert load_checkpoint(tmp_path / "plain" / "generic-k3", expected_arms=3).retention is None
+
+
+def test_pretrain_for_a_protocol_file_and_its_refusals(cli: typer.Typer, tmp_path: Path) -> None:
+    lab = tmp_path / "lab.toml"
+    lab.write_text(protocol_text(**{"hazard = 0.02": "hazard = 0.05"}), encoding="utf-8")
+    tiny = ("--category", "generic", "--arms", "2", "--meta-batches", "1", "--horizon", "2")
+    tiny += ("--tasks-per-batch", "4", "--validate-every", "1", "--json")
+    run(cli, "pretrain", *tiny, "--out", str(tmp_path / "lab"), "--protocol", str(lab))
+    trained = load_checkpoint(tmp_path / "lab" / "generic-k2", expected_arms=2)
+    assert trained_feedback(trained).hazard == 0.05
+    both = run(
+        cli,
+        "pretrain",
+        *tiny,
+        "--out",
+        str(tmp_path / "x"),
+        "--protocol",
+        str(lab),
+        "--paper-feedback",
+    )
+    assert both.exit_code == EXIT_BAD_INPUT and "exclude each other" in both.stderr
+    lab.write_text(protocol_text(**{"hazard = 0.02": "hazard = -1"}), encoding="utf-8")
+    bad = run(cli, "pretrain", *tiny, "--out", str(tmp_path / "y"), "--protocol", str(lab))
+    assert bad.exit_code == EXIT_BAD_INPUT
+    assert bad.stderr.startswith("error: ") and "learners.feedback.hazard" in bad.stderr
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()

@@ -19,12 +19,13 @@ from app.services.learners import (
 )
 from models.checkpoints import (
     HASH_FILE,
+    PRETRAINED_DIR,
+    REPLICATION_DIR,
     RETIRED_DIR,
     load_checkpoint,
     shipped_checkpoint,
     trained_feedback,
 )
-from tests.conftest import protocol_text
 from tests.models.conftest import make_checkpoint
 
 
@@ -100,37 +101,64 @@ def test_learners_enrolled_with_a_retired_shipped_checkpoint_still_restore() -> 
         assert recorded_checkpoint(spec).sha256 == old.sha256
 
 
-ROBUST = '[learners.feedback]\nkind = "binary"\nslip_values = [0.0, 0.1]\nslip_weights = [0.5, 0.5]'
-"""A feedback model the shipped checkpoints (the paper's Gaussian model) were not trained for."""
+OTHER = '[learners.feedback]\nkind = "binary"\nslip_values = [0.0, 0.1]\nslip_weights = [0.5, 0.5]'
+"""A feedback model neither shipped set was trained for (the default set's hazard is .02)."""
+PAPER = '[learners.feedback]\nkind = "gaussian"\nvariance = 0.1'
 
 
 def _protocol(feedback: str) -> Protocol:
-    text = protocol_text(**{'checkpoint = "shipped"': f'checkpoint = "shipped"\n\n{feedback}'})
-    return parse_protocol(text).protocol
+    """The shipped protocol with its ``[learners.feedback]`` table replaced by ``feedback``."""
+    text = default_protocol().source_text
+    start = text.index("[learners.feedback]")
+    end = text.index("[[categories]]")
+    return parse_protocol(text[:start] + feedback + "\n\n" + text[end:]).protocol
+
+
+def test_each_feedback_model_gets_the_set_trained_for_it() -> None:
+    shipped = default_protocol().protocol
+    category = shipped.categories[0]
+    robust = learner_spec(shipped, "C2", category, None)
+    assert "trained_for_other_feedback" not in robust.config
+    assert Path(robust.config["checkpoint"]).parent == PRETRAINED_DIR / "online"
+    paper = learner_spec(_protocol(PAPER), "C2", category, None)
+    assert "trained_for_other_feedback" not in paper.config
+    assert Path(paper.config["checkpoint"]).parent == REPLICATION_DIR / "online"
+    assert robust.checkpoint_sha256 != paper.checkpoint_sha256
 
 
 def test_a_checkpoint_trained_for_other_participants_is_refused_unless_accepted() -> None:
-    shipped = default_protocol().protocol
-    category = shipped.categories[0]
-    spec = learner_spec(shipped, "C2", category, None)
-    assert "trained_for_other_feedback" not in spec.config  # the paper's model: as trained
+    category = default_protocol().protocol.categories[0]
     with pytest.raises(Conflict) as refused:
-        learner_spec(_protocol(ROBUST), "C2", category, None)
+        learner_spec(_protocol(OTHER), "C2", category, None)
     message = refused.value.message
-    assert "was meta-trained for gaussian answers (σ² 0.1), slip 0, hazard 0" in message
-    assert "declares binary answers, slips 0–0.1, hazard 0" in message
+    assert (
+        "was meta-trained for binary answers, slips 0/0.025/0.05/0.075/0.1 equally likely, "
+        "hazard 0.02" in message
+    )
+    assert "declares binary answers, slips 0/0.1 equally likely, hazard 0" in message
     assert "learners.feedback.accept_other_checkpoint = true" in message
     accepted = learner_spec(
-        _protocol(ROBUST + "\naccept_other_checkpoint = true"), "C2", category, None
+        _protocol(OTHER + "\naccept_other_checkpoint = true"), "C2", category, None
     )
-    assert accepted.config["trained_for_other_feedback"]["kind"] == "gaussian"  # recorded
+    assert accepted.config["trained_for_other_feedback"]["hazard"] == 0.02  # recorded
     assert build(accepted).probabilities().shape == (len(category.questions),)
-    exp3 = learner_spec(_protocol(ROBUST), "C1", category, None)  # Exp3 is not trained
+    exp3 = learner_spec(_protocol(OTHER), "C1", category, None)  # Exp3 is not trained
     assert exp3.kind == "exp3"
 
 
+def test_learners_enrolled_before_the_robust_set_shipped_still_restore() -> None:
+    """Until issue 19 the paper's-model set lived where the robust set is now: a learner that
+    recorded that path and an old hash is restored from the replication set, by its hash."""
+    for old_path in sorted((REPLICATION_DIR / "online").iterdir()):
+        old = load_checkpoint(old_path)
+        recorded = PRETRAINED_DIR / "online" / old_path.name
+        assert load_checkpoint(recorded).sha256 != old.sha256
+        spec = LearnerSpec("meta", old.n_arms, {"checkpoint": str(recorded)}, old.sha256)
+        assert recorded_checkpoint(spec).path == old_path
+
+
 def test_the_protocols_feedback_model_carries_its_reward_map() -> None:
-    protocol = _protocol(ROBUST)
+    protocol = _protocol(OTHER)
     model = feedback_model(protocol)
     assert (model.kind, model.slips, model.slip_weights) == ("binary", (0.0, 0.1), (0.5, 0.5))
     assert (model.yes, model.no) == (protocol.reward.yes, protocol.reward.no)

@@ -102,31 +102,35 @@ def _problems(text: str) -> str:
         ),
         ("gamma = 0.5", "gamma = 0.0", "lab.toml: learners.exp3.gamma: Input should be greater"),
         (
-            'checkpoint = "shipped"',
-            'checkpoint = "shipped"\n\n[learners.feedback]\nslip = 0.5',
+            "slip_values = [0.0, 0.025, 0.05, 0.075, 0.1]\n"
+            "slip_weights = [0.2, 0.2, 0.2, 0.2, 0.2]",
+            "slip = 0.5",
             "lab.toml: learners.feedback.slip: Input should be less than 0.5",
         ),
         (
-            'checkpoint = "shipped"',
-            'checkpoint = "shipped"\n\n[learners.feedback]\nhazard = -0.1',
+            "hazard = 0.02",
+            "hazard = -0.1",
             "lab.toml: learners.feedback.hazard: Input should be greater than or equal to 0",
         ),
         (
-            'checkpoint = "shipped"',
-            'checkpoint = "shipped"\n\n[learners.feedback]\n'
-            "slip_values = [0.0, 0.1]\nslip_weights = [0.5, 0.6]",
+            "slip_weights = [0.2, 0.2, 0.2, 0.2, 0.2]",
+            "slip_weights = [0.2, 0.2, 0.2, 0.2, 0.3]",
             "lab.toml: learners.feedback.slip_weights: must be non-negative and sum to 1",
         ),
         (
-            'checkpoint = "shipped"',
-            'checkpoint = "shipped"\n\n[learners.feedback]\nslip_values = [0.6]\n'
-            "slip_weights = [1.0]",
+            "slip_values = [0.0, 0.025, 0.05, 0.075, 0.1]",
+            "slip_values = [0.0, 0.025, 0.05, 0.075, 0.6]",
             "lab.toml: learners.feedback.slip_values: every slip rate must lie in [0, 0.5)",
         ),
         (
-            'checkpoint = "shipped"',
-            'checkpoint = "shipped"\n\n[learners.feedback]\nslip_values = [0.1]',
+            "slip_weights = [0.2, 0.2, 0.2, 0.2, 0.2]",
+            "",
             "lab.toml: learners.feedback: give slip_values and slip_weights together",
+        ),
+        (
+            "hazard = 0.02",
+            "hazard = 0.02\nslip = 0.05",
+            "lab.toml: learners.feedback.slip: give either slip or a slip prior, not both",
         ),
     ],
 )

@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
+
 import pytest
 from sqlalchemy import select, update
 
-from app.services import learners, verify
+from app.protocol import parse_protocol
+from app.services import learners, studies, verify
+from app.services.audit import Actor
 from app.tables import LearnerState, Run, RunStatus, StudySession
-from tests.conftest import Lab
+from models.checkpoints import PRETRAINED_DIR, REPLICATION_DIR, load_checkpoint
+from tests.conftest import Lab, protocol_text
 
 
 def _findings(lab: Lab) -> list[tuple[str, str]]:
@@ -98,3 +104,57 @@ def test_close_compares_structure_exactly_and_numbers_within_the_tolerance() -> 
     assert not verify._close(5, 5.000000001)  # an integer is compared exactly
     assert verify._close(3, 3) and verify._close(float("inf"), float("inf"))
     assert not verify._close(2**62, 2**62 + 10**8)
+
+
+ROBUST_TABLE = (
+    'kind = "binary"\nslip_values = [0.0, 0.025, 0.05, 0.075, 0.1]\n'
+    "slip_weights = [0.2, 0.2, 0.2, 0.2, 0.2]\nhazard = 0.02"
+)
+
+
+@pytest.mark.parametrize("participants", ["robust", "paper"])
+def test_verify_replays_learners_of_the_default_and_the_replication_set(
+    lab: Lab, participants: str
+) -> None:
+    """Both C2 sets replay: the default set (the shipped protocol's model) and the replication
+    set (the paper's model), also for a learner enrolled before issue 19, whose recorded path is
+    where the replication set used to be."""
+    changes = {'learner = "exp3"': 'learner = "meta"'}
+    if participants == "paper":
+        changes[ROBUST_TABLE] = 'kind = "gaussian"'
+    with lab.database.writing() as db:
+        studies.create_study(
+            db, name="c2", loaded=parse_protocol(protocol_text(**changes)), actor=Actor.system()
+        )
+    c2 = replace(lab, study="c2")
+    c2.enrol_and_assign()
+    for _ in ("familiarisation", "session 1"):
+        c2.start_session()
+        c2.run_session(preferred=1)
+    expected = PRETRAINED_DIR if participants == "robust" else REPLICATION_DIR
+    with lab.database.writing() as db:
+        states = list(db.scalars(select(LearnerState)))
+        assert states and {s.kind for s in states} == {"meta"}
+        for state in states:
+            assert Path(state.config["checkpoint"]).parent == expected / "online"
+            if participants == "paper":  # as a study enrolled before the robust set shipped
+                old_place = PRETRAINED_DIR / "online" / Path(state.config["checkpoint"]).name
+                db.execute(
+                    update(LearnerState)
+                    .where(LearnerState.id == state.id)
+                    .values(config={**state.config, "checkpoint": str(old_place)})
+                )
+        db.commit()
+    assert _findings(c2) == []
+    with lab.database.writing() as db:  # and a real difference is still found
+        first = db.scalars(select(LearnerState)).first()
+        assert first is not None
+        other = REPLICATION_DIR if participants == "robust" else PRETRAINED_DIR
+        name = Path(first.config["checkpoint"]).name
+        db.execute(
+            update(LearnerState)
+            .where(LearnerState.id == first.id)
+            .values(checkpoint_sha256=load_checkpoint(other / "online" / name).sha256)
+        )
+        db.commit()
+    assert _findings(c2)

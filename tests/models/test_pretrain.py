@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from models.checkpoints import PRETRAINED_DIR, load_checkpoint, observation_for
+from models.feedback import FeedbackModel
 from models.inner_loops import (
     objective_terms,
     online_advantages,
@@ -27,11 +28,12 @@ from models.inner_loops import (
     sample_paper_batch,
 )
 from models.learners.meta_policy import MetaPolicyLearner
-from models.learners.mlp_policy import init_params, probabilities, update_params
+from models.learners.mlp_policy import init_params, update_params
 from models.meta_torch import DTYPE, apply_step, initial_theta, layout_for
 from models.pretrain import (
     CALIBRATION_SCALES,
     PretrainArgs,
+    as_checkpoint,
     calibrate_step_scale,
     pretrain,
     select_calibrated,
@@ -82,39 +84,91 @@ def test_torch_step_matches_the_numpy_learner() -> None:
         np.testing.assert_allclose(got[name].numpy(), expected[name], rtol=1e-12, atol=1e-14)
 
 
-@pytest.mark.parametrize("rule", ["natural_expected", "natural", "gradient"])
-def test_online_rollout_is_the_deployed_learner(rule: str) -> None:
-    """The differentiable inner loop and the numpy learner take the same 4 steps on 6 tasks."""
-    args, rng, obs, layout, theta = _setup("online", online_rule=rule)
+ROBUST: dict[str, Any] = {
+    "feedback": FeedbackModel(slips=(0.0, 0.2), slip_weights=(0.5, 0.5), hazard=0.3).to_json(),
+    "anchor": True,
+    "forgetting": True,
+    "surprise_gates": True,
+    "bounded_baseline": True,
+    "selection": "log_score",
+}
+"""A feedback model with slips and a hazard large enough that 6 tasks × 4 answers see both."""
+
+
+@pytest.mark.parametrize(
+    ("rule", "robust"),
+    [
+        ("natural_expected", False),
+        ("natural", False),
+        ("gradient", False),
+        ("natural_expected", True),
+        ("gradient", True),
+    ],
+)
+def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool) -> None:
+    """The differentiable inner loop and the deployed numpy learner (built from the checkpoint
+    training would write) take the same 4 steps on 6 tasks: with the paper's Gaussian rewards,
+    and with yes/no answers that slip, a preference that changes, the anchor, forgetting and the
+    surprise gates."""
+    args, rng, obs, layout, theta = _setup("online", online_rule=rule, **(ROBUST if robust else {}))
     batch = sample_online_batch(args, rng)
+    if robust:  # the draws exercise what they should
+        assert bool(batch.slipped.any()) and bool((batch.preferred != batch.preferred[:, :1]).any())
+    if robust:  # gates away from zero, so their arithmetic is compared too
+        values = layout.unflatten(theta)
+        values["surprise_step"].copy_(torch.linspace(-0.5, 0.5, args.horizon))
+        values["surprise_retention"].copy_(torch.linspace(-1.0, 1.0, args.horizon))
     with torch.no_grad():
         rollout = online_rollout(theta, layout, obs, args, batch)
-    values = {k: v.numpy() for k, v in layout.unflatten(theta).items()}
-    params = {name: values[name] for name in ("W1", "b1", "W2", "b2")}
-    damping = float(np.exp(values["log_damping"][0])) if "log_damping" in values else 1.0
+    checkpoint = as_checkpoint(theta, layout, args)
+    assert (checkpoint.prior is not None) == robust and (checkpoint.retention is not None) == robust
+    assert (checkpoint.gates is not None) == robust
     for task in range(args.tasks_per_batch or 0):
-        net = dict(params)
+        learner = MetaPolicyLearner(checkpoint)
+        np.testing.assert_allclose(
+            np.exp(rollout.log_probs[0][task].numpy()), learner.probabilities(), rtol=1e-12
+        )
         for t in range(args.horizon):
             action = int(rollout.actions[task, t])
-            reward = float(action == int(batch.preferred[task])) + np.sqrt(args.variance) * float(
-                batch.noise[task, t]
-            )
-            net = update_params(
-                net,
-                obs.numpy(),
-                np.asarray(action),
-                np.asarray(reward),
-                step_size=float(np.exp(values["log_step"][t])),
-                baseline=float(values["baseline"][t]),
-                damping=damping,
-                rule=rule,  # type: ignore[arg-type]
-            )
+            says_yes = (action == int(batch.preferred[task, t])) != bool(batch.slipped[task, t])
+            reward = float(says_yes)
+            if not robust:
+                reward += np.sqrt(args.variance) * float(batch.noise[task, t])
+            learner.update(action, reward)
             np.testing.assert_allclose(
                 np.exp(rollout.log_probs[t + 1][task].numpy()),
-                probabilities(net, obs.numpy()),
+                learner.probabilities(),
                 rtol=1e-10,
                 atol=1e-12,
             )
+
+
+def test_legacy_runs_draw_exactly_what_they_drew_before_issue_19() -> None:
+    """Without a feedback model the batch is the old one (so old configs reproduce their
+    checkpoints): the same draws in the same order, the preference fixed, no slips."""
+    args, rng, *_ = _setup("online")
+    batch = sample_online_batch(args, rng)
+    _, old_rng, *_ = _setup("online")  # the old code's draws, by hand
+    b, t = args.tasks_per_batch or 0, args.horizon
+    preferred = args.tasks.sample_preferred(old_rng, b)
+    np.testing.assert_array_equal(batch.preferred.numpy(), np.repeat(preferred[:, None], t, 1))
+    np.testing.assert_array_equal(batch.uniforms.numpy(), old_rng.random((b, t)))
+    np.testing.assert_array_equal(batch.noise.numpy(), old_rng.standard_normal((b, t)))
+    assert not bool(batch.slipped.any())
+    assert rng.random() == old_rng.random()
+
+
+def test_a_bounded_baseline_stays_between_the_answers_rewards() -> None:
+    """However far meta-training pushes it, a yes still adds and a no still subtracts."""
+    args, _, _, layout, theta = _setup("online", **ROBUST)
+    values = layout.unflatten(theta)
+    assert "baseline" not in values
+    np.testing.assert_allclose(as_checkpoint(theta, layout, args).baselines, 0.5)
+    values["baseline_logit"].copy_(torch.tensor([-80.0, -3.0, 3.0, 80.0]))
+    got = as_checkpoint(theta, layout, args).baselines
+    assert np.all(got >= 0.0) and np.all(got <= 1.0) and got[1] < 0.5 < got[2]
+    with pytest.raises(ValueError, match="yes/no feedback model"):
+        PretrainArgs(bounded_baseline=True).resolved()
 
 
 def test_natural_expected_starts_at_the_bayes_update() -> None:
@@ -387,7 +441,12 @@ def test_wrong_penalty_adds_log_of_the_doubt_about_wrong_questions() -> None:
 
     log_probs = [torch.log(torch.tensor([[0.2, 0.5, 0.3]], dtype=DTYPE))] * 2
     rollout = Rollout(log_probs, torch.zeros((1, 1), dtype=torch.long))
-    batch = OnlineBatch(torch.tensor([2]), torch.zeros((1, 1)), torch.zeros((1, 1)))
+    batch = OnlineBatch(
+        torch.tensor([[2]]),
+        torch.zeros((1, 1)),
+        torch.zeros((1, 1)),
+        torch.zeros((1, 1), dtype=torch.bool),
+    )
     plain = objective_terms(rollout, batch, "log_score")
     penalised = objective_terms(rollout, batch, "log_score", wrong_penalty=2.0)
     assert float(plain[0, 0]) == pytest.approx(np.log(0.3))
