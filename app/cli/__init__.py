@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from app.cli import accounts, admin, analysis, engine, exports, robot, runtime
+from app.cli import accounts, admin, analysis, engine, exports, population, robot, runtime
 from app.cli.errors import ErrorsAsMessages
 
 cli = typer.Typer(
@@ -26,6 +26,7 @@ robot.register(cli)
 analysis.register(cli)
 exports.register(cli)
 engine.register(cli)
+population.register(cli)
 
 
 def main() -> None:

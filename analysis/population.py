@@ -1,0 +1,204 @@
+"""A study's population as a file: fitted from a step log (models/population.py), saved with
+where it came from and a hash of its content, and read back verified (issue 20).
+
+The file is JSON::
+
+    {"format": "trustlab-population", "version": 1,
+     "content": {"source": {...}, "categories": {NAME: {"arms", "participants", "answers",
+                 "prior", "prior_ci", "slip", "slip_ci", "hazard", "hazard_ci",
+                 "log_likelihood", "iterations", "converged"}}, "bootstrap": {...}},
+     "sha256": "<SHA-256 of the canonical JSON of content>"}
+
+``source`` names the studies (or the steps CSV) and the SHA-256 of the steps the fit read, so a
+checkpoint trained for the population, and a report, can say exactly where the prior came from.
+An edited file no longer matches its hash and is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from models.population import AnswerSequences, bootstrap, fit_category
+
+FORMAT = "trustlab-population"
+VERSION = 1
+STEP_COLUMNS = ("participant", "category", "session", "run", "iteration", "action", "answer")
+"""The columns of a steps CSV (``trustlab export --format steps-csv``) the fit reads."""
+
+
+def steps_sha256(steps: pd.DataFrame) -> str:
+    """SHA-256 of the fit's input: the step columns in their canonical order, as CSV."""
+    frame = steps.loc[:, list(STEP_COLUMNS)].sort_values(list(STEP_COLUMNS[:5]), kind="stable")
+    return hashlib.sha256(frame.to_csv(index=False).encode("utf-8")).hexdigest()
+
+
+def sequences_from_steps(
+    steps: pd.DataFrame, arms: dict[str, int] | None = None
+) -> dict[str, AnswerSequences]:
+    """Each category's answer sequences, in session, run, iteration order per participant.
+
+    ``arms`` gives each category's K; without it K is read from the ``p_before_*`` columns a
+    steps CSV carries (the probabilities the learner logged, one per question).
+
+    Raises
+    ------
+    ValueError
+        Naming the missing columns, or a category whose K cannot be told.
+    """
+    missing = [column for column in STEP_COLUMNS if column not in steps.columns]
+    if missing:
+        raise ValueError(f"the steps table lacks the column(s) {', '.join(missing)}")
+    result: dict[str, AnswerSequences] = {}
+    for category, rows in steps.groupby("category", sort=True):
+        name = str(category)
+        k = (arms or {}).get(name) or _arms_from_probabilities(rows, name)
+        ordered = rows.sort_values(["participant", "session", "run", "iteration"], kind="stable")
+        position = ordered.groupby("participant", sort=False).cumcount().to_numpy()
+        people = pd.Index(pd.unique(ordered["participant"]))
+        index = people.get_indexer(ordered["participant"])
+        actions = np.full((len(people), int(position.max()) + 1), -1, dtype=np.int64)
+        answers = np.zeros(actions.shape, dtype=bool)
+        try:
+            actions[index, position] = ordered["action"].astype(int).to_numpy()
+            answers[index, position] = ordered["answer"].astype(int).to_numpy() == 1
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"category {name!r}: action and answer must be whole numbers"
+            ) from None
+        result[name] = AnswerSequences(k, actions, answers)
+    return result
+
+
+def _arms_from_probabilities(rows: pd.DataFrame, category: str) -> int:
+    columns = [c for c in rows.columns if str(c).startswith("p_before_")]
+    if not columns:
+        raise ValueError(
+            f"category {category!r}: the number of questions is unknown (no p_before_* columns)"
+        )
+    return int(rows[columns].iloc[0].notna().sum())
+
+
+@dataclass(frozen=True)
+class Population:
+    """A verified population file's content."""
+
+    content: dict[str, Any]
+    sha256: str
+
+    @property
+    def categories(self) -> dict[str, dict[str, Any]]:
+        """Each category's fitted figures."""
+        return dict(self.content["categories"])
+
+    def prior(
+        self, category: str, arms: int, questions: list[str] | None = None
+    ) -> tuple[float, ...]:
+        """The fitted prior of ``category``, checked against the target's K and, when both the
+        population's source and the caller know them, its question texts."""
+        fitted = self.categories.get(category)
+        if fitted is None:
+            raise ValueError(f"the population has no category {category!r}")
+        known = self.content["source"].get("questions", {}).get(category)
+        if questions is not None and known is not None and list(known) != list(questions):
+            raise ValueError(
+                f"category {category!r} asks other questions than the study the population was "
+                "fitted from: the questions differ"
+            )
+        if int(fitted["arms"]) != arms:
+            raise ValueError(
+                f"category {category!r} had {fitted['arms']} questions where the population was "
+                f"fitted, {arms} here: the questions differ"
+            )
+        return tuple(float(v) for v in fitted["prior"])
+
+
+def fit_population(
+    steps: pd.DataFrame,
+    source: dict[str, Any],
+    *,
+    arms: dict[str, int] | None = None,
+    replicates: int = 200,
+    seed: int = 0,
+    progress: Callable[[], None] | None = None,
+) -> Population:
+    """Fit every category of ``steps`` with bootstrap intervals over participants."""
+    rng = np.random.default_rng(seed)
+    categories: dict[str, Any] = {}
+    for name, seq in sequences_from_steps(steps, arms).items():
+        try:
+            fit = fit_category(seq)
+        except ValueError as exc:
+            raise ValueError(f"category {name!r}: {exc}") from None
+        intervals = bootstrap(seq, fit, rng, replicates=replicates, progress=progress)
+        categories[name] = {
+            "arms": seq.n_arms,
+            "participants": seq.participants,
+            "answers": int(seq.observed.sum()),
+            "prior": fit.prior.tolist(),
+            "prior_ci": intervals.prior.tolist(),
+            "slip": fit.slip,
+            "slip_ci": list(intervals.slip),
+            "hazard": fit.hazard,
+            "hazard_ci": list(intervals.hazard),
+            "log_likelihood": fit.log_likelihood,
+            "iterations": fit.iterations,
+            "converged": fit.converged,
+        }
+    if not categories:
+        raise ValueError("the steps table has no answers to fit")
+    content = {
+        "source": {**source, "steps_sha256": steps_sha256(steps)},
+        "categories": categories,
+        "bootstrap": {"replicates": replicates, "level": 0.95, "seed": seed},
+    }
+    return Population(content, _digest(content))
+
+
+def _digest(content: dict[str, Any]) -> str:
+    canonical = json.dumps(content, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
+
+
+def write_population(path: Path, population: Population) -> None:
+    """Write the file (atomically: a half-written file never replaces a good one)."""
+    data = {"format": FORMAT, "version": VERSION, "content": population.content}
+    data["sha256"] = population.sha256
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    temporary.replace(path)
+
+
+def read_population(path: Path) -> Population:
+    """Read and verify a population file.
+
+    Raises
+    ------
+    ValueError
+        If it is unreadable, not a population file, or edited after its hash was recorded.
+    """
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"population file {path} cannot be read: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a {FORMAT} file")
+    if data.get("version") != VERSION:
+        raise ValueError(f"population file {path} has version {data.get('version')!r}")
+    content = data.get("content")
+    if not isinstance(content, dict) or not isinstance(content.get("categories"), dict):
+        raise ValueError(f"population file {path} has no categories")
+    digest = _digest(content)
+    if digest != data.get("sha256"):
+        raise ValueError(
+            f"population file {path} does not match its recorded hash (sha256 {digest[:12]}…): "
+            "edited after it was fitted; fit it again"
+        )
+    return Population(content, digest)

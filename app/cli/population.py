@@ -1,0 +1,130 @@
+"""``trustlab population fit``: a study's population from its step log, as a verified file.
+
+Reads the steps of one or more stored studies (or an exported steps CSV), fits each category's
+prior over the preferred question, slip rate and hazard by EM with bootstrap intervals over
+participants (analysis/population.py), writes the population file and prints a one-page summary.
+Nothing is written when the input is unusable.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import pandas as pd
+import typer
+
+from analysis.exports.tables import steps_table
+from analysis.population import STEP_COLUMNS, Population, fit_population, write_population
+from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
+from app.errors import InvalidInput
+from app.services import studies, study_data
+from app.settings import Settings
+
+population_cli = typer.Typer(help="Populations fitted from earlier participants (issue 20).")
+
+
+def register(cli: typer.Typer) -> None:
+    """Attach ``population`` to the top-level command."""
+    cli.add_typer(population_cli, name="population")
+
+
+@population_cli.command("fit")
+def fit(
+    out: Annotated[Path, typer.Option("--out", help="The population file to write.")],
+    study: Annotated[
+        list[str] | None, typer.Option("--study", help="A stored study (repeat for several).")
+    ] = None,
+    steps: Annotated[
+        Path | None, typer.Option("--steps", help="An exported steps CSV instead of studies.")
+    ] = None,
+    replicates: Annotated[
+        int, typer.Option("--replicates", help="Bootstrap resamples per category.")
+    ] = 200,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the bootstrap.")] = 0,
+    as_json: JsonFlag = False,
+) -> None:
+    """Fit the population (prior, slip rate, hazard per category) of earlier participants."""
+    if (not study) == (steps is None):
+        raise InvalidInput("give either --study NAME (one or more) or --steps CSV")
+    if replicates < 1:
+        raise InvalidInput("--replicates must be at least 1")
+    frame, source, arms = _from_csv(steps) if steps is not None else _from_studies(study or [])
+    total = replicates * frame["category"].nunique()
+    with typer.progressbar(length=total, label="bootstrap", file=None, hidden=as_json) as bar:
+        population = fit_population(
+            frame,
+            source,
+            arms=arms,
+            replicates=replicates,
+            seed=seed,
+            progress=lambda: bar.update(1),
+        )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_population(out, population)
+    if as_json:
+        emit_json({"path": str(out), "sha256": population.sha256, **population.content})
+    else:
+        typer.echo(summary(population, out))
+
+
+def _from_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int] | None]:
+    try:
+        frame = pd.read_csv(path)
+    except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise InvalidInput(f"cannot read the steps CSV {path}: {exc}") from None
+    missing = [column for column in STEP_COLUMNS if column not in frame.columns]
+    if missing:
+        raise InvalidInput(f"{path}: the steps CSV lacks the column(s) {', '.join(missing)}")
+    return frame, {"steps": str(path)}, None
+
+
+def _from_studies(names: list[str]) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int]]:
+    database = open_database(Settings())
+    require_current_schema(database)
+    frames: list[pd.DataFrame] = []
+    questions: dict[str, list[str]] = {}
+    statuses: dict[str, str] = {}
+    with database.read_session() as db:
+        for name in names:
+            found = studies.get_study(db, name)
+            dataset = study_data.load_dataset(db, study=found)
+            for category, texts in dataset.protocol["categories"].items():
+                if questions.setdefault(category, list(texts)) != list(texts):
+                    raise InvalidInput(
+                        f"category {category!r} asks other questions in {name!r} than in "
+                        f"{names[0]!r}: a population is fitted over one set of questions"
+                    )
+            frame = steps_table(dataset)
+            frame["participant"] = name + "/" + frame["participant"].astype(str)
+            frames.append(frame)
+            statuses[name] = found.status
+    steps = pd.concat(frames, ignore_index=True)
+    if steps.empty:
+        raise InvalidInput(f"{', '.join(names)}: no answered steps to fit a population from")
+    source = {"studies": names, "status_when_fitted": statuses, "questions": questions}
+    return steps, source, {category: len(texts) for category, texts in questions.items()}
+
+
+def summary(population: Population, path: Path) -> str:
+    """The one-page summary: per category N, the prior with its intervals, slip and hazard."""
+    source = population.content["source"]
+    where = ", ".join(source["studies"]) if "studies" in source else source["steps"]
+    lines = [
+        f"population fitted from {where} (steps sha256 {source['steps_sha256'][:12]}…)",
+        f"written to {path} (sha256 {population.sha256[:12]}…); 95 % bootstrap intervals",
+    ]
+    for name, fitted in population.categories.items():
+        lines.append("")
+        lines.append(
+            f"{name}: {fitted['participants']} participants, {fitted['answers']} answers"
+            + ("" if fitted["converged"] else " (EM did not converge)")
+        )
+        for k, (p, (low, high)) in enumerate(zip(fitted["prior"], fitted["prior_ci"], strict=True)):
+            lines.append(f"  question {k}: p(preferred) {p:.3f}  [{low:.3f}, {high:.3f}]")
+        lines.append(
+            f"  slip {fitted['slip']:.3f} [{fitted['slip_ci'][0]:.3f}, {fitted['slip_ci'][1]:.3f}]"
+            f"   hazard {fitted['hazard']:.3f} "
+            f"[{fitted['hazard_ci'][0]:.3f}, {fitted['hazard_ci'][1]:.3f}]"
+        )
+    return "\n".join(lines)
