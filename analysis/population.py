@@ -25,7 +25,10 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import plotly.graph_objects as go
+from plotly.subplots import make_subplots
 
+from analysis.figures import PALETTE
 from models.population import AnswerSequences, bootstrap, fit_category
 
 FORMAT = "trustlab-population"
@@ -202,3 +205,49 @@ def read_population(path: Path) -> Population:
             "edited after it was fitted; fit it again"
         )
     return Population(content, digest)
+
+
+def prior_figure(population: Population) -> go.Figure:
+    """The fitted prior of each category: one bar per question with its bootstrap interval, the
+    uniform prior marked, so a reader sees at once which questions the population favours."""
+    categories = population.categories
+    figure = make_subplots(rows=1, cols=len(categories), subplot_titles=list(categories))
+    for column, (name, fitted) in enumerate(categories.items(), start=1):
+        prior = np.asarray(fitted["prior"])
+        low, high = np.asarray(fitted["prior_ci"]).T
+        figure.add_trace(
+            go.Bar(
+                x=[f"question {k}" for k in range(prior.size)],
+                y=prior,
+                error_y={
+                    "type": "data",
+                    "symmetric": False,
+                    "array": high - prior,
+                    "arrayminus": prior - low,
+                },
+                marker_color=PALETTE[0],
+                name=f"{name} (N = {fitted['participants']})",
+                showlegend=column == 1,
+                legendgroup="prior",
+            ),
+            row=1,
+            col=column,
+        )
+        figure.add_hline(y=1 / prior.size, line_dash="dot", line_color="#888888", row=1, col=column)
+    level = population.content["bootstrap"]["level"]
+    figure.update_layout(
+        title=f"Fitted prior over the preferred question, {level:.0%} bootstrap intervals "
+        "(dotted: uniform)",
+        yaxis={"title": "p(preferred)", "range": [0, 1]},
+        paper_bgcolor="white",
+        plot_bgcolor="white",
+    )
+    return figure
+
+
+def write_prior_figure(path: Path, population: Population) -> None:
+    """The figure as a self-contained HTML page (plotly.js inline: nothing loads from a CDN)."""
+    html = prior_figure(population).to_html(full_html=True, include_plotlyjs=True)
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(html, encoding="utf-8")
+    temporary.replace(path)

@@ -2,7 +2,8 @@
 
 Reads the steps of one or more stored studies (or an exported steps CSV), fits each category's
 prior over the preferred question, slip rate and hazard by EM with bootstrap intervals over
-participants (analysis/population.py), writes the population file and prints a one-page summary.
+participants (analysis/population.py), writes the population file and, beside it, a figure of
+the fitted prior with its intervals (``FILE-stem.prior.html``), and prints a one-page summary.
 Nothing is written when the input is unusable.
 """
 
@@ -15,7 +16,13 @@ import pandas as pd
 import typer
 
 from analysis.exports.tables import steps_table
-from analysis.population import STEP_COLUMNS, Population, fit_population, write_population
+from analysis.population import (
+    STEP_COLUMNS,
+    Population,
+    fit_population,
+    write_population,
+    write_prior_figure,
+)
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
 from app.services import studies, study_data
@@ -61,11 +68,16 @@ def fit(
             progress=lambda: bar.update(1),
         )
     out.parent.mkdir(parents=True, exist_ok=True)
+    figure = out.with_name(out.stem + ".prior.html")
+    write_prior_figure(figure, population)
     write_population(out, population)
     if as_json:
-        emit_json({"path": str(out), "sha256": population.sha256, **population.content})
+        emit_json(
+            {"path": str(out), "figure": str(figure), "sha256": population.sha256}
+            | population.content
+        )
     else:
-        typer.echo(summary(population, out))
+        typer.echo(summary(population, out) + f"\n\nfigure of the fitted prior: {figure}")
 
 
 def _from_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int] | None]:

@@ -30,6 +30,11 @@ def test_fit_from_a_steps_csv_writes_a_verified_file(database_url: str, tmp_path
     assert f"population fitted from {csv}" in stdout
     assert "conation: 30 participants, 270 answers" in stdout and "question 3" in stdout
     population = read_population(out)
+    figure = tmp_path / "pilot.population.prior.html"
+    html = figure.read_text()
+    assert f"figure of the fitted prior: {figure}" in stdout
+    assert "Fitted prior over the preferred question" in html and '<script src="http' not in html
+    assert html.count('"legendgroup":"prior"') == 2  # one panel per category
     code, stdout, _ = run(
         database_url,
         "population",
@@ -65,7 +70,7 @@ def test_unusable_input_is_one_line_and_writes_nothing(database_url: str, tmp_pa
         code, _, err = run(database_url, "population", "fit", "--out", str(out), *args)
         assert code in (1, 2) and err.startswith("error: ") and message in err, err
         assert len(err.strip().splitlines()) == 1, err
-        assert not out.exists()
+        assert not out.exists() and not list(tmp_path.glob("*.html"))
 
 
 def test_fit_from_a_stored_study(lab: Lab, database_url: str, tmp_path: Path) -> None:
