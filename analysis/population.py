@@ -9,7 +9,9 @@ The file is JSON::
                  "log_likelihood", "iterations", "converged"}}, "bootstrap": {...}},
      "sha256": "<SHA-256 of the canonical JSON of content>"}
 
-``source`` names the studies (or the steps CSV) and the SHA-256 of the steps the fit read, so a
+``source`` names the studies (or the steps CSV) and ``steps_sha256``, the SHA-256 of the step
+columns the fit read, sorted and written as CSV (:func:`steps_sha256`; not the hash of the CSV
+file itself, and study participants are named ``STUDY/code``), so a
 checkpoint trained for the population, and a report, can say exactly where the prior came from.
 An edited file no longer matches its hash and is refused.
 """
@@ -70,12 +72,18 @@ def sequences_from_steps(
         actions = np.full((len(people), int(position.max()) + 1), -1, dtype=np.int64)
         answers = np.zeros(actions.shape, dtype=bool)
         try:
-            actions[index, position] = ordered["action"].astype(int).to_numpy()
-            answers[index, position] = ordered["answer"].astype(int).to_numpy() == 1
+            asked = ordered["action"].astype(int).to_numpy()
+            said = ordered["answer"].astype(int).to_numpy()
         except (TypeError, ValueError):
             raise ValueError(
                 f"category {name!r}: action and answer must be whole numbers"
             ) from None
+        if np.any(asked < 0) or np.any(asked >= k):
+            raise ValueError(f"category {name!r}: an action is outside the questions 0..{k - 1}")
+        if not np.all((said == 0) | (said == 1)):
+            raise ValueError(f"category {name!r}: every answer must be 0 (no) or 1 (yes)")
+        actions[index, position] = asked
+        answers[index, position] = said == 1
         result[name] = AnswerSequences(k, actions, answers)
     return result
 

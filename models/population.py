@@ -13,9 +13,10 @@ log records, so the choice carries no information about the preference beyond th
 likelihood of the answers given the questions asked is the full likelihood up to a factor that
 does not depend on the parameters, for Exp3 and C2 data alike. The M-step is exact for the slip
 rate and the hazard; for the prior it is the expected share of each first preference, holding the
-prior inside the switch's destination weights at its previous value (counting switch destinations
-too would bias it toward uniform: a switch away from the popular question must land elsewhere).
-That conditional step keeps the fit consistent and monotone in practice (tested). Numpy only.
+prior inside the switch's destination weights at its previous value (simply adding the switch
+destinations to the counts would bias it toward uniform: a switch away from the popular question
+must land elsewhere). That conditional step is monotone (tested) and its fixed point is the
+maximum-likelihood estimate up to the switch term, negligible at small hazards. Numpy only.
 """
 
 from __future__ import annotations

@@ -56,6 +56,9 @@ def fit(
         raise InvalidInput("give either --study NAME (one or more) or --steps CSV")
     if replicates < 1:
         raise InvalidInput("--replicates must be at least 1")
+    if out.is_dir():
+        raise InvalidInput(f"--out {out} is a directory: give the population file's path")
+    figure = out.with_name(out.stem + ".prior.html")
     frame, source, arms = _from_csv(steps) if steps is not None else _from_studies(study or [])
     total = replicates * frame["category"].nunique()
     with typer.progressbar(length=total, label="bootstrap", file=None, hidden=as_json) as bar:
@@ -67,10 +70,12 @@ def fit(
             seed=seed,
             progress=lambda: bar.update(1),
         )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    figure = out.with_name(out.stem + ".prior.html")
-    write_prior_figure(figure, population)
-    write_population(out, population)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_population(out, population)
+        write_prior_figure(figure, population)
+    except OSError as exc:
+        raise InvalidInput(f"cannot write {out}: {exc}") from None
     if as_json:
         emit_json(
             {"path": str(out), "figure": str(figure), "sha256": population.sha256}

@@ -161,7 +161,8 @@ class MetaPolicyLearner:
         self._answers = 0
 
     def step_size(self, answer_index: int) -> float:
-        """The step size of the update after answer number ``answer_index`` (0-based)."""
+        """The step size of the update after answer number ``answer_index`` (0-based), before
+        a checkpoint's surprise gate scales it (:meth:`Checkpoint.step_and_retention`)."""
         if self.learning_rate is not None:
             return self.learning_rate
         sizes = self.checkpoint.step_sizes
@@ -272,24 +273,26 @@ class MetaPolicyLearner:
                 params = {name: np.asarray(raw[name], dtype=np.float64) for name in PARAM_NAMES}
             else:
                 params = {name: _decode(name, raw[name], shapes[name]) for name in PARAM_NAMES}
+            random = state.get("init") == "random"
             start = state.get("initial")
-            initial = (
-                None
-                if start is None
-                else {name: _decode(name, start[name], shapes[name]) for name in PARAM_NAMES}
-            )
+            if random and not isinstance(start, dict):
+                raise ValueError("a randomly initialised state must record its initial weights")
+            if isinstance(start, dict) and random:
+                initial = {name: _decode(name, start[name], shapes[name]) for name in PARAM_NAMES}
+            else:
+                initial = {name: np.array(self.checkpoint.params[name]) for name in PARAM_NAMES}
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"meta state is malformed: {exc}") from None
         for name, shape in shapes.items():
-            if params[name].shape != shape or not np.all(np.isfinite(params[name])):
-                raise ValueError(f"meta state: {name} must be {shape} finite numbers")
+            for array in (params[name], initial[name]):
+                if array.shape != shape or not np.all(np.isfinite(array)):
+                    raise ValueError(f"meta state: {name} must be {shape} finite numbers")
         if answers < 0:
             raise ValueError(f"meta state has a negative answer count {answers}")
         self._params = params
         self._answers = answers
-        self._random = state.get("init") == "random"
-        if initial is not None:
-            self._set_initial(initial)
+        self._random = random
+        self._set_initial(initial)
 
     def __repr__(self) -> str:
         return (

@@ -63,9 +63,20 @@ def test_unusable_input_is_one_line_and_writes_nothing(database_url: str, tmp_pa
         (["--steps", str(tmp_path / "missing.csv")], "cannot read the steps CSV"),
         (["--study", "nope"], "nope"),
     ]
+    odd = tmp_path / "odd.csv"
+    frame = _steps(30)
+    frame.loc[frame.index[0], "answer"] = 2
+    frame.to_csv(odd, index=False)
+    cases.append((["--steps", str(odd)], "every answer must be 0 (no) or 1 (yes)"))
     small = tmp_path / "small.csv"
     _steps(4).to_csv(small, index=False)
     cases.append((["--steps", str(small)], "4 participant(s) answered here"))
+    good = tmp_path / "good.csv"
+    _steps(30).to_csv(good, index=False)
+    code, _, err = run(
+        database_url, "population", "fit", "--steps", str(good), "--out", str(tmp_path)
+    )
+    assert code == 2 and "is a directory" in err
     for args, message in cases:
         code, _, err = run(database_url, "population", "fit", "--out", str(out), *args)
         assert code in (1, 2) and err.startswith("error: ") and message in err, err

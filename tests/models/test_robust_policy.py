@@ -267,3 +267,20 @@ def test_a_yes_leaves_the_asked_question_likelier_than_a_no(path: Path) -> None:
             learner.update(0, reward)
             after[reward] = learner.probabilities()[0]
         assert after[model.yes] > after[model.no], answers_before
+
+
+def test_a_state_carries_its_start_and_a_bad_one_is_refused() -> None:
+    checkpoint = load_checkpoint(SHIPPED[0])
+    plain = MetaPolicyLearner(checkpoint)
+    plain.update(0, 1.0)
+    random = MetaPolicyLearner.random_init(checkpoint, np.random.default_rng(1))
+    random.load_state_dict(plain.state_dict())  # a checkpoint-start state: the anchor follows
+    assert random.probabilities().tobytes() == plain.probabilities().tobytes()
+    state = MetaPolicyLearner.random_init(checkpoint, np.random.default_rng(2)).state_dict()
+    without = {k: v for k, v in state.items() if k != "initial"}
+    with pytest.raises(ValueError, match="record its initial weights"):
+        MetaPolicyLearner(checkpoint).load_state_dict(without)
+    broken = MetaPolicyLearner.random_init(checkpoint, np.random.default_rng(3))
+    broken._initial["b2"][0] = np.nan  # a corrupted stored start
+    with pytest.raises(ValueError, match="finite numbers"):
+        MetaPolicyLearner(checkpoint).load_state_dict(broken.state_dict())
