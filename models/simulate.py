@@ -127,11 +127,13 @@ class BatchMetaPolicy:
         """The checkpoint's update rule with the step size and baseline of this answer."""
         c = self.checkpoint
         index = min(self.answers, c.horizon - 1)
-        p_asked = np.take_along_axis(
-            np.broadcast_to(self.probabilities(), (len(actions), c.n_arms)),
-            np.asarray(actions)[:, None],
-            axis=1,
-        )[:, 0]
+        p_asked: np.ndarray | float = 1.0  # only surprise gates need it
+        if c.gates is not None:
+            p_asked = np.take_along_axis(
+                np.broadcast_to(self.probabilities(), (len(actions), c.n_arms)),
+                np.asarray(actions)[:, None],
+                axis=1,
+            )[:, 0]
         step, retention = c.step_and_retention(self.answers, p_asked, rewards)
         if self.params["b2"].ndim == 1:
             self.params = {

@@ -195,9 +195,9 @@ class MetaPolicyLearner:
         """
         a = check_action(action, self.n_arms)
         r = check_reward(reward)
-        step, retention = self.checkpoint.step_and_retention(
-            self._answers, self.probabilities()[a], r
-        )
+        # Only surprise gates need the asked question's probability: no extra forward pass else.
+        p_asked = self.probabilities()[a] if self.checkpoint.gates is not None else 1.0
+        step, retention = self.checkpoint.step_and_retention(self._answers, p_asked, r)
         if self.learning_rate is not None:
             step = self.learning_rate
         new = update_params(

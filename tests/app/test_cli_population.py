@@ -15,17 +15,8 @@ def test_fit_from_a_steps_csv_writes_a_verified_file(database_url: str, tmp_path
     csv = tmp_path / "adaptation_steps.csv"
     _steps(30).to_csv(csv, index=False)
     out = tmp_path / "pilot.population.json"
-    code, stdout, _ = run(
-        database_url,
-        "population",
-        "fit",
-        "--steps",
-        str(csv),
-        "--out",
-        str(out),
-        "--replicates",
-        "5",
-    )
+    fit = ("population", "fit", "--steps", str(csv), "--out", str(out), "--replicates", "5")
+    code, stdout, _ = run(database_url, *fit)
     assert code == 0, stdout
     assert f"population fitted from {csv}" in stdout
     assert "conation: 30 participants, 270 answers" in stdout and "question 3" in stdout
@@ -35,18 +26,7 @@ def test_fit_from_a_steps_csv_writes_a_verified_file(database_url: str, tmp_path
     assert f"figure of the fitted prior: {figure}" in stdout
     assert "Fitted prior over the preferred question" in html and '<script src="http' not in html
     assert html.count('"legendgroup":"prior"') == 2  # one panel per category
-    code, stdout, _ = run(
-        database_url,
-        "population",
-        "fit",
-        "--steps",
-        str(csv),
-        "--out",
-        str(out),
-        "--replicates",
-        "5",
-        "--json",
-    )
+    code, stdout, _ = run(database_url, *fit, "--json")
     assert code == 0
     printed = json.loads(stdout)
     assert printed["sha256"] == population.sha256  # same data, same seed: the same file
