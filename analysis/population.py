@@ -130,6 +130,47 @@ class Population:
             )
         return tuple(float(v) for v in fitted["prior"])
 
+    def training_prior(
+        self, category: str, arms: int, questions: list[str] | None = None
+    ) -> tuple[float, ...]:
+        """The prior C2 is meta-trained on: the fitted shares as expected counts of N
+        participants, smoothed by one pseudo-participant per question (the posterior mean under a
+        uniform Dirichlet prior, Laplace's rule of succession).
+
+        Why not the fitted shares themselves: a maximum-likelihood share is 0 for a question no
+        pilot participant preferred, and an anchored policy starting at 0 could never learn that
+        someone new prefers it; and a small pilot's shares are noisy, so they should move the
+        start less than a large pilot's (with N = 6 a .7 share becomes .5, with N = 48 .67).
+        """
+        shares = np.asarray(self.prior(category, arms, questions))
+        n = int(self.categories[category]["participants"])
+        return tuple(float(v) for v in (shares * n + 1.0) / (n + arms))
+
+    @property
+    def source_label(self) -> str:
+        """Where the population came from, in a few words: the studies or the steps CSV."""
+        source = self.content["source"]
+        if "studies" in source:
+            return ", ".join(str(name) for name in source["studies"])
+        return str(source.get("steps", "a steps table"))
+
+    def record(self, category: str) -> dict[str, Any]:
+        """What a checkpoint (and a learner's config) records about the population it was trained
+        for: the file's hash, its source and the category's fitted figures."""
+        fitted = self.categories[category]
+        return {
+            "sha256": self.sha256,
+            "source": self.content["source"],
+            "category": category,
+            "participants": int(fitted["participants"]),
+            "prior": list(fitted["prior"]),
+            "prior_ci": list(fitted["prior_ci"]),
+            "slip": fitted["slip"],
+            "slip_ci": list(fitted["slip_ci"]),
+            "hazard": fitted["hazard"],
+            "hazard_ci": list(fitted["hazard_ci"]),
+        }
+
 
 def fit_population(
     steps: pd.DataFrame,

@@ -118,12 +118,31 @@ class FeedbackSettings(_Strict):
     )
 
 
+class PopulationSettings(_Strict):
+    """C2 meta-trained for a population fitted from earlier participants (issue 20,
+    docs/engine.md "Basic trust from earlier participants"). Checked at study creation: the file
+    against its hash, its categories' questions against this protocol's, each checkpoint against
+    the population it records, and the source studies' enrolment."""
+
+    file: Text = Field(description="The population file `trustlab population fit` wrote.")
+    checkpoints: Text = Field(
+        description="The directory `trustlab pretrain --population FILE --out DIR` wrote "
+        "(DIR/<category>-k<K>/ for every category)."
+    )
+    enrolling_reason: Text | None = Field(
+        default=None,
+        description="Why a population fitted from a study that is still enrolling is used anyway "
+        "(recorded in the audit log); without it such a population is refused.",
+    )
+
+
 class LearnerSettings(_Strict):
     """Per-algorithm settings shared by every category."""
 
     exp3: Exp3Settings = Field(default_factory=Exp3Settings)
     meta: MetaSettings = Field(default_factory=MetaSettings)
     feedback: FeedbackSettings = Field(default_factory=FeedbackSettings)
+    population: PopulationSettings | None = None
 
 
 class CategorySpec(_Strict):
@@ -530,6 +549,14 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
         problems.append(Problem("reward", "rewards must be finite numbers"))
     problems += _check_replies(protocol.replies)
     problems += _check_feedback(protocol.learners.feedback)
+    if protocol.learners.population is not None and protocol.learners.meta.checkpoint != "shipped":
+        problems.append(
+            Problem(
+                "learners.population",
+                "C2's checkpoints come from learners.population.checkpoints: leave "
+                "learners.meta.checkpoint unset",
+            )
+        )
     problems += _check_allocation(protocol)
     problems += _check_instruments(protocol.questionnaires)
     return problems

@@ -163,11 +163,17 @@ class Checkpoint:
     config: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
 
-    def offset_for(self, initial: Params) -> np.ndarray | None:
-        """The logit offset of a learner that starts at ``initial`` (None if not anchored)."""
+    def offset_for(self, initial: Params, *, random_init: bool = False) -> np.ndarray | None:
+        """The logit offset of a learner that starts at ``initial`` (None if not anchored).
+
+        A random initialisation is anchored at the uniform prior, not the checkpoint's: the prior
+        is part of what meta-training learned from its tasks (a population's, issue 20), and
+        the Appendix's comparison asks what the update rule does without it. For a checkpoint
+        trained on the uniform prior the two are the same."""
         if self.prior is None:
             return None
-        return anchor_offset(self.prior, initial, self.observation)
+        prior = np.full(self.n_arms, 1.0 / self.n_arms) if random_init else self.prior
+        return anchor_offset(prior, initial, self.observation)
 
     def retention_after(self, answer_index: int) -> float:
         """ρ of the forgetting step after answer number ``answer_index`` (0-based; 1: none),

@@ -124,6 +124,10 @@ class PretrainArgs:
     the best mean log π(preferred) on the training participants, uncalibrated — with slips and
     changes of mind even the exact filter is sometimes confidently wrong, so a wrong-belief
     limit would only slow the learner; the proper score makes it approximate the filter."""
+    population: dict[str, Any] | None = None
+    """The population the run trains for (``trustlab pretrain --population``): its file's
+    ``sha256``, its ``source`` and the category's fitted figures, so the checkpoint records
+    which earlier participants its ``preferred_prior`` came from (issue 20). Unset: none."""
 
     def resolved(self) -> PretrainArgs:
         """A copy with the mode-dependent defaults filled in, after checking every value."""
@@ -190,6 +194,10 @@ class PretrainArgs:
             raise ValueError("a bounded baseline needs a yes/no feedback model")
         if args.surprise_gates and not args.forgetting:
             raise ValueError("surprise gates scale the forgetting step: they need forgetting")
+        if args.population is not None and (
+            not isinstance(args.population.get("sha256"), str) or args.preferred_prior is None
+        ):
+            raise ValueError("a population run records the population's sha256 and its prior")
         if args.anchor and min(prior) <= 0:
             raise ValueError("an anchored policy needs a prior above 0 for every question")
         if model.kind == "gaussian" and not math.isclose(model.variance, args.variance):

@@ -29,7 +29,6 @@ from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
 from models.learners.mlp_policy import (
     Params,
-    anchor_offset,
     init_params,
     probabilities,
     retain,
@@ -114,9 +113,8 @@ class BatchMetaPolicy:
         self.checkpoint = checkpoint
         self.initial: Params = dict(checkpoint.params if params is None else params)
         self.params: Params = dict(self.initial)
-        self.offset = None
-        if checkpoint.prior is not None:  # one anchor per participant when each has its own start
-            self.offset = anchor_offset(checkpoint.prior, self.initial, checkpoint.observation)
+        # One anchor per participant when each has its own start (random ones: uniform).
+        self.offset = checkpoint.offset_for(self.initial, random_init=params is not None)
         self.answers = 0
 
     def probabilities(self) -> np.ndarray:

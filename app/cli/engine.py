@@ -99,6 +99,34 @@ def _scenario(
     return Scenario(feedback=model, change_after=change_after, acceptable=acceptable)
 
 
+def _population_participants(
+    path: Path, category: str | None, arms: int, change_after: int | None
+) -> tuple[str, TaskDistribution, Scenario]:
+    """Participants drawn from a fitted population: the category's fitted prior over the
+    preferred question, answering yes/no with its fitted slip rate and hazard (and the category,
+    which also picks the checkpoint)."""
+    from analysis.population import read_population
+
+    fitted_population = read_population(path)
+    names = list(fitted_population.categories)
+    if category is None:
+        if len(names) != 1:
+            raise ValueError(
+                f"--population has categories {', '.join(names)}: name one (--category)"
+            )
+        category = names[0]
+    prior = fitted_population.prior(category, arms)
+    fitted = fitted_population.categories[category]
+    model = FeedbackModel(
+        kind="binary", slips=(float(fitted["slip"]),), hazard=float(fitted["hazard"])
+    )
+    return (
+        category,
+        TaskDistribution(arms, prior),
+        Scenario(feedback=model, change_after=change_after),
+    )
+
+
 def _checkpoint_set(mode: str, directory: Path | None, scenario: Scenario) -> Path:
     """``--checkpoint-dir``, else the shipped set trained for how the participants answer (the
     replication set for the paper's Gaussian participants, the default set for yes/no ones)."""
@@ -169,14 +197,32 @@ def simulate_adaptation_command(
         int,
         typer.Option("--acceptable", help="Participants say yes to M questions (default 1)."),
     ] = 1,
+    population: Annotated[
+        Path | None,
+        typer.Option(
+            "--population",
+            help="Draw participants from this fitted population (its --category's prior, slip "
+            "rate and hazard).",
+        ),
+    ] = None,
 ) -> None:
     """Simulate participants answering Exp3, the meta-policy, its random init and the exact
     reference (Bayes; a forward filter when participants slip or change their minds)."""
     if participants < 1 or iterations < 1:
         raise _fail("--participants and --iterations must be at least 1")
     try:
-        scenario = _scenario(feedback, slip, hazard, change_after, acceptable)
-        tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
+        if population is None:
+            scenario = _scenario(feedback, slip, hazard, change_after, acceptable)
+            tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
+        else:
+            if feedback or slip or hazard or preferred_prior or acceptable != 1:
+                raise ValueError(
+                    "--population gives the prior, slip rate and hazard: leave --feedback, "
+                    "--slip, --hazard, --preferred-prior and --acceptable unset"
+                )
+            category, tasks, scenario = _population_participants(
+                population, category, arms, change_after
+            )
         root = _checkpoint_set(mode, checkpoint_dir, scenario)
         ckpt = _checkpoint(arms, category, mode, checkpoint, root)
         result = simulate_adaptation(
@@ -366,6 +412,14 @@ def pretrain_command(
             "with forgetting).",
         ),
     ] = None,
+    population: Annotated[
+        Path | None,
+        typer.Option(
+            "--population",
+            help="online: train each category on the prior fitted from earlier participants "
+            "(trustlab population fit); the checkpoint records the population.",
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Meta-train checkpoints (MAML with a TRPO outer step) and write them with their hash."""
@@ -376,6 +430,11 @@ def pretrain_command(
     try:
         training = _training_feedback(
             mode, protocol, paper_feedback, anchor, forgetting, surprise_gates
+        )
+        fitted = (
+            {}
+            if population is None
+            else _population_priors(population, names, arms, protocol, preferred_prior, training)
         )
         jobs = [
             PretrainArgs(
@@ -391,7 +450,8 @@ def pretrain_command(
                 online_rule=online_rule,
                 calibrate=calibrate,
                 wrong_penalty=wrong_penalty,
-                preferred_prior=_prior(preferred_prior, arms),
+                preferred_prior=fitted[name][0] if fitted else _prior(preferred_prior, arms),
+                population=fitted[name][1] if fitted else None,
                 **training,
             ).resolved()
             for name in names
@@ -486,6 +546,66 @@ def _training_feedback(
         "bounded_baseline": model.kind == "binary",
         "selection": "log_score",
     }
+
+
+def _population_priors(
+    path: Path,
+    names: list[str],
+    arms: int,
+    protocol: Path | None,
+    preferred_prior: str | None,
+    training: dict[str, Any],
+) -> dict[str, tuple[tuple[float, ...], dict[str, Any]]]:
+    """Each category's training prior and population record from a verified population file.
+
+    The categories' questions are checked against the protocol's (``--protocol`` or the shipped
+    one) where it has the category. The slips and hazard C2 trains for stay the protocol's
+    declared model (docs/engine.md, "Basic trust from earlier participants"); a fitted rate
+    outside it is reported on stderr so the lab can widen ``[learners.feedback]``.
+    """
+    from analysis.population import read_population
+    from app.protocol import default_protocol, load_protocol_file
+
+    if preferred_prior is not None:
+        raise ValueError("--population and --preferred-prior exclude each other")
+    if GENERIC in names:
+        raise ValueError(
+            "a population is fitted per category: name one with --category (or all), not generic"
+        )
+    if "feedback" not in training:
+        raise ValueError(
+            "--population trains for a protocol's yes/no feedback model, in online mode"
+        )
+    loaded = default_protocol() if protocol is None else load_protocol_file(protocol)
+    known = {spec.name: list(spec.questions) for spec in loaded.protocol.categories}
+    fitted_population = read_population(path)
+    model = FeedbackModel.from_json(training["feedback"])
+    priors: dict[str, tuple[tuple[float, ...], dict[str, Any]]] = {}
+    for name in names:
+        prior = fitted_population.training_prior(name, arms, known.get(name))
+        record = fitted_population.record(name)
+        priors[name] = (prior, record)
+        for problem in _outside_model(record, model):
+            typer.echo(f"warning: {name}: {problem}", err=True)
+    return priors
+
+
+def _outside_model(record: dict[str, Any], model: FeedbackModel) -> list[str]:
+    """The fitted slip or hazard the declared feedback model does not cover."""
+    problems = []
+    slip_low = float(record["slip_ci"][0])
+    if slip_low > float(model.slip_values.max()):
+        problems.append(
+            f"the fitted slip rate {record['slip']:.3f} (interval from {slip_low:.3f}) is above "
+            f"every slip rate of the protocol's model ({model.describe()})"
+        )
+    hazard_low, hazard_high = (float(v) for v in record["hazard_ci"])
+    if not hazard_low <= model.hazard <= hazard_high:
+        problems.append(
+            f"the protocol's hazard {model.hazard:g} is outside the fitted interval "
+            f"[{hazard_low:.3f}, {hazard_high:.3f}]"
+        )
+    return problems
 
 
 def _train_with_progress(args: Any, target: Path, *, show: bool) -> Checkpoint:

@@ -27,6 +27,7 @@ from app.cli.admin import JsonFlag, emit_json, open_database, require_current_sc
 from app.errors import InvalidInput
 from app.services import studies, study_data
 from app.settings import Settings
+from app.tables import StudyStatus
 
 population_cli = typer.Typer(help="Populations fitted from earlier participants (issue 20).")
 
@@ -49,6 +50,13 @@ def fit(
         int, typer.Option("--replicates", help="Bootstrap resamples per category.")
     ] = 200,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the bootstrap.")] = 0,
+    enrolling_reason: Annotated[
+        str | None,
+        typer.Option(
+            "--enrolling-reason",
+            help="Fit from a study that is still enrolling anyway, for this reason (recorded).",
+        ),
+    ] = None,
     as_json: JsonFlag = False,
 ) -> None:
     """Fit the population (prior, slip rate, hazard per category) of earlier participants."""
@@ -59,7 +67,12 @@ def fit(
     if out.is_dir():
         raise InvalidInput(f"--out {out} is a directory: give the population file's path")
     figure = out.with_name(out.stem + ".prior.html")
-    frame, source, arms = _from_csv(steps) if steps is not None else _from_studies(study or [])
+    if enrolling_reason is not None and not enrolling_reason.strip():
+        raise InvalidInput("--enrolling-reason needs the reason, in words")
+    if steps is not None:
+        frame, source, arms = _from_csv(steps)
+    else:
+        frame, source, arms = _from_studies(study or [], enrolling_reason)
     total = replicates * frame["category"].nunique()
     with typer.progressbar(length=total, label="bootstrap", file=None, hidden=as_json) as bar:
         population = fit_population(
@@ -96,7 +109,12 @@ def _from_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int] 
     return frame, {"steps": str(path)}, None
 
 
-def _from_studies(names: list[str]) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int]]:
+def _from_studies(
+    names: list[str], enrolling_reason: str | None
+) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int]]:
+    """The studies' steps, their questions and K per category. A study still enrolling is
+    refused unless the lab records why (docs/engine.md: a prior fitted on a running study's
+    participants confounds a between-subjects comparison)."""
     database = open_database(Settings())
     require_current_schema(database)
     frames: list[pd.DataFrame] = []
@@ -116,10 +134,23 @@ def _from_studies(names: list[str]) -> tuple[pd.DataFrame, dict[str, Any], dict[
             frame["participant"] = name + "/" + frame["participant"].astype(str)
             frames.append(frame)
             statuses[name] = found.status
+    enrolling = sorted(name for name, status in statuses.items() if status == StudyStatus.OPEN)
+    if enrolling and enrolling_reason is None:
+        raise InvalidInput(
+            f"{', '.join(enrolling)} is still enrolling: a prior fitted on a running study's "
+            "participants confounds its conditions; close its enrolment first (its study page) or "
+            "pass --enrolling-reason TEXT"
+        )
     steps = pd.concat(frames, ignore_index=True)
     if steps.empty:
         raise InvalidInput(f"{', '.join(names)}: no answered steps to fit a population from")
-    source = {"studies": names, "status_when_fitted": statuses, "questions": questions}
+    source: dict[str, Any] = {
+        "studies": names,
+        "status_when_fitted": statuses,
+        "questions": questions,
+    }
+    if enrolling:
+        source["enrolling_reason"] = enrolling_reason
     return steps, source, {category: len(texts) for category, texts in questions.items()}
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from app.errors import Conflict
 from app.protocol import CategorySpec, LearnerKind, Protocol
+from app.services import populations
 from app.tables import LearnerState
 from models.checkpoints import (
     PRETRAINED_DIR,
@@ -73,6 +74,8 @@ def checkpoint_at(path: Path, n_arms: int) -> Checkpoint:
 def _checkpoint_path(
     protocol: Protocol, category: CategorySpec, checkpoint_dir: Path | None
 ) -> Path:
+    if protocol.learners.population is not None:
+        return populations.checkpoint_path(protocol, category)
     setting = protocol.learners.meta.checkpoint
     if setting != "shipped":
         return Path(setting)
@@ -128,6 +131,10 @@ def learner_spec(
     path = _checkpoint_path(protocol, category, checkpoint_dir)
     checkpoint = checkpoint_at(path, n_arms)
     config: dict[str, Any] = {"checkpoint": str(path)}
+    population = populations.population_of(protocol)
+    if population is not None:
+        populations.check_trained_for(checkpoint, population, category.name)
+        config["population_sha256"] = population.sha256
     mismatch = _accepted_mismatch(protocol, checkpoint)
     if mismatch is not None:
         config["trained_for_other_feedback"] = mismatch.to_json()

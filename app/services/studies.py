@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, NotFound
 from app.inputs import STUDY_NAME
 from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
-from app.services import audit
+from app.services import audit, populations
 from app.services.audit import Actor
 from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
@@ -23,6 +23,7 @@ def create_study(db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor
     STUDY_NAME.check(name)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:
         raise Conflict(f"a study named {name!r} already exists")
+    population = populations.check_population_use(db, loaded.protocol)
     study = Study(
         name=name,
         title=loaded.protocol.study.title,
@@ -44,7 +45,7 @@ def create_study(db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor
         action="study.created",
         study_id=study.id,
         subject=name,
-        details={"protocol_sha256": loaded.sha256},
+        details={"protocol_sha256": loaded.sha256} | (population or {}),
     )
     db.commit()
     return study

@@ -117,7 +117,7 @@ class MetaPolicyLearner:
 
     def _set_initial(self, initial: Params) -> None:
         self._initial = initial
-        self._offset = self.checkpoint.offset_for(initial)
+        self._offset = self.checkpoint.offset_for(initial, random_init=self._random)
 
     @classmethod
     def from_checkpoint(
@@ -292,7 +292,7 @@ class MetaPolicyLearner:
         self._params = params
         self._answers = answers
         self._random = random
-        self._set_initial(initial)
+        self._set_initial(initial)  # after _random: a random start is anchored at uniform
 
     def __repr__(self) -> str:
         return (

@@ -18,13 +18,17 @@ from analysis.population import (
 )
 
 
-def _steps(n: int = 30, seed: int = 0) -> pd.DataFrame:
-    """A steps table as `trustlab export --format steps-csv` writes it: two categories, K = 4
-    and 3, participants who mostly prefer question 0 and slip now and then."""
+def _steps(
+    n: int = 30,
+    seed: int = 0,
+    categories: tuple[tuple[str, int], ...] = (("conation", 4), ("cognition", 3)),
+) -> pd.DataFrame:
+    """A steps table as `trustlab export --format steps-csv` writes it: by default two
+    categories, K = 4 and 3, participants who mostly prefer question 0 and slip now and then."""
     rng = np.random.default_rng(seed)
     rows = []
     for person in range(n):
-        for category, k in (("conation", 4), ("cognition", 3)):
+        for category, k in categories:
             preferred = 0 if rng.random() < 0.7 else int(rng.integers(1, k))
             for session, run, iteration in [(s, r, r) for s in range(3) for r in range(1, 4)]:
                 action = int(rng.integers(0, k))

@@ -6,6 +6,9 @@ import json
 from pathlib import Path
 
 from analysis.population import read_population
+from app.services import studies
+from app.services.audit import Actor
+from app.tables import StudyStatus
 from tests.analysis.test_population_file import _steps
 from tests.app.test_cli import run
 from tests.conftest import Lab
@@ -71,22 +74,25 @@ def test_fit_from_a_stored_study(lab: Lab, database_url: str, tmp_path: Path) ->
             lab.start_session()
             lab.run_session(preferred=0)
     out = tmp_path / "rt.population.json"
-    code, _, err = run(
-        database_url,
-        "population",
-        "fit",
-        "--study",
-        lab.study,
-        "--out",
-        str(out),
-        "--replicates",
-        "3",
-    )
+    fit = ("population", "fit", "--study", lab.study, "--out", str(out), "--replicates", "3")
+    code, _, err = run(database_url, *fit)
+    assert code == 2 and "rt is still enrolling" in err and "--enrolling-reason" in err, err
+    assert not out.exists()
+    code, _, err = run(database_url, *fit, "--enrolling-reason", "a pilot fit, for the bench")
     assert code == 0, err
     population = read_population(out)
     source = population.content["source"]
     assert source["studies"] == [lab.study] and source["status_when_fitted"][lab.study] == "open"
+    assert source["enrolling_reason"] == "a pilot fit, for the bench"
     conation = population.categories["conation"]
     assert conation["participants"] == 6 and conation["prior"][0] > 0.9  # everyone said yes to 0
     assert conation["slip"] < 0.05
     assert population.prior("conation", 4, source["questions"]["conation"])
+    with lab.database.writing() as db:
+        studies.set_study_status(
+            db, name=lab.study, status=StudyStatus.CLOSED, actor=Actor.system()
+        )
+    code, _, err = run(database_url, *fit)  # closed: no reason needed, none recorded
+    assert code == 0, err
+    source = read_population(out).content["source"]
+    assert source["status_when_fitted"][lab.study] == "closed" and "enrolling_reason" not in source

@@ -1,0 +1,173 @@
+"""A protocol naming a population for its C2 learners (issue 20): every pairing that can be wrong
+is refused at study creation, and C2 learners record the population and start at its prior."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.population import Population, fit_population, write_population
+from app.db import Database
+from app.errors import Conflict, InvalidInput
+from app.protocol import default_protocol, parse_protocol
+from app.services import studies
+from app.services.audit import Actor
+from app.services.enrolment import enroll_participant
+from app.services.learners import feedback_model, restore
+from app.tables import AuditEvent, LearnerState, StudyStatus
+from models.checkpoints import checkpoint_name, observation_for, write_checkpoint
+from models.learners.mlp_policy import init_params
+from tests.analysis.test_population_file import _steps
+from tests.conftest import protocol_text
+
+DEFAULT = default_protocol().protocol
+CATEGORIES = tuple((c.name, len(c.questions)) for c in DEFAULT.categories)
+QUESTIONS = {c.name: list(c.questions) for c in DEFAULT.categories}
+
+
+def _population(path: Path, *, seed: int = 0, questions: dict[str, list[str]] | None = None):
+    source = {
+        "studies": ["pilot"],
+        "status_when_fitted": {"pilot": "closed"},
+        "questions": QUESTIONS if questions is None else questions,
+    }
+    population = fit_population(_steps(24, seed, CATEGORIES), source, replicates=3, seed=seed)
+    write_population(path, population)
+    return population
+
+
+def _checkpoints(directory: Path, population: Population) -> Path:
+    """Checkpoints as `trustlab pretrain --population` writes them (weights drawn at random:
+    what is checked here is what they record, not how well they adapt)."""
+    trained_for = feedback_model(DEFAULT).to_json()
+    for name, k in CATEGORIES:
+        obs = observation_for(name)
+        write_checkpoint(
+            directory / checkpoint_name(name, k),
+            n_arms=k,
+            category=name,
+            mode="online",
+            rule="natural_expected",
+            observation=obs,
+            params=init_params(np.random.default_rng(1), obs.shape[0], 100, k),
+            step_sizes=np.array([1.0, 0.8]),
+            baselines=np.array([0.3, 0.3]),
+            damping=0.1,
+            config={"feedback": trained_for, "population": population.record(name)},
+            metrics={"note": "test fixture"},
+            prior=np.asarray(population.training_prior(name, k)),
+        )
+    return directory
+
+
+def _protocol(population: Path, checkpoints: Path, extra: str = "") -> str:
+    table = (
+        f'[learners.population]\nfile = "{population}"\ncheckpoints = "{checkpoints}"\n{extra}\n'
+    )
+    text = protocol_text()
+    first = text.index("[[categories]]")
+    return text[:first] + table + text[first:]
+
+
+def _create(database: Database, name: str, text: str) -> None:
+    with database.writing() as db:
+        studies.create_study(db, name=name, loaded=parse_protocol(text), actor=Actor.system())
+
+
+@pytest.fixture
+def world(tmp_path: Path) -> tuple[Path, Path, Population]:
+    file = tmp_path / "pilot.population.json"
+    population = _population(file)
+    return file, _checkpoints(tmp_path / "set", population), population
+
+
+def test_c2_learners_record_the_population_and_start_at_its_prior(
+    database: Database, world: tuple[Path, Path, Population]
+) -> None:
+    file, checkpoints, population = world
+    _create(database, "main", _protocol(file, checkpoints))
+    with database.writing() as db:
+        entry = db.query(AuditEvent).filter_by(action="study.created", subject="main").one()
+        assert entry.details["population_sha256"] == population.sha256
+        assert entry.details["population_source"] == "pilot"
+        for _ in range(4):  # both conditions, by the balanced allocation
+            enroll_participant(db, study_name="main", actor=Actor.system())
+        rows = db.query(LearnerState).filter_by(kind="meta").all()
+        assert rows, "no C2 participant was enrolled"
+        for row in rows:
+            assert row.config["population_sha256"] == population.sha256
+            assert Path(row.config["checkpoint"]).parent == checkpoints
+            category = Path(row.config["checkpoint"]).name.split("-k")[0]
+            start = restore(row).probabilities()
+            expected = population.training_prior(category, row.n_arms)
+            np.testing.assert_allclose(start, expected, rtol=1e-12)
+
+
+def test_an_edited_population_file_is_refused(
+    database: Database, world: tuple[Path, Path, Population]
+) -> None:
+    file, checkpoints, _ = world
+    data = json.loads(file.read_text())
+    data["content"]["categories"]["conation"]["prior"][0] = 0.99
+    file.write_text(json.dumps(data))
+    with pytest.raises(InvalidInput, match="does not match its recorded hash"):
+        _create(database, "main", _protocol(file, checkpoints))
+    with database.writing() as db:
+        assert studies.count_studies(db) == 0
+
+
+def test_questions_that_differ_from_the_source_are_refused(
+    database: Database, world: tuple[Path, Path, Population], tmp_path: Path
+) -> None:
+    _, checkpoints, _ = world
+    other = {name: list(texts) for name, texts in QUESTIONS.items()}
+    other["affection"][1] = "Do you want to see a different room?"
+    moved = tmp_path / "moved.population.json"
+    _population(moved, questions=other)
+    with pytest.raises(InvalidInput, match="'affection' asks other questions"):
+        _create(database, "main", _protocol(moved, checkpoints))
+
+
+def test_a_checkpoint_trained_for_another_population_is_refused(
+    database: Database, world: tuple[Path, Path, Population], tmp_path: Path
+) -> None:
+    _, checkpoints, _ = world
+    refit = tmp_path / "refit.population.json"
+    _population(refit, seed=5)
+    with pytest.raises(Conflict, match=r"was trained for population .* retrain it"):
+        _create(database, "main", _protocol(refit, checkpoints))
+    with pytest.raises(InvalidInput, match=r"learners.population.checkpoints: .*does not exist"):
+        _create(database, "main", _protocol(refit, tmp_path / "nowhere"))
+
+
+def test_a_source_study_still_enrolling_needs_a_recorded_reason(
+    database: Database, world: tuple[Path, Path, Population]
+) -> None:
+    file, checkpoints, population = world
+    _create(database, "pilot", protocol_text())  # the source, still open
+    with pytest.raises(Conflict, match="fitted from pilot, which is still enrolling"):
+        _create(database, "main", _protocol(file, checkpoints))
+    reason = 'enrolling_reason = "pilot left open by mistake; no one enrolled since"'
+    _create(database, "main", _protocol(file, checkpoints, reason))
+    with database.writing() as db:
+        entry = db.query(AuditEvent).filter_by(action="study.created", subject="main").one()
+        assert entry.details["enrolling_sources"] == ["pilot"]
+        assert entry.details["enrolling_reason"].startswith("pilot left open")
+        studies.set_study_status(db, name="pilot", status=StudyStatus.CLOSED, actor=Actor.system())
+    _create(database, "second", _protocol(file, checkpoints))  # closed: no reason needed
+    with database.writing() as db:
+        entry = db.query(AuditEvent).filter_by(action="study.created", subject="second").one()
+        assert entry.details["population_sha256"] == population.sha256
+        assert entry.details["enrolling_reason"] is None
+
+
+def test_a_population_with_a_checkpoint_setting_is_refused_by_the_protocol(
+    world: tuple[Path, Path, Population],
+) -> None:
+    file, checkpoints, _ = world
+    text = _protocol(file, checkpoints).replace('checkpoint = "shipped"', 'checkpoint = "models/x"')
+    with pytest.raises(ValueError, match=r"learners\.population"):
+        parse_protocol(text)
