@@ -85,6 +85,10 @@ class ProtocolSummary(TypedDict):
     """How answers become rewards, e.g. "yes → 1, no → 0"."""
     version: NotRequired[str]
     """Protocol version or file hash."""
+    population: NotRequired[dict[str, Any]]
+    """The population C2 was meta-trained for (issue 20): ``sha256``, ``source`` (in words),
+    ``enrolling_reason`` and per category ``participants``, ``prior``, ``prior_ci``, ``slip``,
+    ``slip_ci``, ``hazard``; absent when C2 was trained on the uniform prior."""
 
 
 def validate_protocol(protocol: Mapping[str, Any]) -> None:

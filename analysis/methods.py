@@ -14,7 +14,12 @@ from typing import Any
 from analysis.dataset import ProtocolSummary
 from analysis.instruments import InstrumentSpec
 
-__all__ = ["analysis_paragraph", "design_paragraph", "participants_paragraph"]
+__all__ = [
+    "analysis_paragraph",
+    "design_paragraph",
+    "participants_paragraph",
+    "population_sentence",
+]
 
 _NUMBER_WORDS = {
     1: "one",
@@ -101,6 +106,8 @@ def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[Instrument
     )
     if protocol.get("feedback"):
         sentences.append(f"Answers were turned into rewards as follows: {protocol['feedback']}.")
+    if protocol.get("population"):
+        sentences.append(population_sentence(protocol["population"]))
     per_session = [i for i in instruments if i.per_session]
     once = [i for i in instruments if not i.per_session]
     for spec in per_session:
@@ -122,6 +129,48 @@ def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[Instrument
             "Before the study they completed: " + "; ".join(spec.label for spec in once) + "."
         )
     return " ".join(sentences)
+
+
+def _share(value: float) -> str:
+    """A probability as APA writes it: no leading zero, two decimals."""
+    return f"{value:.2f}".removeprefix("0")
+
+
+def population_sentence(population: Mapping[str, Any]) -> str:
+    """Where the meta-learned policy's prior came from (issue 20): the source, N, and per
+    category the fitted prior with its bootstrap intervals, slip rate and hazard."""
+    parts = []
+    sizes = set()
+    for name, fitted in population["categories"].items():
+        if "prior" not in fitted:
+            parts.append(f"{name}: not recorded (its checkpoint is missing)")
+            continue
+        sizes.add(int(fitted["participants"]))
+        shares = [
+            f"{_share(p)} [{_share(low)}, {_share(high)}]"
+            for p, (low, high) in zip(fitted["prior"], fitted["prior_ci"], strict=True)
+        ]
+        parts.append(
+            f"{name}: {', '.join(shares)} for questions 1–{len(shares)}, slip rate "
+            f"{_share(fitted['slip'])} [{_share(fitted['slip_ci'][0])}, "
+            f"{_share(fitted['slip_ci'][1])}], hazard {_share(fitted['hazard'])}"
+        )
+    counted = " or ".join(str(n) for n in sorted(sizes))
+    plural = "" if sizes == {1} else "s"
+    who = f"{counted} earlier participant{plural}" if sizes else "earlier participants"
+    text = (
+        "The meta-learned policy was meta-trained on the population fitted from "
+        f"{who} of {population['source']} (population file SHA-256 {population['sha256'][:12]}): "
+        "the prior probability that each question is the preferred one, with 95 % bootstrap "
+        f"intervals, {'; '.join(parts)}; the training prior added one pseudo-participant per "
+        "question to the fitted shares."
+    )
+    if population.get("enrolling_reason"):
+        text += (
+            " The population was fitted while its source study was still enrolling, for this "
+            f"recorded reason: {population['enrolling_reason']}."
+        )
+    return text
 
 
 def analysis_paragraph(

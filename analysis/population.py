@@ -97,6 +97,13 @@ def _arms_from_probabilities(rows: pd.DataFrame, category: str) -> int:
     return int(rows[columns].iloc[0].notna().sum())
 
 
+def source_label(source: dict[str, Any]) -> str:
+    """A population's ``source`` in a few words: the studies it was fitted from, or the CSV."""
+    if "studies" in source:
+        return ", ".join(str(name) for name in source["studies"])
+    return str(source.get("steps", "an unrecorded source"))
+
+
 @dataclass(frozen=True)
 class Population:
     """A verified population file's content."""
@@ -149,10 +156,7 @@ class Population:
     @property
     def source_label(self) -> str:
         """Where the population came from, in a few words: the studies or the steps CSV."""
-        source = self.content["source"]
-        if "studies" in source:
-            return ", ".join(str(name) for name in source["studies"])
-        return str(source.get("steps", "a steps table"))
+        return source_label(self.content["source"])
 
     def record(self, category: str) -> dict[str, Any]:
         """What a checkpoint (and a learner's config) records about the population it was trained

@@ -38,18 +38,34 @@ SLIP, HAZARD = 0.06, 0.02
 CATEGORIES = ("conation", "affection", "cognition")
 
 
-def simulated_steps(participants: int, seed: int) -> pd.DataFrame:
-    """A steps table of ``participants`` of the known population (12 answers per category)."""
+def simulated_steps(
+    participants: int,
+    seed: int,
+    prior: tuple[float, ...] = PRIOR,
+    model: FeedbackModel | None = None,
+    categories: tuple[str, ...] = CATEGORIES,
+) -> pd.DataFrame:
+    """A steps table of ``participants`` of a known population, 12 answers per category to
+    questions asked at random: preferred question by ``prior``, each participant's slip rate
+    drawn from ``model``'s slip prior, preferences changed by its hazard (default: slip .06,
+    hazard .02)."""
     rng = np.random.default_rng(seed)
-    model = FeedbackModel(slips=(SLIP,), hazard=HAZARD)
+    model = model or FeedbackModel(slips=(SLIP,), hazard=HAZARD)
+    k = len(prior)
     frames = []
-    for category in CATEGORIES:
-        preferred = rng.choice(4, size=participants, p=PRIOR)
-        actions = rng.integers(0, 4, size=(participants, 12))
+    for category in categories:
+        preferred = rng.choice(k, size=participants, p=prior)
+        # One slip rate: no draw, so the figures recorded before slip priors came stay the same.
+        slips = (
+            model.sample_slips(rng, participants)
+            if len(model.slips) > 1
+            else np.full(participants, model.slips[0])
+        )
+        actions = rng.integers(0, k, size=(participants, 12))
         answers = np.zeros((participants, 12), dtype=int)
         for t in range(12):
-            answers[:, t] = (actions[:, t] == preferred) != (rng.random(participants) < SLIP)
-            preferred = model.change_preference(rng, preferred, np.asarray(PRIOR))
+            answers[:, t] = (actions[:, t] == preferred) != (rng.random(participants) < slips)
+            preferred = model.change_preference(rng, preferred, np.asarray(prior))
         frames.append(
             pd.DataFrame(
                 {

@@ -428,7 +428,7 @@ def pretrain_command(
     names = list(DEFAULT_CATEGORIES) if category == "all" else [category]
     root = out
     try:
-        training = _training_feedback(
+        training = training_feedback(
             mode, protocol, paper_feedback, anchor, forgetting, surprise_gates
         )
         fitted = (
@@ -501,7 +501,7 @@ def pretrain_command(
         typer.echo(json.dumps({"checkpoints": written}, allow_nan=False))
 
 
-def _training_feedback(
+def training_feedback(
     mode: str,
     protocol: Path | None,
     paper: bool,

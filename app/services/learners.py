@@ -143,6 +143,38 @@ def learner_spec(
     return LearnerSpec("meta", n_arms, config, checkpoint.sha256)
 
 
+@dataclass(frozen=True)
+class PriorInUse:
+    """What C2 starts from in one category, for the engine panel (issue 20)."""
+
+    category: CategorySpec
+    start: list[float] | None
+    """The meta-policy's first probabilities, one per question (None: see ``problem``)."""
+    population: dict[str, Any] | None
+    """The population its checkpoint records (None: meta-trained on the uniform prior)."""
+    problem: str = ""
+
+
+def priors_in_use(protocol: Protocol, checkpoint_dir: Path | None = None) -> list[PriorInUse]:
+    """Per category, where C2's new learners start and which population that came from; empty
+    when no condition uses the meta-policy. A checkpoint that cannot be loaded is reported in
+    its row, not raised: the panel explains, enrolment refuses."""
+    if all(c.learner is not LearnerKind.META for c in protocol.conditions):
+        return []
+    rows = []
+    for category in protocol.categories:
+        try:
+            path = _checkpoint_path(protocol, category, checkpoint_dir)
+            checkpoint = checkpoint_at(path, len(category.questions))
+        except ValueError as exc:
+            rows.append(PriorInUse(category, None, None, str(exc)))
+            continue
+        start = probabilities_list(MetaPolicyLearner(checkpoint))
+        recorded = checkpoint.config.get("population")
+        rows.append(PriorInUse(category, start, recorded if isinstance(recorded, dict) else None))
+    return rows
+
+
 def recorded_checkpoint(spec: LearnerSpec) -> Checkpoint:
     """The exact checkpoint a meta learner was created with.
 

@@ -21,8 +21,10 @@ from sqlalchemy.orm import Session
 from analysis.dataset import ProtocolSummary, StudyDataset, empty_steps
 from analysis.instruments import InstrumentSpec as AnalysisInstrument
 from analysis.instruments import ItemSpec as AnalysisItem
+from analysis.population import source_label
 from analysis.scoring import ScaleSpec
 from app.protocol import InstrumentSpec, ItemKind, Protocol
+from app.services import learners
 from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
 from app.services.studies import protocol_of
@@ -164,6 +166,43 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
     return summary
 
 
+def population_used(db: Session, study: Study) -> dict[str, Any] | None:
+    """The population C2's learners were meta-trained for, as their checkpoints record it
+    (issue 20), or None when none was. Read from the checkpoints the learners were created with
+    (found by hash, as ``trustlab verify`` finds them), so it says what was used, not what the
+    protocol's file holds today; one learner per category is enough (study creation checked
+    that every checkpoint records the protocol's population)."""
+    rows = db.execute(
+        select(LearnerState.category, LearnerState.n_arms, LearnerState.config)
+        .add_columns(LearnerState.checkpoint_sha256)
+        .join(Participant, Participant.id == LearnerState.participant_id)
+        .where(Participant.study_id == study.id, LearnerState.kind == "meta")
+        .order_by(LearnerState.id)
+    )
+    categories: dict[str, dict[str, Any]] = {}
+    summary: dict[str, Any] | None = None
+    for category, n_arms, config, digest in rows:
+        if category in categories or "population_sha256" not in config:
+            continue
+        spec = learners.LearnerSpec("meta", n_arms, dict(config), digest)
+        try:
+            record = learners.recorded_checkpoint(spec).config["population"]
+        except (ValueError, KeyError):  # the checkpoint is gone: the hash is all that is known
+            record = {"sha256": config["population_sha256"], "source": {}}
+        summary = summary or {
+            "sha256": record["sha256"],
+            "source": source_label(record["source"]),
+            "enrolling_reason": record["source"].get("enrolling_reason"),
+            "categories": categories,
+        }
+        categories[category] = {
+            key: record[key]
+            for key in ("participants", "prior", "prior_ci", "slip", "slip_ci", "hazard")
+            if key in record
+        }
+    return summary
+
+
 def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame:
     rows = db.execute(
         select(Participant.code, Allocation.condition, Participant.status, Participant.strata)
@@ -295,12 +334,16 @@ def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> Study
         .distinct()
     )
     checkpoints = sorted(digest for digest in digests if digest)
+    population = population_used(db, study)
+    if population is not None:
+        summary["population"] = population
     manifest = {
         "study": study.name,
         "exported_at": utcnow().isoformat(timespec="seconds"),
         "data_sha256": _data_sha256(participants, responses, steps),
         "protocol_sha256": study.protocol_sha256,
         "checkpoints_sha256": checkpoints,
+        "population_sha256": None if population is None else population["sha256"],
         "allocation_seed_sha256": hashlib.sha256(study.allocation_seed.encode()).hexdigest(),
         "learners": json.loads(json.dumps(protocol.learners.model_dump(mode="json"))),
         "software": _software(),

@@ -8,9 +8,10 @@ from fastapi import APIRouter, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
+from analysis.population import source_label
 from app.db import Database
 from app.deps import CurrentUser, SessionDep, StreamingUser
-from app.services import blinding, dashboard, stations, studies
+from app.services import blinding, dashboard, learners, stations, studies
 from app.services.audit import Actor
 from app.services.freshness import FreshnessCache
 from app.web.templating import render
@@ -22,14 +23,22 @@ router = APIRouter(tags=["pages"], include_in_schema=False)
 def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: str) -> Response:
     """The page; its figures come from the JSON below and refresh on every change."""
     study = studies.get_study(db, name)
+    protocol = studies.protocol_of(study)
+    shown = blinding.shows_learners(study)
+    # As enrolment resolves them (it does not read settings.checkpoint_dir either).
+    priors = learners.priors_in_use(protocol) if shown else []
+    population = next((row.population for row in priors if row.population), None)
     return render(
         request,
         "dashboard.html",
         {
             "study": study,
-            "protocol": studies.protocol_of(study),
-            "items": dashboard.session_items(studies.protocol_of(study)),
-            "learners_hidden": "" if blinding.shows_learners(study) else blinding.LEARNERS_SEALED,
+            "protocol": protocol,
+            "items": dashboard.session_items(protocol),
+            "learners_hidden": "" if shown else blinding.LEARNERS_SEALED,
+            "priors": priors,
+            "population": population,
+            "population_source": source_label(population["source"]) if population else "",
         },
     )
 

@@ -5,7 +5,12 @@ from __future__ import annotations
 import math
 
 from analysis.instruments import DEFAULT_INSTRUMENTS
-from analysis.methods import analysis_paragraph, design_paragraph, participants_paragraph
+from analysis.methods import (
+    analysis_paragraph,
+    design_paragraph,
+    participants_paragraph,
+    population_sentence,
+)
 from analysis.synthetic import SEED_PAPER_PROTOCOL
 
 
@@ -74,3 +79,36 @@ def test_analysis_paragraph_names_the_sums_of_squares() -> None:
     two = analysis_paragraph(SEED_PAPER_PROTOCOL, 2, 2, 0.9)
     assert "type II sums of squares (as pingouin" in two
     assert "90% t" in two
+
+
+def test_population_sentence_names_the_source_n_and_the_fitted_figures() -> None:
+    population = {
+        "sha256": "ab" * 32,
+        "source": "pilot-2026",
+        "categories": {
+            "conation": {
+                "participants": 1,
+                "prior": [0.7, 0.3],
+                "prior_ci": [[0.52, 0.85], [0.15, 0.48]],
+                "slip": 0.04,
+                "slip_ci": [0.0, 0.09],
+                "hazard": 0.011,
+            },
+            "cognition": {},  # its checkpoint was lost: only the hash was recorded
+        },
+        "enrolling_reason": "pilot left open by mistake",
+    }
+    text = population_sentence(population)
+    assert text.startswith(
+        "The meta-learned policy was meta-trained on the population fitted from 1 earlier "
+        "participant of pilot-2026 (population file SHA-256 abababababab)"
+    )
+    assert "conation: .70 [.52, .85], .30 [.15, .48] for questions 1–2" in text
+    assert "slip rate .04 [.00, .09], hazard .01" in text
+    assert "cognition: not recorded (its checkpoint is missing)" in text
+    assert text.endswith("for this recorded reason: pilot left open by mistake.")
+    protocol = dict(SEED_PAPER_PROTOCOL) | {"population": population}
+    assert text in design_paragraph(protocol, DEFAULT_INSTRUMENTS)  # type: ignore[arg-type]
+    assert "meta-trained on the population" not in design_paragraph(
+        SEED_PAPER_PROTOCOL, DEFAULT_INSTRUMENTS
+    )

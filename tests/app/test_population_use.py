@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis.methods import design_paragraph
 from analysis.population import Population, fit_population, write_population
 from app.db import Database
 from app.errors import Conflict, InvalidInput
@@ -17,11 +18,12 @@ from app.services import studies
 from app.services.audit import Actor
 from app.services.enrolment import enroll_participant
 from app.services.learners import feedback_model, restore
-from app.tables import AuditEvent, LearnerState, StudyStatus
+from app.services.study_data import load_dataset
+from app.tables import AuditEvent, LearnerState, Role, StudyStatus
 from models.checkpoints import checkpoint_name, observation_for, write_checkpoint
 from models.learners.mlp_policy import init_params
 from tests.analysis.test_population_file import _steps
-from tests.conftest import protocol_text
+from tests.conftest import UserClientFactory, protocol_text
 
 DEFAULT = default_protocol().protocol
 CATEGORIES = tuple((c.name, len(c.questions)) for c in DEFAULT.categories)
@@ -171,3 +173,52 @@ def test_a_population_with_a_checkpoint_setting_is_refused_by_the_protocol(
     text = _protocol(file, checkpoints).replace('checkpoint = "shipped"', 'checkpoint = "models/x"')
     with pytest.raises(ValueError, match=r"learners\.population"):
         parse_protocol(text)
+
+
+def test_the_dashboard_shows_where_the_meta_policy_starts(
+    database: Database,
+    world: tuple[Path, Path, Population],
+    user_client: UserClientFactory,
+) -> None:
+    file, checkpoints, population = world
+    _create(database, "main", _protocol(file, checkpoints))
+    _create(database, "plain", protocol_text())
+    _create(database, "sealed", protocol_text(**{"blinded = false": "blinded = true"}))
+    staff = user_client(Role.EXPERIMENTER)
+    page = staff.get("/studies/main/dashboard").text
+    assert "Adaptation engine: where the meta-policy starts" in page
+    assert "Meta-trained on the prior of <strong>pilot</strong>" in page
+    assert population.sha256[:12] in page and "N = 24" in page
+    fitted = population.categories["affection"]
+    start = population.training_prior("affection", 4)
+    assert QUESTIONS["affection"][2] in page  # the question texts, not indices
+    assert f"{start[2]:.3f}</td>" in page and f"{fitted['prior'][2]:.3f} [" in page
+    plain = staff.get("/studies/plain/dashboard").text
+    assert "Meta-trained on the uniform prior" in plain and "0.250</td>" in plain
+    assert "Adaptation engine" not in staff.get("/studies/sealed/dashboard").text
+
+
+def test_the_report_says_where_the_prior_came_from(
+    database: Database, world: tuple[Path, Path, Population]
+) -> None:
+    file, checkpoints, population = world
+    _create(database, "main", _protocol(file, checkpoints))
+    with database.writing() as db:
+        for _ in range(4):
+            enroll_participant(db, study_name="main", actor=Actor.system())
+    with database.read_session() as db:
+        dataset = load_dataset(db, study=studies.get_study(db, "main"))
+    used = dataset.protocol["population"]
+    assert used["sha256"] == population.sha256 and used["source"] == "pilot"
+    assert set(used["categories"]) == set(QUESTIONS)
+    assert dataset.manifest["population_sha256"] == population.sha256
+    methods = design_paragraph(dataset.protocol, dataset.instruments)
+    assert "meta-trained on the population fitted from 24 earlier participants of pilot" in methods
+    conation = population.categories["conation"]
+    assert f"conation: {conation['prior'][0]:.2f}".replace(": 0.", ": .") in methods
+    _create(database, "plain", protocol_text())
+    with database.writing() as db:
+        enroll_participant(db, study_name="plain", actor=Actor.system())
+    with database.read_session() as db:
+        plain = load_dataset(db, study=studies.get_study(db, "plain"))
+    assert "population" not in plain.protocol and plain.manifest["population_sha256"] is None
