@@ -36,7 +36,7 @@ def _population(path: Path, *, seed: int = 0, questions: dict[str, list[str]] | 
         "status_when_fitted": {"pilot": "closed"},
         "questions": QUESTIONS if questions is None else questions,
     }
-    population = fit_population(_steps(24, seed, CATEGORIES), source, replicates=3, seed=seed)
+    population = fit_population(_steps(24, seed, CATEGORIES), source, replicates=20, seed=seed)
     write_population(path, population)
     return population
 
@@ -192,7 +192,7 @@ def test_the_dashboard_shows_where_the_meta_policy_starts(
     fitted = population.categories["affection"]
     start = population.training_prior("affection", 4)
     assert QUESTIONS["affection"][2] in page  # the question texts, not indices
-    assert f"{start[2]:.3f}</td>" in page and f"{fitted['prior'][2]:.3f} [" in page
+    assert f"{start[2]:.3f}</td>" in page and f"{fitted['prior'][2]:.2f} [" in page
     plain = staff.get("/studies/plain/dashboard").text
     assert "Meta-trained on the uniform prior" in plain and "0.250</td>" in plain
     assert "Adaptation engine" not in staff.get("/studies/sealed/dashboard").text
