@@ -16,7 +16,13 @@ population, answers to .95 for:
 - ``uniform``: C2 trained on the uniform prior (the shipped generic K = 4 checkpoint);
 - ``random init``: the fitted checkpoint's update rule from random weights and no prior (the
   Appendix's comparison: what meta-training added);
+- ``pilot ref``: the exact filter that knows only what the pilot tells (the training prior C2
+  was given, and the model): the best any learner trained on that pilot could do;
 - ``reference``: the exact forward filter that knows the true population (prior, slips, hazard).
+
+``--pilot-draws D`` then measures, without training, how much the pilot itself limits: for D
+pilots per N (right and wrong), the pilot filter with the fitted shares as they are (maximum
+likelihood) and smoothed as C2 is trained (one pseudo-participant per question).
 
 Populations: .7/.1/.1/.1 with slips (the shipped protocol's 0–10 % and hazard .02) for pilots of
 N = 6, 12, 24, 48, and without slips (N = 24); .4/.2/.2/.2 and uniform with slips (N = 24); and a
@@ -44,7 +50,7 @@ sys.path.insert(0, str(_ROOT))
 
 import numpy as np  # noqa: E402
 
-from analysis.population import Population, fit_population  # noqa: E402
+from analysis.population import Population, fit_population, sequences_from_steps  # noqa: E402
 from app.cli.engine import training_feedback  # noqa: E402
 from bench.analysis import cpu_model  # noqa: E402
 from bench.population_fit import simulated_steps  # noqa: E402
@@ -56,9 +62,11 @@ from models.checkpoints import (  # noqa: E402
     shipped_set,
 )
 from models.feedback import FeedbackModel  # noqa: E402
+from models.learners.belief import BatchBelief  # noqa: E402
 from models.learners.exp3 import DEFAULT_EXP3_GAMMA  # noqa: E402
+from models.population import fit_category  # noqa: E402
 from models.pretrain_config import PretrainArgs  # noqa: E402
-from models.simulate import Scenario, simulate_adaptation  # noqa: E402
+from models.simulate import Scenario, run, simulate_adaptation, summarise  # noqa: E402
 from models.tasks import TaskDistribution  # noqa: E402
 
 SKEWED = (0.7, 0.1, 0.1, 0.1)
@@ -159,8 +167,15 @@ def evaluate(
         tasks, checkpoint=fitted, learners=("meta", "random_init", "bayes"), **common
     )
     base = simulate_adaptation(tasks, checkpoint=uniform, learners=("meta",), **common)
+    pilot = BatchBelief(participants, 4, model, np.asarray(fitted.prior), 1)
+    rng = np.random.default_rng(seed)
+    preferred = tasks.sample_preferred(rng, participants)  # as simulate_learner draws them
+    limited = summarise(
+        run(pilot, tasks, preferred, 12, np.random.default_rng([seed, 7]), scenario)
+    )
     figures = {
         "fitted": own["learners"]["meta"]["iterations_to_95"],
+        "pilot ref": limited["iterations_to_95"],
         "uniform": base["learners"]["meta"]["iterations_to_95"],
         "random init": own["learners"]["random_init"]["iterations_to_95"],
         "reference": own["learners"]["bayes"]["iterations_to_95"],
@@ -168,6 +183,50 @@ def evaluate(
     figures["wrong 95 fitted"] = own["learners"]["meta"]["wrong_95"]
     figures["wrong 95 uniform"] = base["learners"]["meta"]["wrong_95"]
     return figures
+
+
+def _filter_answers(
+    prior: np.ndarray, tasks: TaskDistribution, model: FeedbackModel, participants: int, seed: int
+) -> float:
+    """Answers to .95 of the exact filter that starts at ``prior`` on ``tasks``' participants."""
+    preferred = tasks.sample_preferred(np.random.default_rng(seed), participants)
+    learner = BatchBelief(participants, tasks.n_arms, model, prior, 1)
+    scenario = Scenario(feedback=model)
+    return float(
+        summarise(run(learner, tasks, preferred, 12, np.random.default_rng([seed, 7]), scenario))[
+            "iterations_to_95"
+        ]
+    )
+
+
+def pilot_limits(draws: int, participants: int, seed: int) -> list[str]:
+    """How far a pilot of N can take any learner: the exact filter started at the pilot's fitted
+    shares (maximum likelihood) or at them smoothed (as C2 is trained), over ``draws`` pilots."""
+    model = shipped_model()
+    tasks = TaskDistribution(4, SKEWED)
+    truth = _filter_answers(tasks.prior, tasks, model, participants, seed)
+    lines = [
+        f"pilot-limited (the exact filter from the pilot's prior; {draws} pilots per row, "
+        f"{participants} participants of .7/.1/.1/.1 with slips; knowing the truth: {truth:.3f}):",
+        f"{'pilot':<12} {'N':>3} {'MLE mean':>9} {'≤1.1×ref':>9} {'smoothed mean':>14} "
+        f"{'≤1.1×ref':>9}",
+    ]
+    for pilot_prior, label in ((SKEWED, "right"), (WRONG, "wrong")):
+        for n in (6, 12, 24, 48):
+            raw, smooth = [], []
+            for draw in range(draws):
+                steps = simulated_steps(n, seed + 1000 + draw, pilot_prior, model, (GENERIC,))
+                sequences = sequences_from_steps(steps, {GENERIC: 4})[GENERIC]
+                shares = fit_category(sequences).prior
+                raw.append(_filter_answers(shares, tasks, model, participants, seed))
+                smoothed = (shares * n + 1.0) / (n + 4)
+                smooth.append(_filter_answers(smoothed, tasks, model, participants, seed))
+            limit = 1.1 * truth
+            lines.append(
+                f"{label:<12} {n:>3} {np.mean(raw):>9.3f} {np.mean(np.asarray(raw) <= limit):>9.2f}"
+                f" {np.mean(smooth):>14.3f} {np.mean(np.asarray(smooth) <= limit):>9.2f}"
+            )
+    return lines
 
 
 def _check(label: str, ok: bool, figure: str) -> str:
@@ -226,6 +285,7 @@ def main() -> None:
     parser.add_argument("--checkpoints", type=Path, default=Path("/tmp/trustlab-bench-population"))
     parser.add_argument("--case", action="append", default=None, help="Only these rows (names).")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--pilot-draws", type=int, default=0, help="Pilot-limited table.")
     parser.add_argument("--meta-batches", type=int, default=None, help="Smoke runs only.")
     parser.add_argument("--tasks-per-batch", type=int, default=None, help="Smoke runs only.")
     args = parser.parse_args()
@@ -259,7 +319,7 @@ def main() -> None:
     )
     uniform = load_checkpoint(shipped_checkpoint(4, directory=shipped_set(shipped_model())), 4)
     header = f"{'row':<24} {'pilot prior (fitted)':<26} {'fitted':>7} {'uniform':>8} "
-    header += f"{'random':>7} {'ref':>6} {'wrong95 f/u':>12}"
+    header += f"{'random':>7} {'pilot ref':>9} {'ref':>6} {'wrong95 f/u':>12}"
     print(header)
     rows = {}
     for case in cases:
@@ -269,7 +329,7 @@ def main() -> None:
         prior = "/".join(f"{v:.2f}" for v in fits[case.name].categories[GENERIC]["prior"])
         print(
             f"{case.name:<24} {prior:<26} {row['fitted']:>7.3f} {row['uniform']:>8.3f} "
-            f"{row['random init']:>7.3f} {row['reference']:>6.3f} "
+            f"{row['random init']:>7.3f} {row['pilot ref']:>9.3f} {row['reference']:>6.3f} "
             f"{row['wrong 95 fitted']:>5.3f}/{row['wrong 95 uniform']:.3f}",
             flush=True,
         )
@@ -281,6 +341,8 @@ def main() -> None:
         )
     print("targets (answers to .95 unless said):")
     print("\n".join(targets(rows, fits)))
+    if args.pilot_draws:
+        print("\n".join(pilot_limits(args.pilot_draws, min(args.participants, 4000), args.seed)))
 
 
 if __name__ == "__main__":
