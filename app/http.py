@@ -3,7 +3,9 @@
 Errors are answered in the caller's language: JSON ``{"detail": "…"}`` under /api and for
 devices, an HTML page (or a redirect to sign-in) for browsers. Every response carries a strict
 Content-Security-Policy (no inline scripts, no third-party origins), framing and sniffing
-protection and a referrer policy.
+protection and a referrer policy; everything but the static files is ``Cache-Control: no-store``,
+so a staff page (or a participant's) is never kept by the browser or a proxy, and Back after
+signing out asks the server again instead of showing the signed-in page.
 """
 
 from __future__ import annotations
@@ -37,8 +39,14 @@ SECURITY_HEADERS = {
 }
 
 
+NO_STORE = (b"cache-control", b"no-store")
+CACHEABLE_PREFIX = "/static/"
+"""The only responses browsers may keep: the vendored libraries, scripts and styles."""
+
+
 class SecurityHeaders:
-    """Pure ASGI middleware adding :data:`SECURITY_HEADERS` to every HTTP response."""
+    """Pure ASGI middleware adding :data:`SECURITY_HEADERS` to every HTTP response, and
+    ``Cache-Control: no-store`` to every one outside /static/ that sets no caching of its own."""
 
     def __init__(self, app: ASGIApp) -> None:
         self.app = app
@@ -49,10 +57,14 @@ class SecurityHeaders:
             await self.app(scope, receive, send)
             return
 
+        cacheable = str(scope.get("path", "")).startswith(CACHEABLE_PREFIX)
+
         async def send_with_headers(message: Message) -> None:
             if message["type"] == "http.response.start":
                 present = {name.lower() for name, _ in message.get("headers", [])}
                 extra = [(k, v) for k, v in self._headers if k not in present]
+                if not cacheable and NO_STORE[0] not in present:
+                    extra.append(NO_STORE)
                 message["headers"] = list(message.get("headers", [])) + extra
             await send(message)
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from datetime import datetime
 from typing import Any
+from urllib.parse import quote
 
 from fastapi import Request
 from fastapi.responses import HTMLResponse, RedirectResponse
@@ -19,6 +20,14 @@ from app.security import sign, unsign
 from app.settings import REPO_ROOT
 
 NOTICE_COOKIE = "tl_notice"
+
+REFUSAL_HEADER = "X-Trustlab-Refusal"
+"""A refused request's message, percent-encoded UTF-8. htmx does not swap a 4xx/5xx response, so
+static/js/refusals.js reads this header and shows the words next to the control that sent the
+request: the same words the page shows with JavaScript off."""
+
+REFUSAL_KEYS = ("error", "form_error", "message")
+"""The context keys pages put their refusal text under (the first one set is sent)."""
 
 environment = Environment(
     loader=FileSystemLoader(REPO_ROOT / "templates"),
@@ -89,6 +98,10 @@ def render(
         html = page.render(values)
     response = HTMLResponse(html, status_code=status_code)
     response.headers["Vary"] = "HX-Request"
+    if status_code >= 400:
+        refusal = next((v for k in REFUSAL_KEYS if isinstance(v := values.get(k), str) and v), "")
+        if refusal:
+            response.headers[REFUSAL_HEADER] = quote(refusal, safe=" ")
     if NOTICE_COOKIE in request.cookies:
         response.delete_cookie(NOTICE_COOKIE)
     return response
