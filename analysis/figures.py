@@ -62,6 +62,9 @@ _BASE_LAYOUT: dict[str, Any] = {
     "plot_bgcolor": "white",
     "margin": {"l": 60, "r": 20, "t": 60, "b": 50},
     "legend": {"orientation": "h", "y": -0.18, "x": 0},
+    # Plotly hides the legend of a one-trace chart: a study with one condition enrolled so far
+    # would show a line nobody can name.
+    "showlegend": True,
 }
 
 

@@ -390,6 +390,8 @@ def _outcome_section(
             y_label=outcome.label if len(outcome.label) < 60 else outcome.key,
             y_range=outcome.value_range,
             within_label="Session",
+            style="point",
+            colors=result.colors,
         )
         parts.append(figures.html(payload))
         parts.append("<h3>Descriptives</h3>")
@@ -455,6 +457,7 @@ def _outcome_section(
             title=f"{outcome.key}: individual trajectories",
             y_label=outcome.key,
             y_range=outcome.value_range,
+            colors=result.colors,
         )
         shown = ", ".join(f"{k}: {v} of {traj['total'][k]}" for k, v in traj["shown"].items())
         parts.append(
@@ -476,7 +479,9 @@ def _adaptation(
         parts.append("<p>No adaptation steps have been recorded.</p>")
     else:
         categories = list(result.dataset.protocol["preferred_arms"])
-        payload = adaptation_payload_from_curves(curves, categories, confidence=confidence)
+        payload = adaptation_payload_from_curves(
+            curves, categories, confidence=confidence, colors=result.colors
+        )
         parts.append(
             "<p>Mean probability that each category's learner gives to the question the "
             "protocol declares preferred, before the first answer (iteration 0) and after each "
@@ -533,6 +538,7 @@ def _questionnaires(result: StudyAnalysis, figures: _FigureCounter) -> tuple[str
                 subset,
                 scale_labels={k: v.split(" (")[0] for k, v in labels.items()},
                 title=f"{instrument.upper()} scores by condition",
+                colors=result.colors,
             )
             parts.append(figures.html(payload, height=420))
     parts.append("</section>")

@@ -22,6 +22,7 @@ from analysis.dataset import StudyDataset
 from analysis.descriptives import CELL_COLUMNS, cell_descriptives, marginal_means_from_design
 from analysis.design import prepare_mixed_design
 from analysis.errors import AnalysisError, InvalidInputError
+from analysis.figures import condition_colors
 from analysis.posthoc import pairwise_comparisons_from_design
 from analysis.scoring import score_responses, score_scales
 
@@ -122,6 +123,13 @@ class StudyAnalysis:
     adaptation: pd.DataFrame
     adaptation_problem: str
     sample: dict[str, Any]
+
+    @property
+    def colors(self) -> dict[str, str]:
+        """One colour per condition of the protocol, by its place there, so every figure of the
+        study (and of any other study with the same conditions) gives a condition the same
+        colour, whichever conditions have participants."""
+        return condition_colors([c["code"] for c in self.dataset.protocol["conditions"]])
 
     def outcome(self, key: str) -> OutcomeAnalysis:
         """The outcome with this item key or scale name."""

@@ -111,6 +111,8 @@ def analysis_view(result: StudyAnalysis) -> AnalysisView:
                     title=f"{outcome.label}: mean ± 95 % CI",
                     y_range=outcome.value_range,
                     within_label="Session",
+                    style="point",
+                    colors=result.colors,
                 )
             )
         outcomes.append(view)
@@ -119,7 +121,7 @@ def analysis_view(result: StudyAnalysis) -> AnalysisView:
     if len(result.adaptation):
         adaptation = json_safe(
             adaptation_payload_from_curves(
-                result.adaptation, categories, confidence=result.confidence
+                result.adaptation, categories, confidence=result.confidence, colors=result.colors
             )
         )
     return AnalysisView(

@@ -32,7 +32,11 @@ from sqlalchemy import Float, Select, and_, case, cast, func, select
 from sqlalchemy.orm import Session
 
 from analysis.descriptives import t_interval
-from analysis.figures import adaptation_payload_from_curves, mean_ci_payload_from_cells
+from analysis.figures import (
+    adaptation_payload_from_curves,
+    condition_colors,
+    mean_ci_payload_from_cells,
+)
 from app.protocol import ItemKind, ItemSpec, Protocol
 from app.services.audit import Actor
 from app.services.blinding import LEARNERS_SEALED, shows_learners
@@ -332,6 +336,8 @@ def json_safe(value: Any) -> Any:
 def compute(db: Session, plan: Plan) -> dict[str, Any]:
     """Everything the live dashboard draws, as JSON-able payloads (NaN already null)."""
     trust = trust_cells(db, plan)
+    # Each condition's colour by its place in the protocol (labels keep the protocol's order).
+    colors = condition_colors(list(plan.labels.values()))
     measures = []
     for measure in plan.measures:
         cells = _columns(
@@ -346,6 +352,8 @@ def compute(db: Session, plan: Plan) -> dict[str, Any]:
             y_label=measure.y_label,
             y_range=measure.y_range,
             within_label="Session",
+            style="point",
+            colors=colors,
         )
         measures.append({"item": measure.key, "title": measure.title, "payload": payload})
     curves = adaptation_cells(db, plan)
@@ -357,6 +365,7 @@ def compute(db: Session, plan: Plan) -> dict[str, Any]:
         ),
         plan.categories,
         confidence=CONFIDENCE,
+        colors=colors,
     )
     return {
         "study": plan.study_name,

@@ -8,6 +8,26 @@
   const config = { displaylogo: false, responsive: true };
   let latest = null;
   let pending = false;
+  // Plotly sizes a plot to its container when it draws it, which may be before the cards beside
+  // it exist (the first chart on load), and `responsive` follows only the window: a card that
+  // narrows when a measure is toggled would keep a plot wider than itself. Every plot is watched
+  // and set to its container's width. (Not Plotly.Plots.resize: it debounces, and a second call
+  // within 100 ms drops the first one's promise.) data-resizing counts the resizes in flight.
+  let resizing = 0;
+  function fit(element) {
+    const layout = element._fullLayout;
+    if (!layout || Math.abs(layout.width - element.clientWidth) < 1 || !element.clientWidth) return;
+    resizing += 1;
+    root.dataset.resizing = String(resizing);
+    Plotly.relayout(element, { width: element.clientWidth }).finally(() => {
+      resizing -= 1;
+      root.dataset.resizing = String(resizing);
+    });
+  }
+  const sizes = new ResizeObserver((entries) => entries.forEach((entry) => fit(entry.target)));
+  const watch = (element) => sizes.observe(element);
+  const plot = (element, payload) =>
+    Plotly.react(element, payload.data, payload.layout, config).then(() => fit(element));
 
   const selected = () =>
     Array.from(root.querySelectorAll('input[name="measure"]:checked')).map((box) => box.value);
@@ -35,17 +55,17 @@
           "questionnaire after each session.";
         card.append(plot, empty);
         charts.appendChild(card);
+        watch(plot);
       }
       const hasPoints = measure.payload.data.some((trace) => (trace.y || []).length > 0);
       card.querySelector(".chart-empty").hidden = hasPoints;
-      Plotly.react(card.querySelector(".chart"), measure.payload.data, measure.payload.layout,
-        config);
+      plot(card.querySelector(".chart"), measure.payload);
     }
     // null while the study is blinded: the curves would show which group is which
     const hidden = document.getElementById("adaptation-hidden");
     hidden.hidden = latest.adaptation !== null;
     if (latest.adaptation) {
-      Plotly.react("adaptation", latest.adaptation.data, latest.adaptation.layout, config);
+      plot(document.getElementById("adaptation"), latest.adaptation);
     } else {
       Plotly.purge("adaptation");
       hidden.textContent = `Adaptation curves: ${latest.learners_hidden}.`;
@@ -69,6 +89,7 @@
     }
   }
 
+  watch(document.getElementById("adaptation"));
   root.addEventListener("change", draw);
   const events = new EventSource(root.dataset.events);
   events.addEventListener("changed", () => {

@@ -18,7 +18,11 @@ from sqlalchemy import Float, Select, and_, cast, func, literal, select, union_a
 from sqlalchemy.orm import Session
 
 from analysis.descriptives import t_interval
-from analysis.figures import adaptation_payload_from_curves, mean_ci_payload_from_cells
+from analysis.figures import (
+    adaptation_payload_from_curves,
+    condition_colors,
+    mean_ci_payload_from_cells,
+)
 from app.protocol import Protocol
 from app.services.audit import Actor
 from app.services.blinding import LEARNERS_SEALED, shows_learners
@@ -169,6 +173,7 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
     trust = trust_cells(db, study, items)
     trust.insert(0, GROUP, trust.pop("condition").map(labels))
     trust = trust.sort_values([GROUP, "session", "item"], kind="stable")
+    colors = condition_colors(list(labels.values()))  # by the protocol's order
     measures = []
     for spec in items:
         cells = trust[trust["item"] == spec.item.key]
@@ -186,6 +191,8 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
                     y_label=f"Mean ({spec.minimum}–{spec.maximum}) ± 95 % CI",
                     y_range=(spec.minimum - 0.2, spec.maximum + 0.2),
                     within_label="Session",
+                    style="point",
+                    colors=colors,
                 ),
             }
         )
@@ -194,7 +201,10 @@ def dashboard_data(db: Session, *, study: Study, actor: Actor) -> dict[str, Any]
     curves = curves.sort_values(["condition", "category", "iteration"], kind="stable")
     categories = [c.name for c in protocol.categories if c.preferred is not None]
     adaptation = adaptation_payload_from_curves(
-        curves[curves["category"].isin(categories)], categories, confidence=CONFIDENCE
+        curves[curves["category"].isin(categories)],
+        categories,
+        confidence=CONFIDENCE,
+        colors=colors,
     )
     return json_safe(
         {
