@@ -37,6 +37,17 @@ FORMAT = "trustlab-population"
 VERSION = 1
 STEP_COLUMNS = ("participant", "category", "session", "run", "iteration", "action", "answer")
 """The columns of a steps CSV (``trustlab export --format steps-csv``) the fit reads."""
+CATEGORY_FIELDS = (
+    "arms",
+    "participants",
+    "prior",
+    "prior_ci",
+    "slip",
+    "slip_ci",
+    "hazard",
+    "hazard_ci",
+)
+"""What every category of a population file must give (read_population checks them)."""
 
 
 def steps_sha256(steps: pd.DataFrame) -> str:
@@ -257,7 +268,39 @@ def read_population(path: Path) -> Population:
             f"population file {path} does not match its recorded hash (sha256 {digest[:12]}…): "
             "edited after it was fitted; fit it again"
         )
+    for name, fitted in content["categories"].items():
+        problem = _malformed(fitted)
+        if problem:
+            raise ValueError(f"population file {path}: category {name!r} {problem}; fit it again")
+    if not isinstance(content.get("source"), dict):
+        raise ValueError(f"population file {path} records no source; fit it again")
     return Population(content, digest)
+
+
+def _malformed(fitted: Any) -> str:
+    """What is wrong with one category's figures (empty when nothing): a file written by another
+    program, or by a version with other fields, can match its own hash and still be unusable."""
+    if not isinstance(fitted, dict):
+        return "is not a table of figures"
+    missing = [key for key in CATEGORY_FIELDS if key not in fitted]
+    if missing:
+        return f"lacks {', '.join(missing)}"
+    arms = fitted["arms"]
+    if not isinstance(arms, int) or arms < 2:
+        return "has no usable number of questions"
+    prior = fitted["prior"]
+    intervals = fitted["prior_ci"]
+    numbers = isinstance(prior, list) and all(isinstance(v, int | float) for v in prior)
+    if not numbers or len(prior) != arms or min(prior) < 0 or abs(sum(prior) - 1) > 1e-6:
+        return f"has a prior that is not {arms} probabilities summing to 1"
+    if not isinstance(intervals, list) or len(intervals) != arms:
+        return "has prior intervals that do not match its prior"
+    for key in ("slip", "hazard"):
+        if not isinstance(fitted[key], int | float) or not 0 <= fitted[key] < 1:
+            return f"has a {key} outside [0, 1)"
+    if not isinstance(fitted["participants"], int) or fitted["participants"] < 1:
+        return "has no participant count"
+    return ""
 
 
 def prior_figure(population: Population) -> go.Figure:

@@ -434,12 +434,14 @@ def pretrain_command(
         fitted = (
             {}
             if population is None
-            else _population_priors(population, names, arms, protocol, preferred_prior, training)
+            else _population_priors(population, category, arms, protocol, preferred_prior, training)
         )
+        if fitted:  # --category all: the population's own categories, each with its K
+            names = list(fitted)
         jobs = [
             PretrainArgs(
                 category=name,
-                arms=arms,
+                arms=fitted[name][2] if fitted else arms,
                 mode=mode,
                 seed=seed,
                 objective=objective,
@@ -550,25 +552,29 @@ def training_feedback(
 
 def _population_priors(
     path: Path,
-    names: list[str],
+    category: str,
     arms: int,
     protocol: Path | None,
     preferred_prior: str | None,
     training: dict[str, Any],
-) -> dict[str, tuple[tuple[float, ...], dict[str, Any]]]:
-    """Each category's training prior and population record from a verified population file.
+) -> dict[str, tuple[tuple[float, ...], dict[str, Any], int]]:
+    """Each category's training prior, population record and K from a verified population file:
+    ``--category all`` means every category the population has (each with its own K), a named
+    one must match ``--arms``.
 
     The categories' questions are checked against the protocol's (``--protocol`` or the shipped
-    one) where it has the category. The slips and hazard C2 trains for stay the protocol's
-    declared model (docs/engine.md, "Basic trust from earlier participants"); a fitted rate
-    outside it is reported on stderr so the lab can widen ``[learners.feedback]``.
+    one) where it has the category, and recorded with the population in the checkpoint, so study
+    creation can compare them even for a population fitted from a steps CSV (which carries no
+    question texts). The slips and hazard C2 trains for stay the protocol's declared model
+    (docs/engine.md, "Basic trust from earlier participants"); a fitted rate outside it is
+    reported on stderr so the lab can widen ``[learners.feedback]``.
     """
     from analysis.population import read_population
     from app.protocol import default_protocol, load_protocol_file
 
     if preferred_prior is not None:
         raise ValueError("--population and --preferred-prior exclude each other")
-    if GENERIC in names:
+    if category == GENERIC:
         raise ValueError(
             "a population is fitted per category: name one with --category (or all), not generic"
         )
@@ -577,15 +583,30 @@ def _population_priors(
             "--population trains for a protocol's yes/no feedback model, in online mode"
         )
     loaded = default_protocol() if protocol is None else load_protocol_file(protocol)
+    compared = "the shipped protocol" if protocol is None else str(protocol)
     known = {spec.name: list(spec.questions) for spec in loaded.protocol.categories}
     fitted_population = read_population(path)
+    names = list(fitted_population.categories) if category == "all" else [category]
     model = FeedbackModel.from_json(training["feedback"])
-    priors: dict[str, tuple[tuple[float, ...], dict[str, Any]]] = {}
+    priors: dict[str, tuple[tuple[float, ...], dict[str, Any], int]] = {}
     for name in names:
-        prior = fitted_population.training_prior(name, arms, known.get(name))
-        record = fitted_population.record(name)
-        priors[name] = (prior, record)
-        for problem in _outside_model(record, model):
+        k = int(fitted_population.categories[name]["arms"]) if category == "all" else arms
+        if name in known and len(known[name]) != k:
+            raise ValueError(
+                f"category {name!r} has {len(known[name])} questions in {compared}, {k} where "
+                "the population was fitted: the questions differ (--protocol FILE for yours)"
+            )
+        try:
+            prior = fitted_population.training_prior(name, k, known.get(name))
+        except ValueError as exc:
+            if name in known and "questions" in str(exc):
+                message = f"{exc} (compared with {compared}; --protocol FILE for yours)"
+                raise ValueError(message) from None
+            raise
+        record = fitted_population.record(name) | {"questions": known.get(name)}
+        priors[name] = (prior, record, k)
+    for name in names:  # warnings only once nothing is refused
+        for problem in _outside_model(priors[name][1], model):
             typer.echo(f"warning: {name}: {problem}", err=True)
     return priors
 

@@ -69,6 +69,11 @@ def fit(
     figure = out.with_name(out.stem + ".prior.html")
     if enrolling_reason is not None and not enrolling_reason.strip():
         raise InvalidInput("--enrolling-reason needs the reason, in words")
+    if enrolling_reason is not None and steps is not None:
+        raise InvalidInput(
+            "--enrolling-reason is for --study: a steps CSV does not say whether its study is "
+            "still enrolling (check that it is closed before exporting it)"
+        )
     if steps is not None:
         frame, source, arms = _from_csv(steps)
     else:

@@ -104,7 +104,7 @@ def feedback_model(protocol: Protocol) -> FeedbackModel:
     )
 
 
-def _accepted_mismatch(protocol: Protocol, checkpoint: Checkpoint) -> FeedbackModel | None:
+def accepted_mismatch(protocol: Protocol, checkpoint: Checkpoint) -> FeedbackModel | None:
     """None when the checkpoint was meta-trained for the protocol's feedback model; the model
     it was trained for when the protocol accepts the mismatch (the learner's config records
     it); otherwise the mismatch is refused."""
@@ -133,9 +133,9 @@ def learner_spec(
     config: dict[str, Any] = {"checkpoint": str(path)}
     population = populations.population_of(protocol)
     if population is not None:
-        populations.check_trained_for(checkpoint, population, category.name)
+        populations.check_trained_for(checkpoint, population, category)
         config["population_sha256"] = population.sha256
-    mismatch = _accepted_mismatch(protocol, checkpoint)
+    mismatch = accepted_mismatch(protocol, checkpoint)
     if mismatch is not None:
         config["trained_for_other_feedback"] = mismatch.to_json()
     if protocol.learners.meta.learning_rate is not None:

@@ -64,25 +64,45 @@ def checkpoint_path(protocol: Protocol, category: CategorySpec) -> Path:
     return Path(settings.checkpoints) / checkpoint_name(category.name, len(category.questions))
 
 
-def check_trained_for(checkpoint: Checkpoint, population: Population, category: str) -> None:
-    """Refuse a checkpoint that was not meta-trained for ``population``'s ``category``.
+def check_trained_for(
+    checkpoint: Checkpoint, population: Population, category: CategorySpec
+) -> None:
+    """Refuse a checkpoint that was not meta-trained for ``population``'s ``category`` with
+    these questions.
 
     Raises
     ------
     Conflict
         Naming the population the checkpoint records (or that it records none).
+    InvalidInput
+        When the questions it was trained for differ from the category's, or nobody recorded
+        them (a population fitted from a steps CSV, trained without the protocol).
     """
+    name = category.name
     recorded = checkpoint.config.get("population")
     if not isinstance(recorded, dict):
         raise Conflict(
             f"{KEY}.checkpoints: {checkpoint.path} was not trained for a population: train it "
-            f"with trustlab pretrain --population {KEY}.file --category {category}"
+            f"with trustlab pretrain --population {KEY}.file --category {name}"
         )
-    if recorded.get("sha256") != population.sha256 or recorded.get("category") != category:
+    if recorded.get("sha256") != population.sha256 or recorded.get("category") != name:
         raise Conflict(
             f"{KEY}.checkpoints: {checkpoint.path} was trained for population "
             f"{str(recorded.get('sha256'))[:12]}… ({recorded.get('category')}), the protocol "
-            f"names {population.sha256[:12]}… ({category}): retrain it for this population"
+            f"names {population.sha256[:12]}… ({name}): retrain it for this population"
+        )
+    source = recorded.get("source") or {}
+    questions = recorded.get("questions") or source.get("questions", {}).get(name)
+    if questions is None:
+        raise InvalidInput(
+            f"{KEY}.checkpoints: neither {checkpoint.path} nor its population records the "
+            f"questions of {name!r}, so they cannot be compared with this protocol's: train it "
+            "with trustlab pretrain --population FILE --protocol THIS_PROTOCOL"
+        )
+    if list(questions) != list(category.questions):
+        raise InvalidInput(
+            f"{KEY}.checkpoints: {checkpoint.path} was trained for other questions of {name!r} "
+            "than this protocol asks: the questions differ"
         )
 
 
@@ -99,7 +119,7 @@ def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | No
         For a checkpoint trained for another population, or a source study still enrolling
         without ``enrolling_reason``.
     """
-    from app.services.learners import checkpoint_at
+    from app.services.learners import accepted_mismatch, checkpoint_at
 
     population = population_of(protocol)
     if population is None:
@@ -117,7 +137,8 @@ def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | No
             checkpoint = checkpoint_at(path, len(category.questions))
         except ValueError as exc:
             raise InvalidInput(f"{KEY}.checkpoints: {exc}") from None
-        check_trained_for(checkpoint, population, category.name)
+        check_trained_for(checkpoint, population, category)
+        accepted_mismatch(protocol, checkpoint)  # the feedback model, now rather than at enrolment
     sources = [str(name) for name in population.content["source"].get("studies", [])]
     enrolling = list(
         db.scalars(

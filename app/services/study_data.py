@@ -334,7 +334,8 @@ def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> Study
         .distinct()
     )
     checkpoints = sorted(digest for digest in digests if digest)
-    population = population_used(db, study)
+    # While the step log is withheld (blinded), so is C2's starting point: it tells the learner.
+    population = None if withheld else population_used(db, study)
     if population is not None:
         summary["population"] = population
     manifest = {

@@ -28,6 +28,7 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
     # As enrolment resolves them (it does not read settings.checkpoint_dir either).
     priors = learners.priors_in_use(protocol) if shown else []
     population = next((row.population for row in priors if row.population), None)
+    uniform = all(row.start is None or max(row.start) - min(row.start) < 1e-9 for row in priors)
     return render(
         request,
         "dashboard.html",
@@ -38,6 +39,7 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
             "learners_hidden": "" if shown else blinding.LEARNERS_SEALED,
             "priors": priors,
             "population": population,
+            "uniform_start": uniform,
             "population_source": source_label(population["source"]) if population else "",
         },
     )

@@ -119,3 +119,21 @@ def test_the_question_texts_must_match_when_both_are_known() -> None:
     assert len(population.prior("cognition", 3, ["a", "b", "c"])) == 3
     with pytest.raises(ValueError, match="asks other questions"):
         population.prior("cognition", 3, ["a", "b", "x"])
+
+
+def test_a_file_with_its_hash_but_missing_figures_is_refused(tmp_path: Path) -> None:
+    from analysis.population import Population, _digest
+
+    good = fit_population(_steps(30), {"steps": "x"}, replicates=2)
+    for damage, message in (
+        (lambda c: c["categories"]["conation"].pop("prior"), "lacks prior"),
+        (lambda c: c["categories"]["conation"].update(prior=[0.5, 0.6, 0, 0]), "summing to 1"),
+        (lambda c: c["categories"]["conation"].update(slip=2), "slip outside"),
+        (lambda c: c.pop("source"), "records no source"),
+    ):
+        content = json.loads(json.dumps(good.content))
+        damage(content)
+        path = tmp_path / "damaged.json"
+        write_population(path, Population(content, _digest(content)))
+        with pytest.raises(ValueError, match=message):
+            read_population(path)

@@ -127,3 +127,35 @@ def test_simulate_participants_drawn_from_a_population(
     ):
         result = run(cli, *common, *extra)
         assert result.exit_code == EXIT_BAD_INPUT and message in result.stderr, result.stderr
+
+
+def test_pretrain_all_trains_every_category_of_the_population(
+    cli: typer.Typer, tmp_path: Path
+) -> None:
+    path = tmp_path / "two.population.json"
+    steps = _steps(30, categories=(("conation", 4), ("affection", 4)))
+    write_population(path, fit_population(steps, {"steps": "two.csv"}, replicates=2))
+    out = tmp_path / "set"
+    result = run(
+        cli, "pretrain", *TINY, "--category", "all", "--population", str(path), "--out", str(out)
+    )
+    written = [Path(entry["path"]).name for entry in one_json(result)["checkpoints"]]
+    assert written == ["affection-k4", "conation-k4"]  # the population's categories, not all three
+    recorded = load_checkpoint(out / "affection-k4", 4).config["population"]
+    assert recorded["questions"][0].startswith("Be careful with the walls")  # the protocol's
+    three = tmp_path / "three.population.json"
+    write_population(three, fit_population(_steps(30), {"steps": "x.csv"}, replicates=2))
+    refused = run(
+        cli,
+        "pretrain",
+        *TINY,
+        "--category",
+        "all",
+        "--population",
+        str(three),
+        "--out",
+        str(tmp_path / "no"),
+    )
+    assert refused.exit_code == EXIT_BAD_INPUT
+    assert "'cognition' has 4 questions in the shipped protocol, 3 where" in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1 and not (tmp_path / "no").exists()

@@ -41,7 +41,9 @@ def _population(path: Path, *, seed: int = 0, questions: dict[str, list[str]] | 
     return population
 
 
-def _checkpoints(directory: Path, population: Population) -> Path:
+def _checkpoints(
+    directory: Path, population: Population, questions: dict[str, list[str]] | None = None
+) -> Path:
     """Checkpoints as `trustlab pretrain --population` writes them (weights drawn at random:
     what is checked here is what they record, not how well they adapt)."""
     trained_for = feedback_model(DEFAULT).to_json()
@@ -58,7 +60,11 @@ def _checkpoints(directory: Path, population: Population) -> Path:
             step_sizes=np.array([1.0, 0.8]),
             baselines=np.array([0.3, 0.3]),
             damping=0.1,
-            config={"feedback": trained_for, "population": population.record(name)},
+            config={
+                "feedback": trained_for,
+                "population": population.record(name)
+                | {"questions": None if questions is None else questions[name]},
+            },
             metrics={"note": "test fixture"},
             prior=np.asarray(population.training_prior(name, k)),
         )
@@ -222,3 +228,40 @@ def test_the_report_says_where_the_prior_came_from(
     with database.read_session() as db:
         plain = load_dataset(db, study=studies.get_study(db, "plain"))
     assert "population" not in plain.protocol and plain.manifest["population_sha256"] is None
+
+
+def test_a_csv_populations_questions_are_compared_through_its_checkpoints(
+    database: Database, tmp_path: Path
+) -> None:
+    """A steps CSV carries no question texts: the checkpoints record the ones they were trained
+    for (``pretrain`` reads them from the protocol), and study creation compares those."""
+    file = tmp_path / "csv.population.json"
+    population = fit_population(_steps(24, 0, CATEGORIES), {"steps": "pilot.csv"}, replicates=2)
+    write_population(file, population)
+    unknown = _checkpoints(tmp_path / "unknown", population)
+    with pytest.raises(InvalidInput, match="records the questions of 'conation'"):
+        _create(database, "main", _protocol(file, unknown))
+    other = {name: list(texts) for name, texts in QUESTIONS.items()}
+    other["cognition"][0] = "Is this the way out?"
+    moved = _checkpoints(tmp_path / "moved", population, questions=other)
+    with pytest.raises(InvalidInput, match="trained for other questions of 'cognition'"):
+        _create(database, "main", _protocol(file, moved))
+    same = _checkpoints(tmp_path / "same", population, questions=QUESTIONS)
+    _create(database, "main", _protocol(file, same))
+
+
+def test_a_blinded_studys_staff_report_leaves_the_prior_out(
+    database: Database, world: tuple[Path, Path, Population]
+) -> None:
+    file, checkpoints, population = world
+    text = _protocol(file, checkpoints).replace("blinded = false", "blinded = true")
+    _create(database, "main", text)
+    with database.writing() as db:
+        for _ in range(2):
+            enroll_participant(db, study_name="main", actor=Actor.system())
+    with database.read_session() as db:
+        study = studies.get_study(db, "main")
+        staff = load_dataset(db, study=study, for_staff=True)
+        command_line = load_dataset(db, study=study)
+    assert "population" not in staff.protocol and staff.manifest["population_sha256"] is None
+    assert command_line.protocol["population"]["sha256"] == population.sha256
