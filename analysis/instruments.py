@@ -99,6 +99,8 @@ class InstrumentSpec:
     items : tuple of ItemSpec
     per_session : bool
         Answered after every session (stored with a session number) rather than once.
+    after_study : bool
+        Answered once after the last session (the Methods say "after", not "before").
     citation : str
         Source of the instrument (exported in the codebook).
     stem : str
@@ -109,6 +111,7 @@ class InstrumentSpec:
     label: str
     items: tuple[ItemSpec, ...]
     per_session: bool = False
+    after_study: bool = False
     citation: str = ""
     stem: str = ""
     _by_key: Mapping[str, ItemSpec] = field(init=False, repr=False, compare=False)

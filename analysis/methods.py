@@ -13,6 +13,7 @@ from typing import Any
 
 from analysis.dataset import ProtocolSummary
 from analysis.instruments import InstrumentSpec
+from analysis.prose import count, gender_word, value_range
 
 __all__ = [
     "analysis_paragraph",
@@ -56,16 +57,18 @@ def participants_paragraph(protocol: ProtocolSummary, sample: Mapping[str, Any])
     labels = {c["code"]: c["label"] for c in protocol["conditions"]}
     by_condition = sample.get("by_condition", {})
     groups = [f"{code}, {labels[code]}: {by_condition.get(code, 0)}" for code in labels]
-    text = f"N = {sample.get('n', 0)} participants were analysed ({'; '.join(groups)})"
+    n = sample.get("n", 0)
+    verb = "was" if n == 1 else "were"
+    text = f"N = {count(n, 'participant')} {verb} analysed ({'; '.join(groups)})"
     gender = sample.get("gender")
     if gender:
-        text += "; " + ", ".join(f"{n} {label.lower()}" for label, n in gender.items())
+        text += "; " + ", ".join(f"{n} {gender_word(label)}" for label, n in gender.items())
     age = sample.get("age")
     if age:
         sd = age["sd"]
         sd_text = f", SD = {sd:.2f}" if isinstance(sd, float) and math.isfinite(sd) else ""
         text += (
-            f"; aged {age['min']:g}–{age['max']:g} years (M = {age['mean']:.2f}{sd_text}"
+            f"; aged {value_range(age['min'], age['max'], 'years')} (M = {age['mean']:.2f}{sd_text}"
             + (f", n = {age['n']}" if age["n"] != sample.get("n") else "")
             + ")"
         )
@@ -109,7 +112,8 @@ def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[Instrument
     if protocol.get("population"):
         sentences.append(population_sentence(protocol["population"]))
     per_session = [i for i in instruments if i.per_session]
-    once = [i for i in instruments if not i.per_session]
+    once = [i for i in instruments if not i.per_session and not i.after_study]
+    after = [i for i in instruments if i.after_study]
     for spec in per_session:
         first = spec.items[0]
         scale = (
@@ -127,6 +131,12 @@ def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[Instrument
     if once:
         sentences.append(
             "Before the study they completed: " + "; ".join(spec.label for spec in once) + "."
+        )
+    if after:
+        sentences.append(
+            "After the last session they completed: "
+            + "; ".join(spec.label for spec in after)
+            + "."
         )
     return " ".join(sentences)
 

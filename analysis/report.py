@@ -32,6 +32,7 @@ from analysis.figures import (
     trajectories_payload,
 )
 from analysis.methods import analysis_paragraph, design_paragraph, participants_paragraph
+from analysis.prose import item_title
 from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
 
 __all__ = [
@@ -334,8 +335,7 @@ def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
 
 
 def _outcome_title(outcome: OutcomeAnalysis) -> str:
-    suffix = " (reverse-scored)" if outcome.reverse_keyed else ""
-    return f"{outcome.key}: {outcome.label}{suffix}"
+    return f"{outcome.key}: {item_title(outcome.label, reverse_keyed=outcome.reverse_keyed)}"
 
 
 def _outcome_section(

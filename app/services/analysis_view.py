@@ -12,6 +12,7 @@ from typing import Any
 
 from analysis.apa import format_number, format_p, format_proportion, sphericity_sentence
 from analysis.figures import adaptation_payload_from_curves, mean_ci_payload_from_cells
+from analysis.prose import count, item_title
 from analysis.study import StudyAnalysis
 from app.services.dashboard import json_safe
 
@@ -66,12 +67,18 @@ class AnalysisView:
     adaptation_problem: str
     analysed: int
 
+    @property
+    def analysed_text(self) -> str:
+        """``1 participant analysed`` / ``24 participants analysed``."""
+        return count(self.analysed, "participant") + " analysed"
+
 
 def analysis_view(result: StudyAnalysis) -> AnalysisView:
     """Format an analysis for the page."""
     outcomes = []
     for outcome in result.outcomes:
-        view = OutcomeView(outcome.key, outcome.label, outcome.problem)
+        title = item_title(outcome.label, reverse_keyed=outcome.reverse_keyed)
+        view = OutcomeView(outcome.key, title, outcome.problem)
         if outcome.anova is not None and outcome.sentences is not None:
             view.sentences = [str(text) for text in outcome.sentences["text"]]
             view.anova = [
@@ -108,7 +115,7 @@ def analysis_view(result: StudyAnalysis) -> AnalysisView:
                     within="session",
                     between="condition",
                     confidence=result.confidence,
-                    title=f"{outcome.label}: mean ± 95 % CI",
+                    title=f"{title}: mean ± 95 % CI",
                     y_range=outcome.value_range,
                     within_label="Session",
                     style="point",

@@ -108,6 +108,7 @@ def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
                 instrument.title,
                 _items(protocol, instrument),
                 per_session=instrument.when == "session",
+                after_study=instrument.when == "post",
                 citation=instrument.citation,
                 stem=instrument.instructions,
             )

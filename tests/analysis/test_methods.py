@@ -36,7 +36,7 @@ def test_participants_paragraph_partial_information() -> None:
     }
     assert participants_paragraph(SEED_PAPER_PROTOCOL, sample) == (
         "N = 3 participants were analysed (C1, Exp3: 3; C2, meta-learned policy: 0); "
-        "aged 30–30 years (M = 30.00, n = 1)."
+        "aged 30 years (M = 30.00, n = 1)."
     )
 
 

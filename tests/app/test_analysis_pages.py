@@ -21,7 +21,7 @@ from app.protocol import default_protocol
 from app.services import study_data
 from app.tables import AuditEvent, Role
 from bench.seed import seed_study
-from tests.conftest import UserClientFactory
+from tests.conftest import Lab, UserClientFactory
 
 
 @pytest.fixture
@@ -166,3 +166,16 @@ def test_degenerate_data_is_explained_not_crashed(
     page = user_client(Role.ANALYST).get("/studies/tiny/analysis")
     assert page.status_code == 200
     assert "cannot be computed because" in page.text
+
+
+def test_the_page_reads_right_for_one_participant(lab: Lab, user_client: UserClientFactory) -> None:
+    """Issue 21, defect 7: count and noun agree, no ".:" in titles, reverse items marked."""
+    lab.enrol_and_assign()
+    for _ in ("familiarisation", "session 1"):
+        lab.start_session()
+        lab.run_session()
+    lab.fill_pending_questionnaires()
+    page = user_client(Role.ANALYST).get(f"/studies/{lab.study}/analysis").text
+    assert "1 participant analysed" in page and "1 participants" not in page
+    assert ".: mean" not in page
+    assert "(reverse-scored)" in page
