@@ -55,6 +55,9 @@ def test_refusals_are_shown_next_to_their_control(
     form.get_by_role("button", name="Enrol and randomise").click()
     expect(page.get_by_role("status")).to_contain_text("allocated to")
     expect(page.locator("p.refusal")).to_have_count(0)
+    # Issue 21, defect 5: the enrolment cards count the new participant without a reload.
+    counts = page.locator("#enrolment-cards .stat-value").all_inner_texts()
+    assert sum(int(n) for n in counts) == 2, counts
 
     # A console whose live updates are cut, so its buttons go out of date.
     page.route("**/stations/lab-1/events", lambda route: route.abort())
