@@ -34,6 +34,7 @@ from starlette.concurrency import run_in_threadpool
 from app.errors import DatabaseUnavailable
 from app.events import EventHub, attach_publishing
 from app.private_files import create_private
+from app.services import learner_cache
 
 log = logging.getLogger(__name__)
 
@@ -375,9 +376,13 @@ class Database:
             if background_checkpoints and self.is_sqlite and path and path != ":memory:"
             else None
         )
-        self._read = sessionmaker(self.engine, expire_on_commit=False)
+        # One learner cache per database, shared by its sessions (info is copied shallowly).
+        shared = {learner_cache.SESSION_KEY: learner_cache.LearnerCache()}
+        self._read = sessionmaker(self.engine, expire_on_commit=False, info=shared)
         self._write = sessionmaker(
-            self.engine.execution_options(**{WRITE_OPTION: True}), expire_on_commit=False
+            self.engine.execution_options(**{WRITE_OPTION: True}),
+            expire_on_commit=False,
+            info=shared,
         )
         self.hub = EventHub()
         self._admissions: weakref.WeakKeyDictionary[

@@ -5,18 +5,13 @@ pre-trained meta-policy for a ``meta`` condition (the checkpoint's SHA-256 is re
 keeps the initial state, the current state and a version that increments with every update, so
 ``trustlab verify`` can replay the step log from the initial state and compare bit for bit.
 
-Restoring a learner from JSON on every answer is the hot path; a small per-process cache keyed by
-``(row id, version)`` skips it. An entry is *taken out* of the cache before the learner is mutated
-and put back (under the new version) only after the transaction commits, so a rolled-back update can
-never leave a learner in the cache that is ahead of the database.
+Restoring a learner from JSON on every answer is the hot path: app.services.learner_cache keeps
+live learners between answers, one cache per database.
 """
 
 from __future__ import annotations
 
 import functools
-import threading
-from collections import OrderedDict
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -267,30 +262,3 @@ def plain_state(state: dict[str, Any]) -> dict[str, Any]:
 def probabilities_list(learner: Learner) -> list[float]:
     """Probabilities as plain floats for JSON (float64 → float is exact)."""
     return [float(p) for p in np.asarray(learner.probabilities(), dtype=np.float64)]
-
-
-class LearnerCache:
-    """Live learners keyed by (row id, version); see the module docstring for the protocol."""
-
-    def __init__(self, capacity: int = 2048) -> None:
-        self._entries: OrderedDict[tuple[int, int], Learner] = OrderedDict()
-        self._capacity = capacity
-        self._lock = threading.Lock()
-
-    def take(self, row_id: int, version: int, rebuild: Callable[[], Learner]) -> Learner:
-        """The learner of row ``row_id`` at ``version``, removed from the cache (``rebuild()``
-        when absent)."""
-        with self._lock:
-            learner = self._entries.pop((row_id, version), None)
-        return learner if learner is not None else rebuild()
-
-    def put(self, row_id: int, version: int, learner: Learner) -> None:
-        """Keep a learner known to match the committed row at ``version``."""
-        with self._lock:
-            self._entries[(row_id, version)] = learner
-            self._entries.move_to_end((row_id, version))
-            while len(self._entries) > self._capacity:
-                self._entries.popitem(last=False)
-
-
-cache = LearnerCache()

@@ -40,7 +40,7 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import Protocol
-from app.services import blinding, learners, questionnaires, step_store
+from app.services import blinding, learner_cache, learners, questionnaires, step_store
 from app.services.audit import Actor
 from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
 from app.services.step_store import LearnerRow, RunState, Seat, Seated, Step, StoredAnswer
@@ -446,7 +446,7 @@ def _live_learner(ctx: Context, row: LearnerRow) -> Learner:
         learner.load_state_dict(step_store.learner_state(ctx.cursor, learner_id=row.id))
         return learner
 
-    return learners.cache.take(row.id, row.version, rebuild)
+    return learner_cache.of(ctx.cursor.db).take(row.id, row.version, rebuild)
 
 
 @dataclass(frozen=True)
@@ -510,7 +510,7 @@ def request_prompt(
     learner = _live_learner(ctx, row)
     probabilities = learners.probabilities_list(learner)
     action = int(learner.select(_rng(ctx, run, index)))
-    learners.cache.put(row.id, row.version, learner)  # choosing changes no state
+    learner_cache.of(ctx.cursor.db).put(row.id, row.version, learner)  # choosing changes no state
     step = step_store.insert_prompt(
         ctx.cursor,
         participant_id=ctx.participant.id,
@@ -724,7 +724,7 @@ def record_answer(
     expected = expected_next(db, ctx, None if run_done else progress)
     db.commit()
     if learner is not None:
-        learners.cache.put(row.id, version, learner)
+        learner_cache.of(db).put(row.id, version, learner)
     result = StoredAnswer(
         answer_id,
         answer,

@@ -10,6 +10,8 @@ from typing import Any
 from sqlalchemy import event, text
 
 from app.db import WAL_AUTOCHECKPOINT_PAGES, Database
+from app.services import learner_cache
+from models.learners.exp3 import Exp3
 
 
 def _autocheckpoint(database: Database) -> int:
@@ -121,3 +123,20 @@ def test_the_writer_queue_is_held_through_commit_and_freed_by_rollback(tmp_path:
             assert not gate.locked()  # readers never take it
     finally:
         database.dispose()
+
+
+def test_each_database_keeps_its_own_live_learners(tmp_path: Path) -> None:
+    """Row ids repeat between databases: a learner cached for one must never serve the other."""
+    first = Database(f"sqlite:///{tmp_path}/first.sqlite3")
+    second = Database(f"sqlite:///{tmp_path}/second.sqlite3")
+    try:
+        with first.read_session() as reading, first.write_session() as writing:
+            shared = learner_cache.of(reading)
+            assert learner_cache.of(writing) is shared  # one cache across a database's sessions
+            shared.put(1, 3, Exp3(3, gamma=0.1))
+        with second.write_session() as other:
+            rebuilt = Exp3(3, gamma=0.2)
+            assert learner_cache.of(other).take(1, 3, lambda: rebuilt) is rebuilt
+    finally:
+        first.dispose()
+        second.dispose()
