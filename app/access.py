@@ -102,6 +102,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/stations"): STAFF,
     ("GET", "/stations/{name}"): STAFF,
     ("POST", "/stations/{name}/assign"): STAFF,
+    ("POST", "/stations/{name}/study"): STAFF,
     ("POST", "/stations/{name}/unassign"): STAFF,
     ("POST", "/stations/{name}/session/start"): STAFF,
     ("POST", "/stations/{name}/session/end"): STAFF,
@@ -133,6 +134,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/admin/studies/new"): ADMINS,
     ("POST", "/admin/studies"): ADMINS,
     ("POST", "/admin/studies/{name}/status"): ADMINS,
+    ("POST", "/admin/studies/{name}/archive"): ADMINS,
     ("GET", "/admin/studies/{name}/unblind"): ADMINS,
     ("POST", "/admin/studies/{name}/unblind"): ADMINS,
     ("GET", "/admin/audit"): ADMINS,
@@ -140,6 +142,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/stations"): ADMINS,
     ("POST", "/stations/{name}/devices"): ADMINS,
     ("POST", "/stations/{name}/kiosk"): ADMINS,
+    ("POST", "/stations/{name}/archive"): ADMINS,
     ("POST", "/devices/{device_id}/revoke"): ADMINS,
     # robots: their own station only
     ("GET", "/api/v1/station"): DEVICES,

@@ -26,7 +26,7 @@ from app.bots import BotConfig, BotSummary, run_bots
 from app.db import Database
 from app.errors import Conflict
 from app.protocol import default_protocol
-from app.services import accounts, studies, users
+from app.services import accounts, stations, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -34,6 +34,8 @@ from app.tables import Role
 DEMO_STUDY = "demo"
 DEMO_ACCOUNT = "demo-bots"
 DEMO_PARTICIPANTS = 8
+DEMO_STATIONS = 4
+DEMO_STATION_PREFIX = "demo"
 PLAN_FILE = "demo-pending.json"
 
 
@@ -53,7 +55,9 @@ def plan_path(settings: Settings) -> Path:
 
 def plan_demo(db: Session, settings: Settings, actor: Actor) -> DemoPlan:
     """Create the demo study and the bots' account; write the plan for ``trustlab serve``."""
-    studies.create_study(db, name=DEMO_STUDY, loaded=default_protocol(), actor=actor)
+    loaded = default_protocol()
+    title = f"Demo with simulated participants: {loaded.protocol.study.title}"
+    studies.create_study(db, name=DEMO_STUDY, loaded=loaded, actor=actor, title=title[:200])
     password = secrets.token_urlsafe(18)
     users.create_user(db, username=DEMO_ACCOUNT, role=Role.ADMIN, password=password, actor=actor)
     plan = DemoPlan(DEMO_STUDY, DEMO_ACCOUNT, password, DEMO_PARTICIPANTS)
@@ -66,18 +70,29 @@ def plan_demo(db: Session, settings: Settings, actor: Actor) -> DemoPlan:
 
 
 def retire(plan: DemoPlan, settings: Settings, echo: Callable[[str], None]) -> None:
-    """After the demo: disable the bots' account and remove the plan (it holds the password).
-    Should the bots' account have become the only active admin meanwhile, it stays enabled:
-    there is always an active admin (app.services.accounts)."""
+    """After the demo: disable the bots' account, archive the bots' stations (a lab's station
+    list shows its own) and remove the plan (it holds the password). Should the bots' account
+    have become the only active admin meanwhile, it stays enabled: there is always an active
+    admin (app.services.accounts)."""
     database = Database(settings.database_url)
+    actor = Actor.system("demo")
     try:
         with database.writing() as db:
-            accounts.disable_user(db, username=plan.username, actor=Actor.system("demo"))
+            for station in stations.list_stations(db, archived=False):
+                if _is_demo_station(station.name) and station.participant_id is None:
+                    stations.set_archived(db, station_name=station.name, archived=True, actor=actor)
+        with database.writing() as db:
+            accounts.disable_user(db, username=plan.username, actor=actor)
     except Conflict as exc:
         echo(f"demo: the bots' account stays enabled: {exc.message}")
     finally:
         database.dispose()
     plan_path(settings).unlink(missing_ok=True)
+
+
+def _is_demo_station(name: str) -> bool:
+    prefix, _, number = name.rpartition("-")
+    return prefix == DEMO_STATION_PREFIX and number.isdigit() and int(number) <= DEMO_STATIONS
 
 
 def pending_demo(settings: Settings) -> DemoPlan | None:
@@ -116,10 +131,10 @@ def run_demo(
                 participants=plan.participants,
                 username=plan.username,
                 password=plan.password,
-                concurrency=4,
+                concurrency=DEMO_STATIONS,
                 noise=0.1,
                 seed=1,
-                station_prefix="demo",
+                station_prefix=DEMO_STATION_PREFIX,
             )
         )
     )

@@ -170,6 +170,9 @@ class Study(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     created_by: Mapped[str] = mapped_column(String(64), default="")
     closed_at: Mapped[datetime | None]
+    # Hidden from the everyday lists (the demo study, a finished study); nothing is deleted and an
+    # admin can show it again (app.services.studies.set_archived).
+    archived_at: Mapped[datetime | None]
     # Set once, by an admin, when a blinded study's learner data may be shown (app.services.
     # blinding); never cleared: what has been seen cannot be unseen.
     unblinded_at: Mapped[datetime | None]
@@ -289,6 +292,10 @@ class Station(Base):
     assigned_at: Mapped[datetime | None]
     kiosk_token_hash: Mapped[str | None] = mapped_column(String(64))
     kiosk_generation: Mapped[int] = mapped_column(default=0, server_default="0")
+    # The study this station's console seats participants from (empty: the console asks for one).
+    study_id: Mapped[int | None] = mapped_column(ForeignKey("study.id"))
+    # Hidden from the station list (the bots' stations after the demo); keys and logs stay.
+    archived_at: Mapped[datetime | None]
 
     participant: Mapped[Participant | None] = relationship()
 

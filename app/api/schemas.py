@@ -18,6 +18,12 @@ class StudyCreate(RequestBody):
     """A new study: its name and the protocol as TOML text."""
 
     name: str = Field(max_length=64, examples=["pilot-2026"])
+    title: str | None = Field(
+        default=None,
+        max_length=200,
+        description="Shown on every page; the protocol's title when left out.",
+        examples=["Pilot, spring 2026"],
+    )
     protocol_toml: str = Field(max_length=512 * 1024, description="The protocol file's content.")
 
 

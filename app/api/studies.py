@@ -73,7 +73,9 @@ def create_study(body: StudyCreate, db: SessionDep, admin: AdminUser) -> StudySu
         loaded = parse_protocol(body.protocol_toml, source="protocol_toml")
     except ProtocolError as exc:
         raise InvalidInput(str(exc)) from exc
-    study = studies.create_study(db, name=body.name, loaded=loaded, actor=Actor.of_user(admin))
+    study = studies.create_study(
+        db, name=body.name, loaded=loaded, actor=Actor.of_user(admin), title=body.title
+    )
     return _summary(db, study, Actor.of_user(admin))
 
 

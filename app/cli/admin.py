@@ -233,6 +233,9 @@ def db_restore(
 def study_create(
     protocol: Annotated[Path, typer.Option(help="Protocol TOML file.")],
     name: Annotated[str, typer.Option(help="Short unique name, e.g. pilot-2026.")],
+    title: Annotated[
+        str, typer.Option(help="Shown on every page (default: the protocol's title).")
+    ] = "",
     as_json: JsonFlag = False,
 ) -> None:
     """Create a study from a protocol file."""
@@ -240,7 +243,9 @@ def study_create(
     database = open_database(Settings())
     require_current_schema(database)
     with database.writing() as db:
-        study = studies.create_study(db, name=name, loaded=loaded, actor=Actor.command_line())
+        study = studies.create_study(
+            db, name=name, loaded=loaded, actor=Actor.command_line(), title=title
+        )
         if as_json:
             emit_json({"name": study.name, "title": study.title, "sha256": study.protocol_sha256})
         else:

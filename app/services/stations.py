@@ -26,6 +26,7 @@ from app.tables import (
     ParticipantStatus,
     SessionStatus,
     Station,
+    Study,
     StudySession,
     utcnow,
 )
@@ -73,9 +74,81 @@ def get_station(db: Session, name: str, *, for_update: bool = False) -> Station:
     return station
 
 
-def list_stations(db: Session) -> list[Station]:
-    """Every station by name."""
-    return list(db.scalars(select(Station).order_by(Station.name)))
+def list_stations(db: Session, *, archived: bool | None = None) -> list[Station]:
+    """Stations by name: every one (``archived=None``), or only the shown or archived ones."""
+    query = select(Station).order_by(Station.name)
+    if archived is not None:
+        hidden = Station.archived_at.is_not(None)
+        query = query.where(hidden if archived else ~hidden)
+    return list(db.scalars(query))
+
+
+def set_archived(db: Session, *, station_name: str, archived: bool, actor: Actor) -> Station:
+    """Hide a station from the station list (the bots' stations after the demo), or show it
+    again; commits. A station with someone seated is freed first, so nobody is left at a station
+    nobody sees; its keys keep working and its log stays."""
+    station = get_station(db, station_name, for_update=True)
+    if (station.archived_at is not None) == archived:
+        return station
+    if archived and station.participant_id is not None:
+        raise Conflict(f"station {station.name!r} has a participant seated: free it first")
+    station.archived_at = utcnow() if archived else None
+    audit.record(
+        db,
+        actor=actor,
+        action="station.archived" if archived else "station.unarchived",
+        subject=station.name,
+    )
+    db.commit()
+    return station
+
+
+def set_station_study(db: Session, *, station_name: str, study: Study, actor: Actor) -> Station:
+    """Tie a station's console to a study: it seats that study's participants without asking
+    (app.web.stations); commits. The seated participant, if any, stays."""
+    station = get_station(db, station_name, for_update=True)
+    _tie(db, station, study, actor)
+    db.commit()
+    return station
+
+
+def _tie(db: Session, station: Station, study: Study, actor: Actor) -> None:
+    """Record that ``station`` runs ``study`` (before commit)."""
+    if station.study_id == study.id:
+        return
+    station.study_id = study.id
+    audit.record(
+        db, actor=actor, action="station.study_set", study_id=study.id, subject=station.name
+    )
+
+
+def seating_questions(db: Session, *, station: Station, participant: Participant) -> list[str]:
+    """What an experimenter should confirm before seating ``participant`` here, in words.
+
+    Typing a code into the wrong console or the wrong study costs a session: a participant who has
+    finished, one of another study than the station's, or one seated at another station is seated
+    only once someone says so. Empty: seat at once."""
+    questions = []
+    if station.study_id is not None and participant.study_id != station.study_id:
+        own = db.get(Study, station.study_id)
+        theirs = db.get(Study, participant.study_id)
+        assert own is not None and theirs is not None
+        questions.append(
+            f"{participant.code} is in the study {theirs.title!r} ({theirs.name}), "
+            f"but this station runs {own.title!r} ({own.name})."
+        )
+    if participant.status == ParticipantStatus.COMPLETED:
+        questions.append(f"{participant.code} has finished the study: every session is done.")
+    elsewhere = db.scalar(
+        select(Station.name).where(
+            Station.participant_id == participant.id, Station.id != station.id
+        )
+    )
+    if elsewhere is not None:
+        questions.append(
+            f"{participant.code} is seated at station {elsewhere!r}; seating them here frees it."
+        )
+    return questions
 
 
 def create_station(db: Session, *, name: str, actor: Actor) -> Station:
@@ -181,9 +254,17 @@ def _running_session(db: Session, participant_id: int) -> StudySession | None:
 
 
 def assign_participant(
-    db: Session, *, station_name: str, participant: Participant, actor: Actor
+    db: Session,
+    *,
+    station_name: str,
+    participant: Participant,
+    actor: Actor,
+    tie_untied_to: Study | None = None,
 ) -> Station:
-    """Seat a participant at a station; commits. One participant per station and vice versa."""
+    """Seat a participant at a station; commits. One participant per station and vice versa.
+
+    ``tie_untied_to``: a station that runs no study yet runs this one from now on (the console's
+    first seating, in the same transaction)."""
     station = get_station(db, station_name, for_update=True)
     if participant.status == ParticipantStatus.WITHDRAWN:
         raise Conflict(f"participant {participant.code!r} has withdrawn")
@@ -207,6 +288,8 @@ def assign_participant(
         db.flush()
     station.participant_id = participant.id
     station.assigned_at = utcnow()
+    if tie_untied_to is not None and station.study_id is None:
+        _tie(db, station, tie_untied_to, actor)
     _seating_changed(db, station, participant, actor, "assigned")
     db.commit()
     return station

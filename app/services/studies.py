@@ -1,4 +1,4 @@
-"""Studies: creation from a validated protocol, lookup, opening and closing."""
+"""Studies: creation from a validated protocol, lookup, opening and closing, hiding from lists."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict, NotFound
+from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import STUDY_NAME
 from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
 from app.services import audit, populations
@@ -16,17 +16,35 @@ from app.services.audit import Actor
 from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
 DEFAULT_STUDY_NAME = "default"
+TITLE_MAX_LENGTH = 200
 
 
-def create_study(db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor) -> Study:
-    """Create an open study with a fresh secret allocation seed; commits."""
+def study_title(given: str | None, loaded: LoadedProtocol) -> str:
+    """The title a new study gets: the one given (trimmed), else the protocol's.
+
+    Two studies of one protocol (a pilot and the main study, the demo) would otherwise show the
+    same title everywhere; the lab names each when it creates it."""
+    title = " ".join((given or "").split())
+    if not title:
+        return loaded.protocol.study.title
+    if len(title) > TITLE_MAX_LENGTH:
+        raise InvalidInput(f"a study title has at most {TITLE_MAX_LENGTH} characters")
+    return title
+
+
+def create_study(
+    db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor, title: str | None = None
+) -> Study:
+    """Create an open study with a fresh secret allocation seed; commits. ``title``: see
+    :func:`study_title`."""
     STUDY_NAME.check(name)
+    shown_title = study_title(title, loaded)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:
         raise Conflict(f"a study named {name!r} already exists")
     population = populations.check_population_use(db, loaded.protocol)
     study = Study(
         name=name,
-        title=loaded.protocol.study.title,
+        title=shown_title,
         protocol=loaded.protocol.model_dump(mode="json"),
         protocol_source=loaded.source_text,
         protocol_sha256=loaded.sha256,
@@ -91,9 +109,40 @@ def get_study(db: Session, name: str, *, for_update: bool = False) -> Study:
     return study
 
 
-def list_studies(db: Session) -> list[Study]:
-    """Every study, newest first."""
-    return list(db.scalars(select(Study).order_by(Study.created_at.desc(), Study.id.desc())))
+def list_studies(db: Session, *, archived: bool | None = None) -> list[Study]:
+    """Studies newest first: every one (``archived=None``), or only the shown or archived ones."""
+    query = select(Study).order_by(Study.created_at.desc(), Study.id.desc())
+    if archived is not None:
+        query = query.where(
+            Study.archived_at.is_not(None) if archived else Study.archived_at.is_(None)
+        )
+    return list(db.scalars(query))
+
+
+def count_archived(db: Session) -> int:
+    """How many studies are hidden from the everyday lists."""
+    query = select(func.count()).select_from(Study).where(Study.archived_at.is_not(None))
+    return db.scalar(query) or 0
+
+
+def set_archived(db: Session, *, name: str, archived: bool, actor: Actor) -> Study:
+    """Hide a study from the study list and the consoles, or show it again; commits.
+
+    Nothing is deleted or closed: its pages, exports and API stay as they were, and a participant
+    already seated somewhere carries on."""
+    study = get_study(db, name, for_update=True)
+    if (study.archived_at is not None) == archived:
+        return study
+    study.archived_at = utcnow() if archived else None
+    audit.record(
+        db,
+        actor=actor,
+        action="study.archived" if archived else "study.unarchived",
+        study_id=study.id,
+        subject=study.name,
+    )
+    db.commit()
+    return study
 
 
 def count_studies(db: Session) -> int:

@@ -77,7 +77,7 @@ def create_user(
 @router.get("/studies/new")
 def new_study_form(request: Request, admin: AdminUser) -> Response:
     """Upload a protocol file to create a study."""
-    return render(request, "admin_new_study.html", {"error": "", "name": ""})
+    return render(request, "admin_new_study.html", {"error": "", "name": "", "title": ""})
 
 
 @router.post("/studies")
@@ -87,6 +87,7 @@ def create_study(
     admin: AdminUser,
     name: Annotated[str, Form(max_length=64)],
     protocol: Annotated[UploadFile, File()],
+    title: Annotated[str, Form(max_length=400)] = "",
 ) -> Response:
     """Create a study from an uploaded protocol TOML file."""
     raw = protocol.file.read(MAX_PROTOCOL_BYTES + 1)
@@ -102,13 +103,18 @@ def create_study(
             error = str(exc)
     if not error:
         try:
-            studies.create_study(db, name=name.strip(), loaded=loaded, actor=Actor.of_user(admin))
+            studies.create_study(
+                db, name=name.strip(), loaded=loaded, actor=Actor.of_user(admin), title=title
+            )
         except (InvalidInput, Conflict) as exc:
             db.rollback()
             error = exc.message
     if error:
         return render(
-            request, "admin_new_study.html", {"error": error, "name": name}, status_code=422
+            request,
+            "admin_new_study.html",
+            {"error": error, "name": name, "title": title},
+            status_code=422,
         )
     return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")
 
@@ -124,6 +130,25 @@ def set_status(
     """Open or close a study for enrolment."""
     studies.set_study_status(db, name=name, status=status, actor=Actor.of_user(admin))
     return redirect_with_notice(request, f"/studies/{name}", f"Study is now {status.value}.")
+
+
+@router.post("/studies/{name}/archive")
+def set_archived(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    archived: Annotated[bool, Form()],
+) -> Response:
+    """Hide a study from the study list and the consoles (the demo, a finished study), or show
+    it again; nothing is deleted."""
+    study = studies.set_archived(db, name=name, archived=archived, actor=Actor.of_user(admin))
+    notice = (
+        f"Archived {study.title}: it is hidden from the study list and the consoles."
+        if archived
+        else f"{study.title} is shown again."
+    )
+    return redirect_with_notice(request, f"/studies/{name}", notice)
 
 
 def _unblind_page(

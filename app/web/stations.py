@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import uuid
 from collections import defaultdict
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from fastapi import Form, Request
@@ -18,7 +19,7 @@ from sqlalchemy import select
 from app.api import station_ops
 from app.api.runtime_schemas import AnswerRequest, PromptRequest
 from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
-from app.errors import TrustlabError
+from app.errors import Conflict, InvalidInput, NotFound, TrustlabError
 from app.inputs import RowId
 from app.services import enrolment, learners, runtime, stations, studies, tablet_tokens
 from app.services.audit import Actor
@@ -38,10 +39,10 @@ router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 def _stations_context(
-    request: Request, db: SessionDep, settings: SettingsDep, user: User
+    request: Request, db: SessionDep, settings: SettingsDep, user: User, *, archived: bool = False
 ) -> dict[str, Any]:
     base = str(request.base_url).rstrip("/")
-    found = stations.list_stations(db)
+    found = stations.list_stations(db, archived=archived)
     ids = [station.id for station in found]
     seated = {
         station_id: (participant, study)
@@ -72,24 +73,62 @@ def _stations_context(
                 "kiosk_qr": qr_svg(kiosk_url) if kiosk_url else "",
             }
         )
-    return {"rows": rows, "new_key": None}
+    hidden = len(stations.list_stations(db, archived=True)) if not archived else 0
+    return {
+        "rows": rows,
+        "new_key": None,
+        "archived": archived,
+        "archived_count": hidden,
+        "form_error": "",
+        "form_values": {},
+    }
 
 
 @router.get("/stations")
 def station_list(
-    request: Request, db: SessionDep, settings: SettingsDep, user: ExperimenterUser
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    user: ExperimenterUser,
+    archived: bool = False,
 ) -> Response:
-    """Every station, who is seated there, and its devices."""
-    return render(request, "stations.html", _stations_context(request, db, settings, user))
+    """The stations in use (``?archived=true``: the hidden ones), who is seated there, and
+    their devices."""
+    context = _stations_context(request, db, settings, user, archived=archived)
+    return render(request, "stations.html", context)
 
 
 @router.post("/stations")
 def create_station(
-    request: Request, db: SessionDep, admin: AdminUser, name: Annotated[str, Form(max_length=64)]
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    admin: AdminUser,
+    name: Annotated[str, Form(max_length=64)],
 ) -> Response:
-    """Create a station."""
-    stations.create_station(db, name=name.strip(), actor=Actor.of_user(admin))
+    """Create a station; a refused name is explained next to the form, as the server words it."""
+    try:
+        stations.create_station(db, name=name.strip(), actor=Actor.of_user(admin))
+    except (InvalidInput, Conflict) as exc:
+        db.rollback()
+        context = _stations_context(request, db, settings, admin)
+        context |= {"form_error": exc.message, "form_values": {"name": name}}
+        return render(request, "stations.html", context, status_code=exc.status_code)
     return redirect_with_notice(request, "/stations", f"Created station {name.strip()}.")
+
+
+@router.post("/stations/{name}/archive")
+def archive_station(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    archived: Annotated[bool, Form()],
+) -> Response:
+    """Hide a station from the list (the bots' stations after the demo), or show it again."""
+    stations.set_archived(db, station_name=name, archived=archived, actor=Actor.of_user(admin))
+    notice = f"Archived station {name}." if archived else f"Station {name} is shown again."
+    return redirect_with_notice(request, "/stations", notice)
 
 
 @router.post("/stations/{name}/devices")
@@ -170,6 +209,30 @@ def _probabilities(db: SessionDep, participant: Participant) -> list[dict[str, A
     return bars
 
 
+@dataclass(frozen=True)
+class SeatingQuestion:
+    """A seating the console asks about before doing it (app.services.stations.
+    seating_questions): the reasons, and the form's study and code that "Seat anyway" sends
+    again, confirmed."""
+
+    reasons: list[str]
+    study: str
+    code: str
+
+
+def _active_codes(db: SessionDep, study: Study) -> list[str]:
+    return list(
+        db.scalars(
+            select(Participant.code)
+            .where(
+                Participant.study_id == study.id,
+                Participant.status == ParticipantStatus.ACTIVE,
+            )
+            .order_by(Participant.code)
+        )
+    )
+
+
 def _console(
     request: Request,
     db: SessionDep,
@@ -177,6 +240,7 @@ def _console(
     name: str,
     *,
     error: str = "",
+    question: SeatingQuestion | None = None,
     status_code: int = 200,
 ) -> Response:
     station = stations.get_station(db, name)
@@ -187,17 +251,11 @@ def _console(
             select(Device).where(Device.station_id == station.id, Device.revoked_at.is_(None))
         )
     )
-    candidates = []
-    for study in studies.list_studies(db):
-        codes = db.scalars(
-            select(Participant.code)
-            .where(
-                Participant.study_id == study.id,
-                Participant.status == ParticipantStatus.ACTIVE,
-            )
-            .order_by(Participant.code)
-        ).all()
-        candidates.append({"study": study.name, "codes": codes})
+    station_study = db.get(Study, station.study_id) if station.study_id is not None else None
+    # The studies a station may run: those in use, and its own even once archived.
+    choices = studies.list_studies(db, archived=False)
+    if station_study is not None and station_study not in choices:
+        choices.append(station_study)
     last = runtime.last_step(db, participant_id=participant.id) if participant else None
     # While the seated participant's study is blinded, the learners stay off the page entirely:
     # bars, levels and probabilities would each show the condition (app.services.blinding).
@@ -210,7 +268,10 @@ def _console(
             "view": view,
             "participant": participant,
             "devices": devices,
-            "candidates": candidates,
+            "station_study": station_study,
+            "study_choices": choices,
+            "codes": _active_codes(db, station_study) if station_study else [],
+            "question": question,
             "bars": _probabilities(db, participant) if participant and learners_shown else [],
             "learners_shown": learners_shown,
             "last": last,
@@ -232,13 +293,55 @@ def console(request: Request, db: SessionDep, user: ExperimenterUser, name: str)
 def _act(
     request: Request, db: SessionDep, user: User, name: str, action: Any, notice: str = ""
 ) -> Response:
-    """Run a console action; show its refusal beside the buttons instead of an error page."""
+    """Run a console action; show its refusal beside the buttons instead of an error page, or
+    the question it asks before acting (an action returning a :class:`SeatingQuestion`)."""
     try:
-        action()
+        outcome = action()
     except TrustlabError as exc:
         db.rollback()
         return _console(request, db, user, name, error=exc.message, status_code=exc.status_code)
-    return _console(request, db, user, name)
+    question = outcome if isinstance(outcome, SeatingQuestion) else None
+    return _console(request, db, user, name, question=question)
+
+
+@router.post("/stations/{name}/study")
+def choose_study(
+    request: Request,
+    db: SessionDep,
+    user: ExperimenterUser,
+    name: str,
+    study: Annotated[str, Form(max_length=64)] = "",
+) -> Response:
+    """Tie the station's console to a study."""
+
+    def action() -> None:
+        if not study:
+            raise InvalidInput("choose the study this station runs")
+        stations.set_station_study(
+            db, station_name=name, study=studies.get_study(db, study), actor=Actor.of_user(user)
+        )
+
+    return _act(request, db, user, name, action)
+
+
+def _participant_to_seat(db: SessionDep, study: Study, code: str) -> tuple[Participant, list[str]]:
+    """The participant a typed code names, and why to ask first when it is not this study's.
+
+    A code the station's study does not know but another study in use does is most often a
+    typo'd console or a returning participant of the other study: offered, never taken silently.
+    """
+    try:
+        return enrolment.get_participant(db, study, code), []
+    except NotFound:
+        others = db.scalars(
+            select(Participant)
+            .join(Study, Study.id == Participant.study_id)
+            .where(Participant.code == code, Study.archived_at.is_(None), Study.id != study.id)
+            .order_by(Study.created_at.desc())
+        ).all()
+        if len(others) != 1:
+            raise
+        return others[0], [f"{study.title!r} ({study.name}) has no participant {code!r}."]
 
 
 @router.post("/stations/{name}/assign")
@@ -247,17 +350,30 @@ def assign(
     db: SessionDep,
     user: ExperimenterUser,
     name: str,
-    study: Annotated[str, Form(max_length=64)],
     code: Annotated[str, Form(max_length=32)],
+    study: Annotated[str, Form(max_length=64)] = "",
+    confirmed: Annotated[bool, Form()] = False,
 ) -> Response:
-    """Seat a participant at the station."""
+    """Seat a participant at the station; ask first when the seating looks like a slip."""
+    code = code.strip()
 
-    def action() -> None:
-        found = studies.get_study(db, study)
-        participant = enrolment.get_participant(db, found, code.strip())
-        stations.assign_participant(
-            db, station_name=name, participant=participant, actor=Actor.of_user(user)
+    def action() -> SeatingQuestion | None:
+        station = stations.get_station(db, name)
+        if not study:
+            raise InvalidInput("choose the study this station runs, then type the code")
+        chosen = studies.get_study(db, study)
+        participant, reasons = _participant_to_seat(db, chosen, code)
+        reasons += stations.seating_questions(db, station=station, participant=participant)
+        if reasons and not confirmed:
+            return SeatingQuestion(reasons, chosen.name, participant.code)
+        stations.assign_participant(  # the first seating ties the station to the study chosen
+            db,
+            station_name=name,
+            participant=participant,
+            actor=Actor.of_user(user),
+            tie_untied_to=chosen,
         )
+        return None
 
     return _act(request, db, user, name, action)
 

@@ -20,11 +20,14 @@ STRATUM_FIELD_PREFIX = "stratum_"
 
 
 @router.get("/")
-def study_list(request: Request, db: SessionDep, user: CurrentUser) -> Response:
-    """Every study with its enrolment (per condition where the role may see conditions)."""
+def study_list(
+    request: Request, db: SessionDep, user: CurrentUser, archived: bool = False
+) -> Response:
+    """The studies in use with their enrolment (per condition where the role may see
+    conditions); ``?archived=true``: the hidden ones."""
     actor = Actor.of_user(user)
     rows = []
-    for study in studies.list_studies(db):
+    for study in studies.list_studies(db, archived=archived):
         counts = studies.enrolment_counts(db, study)
         rows.append(
             {
@@ -36,7 +39,11 @@ def study_list(request: Request, db: SessionDep, user: CurrentUser) -> Response:
                 "total": sum(sum(by_status.values()) for by_status in counts.values()),
             }
         )
-    return render(request, "studies.html", {"rows": rows})
+    return render(
+        request,
+        "studies.html",
+        {"rows": rows, "archived": archived, "archived_count": studies.count_archived(db)},
+    )
 
 
 def _study_page(

@@ -201,6 +201,7 @@ PROBES: dict[tuple[str, str], Probe] = {
         )
         for action, data in {
             "assign": {"study": "rt", "code": "P001"},
+            "study": {"study": "rt"},
             "unassign": {},
             "session/start": {},
             "session/end": {},
@@ -247,6 +248,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/admin/studies/{name}/status"): send(
         "POST", "/admin/studies/ghost/status", data={"status": "open"}
     ),
+    ("POST", "/admin/studies/{name}/archive"): send(
+        "POST", "/admin/studies/ghost/archive", data={"archived": "true"}
+    ),
     ("GET", "/admin/studies/{name}/unblind"): get("/admin/studies/ghost/unblind"),
     ("POST", "/admin/studies/{name}/unblind"): send(
         "POST", "/admin/studies/ghost/unblind", data={}
@@ -256,6 +260,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/stations"): send("POST", "/stations", data={}),
     ("POST", "/stations/{name}/devices"): send("POST", "/stations/ghost/devices", data={}),
     ("POST", "/stations/{name}/kiosk"): send("POST", "/stations/ghost/kiosk", data={}),
+    ("POST", "/stations/{name}/archive"): send(
+        "POST", "/stations/ghost/archive", data={"archived": "true"}
+    ),
     ("POST", "/devices/{device_id}/revoke"): send("POST", "/devices/999999/revoke", data={}),
     ("GET", "/api/v1/station"): get("/api/v1/station"),
     ("POST", "/api/v1/station/prompts"): send("POST", "/api/v1/station/prompts", json={}),

@@ -15,7 +15,7 @@ from app import bots, demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
 from app.db import Database
-from app.services import accounts, users, verify
+from app.services import accounts, stations, users, verify
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Answer, Device, Response, Role
@@ -218,3 +218,22 @@ def test_the_demo_keeps_its_account_if_it_became_the_only_active_admin(
     assert demo.pending_demo(settings) is None
     with database.read_session() as db:
         assert users.named(db, demo.DEMO_ACCOUNT).is_active
+
+
+def test_retiring_the_demo_archives_the_bots_stations_only(
+    database: Database, database_url: str, tmp_path: Path
+) -> None:
+    """A lab's station list shows its own stations after the demo: the bots' free stations are
+    archived, a lab's station named like them but outside the demo's range is not."""
+    settings = Settings(database_url=database_url, var_dir=tmp_path / "var")
+    make_user(database, "admin", Role.ADMIN)
+    with database.writing() as db:
+        plan = demo.plan_demo(db, settings, Actor.system("test"))
+        for name in ("demo-1", "demo-4", "demo-5", "lab-1"):
+            stations.create_station(db, name=name, actor=Actor.system("test"))
+    demo.retire(plan, settings, lambda _: None)
+    with database.read_session() as db:
+        shown = [s.name for s in stations.list_stations(db, archived=False)]
+        hidden = [s.name for s in stations.list_stations(db, archived=True)]
+    assert shown == ["demo-5", "lab-1"]
+    assert hidden == ["demo-1", "demo-4"]

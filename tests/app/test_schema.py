@@ -114,3 +114,37 @@ def test_0007_leaves_every_study_blinded_as_it_was(blank_database_url: str) -> N
         columns = {c["name"] for c in inspect(connection).get_columns("study")}
     assert "unblinded_at" not in columns
     database.dispose()
+
+
+def test_0008_hides_nothing_and_ties_no_station_to_a_study(blank_database_url: str) -> None:
+    """The upgrade runs on a station that already has a device (no table copy on SQLite, whose
+    foreign keys would refuse it): every study and station arrives shown and untied."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0007")
+    with database.engine.begin() as connection:
+        connection.execute(
+            text(
+                "INSERT INTO study (name, title, status, protocol, protocol_source, "
+                "protocol_sha256, allocation_seed, created_at, created_by) VALUES ('s', 'S', "
+                "'open', '{}', '', 'h', 'seed', CURRENT_TIMESTAMP, 'tests')"
+            )
+        )
+        connection.execute(
+            text("INSERT INTO station (name, created_at) VALUES ('lab-1', CURRENT_TIMESTAMP)")
+        )
+        connection.execute(
+            text(
+                "INSERT INTO device (station_id, label, key_hash, key_prefix, created_at, "
+                "created_by) SELECT id, 'robot', 'hash', 'tlk_ab', CURRENT_TIMESTAMP, 'tests' "
+                "FROM station"
+            )
+        )
+    schema.upgrade(database, "0008")
+    with database.engine.connect() as connection:
+        stations = connection.execute(text("SELECT name, study_id, archived_at FROM station"))
+        assert [tuple(row) for row in stations] == [("lab-1", None, None)]
+        shown = connection.execute(text("SELECT name, archived_at FROM study")).all()
+        assert [tuple(row) for row in shown] == [("s", None)]
+        assert connection.execute(text("SELECT count(*) FROM device")).scalar() == 1
+    assert _differences(database) == []
+    database.dispose()

@@ -75,7 +75,7 @@ def test_experimenter_runs_a_session_and_watches_it_live(
     page.get_by_label("New station").fill("lab-1")
     page.get_by_role("button", name="Create").click()
     page.get_by_role("link", name="Open console").click()
-    page.get_by_role("combobox", name="Participant").fill("P001")
+    page.get_by_role("textbox", name="Participant").fill("P001")
     page.get_by_role("button", name="Seat here").click()
     expect(page.get_by_text("P001", exact=True)).to_be_visible()
 
