@@ -121,6 +121,15 @@ def wants_json(request: Request) -> bool:
 
 
 TABLET_PATHS = ("/tablet", "/t/", "/k/")
+"""Participant pages: their errors are participant pages too (no staff styling or links)."""
+
+TABLET_HEADINGS = {
+    401: "The questionnaire is not open on this tablet",
+    403: "This page has expired",
+    404: "This page does not exist",
+    409: "This cannot be done right now",
+    503: "Please wait a moment",
+}
 
 
 def _error_response(
@@ -128,6 +137,12 @@ def _error_response(
 ) -> Response:
     if wants_json(request):
         return JSONResponse({"detail": message, **(extra or {})}, status_code=status)
+    if request.url.path.startswith(TABLET_PATHS):
+        context = {
+            "heading": TABLET_HEADINGS.get(status, "Something went wrong"),
+            "message": message,
+        }
+        return render(request, "tablet_message.html", context, status_code=status)
     return render(request, "error.html", {"status": status, "message": message}, status_code=status)
 
 

@@ -162,6 +162,20 @@ def next_page(db: Session, participant: Participant, protocol: Protocol) -> Page
     return page_for(participant, protocol, progress(db, participant))
 
 
+def position(protocol: Protocol, page: Page) -> tuple[int, int]:
+    """Which page of how many this is, counted within one sitting: consent and the pre-study
+    questionnaires, one session's questionnaires, or the post-study ones. A participant told
+    "page 2 of 5" knows how long the tablet will keep them; ``(0, 0)`` for pages outside a
+    sitting (waiting, done)."""
+    if page.kind == "consent":
+        return 1, 1 + len(protocol.instruments_at("pre"))
+    if page.kind != "questionnaire" or page.instrument is None:
+        return 0, 0
+    sitting = [i.key for i in protocol.instruments_at(page.instrument.when)]
+    offset = 1 if page.instrument.when == "pre" else 0  # consent opens the first sitting
+    return offset + sitting.index(page.instrument.key) + 1, offset + len(sitting)
+
+
 def session_blocker(db: Session, participant: Participant, protocol: Protocol, number: int) -> str:
     """Why session ``number`` cannot start yet ('' when it can); see :func:`blocker_given`."""
     return blocker_given(_submitted(db, participant), participant.code, protocol, number)

@@ -12,7 +12,7 @@ from datetime import datetime
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.protocol import Protocol
+from app.protocol import ItemKind, ItemSpec, Protocol
 from app.services.blinding import shows_learners
 from app.services.studies import protocol_of
 from app.tables import Answer, Participant, Prompt, Response, Run, Study, StudySession, Submission
@@ -46,6 +46,18 @@ class RunRecord:
 
 
 @dataclass(frozen=True)
+class ItemAnswer:
+    """One stored answer with what it means: the item's text beside its key, and the label of
+    the scale point or option chosen, so a record reads without the protocol file at hand."""
+
+    key: str
+    text: str
+    value: str
+    meaning: str = ""
+    reverse: bool = False
+
+
+@dataclass(frozen=True)
 class QuestionnaireRecord:
     """A submitted questionnaire with its stored raw answers."""
 
@@ -54,7 +66,32 @@ class QuestionnaireRecord:
     session: int | None
     submitted_at: datetime
     revision: int
-    answers: list[tuple[str, str]]
+    answers: list[ItemAnswer]
+
+
+def _meaning(protocol: Protocol, item: ItemSpec, value: str) -> str:
+    """The words for a stored value: the option's label, or the Likert point's own label when
+    the scale labels every point (anchors alone label only the ends)."""
+    if item.kind == ItemKind.CHOICE:
+        return next((o.label for o in item.options if o.value == value), "")
+    if item.kind != ItemKind.LIKERT or item.scale is None or not value.lstrip("-").isdigit():
+        return ""
+    scale, point = protocol.scale(item.scale), int(value)
+    if len(scale.labels) == scale.maximum - scale.minimum + 1:
+        points = range(scale.minimum, scale.maximum + 1)
+        return dict(zip(points, scale.labels, strict=True)).get(point, "")
+    if len(scale.labels) == 2:
+        return {scale.minimum: scale.labels[0], scale.maximum: scale.labels[1]}.get(point, "")
+    return ""
+
+
+def _item_answer(
+    protocol: Protocol, items: dict[str, ItemSpec], key: str, value: str
+) -> ItemAnswer:
+    item = items.get(key)
+    if item is None:  # consent, a self-description, an item a later protocol version dropped
+        return ItemAnswer(key, "", value)
+    return ItemAnswer(key, item.text, value, _meaning(protocol, item, value), item.reverse)
 
 
 @dataclass
@@ -83,11 +120,15 @@ def _questionnaires(
 ) -> list[QuestionnaireRecord]:
     titles = {i.key: i.title for i in protocol.questionnaires.instruments} | {"consent": "Consent"}
     order = {i.key: n for n, i in enumerate(protocol.questionnaires.instruments, start=1)}
-    responses: dict[tuple[str, int | None], list[tuple[str, str]]] = {}
+    items = {
+        i.key: {item.key: item for item in i.items} for i in protocol.questionnaires.instruments
+    }
+    responses: dict[tuple[str, int | None], list[ItemAnswer]] = {}
     for row in db.scalars(
         select(Response).where(Response.participant_id == participant.id).order_by(Response.id)
     ):
-        responses.setdefault((row.instrument, row.session), []).append((row.item, row.value))
+        answer = _item_answer(protocol, items.get(row.instrument, {}), row.item, row.value)
+        responses.setdefault((row.instrument, row.session), []).append(answer)
     submissions = db.scalars(select(Submission).where(Submission.participant_id == participant.id))
     records = [
         QuestionnaireRecord(

@@ -34,6 +34,26 @@ AUDIT_CSV_COLUMNS = (
 """Columns of ``/admin/audit.csv``."""
 
 
+def detail_pairs(details: object) -> list[tuple[str, str]]:
+    """An audit entry's details as (label, value) pairs to read at a glance, not JSON to parse:
+    keys in order, ``snake_case`` as words, lists joined, nested mappings as ``key value``."""
+    if not isinstance(details, dict):
+        return [] if details in (None, "") else [("details", _detail_value(details))]
+    return [(str(key).replace("_", " "), _detail_value(value)) for key, value in details.items()]
+
+
+def _detail_value(value: object) -> str:
+    if value is None or value == "":
+        return "—"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, list | tuple):
+        return ", ".join(_detail_value(item) for item in value) or "none"
+    if isinstance(value, dict):
+        return "; ".join(f"{key} {_detail_value(item)}" for key, item in value.items()) or "none"
+    return str(value)
+
+
 def _filtered(study: str, action: str, actor: str) -> Select[AuditEvent, str]:
     query: Select[AuditEvent, str] = select(AuditEvent, Study.name).outerjoin(
         Study, Study.id == AuditEvent.study_id
@@ -68,7 +88,7 @@ def audit_log(
         request,
         "audit.html",
         {
-            "rows": rows,
+            "rows": [(event, name, detail_pairs(event.details)) for event, name in rows],
             "total": total,
             "page": page,
             "pages": max(1, -(-total // PAGE_SIZE)),

@@ -103,14 +103,14 @@ def _check_form_token(tablet: Tablet, settings: SettingsDep, submitted: str) -> 
         raise PermissionDenied("this form expired; the page will reload with your answers kept")
 
 
-@router.get("/tablet/consent")
-def consent_page(
-    request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep
+def _consent(
+    request: Request,
+    tablet: Tablet,
+    settings: SettingsDep,
+    *,
+    error: str = "",
+    status_code: int = 200,
 ) -> Response:
-    """The consent text and the box to tick."""
-    current = _current_or_redirect(db, tablet, "consent")
-    if isinstance(current, Response):
-        return current
     consent = tablet.protocol.questionnaires.consent
     return _no_store(
         render(
@@ -120,10 +120,25 @@ def consent_page(
                 **_context(request, tablet, settings),
                 "paragraphs": [p.strip() for p in consent.text.split("\n\n") if p.strip()],
                 "rules": tablet.protocol.study.rules,
-                "error": "",
+                "error": error,
+                "position": questionnaires.position(
+                    tablet.protocol, questionnaires.Page("consent")
+                ),
             },
+            status_code=status_code,
         )
     )
+
+
+@router.get("/tablet/consent")
+def consent_page(
+    request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep
+) -> Response:
+    """The consent text and the box to tick."""
+    current = _current_or_redirect(db, tablet, "consent")
+    if isinstance(current, Response):
+        return current
+    return _consent(request, tablet, settings)
 
 
 @router.post("/tablet/consent")
@@ -146,20 +161,7 @@ def give_consent(
             actor=participant_actor(tablet),
         )
     except questionnaires.QuestionnaireInvalid as exc:
-        consent = tablet.protocol.questionnaires.consent
-        return _no_store(
-            render(
-                request,
-                "tablet_consent.html",
-                {
-                    **_context(request, tablet, settings),
-                    "paragraphs": [p.strip() for p in consent.text.split("\n\n") if p.strip()],
-                    "rules": tablet.protocol.study.rules,
-                    "error": exc.errors["accept"],
-                },
-                status_code=422,
-            )
-        )
+        return _consent(request, tablet, settings, error=exc.errors["accept"], status_code=422)
     return RedirectResponse("/tablet", status_code=303)
 
 
@@ -174,6 +176,7 @@ def _questionnaire(
     status_code: int = 200,
 ) -> Response:
     scales = {s.name: s for s in tablet.protocol.questionnaires.scales}
+    page = questionnaires.Page("questionnaire", instrument, session)
     return _no_store(
         render(
             request,
@@ -186,7 +189,8 @@ def _questionnaire(
                 "values": values,
                 "errors": errors,
                 "description_suffix": questionnaires.DESCRIPTION_SUFFIX,
-                "action": questionnaires.Page("questionnaire", instrument, session).path,
+                "action": page.path,
+                "position": questionnaires.position(tablet.protocol, page),
                 "draft_key": hashlib.sha256(
                     f"{tablet.credential}:{instrument.key}:{session}".encode()
                 ).hexdigest()[:24],

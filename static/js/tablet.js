@@ -36,6 +36,15 @@
     form.addEventListener("input", save);
     form.addEventListener("change", save);
     form.addEventListener("submit", () => sessionStorage.setItem(SUBMITTED, draftKey));
+
+    // After a refused submit the server marks what is missing: take the participant to the first
+    // such item (its first control, so a screen reader reads the question and its message).
+    const firstMissing = form.querySelector(".item.invalid");
+    if (firstMissing) {
+      const control = firstMissing.querySelector("input, textarea, select");
+      firstMissing.scrollIntoView({ block: "center" });
+      if (control) control.focus({ preventScroll: true });
+    }
   }
 
   const stream = document.body.dataset.events;

@@ -60,6 +60,9 @@ def test_withdraw_asks_for_confirmation(user_client: UserClientFactory, study_na
 
 def test_admin_manages_users(user_client: UserClientFactory) -> None:
     admin = user_client(Role.ADMIN)
+    form = admin.get("/admin/users").text  # a new account is an experimenter unless chosen
+    assert '<option value="experimenter" selected>' in form
+    assert '<option value="admin" selected>' not in form
     created = admin.post(
         "/admin/users", data={"username": "Ada", "role": "analyst", "password": "long password 1"}
     )

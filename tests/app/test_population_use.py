@@ -257,7 +257,7 @@ def test_a_blinded_studys_staff_report_leaves_the_prior_out(
     text = _protocol(file, checkpoints).replace("blinded = false", "blinded = true")
     _create(database, "main", text)
     with database.writing() as db:
-        for _ in range(2):
+        for _ in range(4):  # a whole allocation block at least (sizes 2 and 4): C2 is in it
             enroll_participant(db, study_name="main", actor=Actor.system())
     with database.read_session() as db:
         study = studies.get_study(db, "main")

@@ -9,7 +9,8 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from tests.conftest import Lab
+from app.tables import Role
+from tests.conftest import Lab, UserClientFactory
 
 FORM_TOKEN = re.compile(r'name="csrf_token" value="([^"]+)"')
 
@@ -82,7 +83,7 @@ def test_forms_need_their_token(app: FastAPI, lab: Lab) -> None:
     tablet = _open(app, lab, code)
     forged = tablet.post("/tablet/consent", data={"accept": "yes", "csrf_token": "x.y"})
     assert forged.status_code == 403
-    assert "this form expired" in forged.text
+    assert "This form expired" in forged.text
 
 
 def test_a_tablet_reaches_only_its_own_participant(app: FastAPI, lab: Lab) -> None:
@@ -104,10 +105,31 @@ def test_a_tablet_reaches_only_its_own_participant(app: FastAPI, lab: Lab) -> No
 def test_invalid_links_explain_themselves(client: TestClient) -> None:
     invalid = client.get("/t/tlp_nothing", headers={"accept": "text/html"})
     assert invalid.status_code == 401
-    assert "this tablet link is not valid" in invalid.text
+    assert "This tablet link is not valid" in invalid.text
     bare = client.get("/tablet", headers={"accept": "text/html"})
     assert bare.status_code == 401
-    assert "open the tablet link (or scan the QR code)" in bare.text
+    assert "Open the tablet link (or scan the QR code)" in bare.text
+    for page in (invalid.text, bare.text):  # a participant's page: no staff chrome, no sign-in
+        assert (
+            'class="tablet-page"' in page and "Please hand the tablet to the experimenter" in page
+        )
+        assert "/login" not in page and "topbar" not in page
+
+
+def test_locked_answers_are_explained_on_a_participant_page(
+    app: FastAPI, lab: Lab, user_client: UserClientFactory
+) -> None:
+    code = lab.enrol_and_assign(questionnaires=False)
+    tablet = _open(app, lab, code)
+    consent = tablet.get("/tablet/consent")
+    assert "Page 1 of 5" in consent.text  # consent and the four pre-study questionnaires
+    admin = user_client(Role.ADMIN)
+    assert admin.post(f"/studies/{lab.study}/participants/{code}/lock").status_code == 200
+    token = consent.text.split('name="csrf_token" value="')[1].split('"')[0]
+    refused = tablet.post("/tablet/consent", data={"accept": "yes", "csrf_token": token})
+    assert refused.status_code == 409
+    assert "answers are locked" in refused.text
+    assert 'class="tablet-page"' in refused.text and "/login" not in refused.text
 
 
 def test_the_wait_page_is_told_when_a_session_ends(app: FastAPI, lab: Lab) -> None:

@@ -99,6 +99,7 @@ def test_a_participant_completes_every_instrument(
     page.goto(f"{live_server.url}/t/{token}")
     expect(page).to_have_url(f"{live_server.url}/tablet/consent")
     _check_layout(page, artifacts / "01-consent.png")
+    expect(page.locator(".tablet-progress")).to_contain_text("Page 1 of 5")
     page.get_by_role("button", name="Continue").click()
     expect(page.get_by_role("alert").first).to_contain_text("Please tick the box to take part.")
     page.get_by_label("I have read the text above and I agree to take part.").check()
@@ -109,6 +110,8 @@ def test_a_participant_completes_every_instrument(
     page.get_by_label("1. How old are you (in years)?").fill("31")
     page.get_by_role("button", name="Continue").click()
     expect(page.locator("#err-gender")).to_have_text("Please answer this question.")
+    expect(page.locator('input[name="gender"]').first).to_be_focused()  # the first one missing
+    expect(page.locator(".tablet-progress")).to_contain_text("Page 2 of 5")
     _check_layout(page, artifacts / "02-demographics-error.png")
     page.get_by_label("Prefer not to say").check()
     page.reload()
@@ -163,6 +166,11 @@ def test_a_participant_completes_every_instrument(
     page.get_by_role("button", name="Continue").click()
     expect(page).to_have_url(f"{live_server.url}/tablet/done")
     _check_layout(page, artifacts / "09-done.png")
+    colours = page.evaluate(
+        """() => [document.documentElement, document.body].map(
+             (el) => getComputedStyle(el).backgroundColor)"""
+    )
+    assert colours[0] == colours[1], f"the page's background shows below the tablet's: {colours}"
 
     # Another participant's link on the same tablet shows that participant's own first page,
     # and nothing of T1's.
@@ -171,6 +179,8 @@ def test_a_participant_completes_every_instrument(
     page.goto(f"{live_server.url}/tablet/q/overall")
     expect(page).to_have_url(f"{live_server.url}/tablet/consent")
     page.goto(f"{live_server.url}/t/tlp_not-a-real-token")
-    expect(page.get_by_role("alert")).to_contain_text("this tablet link is not valid")
+    expect(page.get_by_role("alert")).to_contain_text("This tablet link is not valid")
+    expect(page.get_by_text("Please hand the tablet to the experimenter.")).to_be_visible()
+    expect(page.locator(".topbar, a[href^='/login']")).to_have_count(0)  # no way into staff pages
     _check_layout(page, artifacts / "10-invalid-link.png")
     context.close()

@@ -1,0 +1,108 @@
+"""The staff pages at a laptop's and a tablet's width in real Chromium (issue 21, defects 4 and
+9): the console asks before seating a participant who finished, the overview table fits, audit
+entries read as one line of time and key/value details, timelines show item texts, a new user is
+an experimenter unless chosen otherwise."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from playwright.sync_api import Browser, Page, expect
+
+from app.db import Database
+from app.tables import Participant, ParticipantStatus, Role
+from tests.conftest import Lab, make_user
+from tests.e2e.test_refusals import SIZES, _sign_in
+from tests.servers import ServerProcess
+
+
+def _overflow(page: Page, selector: str) -> list[str]:
+    """Each element matching ``selector`` that reaches past its card, or a page wider than the
+    window (a cut column is either)."""
+    return page.evaluate(
+        """(selector) => {
+             const wide = document.documentElement.scrollWidth > window.innerWidth + 1
+               ? [`page ${document.documentElement.scrollWidth} > ${window.innerWidth}`] : [];
+             return wide.concat(Array.from(document.querySelectorAll(selector)).flatMap((el) => {
+               const box = el.getBoundingClientRect();
+               const card = (el.closest('.card') || document.querySelector('main'))
+                 .getBoundingClientRect();
+               const cut = box.right > card.right + 1;
+               return cut ? [`${selector}: ${box.right} > ${card.right}`] : [];
+             }));
+           }""",
+        selector,
+    )
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("width", "height"), SIZES)
+def test_the_staff_pages_fit_and_read(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    lab: Lab,
+    artifacts: Path,
+    width: int,
+    height: int,
+) -> None:
+    make_user(database, "operator", Role.ADMIN)
+    running = lab.enrol_and_assign("P-RUNNING-01")
+    lab.start_session()  # the longest overview row: a running session's badge
+    for code in ("P-DONE-02", "P-WAIT-03"):
+        assert (
+            lab.experimenter.post(
+                f"/api/v1/studies/{lab.study}/participants", json={"code": code}
+            ).status_code
+            == 201
+        )
+    with database.writing() as db:
+        finished = db.query(Participant).filter_by(code="P-DONE-02").one()
+        finished.status = ParticipantStatus.COMPLETED
+        db.commit()
+    context = browser.new_context(viewport={"width": width, "height": height})
+    page = context.new_page()
+
+    _sign_in(page, live_server, f"/studies/{lab.study}")
+    expect(page.get_by_role("link", name="Withdraw…").first).to_be_visible()
+    page.screenshot(path=str(artifacts / f"overview-{width}.png"), full_page=True)
+    assert _overflow(page, "#participant-rows") == []
+
+    page.goto(f"{live_server.url}/studies/{lab.study}/participants/{running}")
+    demographics = page.locator("details.questionnaire", has_text="About you")
+    demographics.locator("summary").click()
+    expect(demographics).to_contain_text("How old are you (in years)?")  # the text beside "age"
+    expect(demographics).to_contain_text("female (Female)")  # a choice with its label
+    page.screenshot(path=str(artifacts / f"timeline-{width}.png"), full_page=True)
+
+    # A second console, free: typing the code of someone who finished asks first.
+    page.goto(f"{live_server.url}/stations")
+    page.get_by_label("New station").fill("lab-2")
+    page.get_by_role("button", name="Create").click()
+    expect(page.get_by_role("heading", name="lab-2")).to_be_visible()
+    page.goto(f"{live_server.url}/stations/lab-2")
+    page.get_by_role("textbox", name="Participant").fill("P-DONE-02")
+    page.get_by_role("button", name="Seat here").click()
+    question = page.get_by_role("alertdialog")
+    expect(question).to_contain_text("Seat P-DONE-02 here?")
+    expect(question).to_contain_text("has finished the study")
+    page.screenshot(path=str(artifacts / f"console-asks-{width}.png"), full_page=True)
+    assert _overflow(page, "[role=alertdialog]") == []
+    question.get_by_role("button", name="Seat P-DONE-02 anyway").click()
+    expect(page.locator("#console")).to_contain_text("P-DONE-02")
+    expect(page.get_by_role("alertdialog")).to_have_count(0)
+
+    page.goto(f"{live_server.url}/admin/audit")
+    when = page.locator("table.audit tbody td:first-child").first
+    line = float(when.evaluate("el => parseFloat(getComputedStyle(el).lineHeight)"))
+    inner = when.locator("time").bounding_box()
+    assert inner is not None and inner["height"] < 1.5 * line, "a timestamp wraps"
+    expect(page.locator("table.audit dl.kv").first).to_be_visible()
+    assert "{" not in page.locator("table.audit").inner_text()  # no raw JSON
+    page.screenshot(path=str(artifacts / f"audit-{width}.png"), full_page=True)
+    assert _overflow(page, "table.audit") == []
+
+    page.goto(f"{live_server.url}/admin/users")
+    assert page.get_by_label("Role").input_value() == "experimenter"
+    context.close()
