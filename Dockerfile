@@ -7,7 +7,7 @@ COPY package.json package-lock.json ./
 RUN npm ci --ignore-scripts --no-audit --no-fund --loglevel=error \
  && mkdir -p vendor \
  && cp node_modules/htmx.org/dist/htmx.min.js node_modules/htmx-ext-sse/dist/sse.min.js \
-       node_modules/plotly.js-dist-min/plotly.min.js \
+       node_modules/plotly.js-cartesian-dist-min/plotly-cartesian.min.js \
        node_modules/swagger-ui-dist/swagger-ui-bundle.js node_modules/swagger-ui-dist/swagger-ui.css \
        vendor/
 

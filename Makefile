@@ -17,7 +17,7 @@ $(STAMP): requirements.lock requirements-dev.lock pyproject.toml package.json pa
 	npm ci --ignore-scripts --no-audit --no-fund --loglevel=error
 	mkdir -p $(VENDOR)
 	cp node_modules/htmx.org/dist/htmx.min.js node_modules/htmx-ext-sse/dist/sse.min.js \
-	   node_modules/plotly.js-dist-min/plotly.min.js \
+	   node_modules/plotly.js-cartesian-dist-min/plotly-cartesian.min.js \
 	   node_modules/swagger-ui-dist/swagger-ui-bundle.js node_modules/swagger-ui-dist/swagger-ui.css $(VENDOR)/
 	@touch $(STAMP)
 

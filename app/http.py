@@ -41,7 +41,8 @@ SECURITY_HEADERS = {
 
 NO_STORE = (b"cache-control", b"no-store")
 CACHEABLE_PREFIX = "/static/"
-"""The only responses browsers may keep: the vendored libraries, scripts and styles."""
+"""The only responses browsers may keep: the vendored libraries, scripts and styles (their caching
+is app/web/assets.py's)."""
 
 
 class SecurityHeaders:

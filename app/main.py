@@ -10,7 +10,6 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, FastAPI
-from fastapi.staticfiles import StaticFiles
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from app import collector
@@ -22,7 +21,7 @@ from app.db import Database
 from app.events import PostgresListener
 from app.http import BodyLimit, SecurityHeaders, install_error_handlers
 from app.services.freshness import FreshnessCache
-from app.settings import REPO_ROOT, Settings
+from app.settings import Settings
 from app.web import (
     accounts,
     admin,
@@ -37,6 +36,7 @@ from app.web import (
 )
 from app.web import stations as station_pages
 from app.web import studies as studies_pages
+from app.web.assets import STATIC_ROOT, VersionedStaticFiles
 
 API_PREFIX = "/api/v1"
 MAX_BODY_BYTES = 1024 * 1024
@@ -129,7 +129,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         tablet_pages.router,
     ):
         app.include_router(pages)
-    app.mount("/static", StaticFiles(directory=REPO_ROOT / "static"), name="static")
+    app.mount("/static", VersionedStaticFiles(directory=STATIC_ROOT), name="static")
 
     install_error_handlers(app)
     app.add_middleware(BodyLimit, limit=MAX_BODY_BYTES)

@@ -47,7 +47,7 @@ def test_dockerfile_migrates_at_start_and_pins_everything() -> None:
     assert "npm ci" in DOCKERFILE
     assert "HEALTHCHECK" in DOCKERFILE and "/healthz" in DOCKERFILE
     assert re.search(r"^USER trustlab$", DOCKERFILE, re.MULTILINE)
-    for asset in ("htmx.min.js", "plotly.min.js", "swagger-ui-bundle.js"):
+    for asset in ("htmx.min.js", "plotly-cartesian.min.js", "swagger-ui-bundle.js"):
         assert asset in DOCKERFILE and asset in (REPO_ROOT / "Makefile").read_text()
 
 

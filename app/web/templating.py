@@ -18,6 +18,7 @@ from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoes
 from app.deps import CSRF_FIELD, CSRF_HEADER
 from app.security import sign, unsign
 from app.settings import REPO_ROOT
+from app.web.assets import asset
 
 NOTICE_COOKIE = "tl_notice"
 
@@ -43,6 +44,7 @@ def _when(value: datetime | None) -> str:
 
 
 environment.filters["when"] = _when
+environment.globals["asset"] = asset
 
 
 def is_htmx(request: Request) -> bool:
