@@ -21,9 +21,7 @@ STATIC_ENTRIES = """() => performance.getEntriesByType("resource")
 def _open_dashboard(page: Page, server: ServerProcess, study: str) -> list[dict[str, object]]:
     page.goto(f"{server.url}/studies/{study}/dashboard")
     page.wait_for_selector("#dashboard[data-drawn]", state="attached")
-    drawn = page.evaluate(
-        "() => performance.getEntriesByName('trustlab:dashboard-drawn').length"
-    )
+    drawn = page.evaluate("() => performance.getEntriesByName('trustlab:dashboard-drawn').length")
     assert drawn == 1, "the first draw sets one performance mark"
     entries: list[dict[str, object]] = page.evaluate(STATIC_ENTRIES)
     return entries
