@@ -146,6 +146,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/devices/{device_id}/revoke"): ADMINS,
     # robots: their own station only
     ("GET", "/api/v1/station"): DEVICES,
+    ("GET", "/api/v1/station/room"): DEVICES,
     ("POST", "/api/v1/station/prompts"): DEVICES,
     ("POST", "/api/v1/station/runs"): DEVICES,
     ("POST", "/api/v1/station/steps/{step_id}/answer"): OWN_DEVICE,

@@ -23,6 +23,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
+from app.room import RoomSpec, check_room, default_room
+
 Key = Annotated[str, StringConstraints(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 """Identifiers used as column names in exports: lower snake case, starting with a letter."""
 
@@ -312,6 +314,13 @@ class Protocol(_Strict):
     learners: LearnerSettings = Field(default_factory=LearnerSettings)
     allocation: AllocationSpec = Field(default_factory=AllocationSpec)
     questionnaires: QuestionnairesSpec
+    room: RoomSpec | None = Field(
+        default=None, description="The escape room's floor plan (app/room.py); default layout."
+    )
+
+    def room_layout(self) -> RoomSpec:
+        """The floor plan the room client draws: ``[room]``, or the default for the categories."""
+        return self.room or default_room([c.name for c in self.categories])
 
     def condition(self, condition_id: str) -> ConditionSpec:
         """The condition with this id (KeyError if the protocol has none)."""
@@ -559,6 +568,9 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
         )
     problems += _check_allocation(protocol)
     problems += _check_instruments(protocol.questionnaires)
+    if protocol.room is not None:
+        categories = [c.name for c in protocol.categories]
+        problems += [Problem(at, why) for at, why in check_room(protocol.room, categories)]
     return problems
 
 

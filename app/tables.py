@@ -408,6 +408,9 @@ class Prompt(Base):
     prompted_at: Mapped[datetime] = mapped_column(default=utcnow)
     device_id: Mapped[int | None] = mapped_column(ForeignKey("device.id"))
     actor: Mapped[str] = mapped_column(String(64), default="")
+    zone: Mapped[str | None] = mapped_column(
+        String(40), doc="The trigger zone the participant walked into, as the client named it."
+    )
 
 
 class Answer(Base):
@@ -434,6 +437,15 @@ class Answer(Base):
     processing_ms: Mapped[float]
     device_id: Mapped[int | None] = mapped_column(ForeignKey("device.id"))
     actor: Mapped[str] = mapped_column(String(64), default="")
+    modality: Mapped[str | None] = mapped_column(
+        String(16), doc="How the participant answered: button, key or speech (None: not said)."
+    )
+    transcript: Mapped[str | None] = mapped_column(
+        String(200), doc="For speech: the words the recogniser heard."
+    )
+    transcript_confidence: Mapped[float | None] = mapped_column(
+        doc="For speech: the recogniser's confidence in them (0-1)."
+    )
 
 
 class Response(Base):

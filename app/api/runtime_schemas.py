@@ -8,10 +8,11 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from fastapi import Path
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, model_validator
 
 from app.api.schemas import RequestBody
 from app.inputs import RowId
+from app.room import RoomSpec
 
 StepIdPath = Annotated[RowId, Path(description="The step's id.")]
 """A step id in a route's path: out of range or not plain digits is a 422 (app/inputs.py)."""
@@ -21,6 +22,18 @@ class PromptRequest(RequestBody):
     """Ask for the question of one category."""
 
     category: str = Field(max_length=40, examples=["conation"])
+    zone: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=40,
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
+        description="The trigger zone the participant walked into (stored with the step).",
+        examples=["conation"],
+    )
+
+
+Modality = Literal["button", "key", "speech"]
+"""How a participant gave an answer: a touch/click on a yes/no control, a key, or their voice."""
 
 
 class AnswerRequest(RequestBody):
@@ -30,6 +43,30 @@ class AnswerRequest(RequestBody):
     idempotency_key: str = Field(
         min_length=1, max_length=100, description="Unique per answer; reuse it when retrying."
     )
+    modality: Modality | None = Field(
+        default=None, description="How the participant answered (stored with the answer)."
+    )
+    transcript: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=200,
+        description="With modality speech: the words the recogniser heard.",
+    )
+    transcript_confidence: float | None = Field(
+        default=None,
+        ge=0.0,
+        le=1.0,
+        allow_inf_nan=False,
+        description="With modality speech: the recogniser's confidence (0-1).",
+    )
+
+    @model_validator(mode="after")
+    def _speech_only(self) -> AnswerRequest:
+        """A transcript belongs to a spoken answer: anything else is a client's mistake."""
+        spoken = self.transcript is not None or self.transcript_confidence is not None
+        if spoken and self.modality != "speech":
+            raise ValueError("transcript and transcript_confidence come with modality 'speech'")
+        return self
 
 
 class Assignment(RequestBody):
@@ -159,6 +196,23 @@ class StaffStationStateOut(_StateFields):
     """Where a station stands, as the experimenter's routes return it."""
 
     open_prompts: list[StaffPromptOut]
+
+
+class RoomCategory(BaseModel):
+    """A category as the room shows it."""
+
+    name: str
+    title: str
+
+
+class RoomOut(BaseModel):
+    """The escape room of the study a station runs: what a room client draws and triggers."""
+
+    study: str = Field(description="The study's short name.")
+    title: str = Field(description="The study's title.")
+    categories: list[RoomCategory] = Field(description="In protocol order.")
+    rules: list[str] = Field(description="The rules shown to participants.")
+    layout: RoomSpec = Field(description="The floor plan, in metres (docs/escape-room.md).")
 
 
 class DeviceOut(BaseModel):

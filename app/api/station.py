@@ -11,6 +11,7 @@ from app.api.runtime_schemas import (
     AnswerRequest,
     PromptOut,
     PromptRequest,
+    RoomOut,
     StationStateOut,
     StepIdPath,
 )
@@ -26,6 +27,19 @@ async def get_state(request: Request, key: DeviceKey) -> ModelResponse:
         key,
         write=False,
         op=lambda db, device: station_ops.state(db, station=device.seat),
+    )
+    return ModelResponse(out)
+
+
+@router.get("/room", response_model=RoomOut)
+async def get_room(request: Request, key: DeviceKey) -> ModelResponse:
+    """The escape room a room client draws: the floor plan and trigger zones of the study this
+    station runs (the seated participant's, else the one its console chose)."""
+    out = await as_device(
+        request.app,
+        key,
+        write=False,
+        op=lambda db, device: station_ops.room(db, station=device.seat),
     )
     return ModelResponse(out)
 

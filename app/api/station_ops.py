@@ -12,6 +12,8 @@ from app.api.runtime_schemas import (
     ExpectedOut,
     PromptOut,
     PromptRequest,
+    RoomCategory,
+    RoomOut,
     RunOut,
     SessionOut,
     StaffAnswerOut,
@@ -19,10 +21,12 @@ from app.api.runtime_schemas import (
     StaffStationStateOut,
     StationStateOut,
 )
+from app.errors import Conflict
 from app.services import runtime
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
-from app.tables import Device, Station
+from app.services.studies import protocol_of
+from app.tables import Device, Station, Study
 
 StationRef = str | Seat
 """A station by name (the experimenter's routes), or its seat as a robot's device brings it
@@ -39,6 +43,28 @@ def state(db: Session, *, station: StationRef) -> StationStateOut:
     return state_out(runtime.station_view(db, station_name=name, seat=loaded))
 
 
+def room(db: Session, *, station: Seat) -> RoomOut:
+    """The room of the seated participant's study, or else of the study the station runs."""
+    study_id = station.participant.study_id if station.participant else None
+    if study_id is None:
+        own = db.get(Station, station.station_id)
+        study_id = own.study_id if own is not None else None
+    study = db.get(Study, study_id) if study_id is not None else None
+    if study is None:
+        raise Conflict(
+            f"station {station.station_name!r} runs no study yet: an experimenter seats a "
+            "participant (or chooses the station's study) on its console first"
+        )
+    protocol = protocol_of(study)
+    return RoomOut(
+        study=study.name,
+        title=study.title,
+        categories=[RoomCategory(name=c.name, title=c.title) for c in protocol.categories],
+        rules=list(protocol.study.rules),
+        layout=protocol.room_layout(),
+    )
+
+
 def _prompt(
     db: Session, station: StationRef, body: PromptRequest, actor: Actor, device_id: int | None
 ) -> tuple[runtime.PromptResult, PromptOut]:
@@ -50,6 +76,7 @@ def _prompt(
         actor=actor,
         device_id=device_id,
         seat=loaded,
+        zone=body.zone,
     )
     out = prompt_out(
         result.prompt, session=result.session_number, run=result.run_number, created=result.created
@@ -90,6 +117,7 @@ def _answer(
         actor=actor,
         device_id=device_id,
         seat=loaded,
+        heard=runtime.HowAnswered(body.modality, body.transcript, body.transcript_confidence),
     )
     return result, answer_out(result, result.expected)
 

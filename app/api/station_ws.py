@@ -272,7 +272,7 @@ class _Connection:
         if isinstance(message, StateMessage):
             return await self.state()
         if isinstance(message, PromptMessage):
-            body = PromptRequest(category=message.category)
+            body = PromptRequest(category=message.category, zone=message.zone)
 
             def prompt_op(db: Any, device: Any) -> Any:
                 return station_ops.prompt(
@@ -286,7 +286,11 @@ class _Connection:
             out = await as_device(self.websocket.app, self.device.key, write=True, op=prompt_op)
         elif isinstance(message, AnswerMessage):
             answer_body = AnswerRequest(
-                answer=message.answer, idempotency_key=message.idempotency_key
+                answer=message.answer,
+                idempotency_key=message.idempotency_key,
+                modality=message.modality,
+                transcript=message.transcript,
+                transcript_confidence=message.transcript_confidence,
             )
             step_id = message.step_id
 

@@ -90,11 +90,17 @@ def get_state(name: str, db: SessionDep, user: ExperimenterUser) -> StaffStation
 
 @router.put("/{name}/participant")
 def assign(name: str, body: Assignment, db: SessionDep, user: ExperimenterUser) -> StationOut:
-    """Seat a participant at the station."""
+    """Seat a participant at the station. A station that runs no study yet runs this one from
+    now on, as on the console (its room client then keeps the study's room between
+    participants)."""
     study = studies.get_study(db, body.study)
     participant = enrolment.get_participant(db, study, body.code)
     stations.assign_participant(
-        db, station_name=name, participant=participant, actor=Actor.of_user(user)
+        db,
+        station_name=name,
+        participant=participant,
+        actor=Actor.of_user(user),
+        tie_untied_to=study,
     )
     return _station_out(db, name)
 

@@ -43,7 +43,16 @@ from app.protocol import Protocol
 from app.services import blinding, learner_cache, learners, questionnaires, step_store
 from app.services.audit import Actor
 from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
-from app.services.step_store import LearnerRow, RunState, Seat, Seated, Step, StoredAnswer
+from app.services.step_store import (
+    NOT_SAID,
+    HowAnswered,
+    LearnerRow,
+    RunState,
+    Seat,
+    Seated,
+    Step,
+    StoredAnswer,
+)
 from app.services.studies import protocol_by_id
 from app.sql import Cursor
 from app.tables import Answer, ParticipantStatus, Prompt, RunStatus, SessionStatus
@@ -485,10 +494,13 @@ def request_prompt(
     actor: Actor,
     device_id: int | None = None,
     seat: Seat | None = None,
+    zone: str | None = None,
 ) -> PromptResult:
     """Choose the question for ``category`` with the participant's learner; commits.
 
-    ``seat``: the station's seat as a robot's device brings it (read in this transaction)."""
+    ``seat``: the station's seat as a robot's device brings it (read in this transaction).
+    ``zone``: the trigger zone the client says the participant walked into; stored with a new
+    step (an open prompt handed out again keeps the zone it was first asked in)."""
     ctx = _context(db, station_name, seat=seat, lock_timeline=True)
     _refuse_withdrawn(ctx)
     index = _category_index(ctx, category)
@@ -524,6 +536,7 @@ def request_prompt(
         p_preferred=_preferred(ctx, category, probabilities),
         device_id=device_id,
         actor=actor.name,
+        zone=zone,
     )
     events.publish(
         db,
@@ -621,10 +634,12 @@ def record_answer(
     actor: Actor,
     device_id: int | None = None,
     seat: Seat | None = None,
+    heard: HowAnswered | None = None,
 ) -> AnswerResult:
     """Learn from a yes/no answer and choose the reply, exactly once; commits.
 
-    ``seat``: the station's seat as a robot's device brings it (read in this transaction)."""
+    ``seat``: the station's seat as a robot's device brings it (read in this transaction).
+    ``heard``: how the participant answered, stored with the answer (a replay keeps the first)."""
     started = time.perf_counter()
     key = idempotency_key.strip()
     if not key or len(key) > 100 or not key.isprintable():
@@ -679,6 +694,7 @@ def record_answer(
         processing_ms=round((time.perf_counter() - started) * 1000.0, 3),
         device_id=device_id,
         actor=actor.name,
+        heard=heard or NOT_SAID,
     )
     run_done = session_done = False
     try:

@@ -20,7 +20,7 @@ the rest of trustlab (enrolment, questionnaires, dashboards, exports) uses the O
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from app.sql import Cursor, Statement, Written
@@ -381,9 +381,9 @@ def save_learner(cursor: Cursor, *, row: LearnerRow, state: dict[str, Any]) -> W
 
 _INSERT_PROMPT = Statement(
     """INSERT INTO prompt (participant_id, run_id, category, action, question, probabilities,
-    learner_version, adapts, p_preferred, prompted_at, device_id, actor)
+    learner_version, adapts, p_preferred, prompted_at, device_id, actor, zone)
     VALUES (:participant, :run, :category, :action, :question, :probabilities, :learner_version,
-    :adapts, :p_preferred, :now, :device, :actor) RETURNING id"""
+    :adapts, :p_preferred, :now, :device, :actor, :zone) RETURNING id"""
 )
 
 
@@ -401,6 +401,7 @@ def insert_prompt(
     p_preferred: float | None,
     device_id: int | None,
     actor: str,
+    zone: str | None = None,
 ) -> Step:
     """Append a prompt; the new step."""
     step_id = cursor.insert(
@@ -418,6 +419,7 @@ def insert_prompt(
             "now": cursor.timestamp(),
             "device": device_id,
             "actor": actor,
+            "zone": zone,
         },
     )
     return Step(
@@ -431,6 +433,18 @@ def insert_prompt(
         adapts,
         None,
     )
+
+
+@dataclass(frozen=True, slots=True)
+class HowAnswered:
+    """How the participant gave an answer, as the client says (all None: it did not say)."""
+
+    modality: str | None = None
+    transcript: str | None = None
+    confidence: float | None = None
+
+
+NOT_SAID = HowAnswered()
 
 
 @dataclass(frozen=True, slots=True)
@@ -452,14 +466,17 @@ class NewAnswer:
     processing_ms: float
     device_id: int | None
     actor: str
+    heard: HowAnswered = field(default_factory=lambda: NOT_SAID)
 
 
 _INSERT_ANSWER = Statement(
     """INSERT INTO answer (prompt_id, participant_id, answer, reward, probabilities_after,
     p_preferred, probability, confidence_level, confidence, reply, learner_version,
-    idempotency_key, answered_at, processing_ms, device_id, actor)
+    idempotency_key, answered_at, processing_ms, device_id, actor, modality, transcript,
+    transcript_confidence)
     VALUES (:prompt, :participant, :answer, :reward, :after, :p_preferred, :probability, :level,
-    :confidence, :reply, :learner_version, :key, :now, :processing_ms, :device, :actor)
+    :confidence, :reply, :learner_version, :key, :now, :processing_ms, :device, :actor,
+    :modality, :transcript, :transcript_confidence)
     RETURNING id"""
 )
 
@@ -486,6 +503,9 @@ def insert_answer(cursor: Cursor, answer: NewAnswer) -> int:
             "processing_ms": answer.processing_ms,
             "device": answer.device_id,
             "actor": answer.actor,
+            "modality": answer.heard.modality,
+            "transcript": answer.heard.transcript,
+            "transcript_confidence": answer.heard.confidence,
         },
     )
 

@@ -265,6 +265,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("POST", "/devices/{device_id}/revoke"): send("POST", "/devices/999999/revoke", data={}),
     ("GET", "/api/v1/station"): get("/api/v1/station"),
+    ("GET", "/api/v1/station/room"): get("/api/v1/station/room"),
     ("POST", "/api/v1/station/prompts"): send("POST", "/api/v1/station/prompts", json={}),
     ("POST", "/api/v1/station/runs"): send("POST", "/api/v1/station/runs"),
     ("POST", "/api/v1/station/steps/{step_id}/answer"): send(

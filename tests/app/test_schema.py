@@ -146,5 +146,6 @@ def test_0008_hides_nothing_and_ties_no_station_to_a_study(blank_database_url: s
         shown = connection.execute(text("SELECT name, archived_at FROM study")).all()
         assert [tuple(row) for row in shown] == [("s", None)]
         assert connection.execute(text("SELECT count(*) FROM device")).scalar() == 1
+    schema.upgrade(database)
     assert _differences(database) == []
     database.dispose()
