@@ -188,6 +188,9 @@ def _answer_row(body: FloorAnswer, learner_version: int, now: float) -> dict[str
         "processing_ms": 0.0,
         "device": None,
         "actor": "bench/floor",
+        "modality": "button",
+        "transcript": None,
+        "transcript_confidence": None,
     }
 
 
