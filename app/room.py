@@ -88,23 +88,17 @@ def _outside(
     room: RoomSpec, x: float, z: float, radius: float = 0.0, what: str = "it"
 ) -> str | None:
     """Why a circle (or a point, radius 0) at (x, z) does not lie inside the maze, or None."""
+    minus = f" - radius {radius:g}" if radius else ""
+    plus = f" + radius {radius:g}" if radius else ""
     reasons = []
     if x - radius < 0.0:
-        reasons.append(f"x {x:g} - radius {radius:g} < 0" if radius else f"x {x:g} < 0")
+        reasons.append(f"x {x:g}{minus} < 0")
     if x + radius > room.width:
-        reasons.append(
-            f"x {x:g} + radius {radius:g} > width {room.width:g}"
-            if radius
-            else f"x {x:g} > width {room.width:g}"
-        )
+        reasons.append(f"x {x:g}{plus} > width {room.width:g}")
     if z - radius < 0.0:
-        reasons.append(f"z {z:g} - radius {radius:g} < 0" if radius else f"z {z:g} < 0")
+        reasons.append(f"z {z:g}{minus} < 0")
     if z + radius > room.depth:
-        reasons.append(
-            f"z {z:g} + radius {radius:g} > depth {room.depth:g}"
-            if radius
-            else f"z {z:g} > depth {room.depth:g}"
-        )
+        reasons.append(f"z {z:g}{plus} > depth {room.depth:g}")
     if not reasons:
         return None
     return f"{what} lies outside the maze ({'; '.join(reasons)})"
