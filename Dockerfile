@@ -9,7 +9,10 @@ RUN npm ci --ignore-scripts --no-audit --no-fund --loglevel=error \
  && cp node_modules/htmx.org/dist/htmx.min.js node_modules/htmx-ext-sse/dist/sse.min.js \
        node_modules/plotly.js-cartesian-dist-min/plotly-cartesian.min.js \
        node_modules/swagger-ui-dist/swagger-ui-bundle.js node_modules/swagger-ui-dist/swagger-ui.css \
-       vendor/
+       vendor/ \
+ && mkdir -p vendor/three \
+ && cp node_modules/three/build/three.module.js node_modules/three/build/three.core.js \
+       node_modules/three/LICENSE vendor/three/
 
 FROM python:3.11-slim
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_DISABLE_PIP_VERSION_CHECK=1

@@ -19,6 +19,9 @@ $(STAMP): requirements.lock requirements-dev.lock pyproject.toml package.json pa
 	cp node_modules/htmx.org/dist/htmx.min.js node_modules/htmx-ext-sse/dist/sse.min.js \
 	   node_modules/plotly.js-cartesian-dist-min/plotly-cartesian.min.js \
 	   node_modules/swagger-ui-dist/swagger-ui-bundle.js node_modules/swagger-ui-dist/swagger-ui.css $(VENDOR)/
+	mkdir -p $(VENDOR)/three
+	cp node_modules/three/build/three.module.js node_modules/three/build/three.core.js \
+	   node_modules/three/LICENSE $(VENDOR)/three/
 	@touch $(STAMP)
 
 run: install

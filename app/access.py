@@ -57,6 +57,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/api/v1/session"): EVERYONE,
     ("GET", "/t/{token}"): EVERYONE,
     ("GET", "/k/{token}"): EVERYONE,
+    ("GET", "/stations/{name}/room"): EVERYONE,  # a shell: the device key typed into it is the key
     # signed-in people
     ("POST", "/logout"): USERS,
     ("GET", "/api/v1/session"): USERS,
@@ -101,6 +102,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/api/v1/stations/{name}/steps/{step_id}/answer"): STAFF,
     ("GET", "/stations"): STAFF,
     ("GET", "/stations/{name}"): STAFF,
+    ("GET", "/stations/{name}/room-panel"): STAFF,
     ("POST", "/stations/{name}/assign"): STAFF,
     ("POST", "/stations/{name}/study"): STAFF,
     ("POST", "/stations/{name}/unassign"): STAFF,
@@ -147,6 +149,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # robots: their own station only
     ("GET", "/api/v1/station"): DEVICES,
     ("GET", "/api/v1/station/room"): DEVICES,
+    ("PUT", "/api/v1/station/presence"): DEVICES,
     ("POST", "/api/v1/station/prompts"): DEVICES,
     ("POST", "/api/v1/station/runs"): DEVICES,
     ("POST", "/api/v1/station/steps/{step_id}/answer"): OWN_DEVICE,

@@ -32,6 +32,7 @@ from app.web import (
     docs,
     live,
     participants,
+    room,
     tablet_pages,
 )
 from app.web import stations as station_pages
@@ -122,6 +123,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         analysis_pages.router,
         live.router,
         station_pages.router,
+        room.router,
         admin.router,
         accounts.router,
         audit_pages.router,

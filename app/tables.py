@@ -327,6 +327,29 @@ class Device(Base):
         )
 
 
+class RoomPresence(Base):
+    """Where a station's room client last saw the participant, and what was last said there.
+
+    One row per station, overwritten as the participant walks (a room client sends at most two
+    updates a second): the operator console's live room panel reads it, on whichever worker it
+    is served. It is a view of now, not a log: the step log keeps what was asked and answered."""
+
+    __tablename__ = "room_presence"
+
+    station_id: Mapped[int] = mapped_column(ForeignKey("station.id"), primary_key=True)
+    device_id: Mapped[int | None] = mapped_column(ForeignKey("device.id"))
+    x: Mapped[float]
+    z: Mapped[float]
+    heading: Mapped[float] = mapped_column(doc="Degrees, 0 facing the far wall, clockwise.")
+    zone: Mapped[str | None] = mapped_column(String(40), doc="The trigger zone stood in, if any.")
+    utterance_kind: Mapped[str | None] = mapped_column(
+        String(16), doc="question, reply, robot (another robot line) or participant."
+    )
+    utterance: Mapped[str | None] = mapped_column(String(300))
+    utterance_at: Mapped[datetime | None]
+    updated_at: Mapped[datetime] = mapped_column(default=utcnow)
+
+
 class LearnerState(Base):
     """A participant's learner for one category: its stored state and a version per update."""
 

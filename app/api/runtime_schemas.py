@@ -69,6 +69,42 @@ class AnswerRequest(RequestBody):
         return self
 
 
+UtteranceKind = Literal["question", "reply", "robot", "participant"]
+"""Who said what: the robot's question, its reply to an answer, another robot line (a request to
+say yes or no again, say), or the participant's words as the recogniser heard them."""
+
+
+class Utterance(RequestBody):
+    """A line spoken (or shown as a caption) in the room."""
+
+    kind: UtteranceKind
+    text: str = Field(min_length=1, max_length=300)
+
+
+RoomCoordinate = Annotated[float, Field(ge=-1000.0, le=1000.0, allow_inf_nan=False)]
+
+
+class PresenceRequest(RequestBody):
+    """Where the room client sees the participant now (docs/escape-room.md): the console's live
+    room panel shows it. Clients send it when something changed, at most twice a second."""
+
+    x: RoomCoordinate = Field(description="Metres from the left wall.")
+    z: RoomCoordinate = Field(description="Metres from the near wall.")
+    heading: Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)] = Field(
+        description="Degrees: 0 faces the far wall, 90 the right wall."
+    )
+    zone: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=40,
+        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
+        description="The trigger zone the participant stands in (null: none).",
+    )
+    utterance: Utterance | None = Field(
+        default=None, description="A line said since the last update (null: nothing new)."
+    )
+
+
 class Assignment(RequestBody):
     """Which participant sits at the station."""
 

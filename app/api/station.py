@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, status
+from fastapi import APIRouter, Request, Response, status
 
 from app.api import station_ops
 from app.api.device_work import DeviceKey, ModelResponse, as_device, device_actor
 from app.api.runtime_schemas import (
     AnswerOut,
     AnswerRequest,
+    PresenceRequest,
     PromptOut,
     PromptRequest,
     RoomOut,
@@ -100,3 +101,18 @@ async def start_run(request: Request, key: DeviceKey) -> ModelResponse:
         ),
     )
     return ModelResponse(out, status.HTTP_201_CREATED)
+
+
+@router.put("/presence", status_code=status.HTTP_204_NO_CONTENT)
+async def put_presence(body: PresenceRequest, request: Request, key: DeviceKey) -> Response:
+    """Say where the participant is in the room and what was last said (a room client sends this
+    when it changes, at most twice a second); the operator console shows it live."""
+    await as_device(
+        request.app,
+        key,
+        write=True,
+        op=lambda db, device: station_ops.presence(
+            db, station=device.seat, device_id=device.device_id, body=body
+        ),
+    )
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

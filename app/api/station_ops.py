@@ -10,6 +10,7 @@ from app.api.runtime_schemas import (
     AnswerRequest,
     DeviceOut,
     ExpectedOut,
+    PresenceRequest,
     PromptOut,
     PromptRequest,
     RoomCategory,
@@ -22,7 +23,7 @@ from app.api.runtime_schemas import (
     StationStateOut,
 )
 from app.errors import Conflict
-from app.services import runtime
+from app.services import room_presence, runtime
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.services.studies import protocol_of
@@ -62,6 +63,21 @@ def room(db: Session, *, station: Seat) -> RoomOut:
         categories=[RoomCategory(name=c.name, title=c.title) for c in protocol.categories],
         rules=list(protocol.study.rules),
         layout=protocol.room_layout(),
+    )
+
+
+def presence(db: Session, *, station: Seat, device_id: int, body: PresenceRequest) -> None:
+    """Store where the room client sees the participant (the console's live room panel)."""
+    said = body.utterance
+    room_presence.record(
+        db,
+        station_id=station.station_id,
+        device_id=device_id,
+        x=body.x,
+        z=body.z,
+        heading=body.heading,
+        zone=body.zone,
+        said=room_presence.Said(said.kind, said.text) if said is not None else None,
     )
 
 

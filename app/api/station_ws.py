@@ -7,7 +7,8 @@ Protocol (JSON text frames; docs/robot-integration.md has a transcript):
   ``websocket_auth_seconds``, 10 s by default).
 - The server greets with ``{"type": "hello", "station": …, "heartbeat_seconds": …, "state": …}``.
 - Requests carry an ``id`` echoed in the reply: ``state``, ``prompt`` (``category``), ``answer``
-  (``step_id``, ``answer``, ``idempotency_key``), ``start_run``, ``ping``. Replies are
+  (``step_id``, ``answer``, ``idempotency_key``), ``start_run``, ``presence`` (a room client's
+  position, zone and last line; the reply's data is null), ``ping``. Replies are
   ``{"type": "result", "id": …, "op": …, "data": …}`` or
   ``{"type": "error", "id": …, "status": 4xx, "detail": …}`` with the same bodies and statuses as
   the REST routes.
@@ -46,7 +47,7 @@ from starlette.concurrency import run_in_threadpool
 
 from app.api import station_ops
 from app.api.device_work import as_device, device_actor
-from app.api.runtime_schemas import AnswerRequest, PromptRequest
+from app.api.runtime_schemas import AnswerRequest, PresenceRequest, PromptRequest
 from app.db import Database
 from app.errors import NotAuthenticated, TrustlabError
 from app.events import Event
@@ -98,6 +99,12 @@ class StartRunMessage(_Message):
     type: Literal["start_run"]
 
 
+class PresenceMessage(_Message, PresenceRequest):
+    """Where the participant is in the room (the REST route's body); the reply's data is null."""
+
+    type: Literal["presence"]
+
+
 class PingMessage(_Message):
     """Liveness check (any message counts as a heartbeat)."""
 
@@ -105,7 +112,7 @@ class PingMessage(_Message):
 
 
 ClientMessage = Annotated[
-    StateMessage | PromptMessage | AnswerMessage | StartRunMessage | PingMessage,
+    StateMessage | PromptMessage | AnswerMessage | StartRunMessage | PresenceMessage | PingMessage,
     Field(discriminator="type"),
 ]
 _parse = TypeAdapter(ClientMessage)
@@ -268,9 +275,19 @@ class _Connection:
         await self.send({"type": "result", "id": message.id, "op": message.type, "data": result})
         return True
 
-    async def _run(self, message: _Message) -> dict[str, Any]:
+    async def _run(self, message: _Message) -> dict[str, Any] | None:
         if isinstance(message, StateMessage):
             return await self.state()
+        if isinstance(message, PresenceMessage):
+            presence = PresenceRequest.model_validate(message.model_dump(exclude={"type", "id"}))
+
+            def presence_op(db: Any, device: Any) -> None:
+                station_ops.presence(
+                    db, station=device.seat, device_id=device.device_id, body=presence
+                )
+
+            await as_device(self.websocket.app, self.device.key, write=True, op=presence_op)
+            return None
         if isinstance(message, PromptMessage):
             body = PromptRequest(category=message.category, zone=message.zone)
 

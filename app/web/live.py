@@ -12,8 +12,11 @@ from starlette.concurrency import run_in_threadpool
 
 from app.db import Database
 from app.deps import OneHopRouter, StreamingLogin
-from app.services import stations, studies, users
+from app.services import room_presence, stations, studies, users
 from app.web.streams import event_stream
+
+ROOM_EVENT = "room"
+"""The SSE event of the console's room panel (templates/_room_panel.html listens for it)."""
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
@@ -34,13 +37,18 @@ async def study_events(request: Request, name: str, login: StreamingLogin) -> Re
 
 @router.get("/stations/{name}/events")
 async def station_events(request: Request, name: str, login: StreamingLogin) -> Response:
-    """Server-sent events whenever the station changes (for its operator console)."""
+    """Server-sent events whenever the station changes (for its operator console): ``changed``,
+    and ``room`` when the room client reports where the participant is (the room panel)."""
     database: Database = request.app.state.database
 
-    def topic() -> str:
+    def station_id() -> int:
         with database.read_session() as db:
-            return stations.station_topic(stations.get_station(db, name))
+            return stations.get_station(db, name).id
 
+    found = await run_in_threadpool(station_id)
     return event_stream(
-        database.hub, [await run_in_threadpool(topic)], ends_with=users.login_topic(login.id)
+        database.hub,
+        [stations.station_topic_of(found)],
+        ends_with=users.login_topic(login.id),
+        named={room_presence.room_topic_of(found): ROOM_EVENT},
     )

@@ -21,7 +21,16 @@ from app.api.runtime_schemas import AnswerRequest, PromptRequest
 from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
 from app.errors import Conflict, InvalidInput, NotFound, TrustlabError
 from app.inputs import RowId
-from app.services import enrolment, learners, runtime, stations, studies, tablet_tokens
+from app.services import (
+    blinding,
+    enrolment,
+    learners,
+    room_presence,
+    runtime,
+    stations,
+    studies,
+    tablet_tokens,
+)
 from app.services.audit import Actor
 from app.tables import (
     Device,
@@ -31,6 +40,7 @@ from app.tables import (
     Station,
     Study,
     User,
+    utcnow,
 )
 from app.web.qr import qr_svg
 from app.web.templating import redirect_with_notice, render
@@ -277,11 +287,37 @@ def _console(
             "last": last,
             "error": error,
             "answer_key": uuid.uuid4().hex,
+            "room_panel": room_panel_context(db, station),
         },
         block="console",
         status_code=status_code,
     )
     return response
+
+
+def room_panel_context(db: SessionDep, station: Station) -> dict[str, Any]:
+    """What the console's room panel shows: the floor plan of the study the station runs (the
+    seated participant's, else its own) and where the room client last saw the participant. A
+    reply's words stay hidden while that study is sealed: the reply level shows the condition."""
+    participant = station.participant
+    study_id = participant.study_id if participant is not None else station.study_id
+    study = db.get(Study, study_id) if study_id is not None else None
+    presence = room_presence.read(db, station_id=station.id)
+    sealed = study is not None and blinding.is_sealed(study)
+    return {
+        "station": station,
+        "room": studies.protocol_of(study).room_layout() if study is not None else None,
+        "presence": presence,
+        "reply_hidden": sealed and presence is not None and presence.utterance_kind == "reply",
+        "age": (utcnow() - presence.updated_at).total_seconds() if presence is not None else None,
+    }
+
+
+@router.get("/stations/{name}/room-panel")
+def room_panel(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
+    """The console's room panel alone (refreshed when the room client reports)."""
+    context = room_panel_context(db, stations.get_station(db, name))
+    return render(request, "_room_panel.html", {"room_panel": context})
 
 
 @router.get("/stations/{name}")

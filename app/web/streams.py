@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Iterable, Mapping
 
 from fastapi.responses import StreamingResponse
 
@@ -20,14 +20,25 @@ COALESCE_SECONDS = 0.1
 times a second, and a page refetches on each message, so at most ten a second reach it."""
 
 
+CHANGED = "changed"
+
+
 def event_stream(
-    hub: EventHub, topics: Iterable[str], *, ends_with: str | None = None
+    hub: EventHub,
+    topics: Iterable[str],
+    *,
+    ends_with: str | None = None,
+    named: Mapping[str, str] | None = None,
 ) -> StreamingResponse:
     """An endless ``text/event-stream`` of ``changed`` events for ``topics`` (with keep-alives),
     which ends as soon as an event arrives on the topic ``ends_with``: a signed-in page's stream
     ends with its login (app.services.users.login_topic), so a browser signed out, or whose
-    account is disabled, hears nothing more (the EventSource's reconnection is refused)."""
-    subscribed = [*topics, *([ends_with] if ends_with else [])]
+    account is disabled, hears nothing more (the EventSource's reconnection is refused).
+
+    ``named`` maps further topics to an SSE event name of their own, so that a part of the page
+    that changes often (the console's room panel) refreshes alone instead of the whole page."""
+    named = dict(named or {})
+    subscribed = [*topics, *named, *([ends_with] if ends_with else [])]
 
     async def stream() -> AsyncIterator[str]:
         # Registered and released explicitly: a context manager nested in an async generator
@@ -46,8 +57,9 @@ def event_stream(
                 batch = [event, *subscription.drain()]
                 if any(item.topic == ends_with for item in batch):
                     return
-                types = sorted({item.type for item in batch})
-                yield f"event: changed\ndata: {json.dumps({'types': types})}\n\n"
+                for name in sorted({named.get(item.topic, CHANGED) for item in batch}):
+                    types = sorted({i.type for i in batch if named.get(i.topic, CHANGED) == name})
+                    yield f"event: {name}\ndata: {json.dumps({'types': types})}\n\n"
         finally:
             hub.close(subscription)
 

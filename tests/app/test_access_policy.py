@@ -195,6 +195,8 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("GET", "/stations"): get("/stations"),
     ("GET", "/stations/{name}"): get("/stations/lab-1"),
+    ("GET", "/stations/{name}/room-panel"): get("/stations/lab-1/room-panel"),
+    ("GET", "/stations/{name}/room"): get("/stations/lab-1/room"),
     **{
         ("POST", f"/stations/{{name}}/{action}"): send(
             "POST", f"/stations/ghost/{action}", data=data
@@ -266,6 +268,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/devices/{device_id}/revoke"): send("POST", "/devices/999999/revoke", data={}),
     ("GET", "/api/v1/station"): get("/api/v1/station"),
     ("GET", "/api/v1/station/room"): get("/api/v1/station/room"),
+    ("PUT", "/api/v1/station/presence"): send("PUT", "/api/v1/station/presence", json={}),
     ("POST", "/api/v1/station/prompts"): send("POST", "/api/v1/station/prompts", json={}),
     ("POST", "/api/v1/station/runs"): send("POST", "/api/v1/station/runs"),
     ("POST", "/api/v1/station/steps/{step_id}/answer"): send(

@@ -1,0 +1,73 @@
+"""The room's live state: where a station's room client last saw the participant.
+
+A browser room client (static/js/room.js) reports the participant's position, heading and trigger
+zone, and each line spoken, at most twice a second. Each report overwrites the station's one
+``room_presence`` row and announces itself on the station's *room* topic, which only the operator
+console listens to: robots' WebSockets and the study's dashboards (on the station and study
+topics) are not woken twice a second by someone walking.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sqlalchemy import select
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.orm import Session
+
+from app import events
+from app.tables import RoomPresence, utcnow
+
+PRESENCE_CHANGED = "room_presence"
+
+
+def room_topic_of(station_id: int) -> str:
+    """The event topic of a station's room (the operator console's room panel listens to it)."""
+    return f"room:{station_id}"
+
+
+@dataclass(frozen=True)
+class Said:
+    """A line said in the room: ``kind`` is question, reply, robot or participant."""
+
+    kind: str
+    text: str
+
+
+def record(
+    db: Session,
+    *,
+    station_id: int,
+    device_id: int | None,
+    x: float,
+    z: float,
+    heading: float,
+    zone: str | None,
+    said: Said | None,
+) -> None:
+    """Store the participant's place (and a new line said, if any) as the station's presence;
+    commits. One statement whichever engine: an insert that updates the row already there, so
+    two clients of one station racing never meet a duplicate key."""
+    now = utcnow()
+    values: dict[str, object] = {
+        "station_id": station_id,
+        "device_id": device_id,
+        "x": x,
+        "z": z,
+        "heading": heading % 360.0,
+        "zone": zone,
+        "updated_at": now,
+    }
+    if said is not None:
+        values |= {"utterance_kind": said.kind, "utterance": said.text, "utterance_at": now}
+    dialect = postgresql if db.get_bind().dialect.name == "postgresql" else sqlite
+    statement = dialect.insert(RoomPresence).values(values)
+    changed = {name: statement.excluded[name] for name in values if name != "station_id"}
+    db.execute(statement.on_conflict_do_update(index_elements=["station_id"], set_=changed))
+    events.publish(db, topics=[room_topic_of(station_id)], type=PRESENCE_CHANGED)
+    db.commit()
+
+
+def read(db: Session, *, station_id: int) -> RoomPresence | None:
+    """The station's presence row, or None when no room client has reported yet."""
+    return db.scalar(select(RoomPresence).where(RoomPresence.station_id == station_id))

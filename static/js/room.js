@@ -1,0 +1,601 @@
+// The escape room client: a participant walks the maze, trigger zones ask the robot's questions,
+// the robot speaks and replies, and the answers go to trustlab through the public robot API only
+// (the station WebSocket and GET /api/v1/station/room), as any third-party client's would.
+//
+// One way data flows: the server's station state (from hello, pushes and replies) decides what
+// may happen; the walk decides only where the participant is. A reload, a crash or a dropped
+// network resumes from the server's state: the open question is shown again, an answer that was
+// sent but not acknowledged is sent again with the same idempotency key, and the participant's
+// place in the current run is kept in this tab.
+
+import { RoomScene, webglAvailable } from "./room/scene.js";
+import { StationSocket } from "./room/socket.js";
+import { Listener, Voice } from "./room/speech.js";
+import { inside, poseFromHeadset, startPose, step, wallSegments, zoneAt } from "./room/walk.js";
+
+const root = document.getElementById("room");
+const station = root.dataset.station;
+const stores = {
+  key: `trustlab.room.key.${station}`,
+  answer: `trustlab.room.answer.${station}`,
+  pose: `trustlab.room.pose.${station}`,
+  exited: `trustlab.room.exited.${station}`,
+};
+const PRESENCE_INTERVAL_MS = 500; // the console's room panel: at most two reports a second
+const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no.";
+const el = (id) => document.getElementById(id);
+
+const room = {
+  key: localStorage.getItem(stores.key) || "",
+  socket: null,
+  layout: null,
+  segments: [],
+  scene: null,
+  state: null, // the station's state as the server last said it
+  pose: null,
+  question: null, // the open prompt shown to the participant
+  promptInFlight: null, // the category whose prompt was requested and not yet answered
+  refused: new Set(), // prompts the server refused in this run (not asked again until it changes)
+  answering: false,
+  resumed: false,
+  held: new Set(),
+  exitHint: false,
+  frames: 0,
+  presence: { at: 0, x: NaN, z: NaN, heading: NaN, zone: undefined, said: null },
+  voice: new Voice(),
+  listener: new Listener(),
+};
+
+// ---------------------------------------------------------------- what the server says
+
+function runKey(state = room.state) {
+  if (!state || !state.participant || !state.session || !state.run) return "";
+  return `${state.participant}/${state.session.number}/${state.run.number}`;
+}
+
+function sessionRunning() {
+  return Boolean(room.state && room.state.session && room.state.session.status === "running");
+}
+
+/** The run is answered in full but the participant has not walked out through the exit yet. */
+function needsExit() {
+  const state = room.state;
+  return Boolean(
+    state && state.run && state.run.status === "completed" &&
+      sessionStorage.getItem(stores.exited) !== runKey(),
+  );
+}
+
+function canWalk() {
+  return Boolean(room.layout) && (sessionRunning() || needsExit());
+}
+
+function applyState(state) {
+  const before = room.state;
+  room.state = state;
+  if (runKey(before) !== runKey(state)) {
+    room.refused.clear();
+    restorePose();
+  }
+  if (state.run && state.run.status === "ended_early" && sessionStorage.getItem(stores.exited) !== runKey()) {
+    sessionStorage.setItem(stores.exited, runKey()); // the experimenter ended it: back to the start
+    room.pose = room.layout ? startPose(room.layout) : null;
+  }
+  const open = state.open_prompts || [];
+  if (!room.question && open.length > 0 && !room.promptInFlight) {
+    showQuestion(open[0], { speak: true });
+  } else if (room.question && !room.answering && !open.some((p) => p.step_id === room.question.step_id)) {
+    closeQuestion(); // its run ended before it was answered
+  }
+  render();
+}
+
+async function refreshState() {
+  try {
+    applyState(await room.socket.request("state"));
+  } catch {
+    // the next push or hello brings it
+  }
+}
+
+// ---------------------------------------------------------------- walking
+
+function restorePose() {
+  if (!room.layout) return;
+  const saved = JSON.parse(sessionStorage.getItem(stores.pose) || "null");
+  const here = runKey();
+  if (saved && here && saved.run === here && Number.isFinite(saved.x)) {
+    room.pose = { x: saved.x, z: saved.z, heading: saved.heading };
+  } else if (!room.pose || !here || (saved && saved.run && saved.run.split("/")[0] !== here.split("/")[0])) {
+    room.pose = startPose(room.layout); // a new participant, or no run yet
+  }
+}
+
+function savePose() {
+  const { x, z, heading } = room.pose;
+  sessionStorage.setItem(stores.pose, JSON.stringify({ run: runKey(), x, z, heading }));
+}
+
+function input() {
+  const held = room.held;
+  const axis = (plus, minus) => (plus ? 1 : 0) - (minus ? 1 : 0);
+  return {
+    forward: axis(held.has("forward"), held.has("back")),
+    turn: axis(held.has("turn-right"), held.has("turn-left")) + (room.dragTurn || 0),
+    strafe: axis(held.has("strafe-right"), held.has("strafe-left")),
+  };
+}
+
+function frame(seconds) {
+  room.frames += 1;
+  if (!room.pose) return;
+  if (room.scene.renderer.xr.isPresenting) {
+    const view = room.scene.headsetView();
+    room.pose = poseFromHeadset(room.layout, view.position, view.direction);
+  } else if (canWalk()) {
+    room.pose = step(room.layout, room.segments, room.pose, input(), seconds);
+  }
+  room.dragTurn = 0;
+  room.scene.update(room.pose);
+  afterMove();
+}
+
+function afterMove() {
+  const { x, z } = room.pose;
+  const zone = zoneAt(room.layout, x, z);
+  if (inside(room.layout.exit, x, z)) reachExit();
+  else room.exitHint = false;
+  if (zone) maybePrompt(zone);
+  reportPresence(zone);
+}
+
+function reachExit() {
+  if (needsExit()) {
+    sessionStorage.setItem(stores.exited, runKey());
+    const finished = room.state.session.status !== "running";
+    room.pose = startPose(room.layout);
+    room.held.clear(); // a key still held from the walk out does not walk them off again
+    say("robot", finished ? "Well done, that was the last run of this session." : "Well done! Back to the start for the next run.", { speak: true });
+    render();
+  } else if (sessionRunning() && !room.exitHint && room.state.run && room.state.run.status === "running") {
+    room.exitHint = true;
+    say("robot", "Not yet: there is more to find in the room before the exit.", { speak: false });
+  }
+}
+
+function maybePrompt(zone) {
+  const state = room.state;
+  if (!state || room.question || room.promptInFlight || needsExit()) return;
+  const expected = state.expected;
+  if (expected.action !== "prompt" || !expected.categories.includes(zone.category)) return;
+  if (room.refused.has(zone.category)) return;
+  room.promptInFlight = zone.category;
+  performance.mark(`trustlab:zone:${zone.category}`);
+  room.socket
+    .request("prompt", { category: zone.category, zone: zone.category })
+    .then((prompt) => {
+      room.promptInFlight = null;
+      if (!room.question) showQuestion(prompt, { speak: true, zone: zone.category });
+      refreshState();
+    })
+    .catch((error) => {
+      room.promptInFlight = null;
+      room.refused.add(zone.category); // e.g. the experimenter ended the run meanwhile
+      showDetail(error.detail || "");
+      refreshState();
+    });
+}
+
+// ---------------------------------------------------------------- asking and answering
+
+function showQuestion(prompt, { speak, zone } = {}) {
+  room.question = prompt;
+  say("question", prompt.question, { speak: false });
+  if (zone) {
+    performance.mark("trustlab:caption");
+    performance.measure("trustlab:zone-to-caption", `trustlab:zone:${zone}`, "trustlab:caption");
+  }
+  el("answer").hidden = false;
+  render();
+  if (speak) askAloud(prompt.question);
+}
+
+function closeQuestion() {
+  room.question = null;
+  room.answering = false;
+  room.listener.stop();
+  el("answer").hidden = true;
+  el("listening").hidden = true;
+}
+
+async function askAloud(text) {
+  const asked = room.question;
+  await room.voice.say(text);
+  let silences = 0;
+  while (room.question === asked && !room.answering && room.listener.available && silences < 3) {
+    el("listening").hidden = false;
+    const heard = await room.listener.listen();
+    el("listening").hidden = true;
+    if (room.question !== asked || room.answering) return;
+    if (heard === null) {
+      silences += 1; // silence, no microphone, or a refused permission: the buttons remain
+      continue;
+    }
+    if (heard.transcript) say("participant", heard.transcript, { speak: false });
+    if (heard.answer) {
+      answer(heard.answer, "speech", heard);
+      return;
+    }
+    say("robot", ASK_AGAIN, { speak: false });
+    await room.voice.say(ASK_AGAIN);
+  }
+}
+
+function randomKey() {
+  const bytes = new Uint8Array(16);
+  crypto.getRandomValues(bytes); // works without HTTPS, unlike crypto.randomUUID
+  return Array.from(bytes, (b) => b.toString(16).padStart(2, "0")).join("");
+}
+
+function answer(value, modality, heard) {
+  if (!room.question || room.answering) return;
+  room.answering = true;
+  room.listener.stop();
+  room.voice.stop();
+  const pending = {
+    step_id: room.question.step_id,
+    answer: value,
+    idempotency_key: randomKey(),
+    modality,
+  };
+  if (modality === "speech" && heard) {
+    pending.transcript = heard.transcript;
+    pending.transcript_confidence = Math.max(0, Math.min(1, heard.confidence));
+  }
+  localStorage.setItem(stores.answer, JSON.stringify(pending)); // before sending: a crash resends it
+  if (modality !== "speech") say("participant", value === "yes" ? "Yes." : "No.", { speak: false });
+  sendAnswer(pending);
+}
+
+function sendAnswer(pending) {
+  el("answer").hidden = true;
+  room.socket
+    .request("answer", pending)
+    .then((reply) => {
+      localStorage.removeItem(stores.answer);
+      closeQuestion();
+      const hint = reply.run_completed ? "Now walk to the exit: the solid circle." : "";
+      say("reply", reply.reply, { speak: true, hint });
+      refreshState();
+    })
+    .catch((error) => {
+      localStorage.removeItem(stores.answer);
+      room.answering = false;
+      if (error.status === 409 || error.status === 404) {
+        closeQuestion(); // the run ended before the answer arrived: nothing to record
+        showDetail(error.detail || "");
+      } else {
+        el("answer").hidden = false;
+        showDetail(`The answer was not taken: ${error.detail || "unknown error"}. Please answer again.`);
+      }
+      refreshState();
+    });
+}
+
+function resumeStoredAnswer() {
+  const stored = JSON.parse(localStorage.getItem(stores.answer) || "null");
+  if (!stored) return;
+  room.answering = true;
+  if (!room.question) room.question = { step_id: stored.step_id, question: "" };
+  sendAnswer(stored);
+}
+
+// ---------------------------------------------------------------- presence and captions
+
+function say(kind, text, { speak, hint } = {}) {
+  el("captions").hidden = false;
+  const speaker = { question: "Robot", reply: "Robot", robot: "Robot", participant: "You" }[kind];
+  el("caption-speaker").textContent = `${speaker}:`;
+  el("caption-text").textContent = hint ? `${text} ${hint}` : text;
+  el("captions").dataset.kind = kind;
+  room.presence.said = { kind, text: text.slice(0, 300) };
+  if (speak) room.voice.say(text);
+}
+
+function reportPresence(zone) {
+  if (!room.socket || !room.socket.online) return;
+  const now = performance.now();
+  const last = room.presence;
+  if (now - last.at < PRESENCE_INTERVAL_MS) return;
+  const { x, z, heading } = room.pose;
+  const category = zone ? zone.category : null;
+  const moved = !(Math.hypot(x - last.x, z - last.z) < 0.05) || Math.abs(heading - last.heading) > 5;
+  if (!moved && category === last.zone && !last.said) return;
+  const update = {
+    x: Math.round(x * 1000) / 1000,
+    z: Math.round(z * 1000) / 1000,
+    heading: Math.round(heading * 10) / 10,
+    zone: category,
+  };
+  if (last.said) update.utterance = last.said;
+  if (room.socket.notify("presence", update)) {
+    room.presence = { at: now, x, z, heading, zone: category, said: null };
+    savePose();
+  }
+}
+
+// ---------------------------------------------------------------- what the participant sees
+
+const WAITING = {
+  assign: ["Welcome", "The experimenter will seat the next participant in a moment."],
+  wait: ["Please use the tablet", "Fill in the questionnaire on the tablet; the room goes on afterwards."],
+  done: ["Thank you!", "You have finished the study."],
+  none: ["The session has ended", "Please tell the experimenter."],
+};
+
+function render() {
+  const state = room.state;
+  const label = el("run-label");
+  if (state && state.session && (sessionRunning() || needsExit())) {
+    const s = state.session;
+    const run = state.run ? ` · run ${state.run.number} of ${s.runs}` : "";
+    label.textContent = s.familiarisation ? "Practice run (not counted)" : `Session ${s.number}${run}`;
+    label.classList.toggle("practice", s.familiarisation);
+  } else {
+    label.textContent = "Escape room";
+    label.classList.remove("practice");
+  }
+  if (room.layout && room.scene) {
+    for (const zone of room.layout.zones) room.scene.setZoneState(zone.category, zoneState(zone.category));
+  }
+  if (!state || canWalk()) {
+    if (state) hideNotice();
+    return;
+  }
+  const action = state.expected.action;
+  if (action === "start_session") {
+    const next = state.expected.session;
+    const title = next === 0 ? "A practice run comes first" : `Session ${next} comes next`;
+    showNotice(title, "The experimenter starts it in a moment. Meanwhile, the rules:", { rules: true });
+  } else {
+    const [title, text] = WAITING[action] || ["Please wait", ""];
+    showNotice(title, text, { rules: action === "assign" });
+  }
+  showDetail(state.expected.message);
+}
+
+function zoneState(category) {
+  const state = room.state;
+  if (!state || !state.run) return "pending";
+  if (room.question && room.question.category === category) return "asked";
+  if (state.run.answered.includes(category) || needsExit()) return "done";
+  return "pending";
+}
+
+function showNotice(title, text, { rules = false, form = false } = {}) {
+  el("notice").hidden = false;
+  el("notice-title").textContent = title;
+  el("notice-text").textContent = text;
+  el("rules").hidden = !(rules && el("rules").childElementCount > 0);
+  el("key-form").hidden = !form;
+  el("forget-key").hidden = form || !room.key;
+  if (form) el("key-input").focus();
+}
+
+function hideNotice() {
+  el("notice").hidden = true;
+}
+
+function showDetail(text) {
+  el("notice-detail").textContent = text;
+}
+
+function setConnection(status) {
+  const words = { connecting: "Connecting…", online: "Connected", offline: "Offline" };
+  el("connection").textContent = words[status] || status;
+  el("connection").dataset.status = status;
+  el("offline").hidden = status !== "offline";
+}
+
+// ---------------------------------------------------------------- starting, keys and refusals
+
+function askForKey(problem) {
+  showNotice("Open the escape room", "Enter a device key of this station to connect it.", { form: true });
+  el("key-error").textContent = problem || "";
+}
+
+function refuse(problem) {
+  localStorage.removeItem(stores.key);
+  room.key = "";
+  if (room.socket) room.socket.stop();
+  room.socket = null;
+  closeQuestion();
+  el("captions").hidden = true;
+  setConnection("closed");
+  askForKey(problem);
+}
+
+async function loadRoom() {
+  let response;
+  try {
+    response = await fetch("/api/v1/station/room", {
+      headers: { Authorization: `Bearer ${room.key}` },
+      cache: "no-store",
+    });
+  } catch {
+    setTimeout(loadRoom, 2000); // the network: try again
+    return;
+  }
+  if (response.status === 401) {
+    refuse("The room was closed: this key is unknown or has been revoked. Ask an admin for a new key on the Stations page.");
+    return;
+  }
+  const body = await response.json().catch(() => ({}));
+  if (response.status === 409) {
+    showNotice("No study here yet", "This station runs no study yet: the experimenter seats a participant on its console first.");
+    return; // a participant_assigned push loads it
+  }
+  if (!response.ok) {
+    showNotice("The room could not be loaded", body.detail || `The server answered ${response.status}.`);
+    setTimeout(loadRoom, 5000);
+    return;
+  }
+  buildRoom(body);
+}
+
+function buildRoom(description) {
+  if (room.scene) return;
+  if (!webglAvailable()) {
+    showNotice("This browser cannot draw the room", "WebGL is switched off or missing. Use a current Chrome, Edge or Firefox, or the console's Wizard-of-Oz mode.");
+    return;
+  }
+  room.layout = description.layout;
+  room.segments = wallSegments(room.layout);
+  const rules = el("rules");
+  rules.replaceChildren(...description.rules.map((rule) => Object.assign(document.createElement("li"), { textContent: rule })));
+  const robotStyle = new URLSearchParams(location.search).get("robot");
+  room.scene = new RoomScene(el("view"), room.layout, { robot: robotStyle });
+  window.addEventListener("resize", () => room.scene.resize());
+  restorePose();
+  if (!room.pose) room.pose = startPose(room.layout);
+  room.scene.start(frame);
+  offerHeadset();
+  render();
+}
+
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  room.socket = new StationSocket(`${scheme}://${location.host}/api/v1/station/ws`, room.key, {
+    status: setConnection,
+    refused: () => refuse("The room was closed: this device's key was revoked or is unknown. Ask an admin for a new key on the Stations page."),
+    hello: (message) => {
+      if (message.station !== station) {
+        room.socket.stop();
+        showNotice("This key is for another station", `It belongs to station ${message.station}: open /stations/${message.station}/room, or enter a key of ${station}.`, { form: true });
+        return;
+      }
+      applyState(message.state);
+      if (!room.resumed) {
+        room.resumed = true;
+        resumeStoredAnswer();
+      }
+    },
+    event: (message) => {
+      if (message.event === "participant_assigned" && !room.scene) loadRoom();
+      applyState(message.state);
+    },
+  });
+  room.socket.connect();
+}
+
+function start() {
+  if (!room.key) {
+    askForKey("");
+    return;
+  }
+  showNotice("Escape room", "Connecting…");
+  loadRoom();
+  connect();
+}
+
+// ---------------------------------------------------------------- controls
+
+const KEYS = {
+  ArrowUp: "forward", KeyW: "forward", ArrowDown: "back", KeyS: "back",
+  ArrowLeft: "turn-left", KeyA: "turn-left", ArrowRight: "turn-right", KeyD: "turn-right",
+  KeyQ: "strafe-left", KeyE: "strafe-right",
+};
+
+function typing(event) {
+  return event.target instanceof HTMLInputElement || event.target instanceof HTMLTextAreaElement;
+}
+
+window.addEventListener("keydown", (event) => {
+  if (typing(event)) return;
+  if (KEYS[event.code]) {
+    room.held.add(KEYS[event.code]);
+    event.preventDefault();
+  } else if (!event.repeat && (event.code === "KeyY" || event.code === "KeyN")) {
+    answer(event.code === "KeyY" ? "yes" : "no", "key");
+  }
+});
+window.addEventListener("keyup", (event) => {
+  if (KEYS[event.code]) room.held.delete(KEYS[event.code]);
+});
+window.addEventListener("blur", () => room.held.clear());
+
+el("answer-yes").addEventListener("click", () => answer("yes", "button"));
+el("answer-no").addEventListener("click", () => answer("no", "button"));
+
+for (const pad of document.querySelectorAll("[data-move]")) {
+  const move = pad.dataset.move;
+  pad.addEventListener("pointerdown", (event) => {
+    pad.setPointerCapture(event.pointerId);
+    room.held.add(move);
+  });
+  for (const end of ["pointerup", "pointercancel", "lostpointercapture"]) {
+    pad.addEventListener(end, () => room.held.delete(move));
+  }
+}
+if (matchMedia("(pointer: coarse)").matches || new URLSearchParams(location.search).has("pads")) {
+  el("pads").hidden = false;
+}
+
+el("view").addEventListener("pointermove", (event) => {
+  if (event.buttons === 1 && event.pointerType === "mouse") room.dragTurn = (room.dragTurn || 0) + event.movementX * 0.15;
+});
+
+el("key-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  const key = el("key-input").value.trim();
+  if (!key.startsWith("tlk_")) {
+    el("key-error").textContent = "A device key starts with tlk_.";
+    return;
+  }
+  localStorage.setItem(stores.key, key);
+  room.key = key;
+  el("key-input").value = "";
+  el("key-form").hidden = true;
+  start();
+});
+
+el("forget-key").addEventListener("click", () => {
+  if (confirm("Forget this device's key? The room closes until a key is entered again.")) refuse("");
+});
+
+async function offerHeadset() {
+  if (!navigator.xr) return;
+  for (const [mode, button] of [["immersive-ar", "enter-ar"], ["immersive-vr", "enter-vr"]]) {
+    const supported = await navigator.xr.isSessionSupported(mode).catch(() => false);
+    if (!supported) continue;
+    el("headset").hidden = false;
+    el(button).hidden = false;
+    el(button).addEventListener("click", () => {
+      room.scene.enterHeadset(mode, root).catch((error) => showDetail(`The headset session did not start: ${error.message}`));
+    });
+  }
+}
+
+// Read-only views for the browser tests and bench/room.py (nothing here changes the room).
+window.trustlabRoom = {
+  get pose() {
+    return room.pose ? { ...room.pose } : null;
+  },
+  get state() {
+    return room.state;
+  },
+  get question() {
+    return room.question ? { ...room.question } : null;
+  },
+  get frames() {
+    return room.frames;
+  },
+  get renderScale() {
+    return room.scene ? room.scene.renderScale : null;
+  },
+  get ready() {
+    return Boolean(room.scene && room.state && room.socket && room.socket.online);
+  },
+};
+
+start();

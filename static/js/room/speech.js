@@ -1,0 +1,143 @@
+// The robot's voice and the participant's: speech synthesis for the robot's lines, speech
+// recognition for yes/no answers where the browser has them. Captions are always shown as well
+// (room.js), so a browser without either still runs the whole study.
+//
+// A recognised answer counts only when it is a clear yes or a clear no: "yes", "yeah, sure" or
+// "no, not really" are; "yes… no", "I don't know", "maybe" and anything heard with low confidence
+// are not, and the robot asks again. Real participants hesitate and correct themselves, and a
+// misheard answer would teach the learner the wrong thing.
+
+export const MIN_CONFIDENCE = 0.5;
+
+const YES = new Set([
+  "yes", "yeah", "yea", "yep", "yup", "ya", "yah", "aye", "sure", "certainly", "definitely",
+  "absolutely", "correct", "affirmative", "indeed", "right",
+]);
+const NO = new Set(["no", "nope", "nah", "negative", "never", "not", "incorrect", "wrong"]);
+const UNSURE = [
+  /\b(don'?t|do not|dunno) know\b/, /\bnot sure\b/, /\bmaybe\b/, /\bperhaps\b/, /\bi guess\b/,
+  /\bkind of\b/, /\bsort of\b/, /\bwhat\b/, /\bpardon\b/, /\brepeat\b/,
+];
+
+/** "yes", "no" or null (not a clear answer) for what a recogniser heard. */
+export function classifyAnswer(transcript) {
+  const text = String(transcript || "")
+    .toLowerCase()
+    .replace(/[’`]/g, "'")
+    .replace(/[^a-z' ]+/g, " ")
+    .replace(/\s+/g, " ")
+    .trim();
+  if (!text || UNSURE.some((pattern) => pattern.test(text))) return null;
+  const words = text.split(" ");
+  const saidYes = words.some((word) => YES.has(word)) || /\bof course\b/.test(text);
+  const saidNo = words.some((word) => NO.has(word) || word === "don't" || word === "didn't");
+  if (saidYes === saidNo) return null; // neither, or both ("yes no", "right, no")
+  return saidYes ? "yes" : "no";
+}
+
+/** The best clear answer among a recogniser's alternatives, with its words and confidence, or
+ * ``{answer: null, …}`` with the top alternative when none is clear and confident enough. */
+export function pickAnswer(alternatives, minConfidence = MIN_CONFIDENCE) {
+  const heard = alternatives
+    .filter((alternative) => alternative && alternative.transcript)
+    .map((alternative) => ({
+      transcript: String(alternative.transcript).trim().slice(0, 200),
+      confidence: Number.isFinite(alternative.confidence) ? alternative.confidence : 0,
+    }));
+  if (heard.length === 0) return { answer: null, transcript: "", confidence: 0 };
+  const top = heard[0];
+  const answer = classifyAnswer(top.transcript);
+  if (answer === null || top.confidence < minConfidence) return { answer: null, ...top };
+  return { answer, ...top };
+}
+
+/** The robot's voice: speaks a line and resolves when it has been said (or when it would have
+ * been, where the browser cannot speak or never reports the end). */
+export class Voice {
+  constructor(enabled = true) {
+    this.synth = enabled && "speechSynthesis" in window ? window.speechSynthesis : null;
+  }
+
+  say(text) {
+    const estimate = 600 + text.length * 70;
+    if (!this.synth) return new Promise((resolve) => setTimeout(resolve, Math.min(estimate, 1500)));
+    return new Promise((resolve) => {
+      let done = false;
+      const finish = () => {
+        if (!done) {
+          done = true;
+          resolve();
+        }
+      };
+      this.synth.cancel();
+      const utterance = new SpeechSynthesisUtterance(text);
+      utterance.lang = document.documentElement.lang || "en";
+      utterance.onend = finish;
+      utterance.onerror = finish;
+      setTimeout(finish, estimate + 2000);
+      this.synth.speak(utterance);
+    });
+  }
+
+  stop() {
+    if (this.synth) this.synth.cancel();
+  }
+}
+
+/** Listens for one yes/no answer at a time (where the browser offers speech recognition). */
+export class Listener {
+  constructor() {
+    const Recognition = window.SpeechRecognition || window.webkitSpeechRecognition;
+    this.Recognition = Recognition || null;
+    this.active = null;
+  }
+
+  get available() {
+    return this.Recognition !== null;
+  }
+
+  /** Resolves with ``pickAnswer``'s result for what was heard, or null when nothing was (silence,
+   * no microphone, a refused permission, or :meth:`stop`). */
+  listen() {
+    if (!this.available) return Promise.resolve(null);
+    this.stop();
+    return new Promise((resolve) => {
+      const recognition = new this.Recognition();
+      recognition.lang = document.documentElement.lang || "en";
+      recognition.interimResults = false;
+      recognition.maxAlternatives = 3;
+      let settled = false;
+      const settle = (value) => {
+        if (!settled) {
+          settled = true;
+          this.active = null;
+          resolve(value);
+        }
+      };
+      recognition.onresult = (event) => {
+        const result = event.results[event.results.length - 1];
+        settle(pickAnswer(Array.from(result)));
+      };
+      recognition.onerror = () => settle(null);
+      recognition.onend = () => settle(null);
+      this.active = { recognition, settle };
+      try {
+        recognition.start();
+      } catch {
+        settle(null);
+      }
+    });
+  }
+
+  stop() {
+    if (this.active) {
+      const { recognition, settle } = this.active;
+      settle(null);
+      try {
+        recognition.abort();
+      } catch {
+        // already stopped
+      }
+    }
+  }
+}

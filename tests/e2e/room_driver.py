@@ -1,0 +1,244 @@
+"""Driving the browser escape room as a participant would: by the keyboard, in real Chromium.
+
+Shared by tests/e2e/test_room.py and bench/room.py. The walker steers in a closed loop (read the
+pose the page shows, turn towards the next waypoint, walk, look again), so it arrives however
+fast or slow the machine draws frames; it never relies on a key held for an exact time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import httpx
+from playwright.sync_api import Page
+
+from app.db import Database
+from app.protocol import default_protocol
+from app.services import enrolment, questionnaires, runtime, stations, studies
+from app.services.audit import Actor
+from app.tables import Role
+from tests.conftest import PASSWORD, PRE_STUDY_ANSWERS, make_user
+
+SYSTEM = Actor.system("room-e2e")
+WALK_SPEED = 1.4
+TURN_SPEED = 110.0
+"""Metres and degrees a second, as static/js/room/walk.js moves (the walker stops a little short
+of each target and looks again, so a slow or fast frame never carries it past)."""
+START = (1.35, 0.9)
+"""The shipped layout's start circle, where the exit sends the participant back to."""
+ARRIVED = 0.15
+"""Metres from a waypoint that count as there."""
+TURN_TOLERANCE = 4.0
+"""Degrees off the waypoint's bearing that still walk straight on."""
+
+# The shipped layout's corridors (app/room.py, DEFAULT_PATH): waypoints along their middles.
+TO_CONATION = [(1.35, 3.0), (1.5, 5.0)]
+TO_AFFECTION_FROM_CONATION = [(3.4, 5.0), (4.0, 3.0)]
+TO_COGNITION_FROM_AFFECTION = [(4.0, 1.0), (6.08, 1.0)]
+TO_EXIT_FROM_COGNITION = [(6.65, 1.0), (6.65, 5.1)]
+PAPER_ORDER = [
+    ("conation", TO_CONATION),
+    ("affection", TO_AFFECTION_FROM_CONATION),
+    ("cognition", TO_COGNITION_FROM_AFFECTION),
+]
+"""Walking the S-shaped maze from the start: each category's zone in turn along the path."""
+AFFECTION_FIRST = [
+    ("affection", [(1.0, 3.0), (2.5, 4.3), (3.2, 4.4), (4.0, 3.0)]),  # round the conation zone
+    ("conation", [(3.4, 5.0), (1.8, 5.0)]),
+    ("cognition", [(3.4, 5.0), (4.0, 1.0), (6.08, 1.0)]),
+]
+"""Another order a participant may choose: past the conation zone's edge to affection first."""
+
+
+def preferred_questions() -> dict[str, str]:
+    """The question the paper's rules make right in each category of the shipped protocol."""
+    protocol = default_protocol().protocol
+    return {
+        c.name: c.questions[c.preferred] for c in protocol.categories if c.preferred is not None
+    }
+
+
+@dataclass
+class RoomLab:
+    """A station with a device key and a participant past the pre-study questionnaires, seated
+    there; an experimenter's HTTP client starts the sessions."""
+
+    url: str
+    station: str
+    key: str
+    code: str
+    experimenter: httpx.Client
+
+    def start_session(self) -> None:
+        started = self.experimenter.post(f"/api/v1/stations/{self.station}/sessions")
+        assert started.status_code == 201, started.text
+
+    def revoke_keys(self) -> None:
+        listed = self.experimenter.get("/api/v1/stations").json()
+        station = next(s for s in listed if s["name"] == self.station)
+        for device in station["devices"]:
+            revoked = self.experimenter.post(f"/api/v1/devices/{device['id']}/revoke")
+            assert revoked.status_code == 200, revoked.text
+
+
+def seat_participant(
+    database: Database, url: str, study: str, *, station: str = "room-1", code: str = "R001"
+) -> RoomLab:
+    """Enrol ``code`` in ``study``, fill their pre-study questionnaires, seat them at ``station``
+    (made, with a device key) and sign an admin in."""
+    with database.writing() as db:
+        participant = enrolment.enroll_participant(
+            db, study_name=study, actor=SYSTEM, code=code
+        ).participant
+    with database.writing() as db:
+        participant = db.merge(participant)
+        protocol = studies.protocol_of(studies.get_study(db, study))
+        questionnaires.accept_consent(
+            db, participant=participant, protocol=protocol, accepted=True, actor=SYSTEM
+        )
+        for instrument, answers in PRE_STUDY_ANSWERS.items():
+            questionnaires.submit(
+                db,
+                participant=participant,
+                protocol=protocol,
+                instrument_key=instrument,
+                session=None,
+                answers=answers,
+                actor=SYSTEM,
+            )
+    with database.writing() as db:
+        stations.create_station(db, name=station, actor=SYSTEM)
+    with database.writing() as db:
+        key = stations.issue_device_key(db, station_name=station, label="room", actor=SYSTEM).key
+    with database.writing() as db:
+        stations.assign_participant(
+            db, station_name=station, participant=db.merge(participant), actor=SYSTEM
+        )
+    make_user(database, "room-admin", Role.ADMIN)
+    experimenter = httpx.Client(base_url=url, timeout=30)
+    signed_in = experimenter.post(
+        "/api/v1/session", json={"username": "room-admin", "password": PASSWORD}
+    )
+    experimenter.headers["X-CSRF-Token"] = signed_in.json()["csrf_token"]
+    return RoomLab(url=url, station=station, key=key, code=code, experimenter=experimenter)
+
+
+def open_room(page: Page, lab: RoomLab) -> None:
+    """Open the station's room, enter the key and wait until it is connected and drawn."""
+    page.goto(f"{lab.url}/stations/{lab.station}/room")
+    page.get_by_label(f"Device key of station {lab.station}").fill(lab.key)
+    page.get_by_role("button", name="Open the room").click()
+    wait_ready(page)
+
+
+def wait_ready(page: Page) -> None:
+    """Until the room is drawn and its WebSocket has said hello."""
+    page.wait_for_function("() => window.trustlabRoom && window.trustlabRoom.ready")
+
+
+def pose(page: Page) -> dict[str, float]:
+    """The participant's pose as the page holds it."""
+    value: dict[str, float] = page.evaluate("() => window.trustlabRoom.pose")
+    return value
+
+
+def _hold(page: Page, key: str, seconds: float) -> None:
+    page.keyboard.down(key)
+    page.wait_for_timeout(max(30, int(seconds * 1000)))
+    page.keyboard.up(key)
+
+
+def walk_to(
+    page: Page, x: float, z: float, *, max_moves: int = 600, until_start: bool = False
+) -> None:
+    """Steer to (x, z) with the arrow keys: turn until facing it, walk a little, look again.
+    ``until_start``: walking to the exit, which sends the participant back to the start circle
+    once they step into it, so arriving there is arriving."""
+    for _ in range(max_moves):
+        here = pose(page)
+        distance = math.hypot(x - here["x"], z - here["z"])
+        if distance < ARRIVED or (until_start and _at_start(here)):
+            return
+        bearing = math.degrees(math.atan2(x - here["x"], z - here["z"])) % 360
+        off = (bearing - here["heading"] + 540) % 360 - 180
+        if abs(off) > TURN_TOLERANCE:
+            _hold(page, "ArrowRight" if off > 0 else "ArrowLeft", 0.85 * abs(off) / TURN_SPEED)
+        else:
+            _hold(page, "ArrowUp", min(0.85 * distance / WALK_SPEED, 1.5))
+    raise AssertionError(f"did not reach ({x}, {z}); stopped at {pose(page)}")
+
+
+def face(page: Page, heading: float) -> None:
+    """Turn on the spot until facing ``heading`` (degrees, 0 = the far wall)."""
+    for _ in range(100):
+        off = (heading - pose(page)["heading"] + 540) % 360 - 180
+        if abs(off) <= TURN_TOLERANCE:
+            return
+        _hold(page, "ArrowRight" if off > 0 else "ArrowLeft", 0.85 * abs(off) / TURN_SPEED)
+    raise AssertionError(f"did not turn to {heading}: {pose(page)}")
+
+
+def _at_start(here: dict[str, float]) -> bool:
+    return math.hypot(here["x"] - START[0], here["z"] - START[1]) < 0.01 and here["heading"] == 0
+
+
+def walk_out(page: Page) -> None:
+    """From the cognition zone's corridor out through the exit, back to the start."""
+    walk_to(page, *TO_EXIT_FROM_COGNITION[0])
+    walk_to(page, *TO_EXIT_FROM_COGNITION[1], until_start=True)
+    assert _at_start(pose(page)), pose(page)
+
+
+def walk(page: Page, waypoints: Iterable[tuple[float, float]]) -> None:
+    """Walk through each waypoint in turn."""
+    for x, z in waypoints:
+        walk_to(page, x, z)
+
+
+def wait_question(page: Page, category: str) -> str:
+    """The text of the question the robot asks for ``category`` (once its caption shows)."""
+    page.wait_for_function(
+        "(c) => { const q = window.trustlabRoom.question; return q && q.category === c; }",
+        arg=category,
+    )
+    text: str = page.evaluate("() => window.trustlabRoom.question.question")
+    return text
+
+
+def answer_by_rules(page: Page, category: str, question: str, *, how: str = "key") -> str:
+    """Answer as the paper's rules say (yes to the preferred question, no to the others), by the
+    Y/N keys or the on-screen buttons; waits until the robot's reply is shown."""
+    said = "yes" if preferred_questions()[category] == question else "no"
+    if how == "key":
+        page.keyboard.press("KeyY" if said == "yes" else "KeyN")
+    else:
+        page.get_by_role("button", name="Yes" if said == "yes" else "No").click()
+    page.wait_for_function(
+        "() => !window.trustlabRoom.question && "
+        "document.getElementById('captions').dataset.kind === 'reply'"
+    )
+    return said
+
+
+def run_through(
+    page: Page, order: list[tuple[str, list[tuple[float, float]]]], *, how: str = "key"
+) -> list[str]:
+    """One run: each category's zone in ``order``, answered by the rules, then out at the exit
+    (which takes the participant back to the start). Returns the categories in the order asked."""
+    asked = []
+    for category, waypoints in order:
+        walk(page, waypoints)
+        question = wait_question(page, category)
+        answer_by_rules(page, category, question, how=how)
+        asked.append(category)
+    walk_out(page)
+    return asked
+
+
+def current_session(database: Database, station: str) -> int | None:
+    """The session number running at ``station`` (None: none is)."""
+    with database.read_session() as db:
+        view = runtime.station_view(db, station_name=station)
+        return view.session.number if view.session and view.session.status == "running" else None
