@@ -90,8 +90,8 @@ class PresenceRequest(RequestBody):
 
     x: RoomCoordinate = Field(description="Metres from the left wall.")
     z: RoomCoordinate = Field(description="Metres from the near wall.")
-    heading: Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)] = Field(
-        description="Degrees: 0 faces the far wall, 90 the right wall."
+    heading: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] = Field(
+        description="Degrees: 0 faces the far wall, 90 the right wall (stored modulo 360)."
     )
     zone: str | None = Field(
         default=None,

@@ -3,15 +3,19 @@ the zones ask the robot's questions, and every answer reaches the database exact
 
 from __future__ import annotations
 
+import json
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, expect
+from playwright.sync_api import Browser, Page, WebSocketRoute, expect
 from sqlalchemy import func, select
 
 from app.db import Database
 from app.services import verify
 from app.tables import Answer, Prompt
+from tests.conftest import PASSWORD
 from tests.e2e import room_driver as drive
 from tests.servers import ServerProcess
 
@@ -31,6 +35,14 @@ def _steps(database: Database) -> list[tuple[int, str, str | None, str | None, i
             db.execute(select(Answer.prompt_id, func.count()).group_by(Answer.prompt_id)).all()
         )
     return [(pid, category, zone, how, counts.get(pid, 0)) for pid, category, zone, how in rows]
+
+
+def _wait_until(condition: Callable[[], bool], limit: float = 30.0) -> None:
+    """Poll the database until ``condition`` holds (a generous limit: only a hang fails)."""
+    deadline = time.monotonic() + limit
+    while not condition():
+        assert time.monotonic() < deadline, "the condition never held"
+        time.sleep(0.05)
 
 
 def _verified(database: Database, study: str) -> None:
@@ -87,3 +99,212 @@ def test_a_participant_walks_the_practice_run_and_a_session(
     assert all(zone == category for _, category, zone, _, _ in steps)  # with the zone walked into
     assert {how for *_, how, _ in steps} == {"key", "button"}
     _verified(database, study_name)
+
+
+def _answers_for(database: Database, category: str) -> list[Answer]:
+    with database.read_session() as db:
+        return list(
+            db.scalars(
+                select(Answer)
+                .join(Prompt, Prompt.id == Answer.prompt_id)
+                .where(Prompt.category == category)
+            )
+        )
+
+
+class _Relay:
+    """Every room WebSocket through Playwright, so a test can lose the server's reply to an
+    answer (the answer reached the server; its acknowledgement did not reach the page)."""
+
+    def __init__(self, page: Page) -> None:
+        self.lose_answer_replies = False
+        page.route_web_socket("**/api/v1/station/ws", self._route)
+
+    def _route(self, socket: WebSocketRoute) -> None:
+        server = socket.connect_to_server()
+        socket.on_message(server.send)
+        server.on_message(lambda message: self._to_page(socket, message))
+
+    def _to_page(self, socket: WebSocketRoute, message: str | bytes) -> None:
+        reply = json.loads(message)
+        if self.lose_answer_replies and reply.get("op") == "answer":
+            return
+        socket.send(message)
+
+
+@pytest.mark.e2e
+def test_a_reload_mid_run_finishes_it_without_duplicates(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    study_name: str,
+    artifacts: Path,
+) -> None:
+    lab = drive.seat_participant(database, live_server.url, study_name)
+    context = browser.new_context(viewport=TABLET, has_touch=True)
+    page = context.new_page()
+    relay = _Relay(page)
+    drive.open_room(page, lab)
+    lab.start_session()
+    expect(page.locator("#pads")).to_be_visible()  # a touch screen gets walking pads
+
+    drive.walk(page, drive.TO_CONATION)
+    step = page.evaluate("() => window.trustlabRoom.question.step_id")
+    before = drive.pose(page)
+    page.screenshot(path=str(artifacts / "01-tablet-question.png"))
+    page.reload()  # a question open: it is asked again, where the participant stood
+    drive.wait_ready(page)
+    question = drive.wait_question(page, "conation")
+    assert page.evaluate("() => window.trustlabRoom.question.step_id") == step
+    after = drive.pose(page)
+    assert abs(after["x"] - before["x"]) < 0.1 and abs(after["z"] - before["z"]) < 0.1
+    drive.answer_by_rules(page, "conation", question, how="button")
+
+    # The answer reaches the server but its reply is lost; the reload sends it again.
+    drive.walk(page, drive.TO_AFFECTION_FROM_CONATION)
+    question = drive.wait_question(page, "affection")
+    relay.lose_answer_replies = True
+    page.keyboard.press("KeyY")
+    page.wait_for_function(f"() => localStorage.getItem('trustlab.room.answer.{lab.station}')")
+    _wait_until(lambda: len(_answers_for(database, "affection")) == 1)  # the server has it
+    relay.lose_answer_replies = False
+    page.reload()
+    drive.wait_ready(page)
+    page.wait_for_function(
+        f"() => !localStorage.getItem('trustlab.room.answer.{lab.station}') && "
+        "!window.trustlabRoom.question"
+    )
+    drive.walk(page, drive.TO_COGNITION_FROM_AFFECTION)
+    drive.answer_by_rules(page, "cognition", drive.wait_question(page, "cognition"))
+    drive.walk_out(page)
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+
+    steps = _steps(database)
+    assert [category for _, category, *_ in steps] == ["conation", "affection", "cognition"]
+    assert all(count == 1 for *_, count in steps), steps
+    _verified(database, study_name)
+
+
+@pytest.mark.e2e
+def test_a_dropped_network_shows_a_banner_and_resumes(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    study_name: str,
+    artifacts: Path,
+) -> None:
+    lab = drive.seat_participant(database, live_server.url, study_name)
+    context = browser.new_context(viewport=DESKTOP)
+    page = context.new_page()
+    drive.open_room(page, lab)
+    lab.start_session()
+    drive.walk(page, drive.TO_CONATION)
+    question = drive.wait_question(page, "conation")
+
+    context.set_offline(True)
+    expect(page.locator("#offline")).to_be_visible()
+    expect(page.locator("#connection")).to_have_text("Offline")
+    said = drive.preferred_questions()["conation"] == question
+    page.keyboard.press("KeyY" if said else "KeyN")  # answered while offline: kept, not lost
+    page.screenshot(path=str(artifacts / "01-offline.png"))
+    assert _answers_for(database, "conation") == []
+    context.set_offline(False)
+    expect(page.locator("#offline")).to_be_hidden()
+    expect(page.locator("#captions")).to_have_attribute("data-kind", "reply")
+    stored = _answers_for(database, "conation")
+    assert len(stored) == 1 and stored[0].answer is said and stored[0].modality == "key"
+
+    drive.walk(page, drive.TO_AFFECTION_FROM_CONATION)  # and the room goes on
+    drive.answer_by_rules(page, "affection", drive.wait_question(page, "affection"))
+    assert len(_answers_for(database, "affection")) == 1
+
+
+FAKE_SPEECH = """
+window.__heard = [];
+class FakeRecognition {
+  start() {
+    const next = window.__heard.shift();
+    setTimeout(() => {
+      if (!next) { this.onend && this.onend(); return; }
+      const result = [{ transcript: next[0], confidence: next[1] }];
+      this.onresult && this.onresult({ results: [result] });
+    }, 20);
+  }
+  abort() {}
+}
+window.SpeechRecognition = FakeRecognition;
+window.webkitSpeechRecognition = FakeRecognition;
+window.speechSynthesis = { speak(u) { setTimeout(() => u.onend && u.onend(), 5); }, cancel() {} };
+"""
+
+
+@pytest.mark.e2e
+def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    study_name: str,
+    artifacts: Path,
+) -> None:
+    lab = drive.seat_participant(database, live_server.url, study_name)
+    console = browser.new_page(viewport=DESKTOP)
+    console.goto(f"{live_server.url}/login?next=/stations/{lab.station}")
+    console.get_by_label("Username").fill("room-admin")
+    console.get_by_label("Password").fill(PASSWORD)
+    console.get_by_role("button", name="Sign in").click()
+    expect(console.locator("#room-panel")).to_contain_text("No room client has reported yet")
+
+    context = browser.new_context(viewport=DESKTOP)
+    context.add_init_script(FAKE_SPEECH)
+    page = context.new_page()
+    drive.open_room(page, lab)
+    heard = page.evaluate(
+        """async (phrases) => {
+            const speech = await import('/static/js/room/speech.js');
+            return phrases.map((phrase) => speech.classifyAnswer(phrase));
+        }""",
+        list(CLASSIFIED),
+    )
+    assert dict(zip(CLASSIFIED, heard, strict=True)) == CLASSIFIED
+
+    lab.start_session()
+    page.evaluate("() => { window.__heard.push(['maybe', 0.95], ['yeah sure', 0.3]); }")
+    page.evaluate("() => { window.__heard.push(['Yeah, sure.', 0.92]); }")
+    drive.walk(page, drive.TO_CONATION)
+    page.wait_for_function("() => !window.trustlabRoom.question")
+    stored = _answers_for(database, "conation")
+    assert len(stored) == 1
+    assert (stored[0].answer, stored[0].modality, stored[0].transcript) == (
+        True,
+        "speech",
+        "Yeah, sure.",
+    )
+    assert stored[0].transcript_confidence == pytest.approx(0.92)
+
+    # The console's room panel follows without a reload: zone, position and the last line.
+    expect(console.locator("#room-panel .room-facts")).to_contain_text("Zoneconation")
+    expect(console.locator("#room-panel .utterance")).to_contain_text("Robot replies")
+    console.screenshot(path=str(artifacts / "01-console-room-panel.png"), full_page=True)
+
+    lab.revoke_keys()  # the room closes with a clear message, and forgets the key
+    expect(page.locator("#notice")).to_contain_text("revoked")
+    expect(page.get_by_label(f"Device key of station {lab.station}")).to_be_visible()
+    assert page.evaluate(f"() => localStorage.getItem('trustlab.room.key.{lab.station}')") is None
+    page.screenshot(path=str(artifacts / "02-revoked.png"))
+
+
+CLASSIFIED = {
+    "yes": "yes",
+    "Yeah, sure.": "yes",
+    "of course": "yes",
+    "no": "no",
+    "nope": "no",
+    "no, not really": "no",
+    "I don't think so": "no",
+    "yes no": None,
+    "I don't know": None,
+    "maybe": None,
+    "the second key": None,
+    "": None,
+}
+"""What a recogniser may hear, and what the room takes it for (None: it asks again)."""
