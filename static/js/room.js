@@ -11,7 +11,15 @@
 import { RoomScene, webglAvailable } from "./room/scene.js";
 import { StationSocket } from "./room/socket.js";
 import { Listener, Voice } from "./room/speech.js";
-import { inside, poseFromHeadset, startPose, step, wallSegments, zoneAt } from "./room/walk.js";
+import {
+  inside,
+  normaliseHeading,
+  poseFromHeadset,
+  startPose,
+  step,
+  wallSegments,
+  zoneAt,
+} from "./room/walk.js";
 
 const root = document.getElementById("room");
 const station = root.dataset.station;
@@ -22,8 +30,11 @@ const stores = {
   exited: `trustlab.room.exited.${station}`,
 };
 const PRESENCE_INTERVAL_MS = 500; // the console's room panel: at most two reports a second
+const DRAG_DEGREES = 0.25; // a mouse drag turns the participant this much per pixel
+const RETRY_REFUSED_MS = 3000; // a refused prompt is not asked again sooner (standing in its zone)
 const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no.";
 const el = (id) => document.getElementById(id);
+const options = new URLSearchParams(location.search);
 
 const room = {
   key: localStorage.getItem(stores.key) || "",
@@ -35,14 +46,15 @@ const room = {
   pose: null,
   question: null, // the open prompt shown to the participant
   promptInFlight: null, // the category whose prompt was requested and not yet answered
-  refused: new Set(), // prompts the server refused in this run (not asked again until it changes)
+  refused: new Map(), // category → when the server last refused its prompt
   answering: false,
   resumed: false,
   held: new Set(),
+  dragged: 0,
   exitHint: false,
   frames: 0,
   presence: { at: 0, x: NaN, z: NaN, heading: NaN, zone: undefined, said: null },
-  voice: new Voice(),
+  voice: new Voice(options.get("voice") !== "off"), // ?voice=off: a physical robot speaks
   listener: new Listener(),
 };
 
@@ -121,7 +133,7 @@ function input() {
   const axis = (plus, minus) => (plus ? 1 : 0) - (minus ? 1 : 0);
   return {
     forward: axis(held.has("forward"), held.has("back")),
-    turn: axis(held.has("turn-right"), held.has("turn-left")) + (room.dragTurn || 0),
+    turn: axis(held.has("turn-right"), held.has("turn-left")),
     strafe: axis(held.has("strafe-right"), held.has("strafe-left")),
   };
 }
@@ -134,8 +146,9 @@ function frame(seconds) {
     room.pose = poseFromHeadset(room.layout, view.position, view.direction);
   } else if (canWalk()) {
     room.pose = step(room.layout, room.segments, room.pose, input(), seconds);
+    if (room.dragged) room.pose.heading = normaliseHeading(room.pose.heading + room.dragged);
   }
-  room.dragTurn = 0;
+  room.dragged = 0;
   room.scene.update(room.pose);
   afterMove();
 }
@@ -168,7 +181,7 @@ function maybePrompt(zone) {
   if (!state || room.question || room.promptInFlight || needsExit()) return;
   const expected = state.expected;
   if (expected.action !== "prompt" || !expected.categories.includes(zone.category)) return;
-  if (room.refused.has(zone.category)) return;
+  if (performance.now() - (room.refused.get(zone.category) ?? -Infinity) < RETRY_REFUSED_MS) return;
   room.promptInFlight = zone.category;
   performance.mark(`trustlab:zone:${zone.category}`);
   room.socket
@@ -180,7 +193,7 @@ function maybePrompt(zone) {
     })
     .catch((error) => {
       room.promptInFlight = null;
-      room.refused.add(zone.category); // e.g. the experimenter ended the run meanwhile
+      room.refused.set(zone.category, performance.now()); // e.g. the run was ended meanwhile
       showDetail(error.detail || "");
       refreshState();
     });
@@ -192,8 +205,11 @@ function showQuestion(prompt, { speak, zone } = {}) {
   room.question = prompt;
   say("question", prompt.question, { speak: false });
   if (zone) {
-    performance.mark("trustlab:caption");
-    performance.measure("trustlab:zone-to-caption", `trustlab:zone:${zone}`, "trustlab:caption");
+    requestAnimationFrame(() => {
+      // the frame that draws the caption: what bench/room.py reports as zone → caption
+      performance.mark("trustlab:caption");
+      performance.measure("trustlab:zone-to-caption", `trustlab:zone:${zone}`, "trustlab:caption");
+    });
   }
   el("answer").hidden = false;
   render();
@@ -221,6 +237,7 @@ async function askAloud(text) {
       silences += 1; // silence, no microphone, or a refused permission: the buttons remain
       continue;
     }
+    silences = 0;
     if (heard.transcript) say("participant", heard.transcript, { speak: false });
     if (heard.answer) {
       answer(heard.answer, "speech", heard);
@@ -443,6 +460,14 @@ async function loadRoom() {
   buildRoom(body);
 }
 
+/** Take the drawn room down (a key of another station drew that station's room). */
+function closeRoom() {
+  if (room.scene) room.scene.dispose();
+  room.scene = null;
+  room.layout = null;
+  room.pose = null;
+}
+
 function buildRoom(description) {
   if (room.scene) return;
   if (!webglAvailable()) {
@@ -453,9 +478,7 @@ function buildRoom(description) {
   room.segments = wallSegments(room.layout);
   const rules = el("rules");
   rules.replaceChildren(...description.rules.map((rule) => Object.assign(document.createElement("li"), { textContent: rule })));
-  const robotStyle = new URLSearchParams(location.search).get("robot");
-  room.scene = new RoomScene(el("view"), room.layout, { robot: robotStyle });
-  window.addEventListener("resize", () => room.scene.resize());
+  room.scene = new RoomScene(el("view"), room.layout, { robot: options.get("robot") });
   restorePose();
   if (!room.pose) room.pose = startPose(room.layout);
   room.scene.start(frame);
@@ -471,6 +494,9 @@ function connect() {
     hello: (message) => {
       if (message.station !== station) {
         room.socket.stop();
+        localStorage.removeItem(stores.key);
+        room.key = "";
+        closeRoom();
         showNotice("This key is for another station", `It belongs to station ${message.station}: open /stations/${message.station}/room, or enter a key of ${station}.`, { form: true });
         return;
       }
@@ -523,6 +549,7 @@ window.addEventListener("keyup", (event) => {
   if (KEYS[event.code]) room.held.delete(KEYS[event.code]);
 });
 window.addEventListener("blur", () => room.held.clear());
+window.addEventListener("resize", () => room.scene && room.scene.resize());
 
 el("answer-yes").addEventListener("click", () => answer("yes", "button"));
 el("answer-no").addEventListener("click", () => answer("no", "button"));
@@ -537,12 +564,12 @@ for (const pad of document.querySelectorAll("[data-move]")) {
     pad.addEventListener(end, () => room.held.delete(move));
   }
 }
-if (matchMedia("(pointer: coarse)").matches || new URLSearchParams(location.search).has("pads")) {
+if (matchMedia("(pointer: coarse)").matches || options.has("pads")) {
   el("pads").hidden = false;
 }
 
 el("view").addEventListener("pointermove", (event) => {
-  if (event.buttons === 1 && event.pointerType === "mouse") room.dragTurn = (room.dragTurn || 0) + event.movementX * 0.15;
+  if (event.buttons === 1 && event.pointerType === "mouse") room.dragged += event.movementX * DRAG_DEGREES;
 });
 
 el("key-form").addEventListener("submit", (event) => {

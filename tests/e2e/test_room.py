@@ -308,3 +308,42 @@ CLASSIFIED = {
     "": None,
 }
 """What a recogniser may hear, and what the room takes it for (None: it asks again)."""
+
+
+WALKING_RULES = """async () => {
+  const walk = await import('/static/js/room/walk.js');
+  const layout = {
+    width: 8, depth: 6, start: { x: 1.35, z: 0.9, radius: 0.6 }, exit: { x: 6.65, z: 5.1, radius: 0.6 },
+    walls: [{ x1: 2.7, z1: 0, x2: 2.7, z2: 4 }],
+    zones: [{ category: 'conation', x: 1.92, z: 5.0, radius: 0.7 }],
+  };
+  const walls = walk.wallSegments(layout);
+  let east = { x: 1.35, z: 2.0, heading: 90 };  // towards the inner wall at x = 2.7
+  for (let i = 0; i < 100; i += 1) east = walk.step(layout, walls, east, { forward: 1 }, 0.05);
+  let slide = { x: 1.35, z: 2.0, heading: 60 };  // at an angle: slides along it to its end
+  for (let i = 0; i < 100; i += 1) slide = walk.step(layout, walls, slide, { forward: 1 }, 0.05);
+  let burst = { x: 1.35, z: 2.0, heading: 90 };  // one stalled 10-second frame: no tunnelling
+  burst = walk.step(layout, walls, burst, { forward: 1 }, 10);
+  const turned = walk.step(layout, walls, { x: 1, z: 1, heading: 350 }, { turn: 1 }, 0.1);
+  const headset = walk.poseFromHeadset(layout, { x: 0.5, y: 1.6, z: -2 }, { x: 1, y: 0, z: 0 });
+  return {
+    east_x: east.x, slide_x: slide.x, slide_z: slide.z, burst_x: burst.x, turned: turned.heading,
+    in_zone: walk.zoneAt(layout, 1.5, 5.2)?.category ?? null, outside: walk.zoneAt(layout, 1.0, 3.0),
+    headset,
+  };
+}"""
+
+
+@pytest.mark.e2e
+def test_walking_rules(browser: Browser, live_server: ServerProcess) -> None:
+    page = browser.new_page()
+    page.goto(f"{live_server.url}/stations/room-1/room")
+    expect(page.get_by_label("Device key of station room-1")).to_be_visible()
+    found = page.evaluate(WALKING_RULES)
+    clearance = 0.25 + 0.12 / 2  # body radius + half the wall's thickness
+    assert found["east_x"] == pytest.approx(2.7 - clearance, abs=1e-6)  # stopped by the wall
+    assert found["slide_x"] > 2.7 and found["slide_z"] > 4.0  # slid along it and round its end
+    assert found["burst_x"] < 2.7  # a long frame still does not pass through
+    assert found["turned"] == pytest.approx(1.0)  # 350° + 11° wraps to 1°
+    assert found["in_zone"] == "conation" and found["outside"] is None
+    assert found["headset"] == {"x": 1.85, "z": 2.9, "heading": 90}  # 2 m ahead, 0.5 m right

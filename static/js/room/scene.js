@@ -281,6 +281,13 @@ export class RoomScene {
     }
   }
 
+  /** Stop drawing and free the GPU's memory. */
+  dispose() {
+    this.renderer.setAnimationLoop(null);
+    this.renderer.dispose();
+    this.host.replaceChildren();
+  }
+
   /** Pixels drawn per CSS pixel right now (below 1 when the frame rate asked for fewer). */
   get renderScale() {
     return this.renderer.getPixelRatio();
