@@ -7,7 +7,8 @@ would. Two figures (issue 22's targets):
 
 - **frames per second** at each ``--viewports`` size, standing still and while walking (the arrow
   keys held, turning in circles), counted by the page's own animation loop over ``--seconds``;
-  also the render scale the room settled on (below 1: it draws fewer pixels to keep the rate up);
+  also the render scale the room settled on (below 1: it draws fewer pixels to keep the rate up;
+  ``--scale 1`` pins full resolution, to see what the adapting buys);
 - **zone → caption**: the ``trustlab:zone-to-caption`` performance measure the room records from
   the frame in which the participant stepped into a zone to the frame that draws the question's
   caption, i.e. the prompt's round trip over the station WebSocket (the learner choosing the
@@ -104,6 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--viewports", default="1366x768,768x1024", help="WIDTHxHEIGHT,…")
     parser.add_argument("--seconds", type=float, default=5.0, help="each frame-rate window")
     parser.add_argument("--sessions", type=int, default=1, help="sessions walked after practice")
+    parser.add_argument(
+        "--scale", type=float, help="pin the render scale (?scale=, e.g. 1: full resolution)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     sizes = [tuple(int(n) for n in size.split("x")) for size in args.viewports.split(",")]
@@ -124,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                 lab.start_session()  # the practice run: the room can be walked
                 for width, height in sizes:
                     page = browser.new_page(viewport={"width": width, "height": height})
-                    drive.open_room(page, lab)
+                    drive.open_room(page, lab, query=f"?scale={args.scale}" if args.scale else "")
                     _frame_rate(page, 1.0, walking=False)  # let the render scale settle
                     standing = _frame_rate(page, args.seconds, walking=False)
                     walking = _frame_rate(page, args.seconds, walking=True)

@@ -478,7 +478,10 @@ function buildRoom(description) {
   room.segments = wallSegments(room.layout);
   const rules = el("rules");
   rules.replaceChildren(...description.rules.map((rule) => Object.assign(document.createElement("li"), { textContent: rule })));
-  room.scene = new RoomScene(el("view"), room.layout, { robot: options.get("robot") });
+  room.scene = new RoomScene(el("view"), room.layout, {
+    robot: options.get("robot"),
+    scale: options.has("scale") ? Number(options.get("scale")) : undefined,
+  });
   restorePose();
   if (!room.pose) room.pose = startPose(room.layout);
   room.scene.start(frame);

@@ -125,9 +125,10 @@ def seat_participant(
     return RoomLab(url=url, station=station, key=key, code=code, experimenter=experimenter)
 
 
-def open_room(page: Page, lab: RoomLab) -> None:
-    """Open the station's room, enter the key and wait until it is connected and drawn."""
-    page.goto(f"{lab.url}/stations/{lab.station}/room")
+def open_room(page: Page, lab: RoomLab, *, query: str = "") -> None:
+    """Open the station's room (``query``: its options, e.g. ``?scale=1``), enter the key and
+    wait until it is connected and drawn."""
+    page.goto(f"{lab.url}/stations/{lab.station}/room{query}")
     page.get_by_label(f"Device key of station {lab.station}").fill(lab.key)
     page.get_by_role("button", name="Open the room").click()
     wait_ready(page)

@@ -313,7 +313,8 @@ CLASSIFIED = {
 WALKING_RULES = """async () => {
   const walk = await import('/static/js/room/walk.js');
   const layout = {
-    width: 8, depth: 6, start: { x: 1.35, z: 0.9, radius: 0.6 }, exit: { x: 6.65, z: 5.1, radius: 0.6 },
+    width: 8, depth: 6,
+    start: { x: 1.35, z: 0.9, radius: 0.6 }, exit: { x: 6.65, z: 5.1, radius: 0.6 },
     walls: [{ x1: 2.7, z1: 0, x2: 2.7, z2: 4 }],
     zones: [{ category: 'conation', x: 1.92, z: 5.0, radius: 0.7 }],
   };
@@ -328,7 +329,8 @@ WALKING_RULES = """async () => {
   const headset = walk.poseFromHeadset(layout, { x: 0.5, y: 1.6, z: -2 }, { x: 1, y: 0, z: 0 });
   return {
     east_x: east.x, slide_x: slide.x, slide_z: slide.z, burst_x: burst.x, turned: turned.heading,
-    in_zone: walk.zoneAt(layout, 1.5, 5.2)?.category ?? null, outside: walk.zoneAt(layout, 1.0, 3.0),
+    in_zone: walk.zoneAt(layout, 1.5, 5.2)?.category ?? null,
+    outside: walk.zoneAt(layout, 1.0, 3.0),
     headset,
   };
 }"""

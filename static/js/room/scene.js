@@ -105,13 +105,15 @@ export class RoomScene {
   /**
    * @param {HTMLElement} host where the canvas goes
    * @param {object} layout the protocol's floor plan (GET /api/v1/station/room → layout)
-   * @param {{robot?: string}} options ``robot: "marker"`` draws a marker for a physical robot
+   * @param {{robot?: string, scale?: number}} options ``robot: "marker"`` draws a marker for a
+   *   physical robot; ``scale`` pins the pixels drawn per CSS pixel (no adapting to the frame rate)
    */
   constructor(host, layout, options = {}) {
     this.layout = layout;
     this.renderer = new THREE.WebGLRenderer({ antialias: false, powerPreference: "low-power" });
     this.maxPixelRatio = Math.min(window.devicePixelRatio || 1, 1.5);
-    this.renderer.setPixelRatio(this.maxPixelRatio);
+    this.fixedScale = Number.isFinite(options.scale) && options.scale > 0 ? options.scale : null;
+    this.renderer.setPixelRatio(this.fixedScale ?? this.maxPixelRatio);
     this.renderer.xr.enabled = true;
     this.renderer.xr.setReferenceSpaceType("local-floor");
     host.appendChild(this.renderer.domElement);
@@ -270,7 +272,7 @@ export class RoomScene {
 
   /** Fewer pixels while frames are slow, back towards the screen's own when they are fast. */
   _adapt(fps) {
-    if (this.renderer.xr.isPresenting) return; // the headset sets its own resolution
+    if (this.renderer.xr.isPresenting || this.fixedScale) return; // the headset's own, or pinned
     const ratio = this.renderer.getPixelRatio();
     let next = ratio;
     if (fps < TARGET_FPS && ratio > MIN_PIXEL_RATIO) next = Math.max(MIN_PIXEL_RATIO, ratio * 0.8);
