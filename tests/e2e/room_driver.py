@@ -16,7 +16,7 @@ from playwright.sync_api import Page
 
 from app.db import Database
 from app.protocol import default_protocol
-from app.services import enrolment, questionnaires, runtime, stations, studies
+from app.services import enrolment, questionnaires, stations, studies
 from app.services.audit import Actor
 from app.tables import Role
 from tests.conftest import PASSWORD, PRE_STUDY_ANSWERS, make_user
@@ -236,10 +236,3 @@ def run_through(
         asked.append(category)
     walk_out(page)
     return asked
-
-
-def current_session(database: Database, station: str) -> int | None:
-    """The session number running at ``station`` (None: none is)."""
-    with database.read_session() as db:
-        view = runtime.station_view(db, station_name=station)
-        return view.session.number if view.session and view.session.status == "running" else None
