@@ -66,6 +66,7 @@ class RoomLab:
     there; an experimenter's HTTP client starts the sessions."""
 
     url: str
+    admin: str
     station: str
     key: str
     code: str
@@ -87,7 +88,7 @@ def seat_participant(
     database: Database, url: str, study: str, *, station: str = "room-1", code: str = "R001"
 ) -> RoomLab:
     """Enrol ``code`` in ``study``, fill their pre-study questionnaires, seat them at ``station``
-    (made, with a device key) and sign an admin in."""
+    (made, with a device key) and sign in an admin of its own (``admin-STATION``)."""
     with database.writing() as db:
         participant = enrolment.enroll_participant(
             db, study_name=study, actor=SYSTEM, code=code
@@ -116,13 +117,14 @@ def seat_participant(
         stations.assign_participant(
             db, station_name=station, participant=db.merge(participant), actor=SYSTEM
         )
-    make_user(database, "room-admin", Role.ADMIN)
+    admin = f"admin-{station}"
+    make_user(database, admin, Role.ADMIN)
     experimenter = httpx.Client(base_url=url, timeout=30)
-    signed_in = experimenter.post(
-        "/api/v1/session", json={"username": "room-admin", "password": PASSWORD}
-    )
+    signed_in = experimenter.post("/api/v1/session", json={"username": admin, "password": PASSWORD})
     experimenter.headers["X-CSRF-Token"] = signed_in.json()["csrf_token"]
-    return RoomLab(url=url, station=station, key=key, code=code, experimenter=experimenter)
+    return RoomLab(
+        url=url, admin=admin, station=station, key=key, code=code, experimenter=experimenter
+    )
 
 
 def open_room(page: Page, lab: RoomLab, *, query: str = "") -> None:

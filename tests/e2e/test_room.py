@@ -3,32 +3,93 @@ the zones ask the robot's questions, and every answer reaches the database exact
 
 from __future__ import annotations
 
+import itertools
 import json
+import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, Page, WebSocketRoute, expect
+from playwright.sync_api import Browser, BrowserContext, Page, WebSocketRoute, expect
 from sqlalchemy import func, select
 
 from app.db import Database
-from app.services import verify
-from app.tables import Answer, Prompt
+from app.protocol import default_protocol
+from app.services import studies, verify
+from app.tables import Answer, Participant, Prompt
 from tests.conftest import PASSWORD
 from tests.e2e import room_driver as drive
 from tests.servers import ServerProcess
 
+STUDY = "default"
+SEATS = itertools.count(1)
 DESKTOP = {"width": 1366, "height": 768}
+
+
+@dataclass
+class RoomServer:
+    """One server and database for this module's tests: each test seats its own participant at
+    a station of its own, so they do not meet (a server start is the dearest part of a setup)."""
+
+    url: str
+    database: Database
+
+
+@pytest.fixture(scope="module")
+def room_server(
+    sqlite_template: Path, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[RoomServer]:
+    folder = tmp_path_factory.mktemp("room")
+    shutil.copyfile(sqlite_template, folder / "room.sqlite3")
+    url = f"sqlite:///{folder / 'room.sqlite3'}"
+    database = Database(url, sqlite_synchronous="NORMAL")
+    with database.writing() as db:
+        studies.create_study(db, name=STUDY, loaded=default_protocol(), actor=drive.SYSTEM)
+    server = ServerProcess(url, folder / "var")
+    server.start()
+    yield RoomServer(server.url, database)
+    server.stop()
+    database.dispose()
+
+
+@pytest.fixture
+def lab(room_server: RoomServer) -> drive.RoomLab:
+    """This test's participant, seated at a station named after the test."""
+    seat = next(SEATS)
+    return drive.seat_participant(
+        room_server.database, room_server.url, STUDY, station=f"room-{seat}", code=f"R{seat:03d}"
+    )
+
+
+@pytest.fixture
+def context_of(browser: Browser) -> Iterator[Callable[..., BrowserContext]]:
+    """New browser contexts, closed when the test ends (an open page's streams would hold the
+    server's graceful shutdown)."""
+    made: list[BrowserContext] = []
+
+    def make(**options: object) -> BrowserContext:
+        made.append(context_of(**options))  # type: ignore[arg-type]
+        return made[-1]
+
+    yield make
+    for context in made:
+        context.close()
+
+
 TABLET = {"width": 768, "height": 1024}
 
 
-def _steps(database: Database) -> list[tuple[int, str, str | None, str | None, int]]:
-    """(prompt id, category, zone, answer modality, answers stored for it) of every step."""
+def _steps(database: Database, code: str) -> list[tuple[int, str, str | None, str | None, int]]:
+    """(prompt id, category, zone, answer modality, answers stored for it) of every step of the
+    participant ``code``."""
     with database.read_session() as db:
         rows = db.execute(
             select(Prompt.id, Prompt.category, Prompt.zone, Answer.modality)
+            .join(Participant, Participant.id == Prompt.participant_id)
             .outerjoin(Answer, Answer.prompt_id == Prompt.id)
+            .where(Participant.code == code)
             .order_by(Prompt.id)
         ).all()
         counts = dict(
@@ -53,14 +114,13 @@ def _verified(database: Database, study: str) -> None:
 
 @pytest.mark.e2e
 def test_a_participant_walks_the_practice_run_and_a_session(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    study_name: str,
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
-    lab = drive.seat_participant(database, live_server.url, study_name)
-    page = browser.new_page(viewport=DESKTOP)
+    database = room_server.database
+    page = context_of(viewport=DESKTOP).new_page()
     drive.open_room(page, lab)
     expect(page.locator("#notice")).to_contain_text("A practice run comes first")
     page.screenshot(path=str(artifacts / "01-waiting.png"))
@@ -93,21 +153,22 @@ def test_a_participant_walks_the_practice_run_and_a_session(
     expect(page.locator("#notice")).to_contain_text("Please use the tablet")  # the gate holds
     page.screenshot(path=str(artifacts / "04-session-done.png"))
 
-    steps = _steps(database)
+    steps = _steps(database, lab.code)
     assert len(steps) == 12  # 3 categories × (1 practice run + 3 runs)
     assert all(count == 1 for *_, count in steps), steps  # every answer stored once
     assert all(zone == category for _, category, zone, _, _ in steps)  # with the zone walked into
     assert {how for *_, how, _ in steps} == {"key", "button"}
-    _verified(database, study_name)
+    _verified(database, STUDY)
 
 
-def _answers_for(database: Database, category: str) -> list[Answer]:
+def _answers_for(database: Database, code: str, category: str) -> list[Answer]:
     with database.read_session() as db:
         return list(
             db.scalars(
                 select(Answer)
                 .join(Prompt, Prompt.id == Answer.prompt_id)
-                .where(Prompt.category == category)
+                .join(Participant, Participant.id == Answer.participant_id)
+                .where(Prompt.category == category, Participant.code == code)
             )
         )
 
@@ -134,14 +195,13 @@ class _Relay:
 
 @pytest.mark.e2e
 def test_a_reload_mid_run_finishes_it_without_duplicates(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    study_name: str,
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
-    lab = drive.seat_participant(database, live_server.url, study_name)
-    context = browser.new_context(viewport=TABLET, has_touch=True)
+    database = room_server.database
+    context = context_of(viewport=TABLET, has_touch=True)
     page = context.new_page()
     relay = _Relay(page)
     drive.open_room(page, lab)
@@ -166,7 +226,9 @@ def test_a_reload_mid_run_finishes_it_without_duplicates(
     relay.lose_answer_replies = True
     page.keyboard.press("KeyY")
     page.wait_for_function(f"() => localStorage.getItem('trustlab.room.answer.{lab.station}')")
-    _wait_until(lambda: len(_answers_for(database, "affection")) == 1)  # the server has it
+    _wait_until(
+        lambda: len(_answers_for(database, lab.code, "affection")) == 1
+    )  # the server has it
     relay.lose_answer_replies = False
     page.reload()
     drive.wait_ready(page)
@@ -179,22 +241,21 @@ def test_a_reload_mid_run_finishes_it_without_duplicates(
     drive.walk_out(page)
     expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
 
-    steps = _steps(database)
+    steps = _steps(database, lab.code)
     assert [category for _, category, *_ in steps] == ["conation", "affection", "cognition"]
     assert all(count == 1 for *_, count in steps), steps
-    _verified(database, study_name)
+    _verified(database, STUDY)
 
 
 @pytest.mark.e2e
 def test_a_dropped_network_shows_a_banner_and_resumes(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    study_name: str,
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
-    lab = drive.seat_participant(database, live_server.url, study_name)
-    context = browser.new_context(viewport=DESKTOP)
+    database = room_server.database
+    context = context_of(viewport=DESKTOP)
     page = context.new_page()
     drive.open_room(page, lab)
     lab.start_session()
@@ -207,16 +268,16 @@ def test_a_dropped_network_shows_a_banner_and_resumes(
     said = drive.preferred_questions()["conation"] == question
     page.keyboard.press("KeyY" if said else "KeyN")  # answered while offline: kept, not lost
     page.screenshot(path=str(artifacts / "01-offline.png"))
-    assert _answers_for(database, "conation") == []
+    assert _answers_for(database, lab.code, "conation") == []
     context.set_offline(False)
     expect(page.locator("#offline")).to_be_hidden()
     expect(page.locator("#captions")).to_have_attribute("data-kind", "reply")
-    stored = _answers_for(database, "conation")
+    stored = _answers_for(database, lab.code, "conation")
     assert len(stored) == 1 and stored[0].answer is said and stored[0].modality == "key"
 
     drive.walk(page, drive.TO_AFFECTION_FROM_CONATION)  # and the room goes on
     drive.answer_by_rules(page, "affection", drive.wait_question(page, "affection"))
-    assert len(_answers_for(database, "affection")) == 1
+    assert len(_answers_for(database, lab.code, "affection")) == 1
 
 
 FAKE_SPEECH = """
@@ -240,21 +301,20 @@ window.speechSynthesis = { speak(u) { setTimeout(() => u.onend && u.onend(), 5);
 
 @pytest.mark.e2e
 def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    study_name: str,
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
-    lab = drive.seat_participant(database, live_server.url, study_name)
-    console = browser.new_page(viewport=DESKTOP)
-    console.goto(f"{live_server.url}/login?next=/stations/{lab.station}")
-    console.get_by_label("Username").fill("room-admin")
+    database = room_server.database
+    console = context_of(viewport=DESKTOP).new_page()
+    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
+    console.get_by_label("Username").fill(lab.admin)
     console.get_by_label("Password").fill(PASSWORD)
     console.get_by_role("button", name="Sign in").click()
     expect(console.locator("#room-panel")).to_contain_text("No room client has reported yet")
 
-    context = browser.new_context(viewport=DESKTOP)
+    context = context_of(viewport=DESKTOP)
     context.add_init_script(FAKE_SPEECH)
     page = context.new_page()
     drive.open_room(page, lab)
@@ -272,7 +332,7 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     page.evaluate("() => { window.__heard.push(['Yeah, sure.', 0.92]); }")
     drive.walk(page, drive.TO_CONATION)
     page.wait_for_function("() => !window.trustlabRoom.question")
-    stored = _answers_for(database, "conation")
+    stored = _answers_for(database, lab.code, "conation")
     assert len(stored) == 1
     assert (stored[0].answer, stored[0].modality, stored[0].transcript) == (
         True,
@@ -337,10 +397,10 @@ WALKING_RULES = """async () => {
 
 
 @pytest.mark.e2e
-def test_walking_rules(browser: Browser, live_server: ServerProcess) -> None:
-    page = browser.new_page()
-    page.goto(f"{live_server.url}/stations/room-1/room")
-    expect(page.get_by_label("Device key of station room-1")).to_be_visible()
+def test_walking_rules(room_server: RoomServer, context_of: Callable[..., BrowserContext]) -> None:
+    page = context_of().new_page()
+    page.goto(f"{room_server.url}/stations/room-rules/room")
+    expect(page.get_by_label("Device key of station room-rules")).to_be_visible()
     found = page.evaluate(WALKING_RULES)
     clearance = 0.25 + 0.12 / 2  # body radius + half the wall's thickness
     assert found["east_x"] == pytest.approx(2.7 - clearance, abs=1e-6)  # stopped by the wall
