@@ -56,7 +56,7 @@ def room_server(
 
 @pytest.fixture
 def lab(room_server: RoomServer) -> drive.RoomLab:
-    """This test's participant, seated at a station named after the test."""
+    """This test's participant, seated at a station of its own."""
     seat = next(SEATS)
     return drive.seat_participant(
         room_server.database, room_server.url, STUDY, station=f"room-{seat}", code=f"R{seat:03d}"
@@ -70,7 +70,7 @@ def context_of(browser: Browser) -> Iterator[Callable[..., BrowserContext]]:
     made: list[BrowserContext] = []
 
     def make(**options: object) -> BrowserContext:
-        made.append(context_of(**options))  # type: ignore[arg-type]
+        made.append(browser.new_context(**options))  # type: ignore[arg-type]
         return made[-1]
 
     yield make
