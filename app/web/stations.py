@@ -303,11 +303,18 @@ def room_panel_context(db: SessionDep, station: Station) -> dict[str, Any]:
     study_id = participant.study_id if participant is not None else station.study_id
     study = db.get(Study, study_id) if study_id is not None else None
     presence = room_presence.read(db, station_id=station.id)
+    # Only what the room reported about whoever sits there now: an earlier participant's place
+    # and words are not theirs (and nobody's once the station is free).
+    seated_at = station.assigned_at if participant is not None else None
+    earlier = presence is not None and (seated_at is None or presence.updated_at < seated_at)
+    if earlier:
+        presence = None
     sealed = study is not None and blinding.is_sealed(study)
     return {
         "station": station,
         "room": studies.protocol_of(study).room_layout() if study is not None else None,
         "presence": presence,
+        "earlier": earlier,
         "reply_hidden": sealed and presence is not None and presence.utterance_kind == "reply",
         "age": (utcnow() - presence.updated_at).total_seconds() if presence is not None else None,
     }

@@ -30,6 +30,7 @@ const stores = {
   exited: `trustlab.room.exited.${station}`,
 };
 const PRESENCE_INTERVAL_MS = 500; // the console's room panel: at most two reports a second
+const PRESENCE_KEEPALIVE_MS = 10000; // and at least one every ten seconds
 const DRAG_DEGREES = 0.25; // a mouse drag turns the participant this much per pixel
 const RETRY_REFUSED_MS = 3000; // a refused prompt is not asked again sooner (standing in its zone)
 const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no.";
@@ -55,7 +56,13 @@ const room = {
   frames: 0,
   presence: { at: 0, x: NaN, z: NaN, heading: NaN, zone: undefined, said: null },
   voice: new Voice(options.get("voice") !== "off"), // ?voice=off: a physical robot speaks
-  listener: new Listener(),
+  // ?listen=off: no voice answers. Off too with ?voice=off (unless ?listen=on): the recogniser
+  // would hear the robot reading its own question ("…are you sure?") as the participant's answer.
+  listener: new Listener((options.get("listen") ?? (options.get("voice") === "off" ? "off" : "on")) !== "off"),
+  study: null, // the study whose room is drawn
+  loading: false,
+  everOnline: false,
+  lastReport: 0,
 };
 
 // ---------------------------------------------------------------- what the server says
@@ -85,6 +92,8 @@ function canWalk() {
 function applyState(state) {
   const before = room.state;
   room.state = state;
+  if (state.study && room.study && state.study !== room.study) closeRoom(); // another study's room
+  if (!room.scene && state.study && !room.loading) loadRoom(); // e.g. a seating we did not hear of
   if (runKey(before) !== runKey(state)) {
     room.refused.clear();
     restorePose();
@@ -178,7 +187,7 @@ function reachExit() {
 
 function maybePrompt(zone) {
   const state = room.state;
-  if (!state || room.question || room.promptInFlight || needsExit()) return;
+  if (!state || !room.socket || room.question || room.promptInFlight || needsExit()) return;
   const expected = state.expected;
   if (expected.action !== "prompt" || !expected.categories.includes(zone.category)) return;
   if (performance.now() - (room.refused.get(zone.category) ?? -Infinity) < RETRY_REFUSED_MS) return;
@@ -327,7 +336,8 @@ function reportPresence(zone) {
   const { x, z, heading } = room.pose;
   const category = zone ? zone.category : null;
   const moved = !(Math.hypot(x - last.x, z - last.z) < 0.05) || Math.abs(heading - last.heading) > 5;
-  if (!moved && category === last.zone && !last.said) return;
+  const due = now - last.at > PRESENCE_KEEPALIVE_MS; // the console tells a quiet room from a closed one
+  if (!moved && !due && category === last.zone && !last.said) return;
   const update = {
     x: Math.round(x * 1000) / 1000,
     z: Math.round(z * 1000) / 1000,
@@ -389,13 +399,14 @@ function zoneState(category) {
   return "pending";
 }
 
-function showNotice(title, text, { rules = false, form = false } = {}) {
+function showNotice(title, text, { rules = false, form = false, forget = false } = {}) {
   el("notice").hidden = false;
   el("notice-title").textContent = title;
   el("notice-text").textContent = text;
   el("rules").hidden = !(rules && el("rules").childElementCount > 0);
   el("key-form").hidden = !form;
-  el("forget-key").hidden = form || !room.key;
+  // Not on the participant's cards: one click would close the room for the day.
+  el("forget-key").hidden = form || !room.key || !(forget || options.has("setup"));
   if (form) el("key-input").focus();
 }
 
@@ -408,10 +419,11 @@ function showDetail(text) {
 }
 
 function setConnection(status) {
-  const words = { connecting: "Connecting…", online: "Connected", offline: "Offline" };
+  const words = { connecting: "Connecting…", online: "Connected", offline: "Offline", closed: "Closed" };
   el("connection").textContent = words[status] || status;
   el("connection").dataset.status = status;
-  el("offline").hidden = status !== "offline";
+  // shown from a lost connection until the next is up (not while the very first one opens)
+  el("offline").hidden = !(status === "offline" || (status === "connecting" && room.everOnline));
 }
 
 // ---------------------------------------------------------------- starting, keys and refusals
@@ -426,34 +438,47 @@ function refuse(problem) {
   room.key = "";
   if (room.socket) room.socket.stop();
   room.socket = null;
+  room.state = null; // nothing may be walked or asked until a key connects again
+  room.promptInFlight = null;
+  room.resumed = false;
   closeQuestion();
   el("captions").hidden = true;
+  el("run-label").textContent = "Escape room";
+  el("run-label").classList.remove("practice");
+  showDetail("");
   setConnection("closed");
   askForKey(problem);
 }
 
 async function loadRoom() {
+  const key = room.key;
   let response;
+  room.loading = true;
   try {
     response = await fetch("/api/v1/station/room", {
-      headers: { Authorization: `Bearer ${room.key}` },
+      headers: { Authorization: `Bearer ${key}` },
       cache: "no-store",
     });
   } catch {
-    setTimeout(loadRoom, 2000); // the network: try again
+    setTimeout(() => {
+      room.loading = false;
+      if (room.key === key && !room.scene) loadRoom(); // the network: try again
+    }, 2000);
     return;
   }
+  room.loading = false;
+  if (room.key !== key || room.scene) return; // answered for a key (or a room) no longer in use
   if (response.status === 401) {
     refuse("The room was closed: this key is unknown or has been revoked. Ask an admin for a new key on the Stations page.");
     return;
   }
   const body = await response.json().catch(() => ({}));
   if (response.status === 409) {
-    showNotice("No study here yet", "This station runs no study yet: the experimenter seats a participant on its console first.");
+    showNotice("No study here yet", "This station runs no study yet: the experimenter seats a participant on its console first.", { forget: true });
     return; // a participant_assigned push loads it
   }
   if (!response.ok) {
-    showNotice("The room could not be loaded", body.detail || `The server answered ${response.status}.`);
+    showNotice("The room could not be loaded", body.detail || `The server answered ${response.status}.`, { forget: true });
     setTimeout(loadRoom, 5000);
     return;
   }
@@ -465,6 +490,7 @@ function closeRoom() {
   if (room.scene) room.scene.dispose();
   room.scene = null;
   room.layout = null;
+  room.study = null;
   room.pose = null;
 }
 
@@ -475,6 +501,7 @@ function buildRoom(description) {
     return;
   }
   room.layout = description.layout;
+  room.study = description.study;
   room.segments = wallSegments(room.layout);
   const rules = el("rules");
   rules.replaceChildren(...description.rules.map((rule) => Object.assign(document.createElement("li"), { textContent: rule })));
@@ -495,6 +522,7 @@ function connect() {
     status: setConnection,
     refused: () => refuse("The room was closed: this device's key was revoked or is unknown. Ask an admin for a new key on the Stations page."),
     hello: (message) => {
+      room.everOnline = true;
       if (message.station !== station) {
         room.socket.stop();
         localStorage.removeItem(stores.key);
@@ -503,16 +531,13 @@ function connect() {
         showNotice("This key is for another station", `It belongs to station ${message.station}: open /stations/${message.station}/room, or enter a key of ${station}.`, { form: true });
         return;
       }
-      applyState(message.state);
       if (!room.resumed) {
         room.resumed = true;
-        resumeStoredAnswer();
+        resumeStoredAnswer(); // first: the question it answers is not asked again meanwhile
       }
-    },
-    event: (message) => {
-      if (message.event === "participant_assigned" && !room.scene) loadRoom();
       applyState(message.state);
     },
+    event: (message) => applyState(message.state),
   });
   room.socket.connect();
 }
@@ -569,6 +594,7 @@ for (const pad of document.querySelectorAll("[data-move]")) {
 }
 if (matchMedia("(pointer: coarse)").matches || options.has("pads")) {
   el("pads").hidden = false;
+  root.classList.add("with-pads"); // the yes/no controls move right, clear of the pads
 }
 
 el("view").addEventListener("pointermove", (event) => {

@@ -128,3 +128,19 @@ def test_a_sealed_study_hides_the_reply_but_not_the_question(sealed_lab: Lab) ->
         "Do you want to escape the room?"
         in sealed_lab.experimenter.get("/stations/lab-s/room-panel").text
     )
+
+
+def test_the_panel_shows_only_the_seated_participants_reports(lab: Lab) -> None:
+    lab.enrol_and_assign("P001")
+    said = {"kind": "participant", "text": "yes"}
+    assert lab.robot.put("/api/v1/station/presence", json={**HERE, "utterance": said}).status_code
+    freed = lab.experimenter.delete(f"/api/v1/stations/{lab.station}/participant")
+    assert freed.status_code in (200, 204), freed.text
+    panel = lab.experimenter.get(f"/stations/{lab.station}/room-panel").text
+    assert "Nobody is seated" in panel and "facing" not in panel
+    lab.enrol_and_assign("P002")  # the next participant: P001's place and words are not theirs
+    panel = lab.experimenter.get(f"/stations/{lab.station}/room-panel").text
+    assert "The room has not reported since P002 was seated" in panel and "facing" not in panel
+    assert lab.robot.put("/api/v1/station/presence", json=HERE).status_code == 204
+    panel = lab.experimenter.get(f"/stations/{lab.station}/room-panel").text
+    assert "facing 10°" in panel

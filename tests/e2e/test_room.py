@@ -409,3 +409,17 @@ def test_walking_rules(room_server: RoomServer, context_of: Callable[..., Browse
     assert found["turned"] == pytest.approx(1.0)  # 350° + 11° wraps to 1°
     assert found["in_zone"] == "conation" and found["outside"] is None
     assert found["headset"] == {"x": 1.85, "z": 2.9, "heading": 90}  # 2 m ahead, 0.5 m right
+
+
+@pytest.mark.e2e
+def test_a_key_of_another_station_is_refused_and_forgotten(
+    room_server: RoomServer, lab: drive.RoomLab, context_of: Callable[..., BrowserContext]
+) -> None:
+    page = context_of(viewport=DESKTOP).new_page()
+    page.goto(f"{room_server.url}/stations/elsewhere/room")
+    page.get_by_label("Device key of station elsewhere").fill(lab.key)
+    page.get_by_role("button", name="Open the room").click()
+    expect(page.locator("#notice")).to_contain_text(f"It belongs to station {lab.station}")
+    expect(page.get_by_label("Device key of station elsewhere")).to_be_visible()
+    assert page.evaluate("() => localStorage.getItem('trustlab.room.key.elsewhere')") is None
+    assert page.locator("#view canvas").count() == 0  # its room is not drawn here

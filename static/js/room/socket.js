@@ -8,6 +8,7 @@
 // trusted: a request unanswered for REPLY_TIMEOUT_MS, or the browser going offline, ends it.
 
 const REPLY_TIMEOUT_MS = 8000;
+const HELLO_TIMEOUT_MS = 10000; // a handshake or greeting that never comes: try again
 const CLIENT_PING_MS = 5000;
 export const CLOSE_UNAUTHENTICATED = 4401;
 
@@ -46,6 +47,10 @@ export class StationSocket {
       return;
     }
     this.socket = socket;
+    clearTimeout(this._helloTimer);
+    this._helloTimer = setTimeout(() => {
+      if (this.socket === socket && !this.online) this._drop();
+    }, HELLO_TIMEOUT_MS);
     socket.onopen = () => socket.send(JSON.stringify({ type: "auth", key: this.key }));
     socket.onmessage = (frame) => this._receive(socket, frame.data);
     socket.onclose = (closed) => this._closed(socket, closed);
@@ -72,10 +77,15 @@ export class StationSocket {
     return true;
   }
 
+  /** Close for good: nothing is resent, and whatever waited for a reply is told so. */
   stop() {
     this.stopped = true;
+    this.online = false;
     clearTimeout(this._timer);
+    clearTimeout(this._helloTimer);
     clearInterval(this._pinger);
+    for (const entry of this.pending.values()) entry.reject({ status: 0, detail: "the room was closed" });
+    this.pending.clear();
     window.removeEventListener("offline", this._offline);
     window.removeEventListener("online", this._onlineAgain);
     if (this.socket) this.socket.close(1000, "room closed");
@@ -98,14 +108,17 @@ export class StationSocket {
     }
     this.lastHeard = performance.now();
     switch (message.type) {
-      case "hello":
+      case "hello": {
         this.online = true;
         this.backoff = 200;
+        clearTimeout(this._helloTimer);
+        const unanswered = [...this.pending.keys()].sort((a, b) => a - b);
         this.on.status("online");
         this._startPinging();
-        this.on.hello(message);
-        for (const id of [...this.pending.keys()].sort((a, b) => a - b)) this._send(id);
+        this.on.hello(message); // may send requests of its own: those go out as they are made
+        for (const id of unanswered) this._send(id);
         break;
+      }
       case "result":
       case "error": {
         const entry = this.pending.get(message.id);
@@ -160,6 +173,7 @@ export class StationSocket {
     this.socket = null;
     this.online = false;
     clearInterval(this._pinger);
+    clearTimeout(this._helloTimer);
     if (this.stopped) return;
     if (closed.code === CLOSE_UNAUTHENTICATED) {
       this.stopped = true;

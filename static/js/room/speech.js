@@ -35,8 +35,10 @@ export function classifyAnswer(transcript) {
   return saidYes ? "yes" : "no";
 }
 
-/** The best clear answer among a recogniser's alternatives, with its words and confidence, or
- * ``{answer: null, …}`` with the top alternative when none is clear and confident enough. */
+/** What the recogniser's best guess (its first alternative) says: a clear answer heard with
+ * enough confidence, with its words and confidence, or ``{answer: null, …}`` with the same words
+ * when it is not. The other alternatives are not consulted: a guess the recogniser ranked lower
+ * is no evidence of what the participant said. */
 export function pickAnswer(alternatives, minConfidence = MIN_CONFIDENCE) {
   const heard = alternatives
     .filter((alternative) => alternative && alternative.transcript)
@@ -86,8 +88,8 @@ export class Voice {
 
 /** Listens for one yes/no answer at a time (where the browser offers speech recognition). */
 export class Listener {
-  constructor() {
-    const Recognition = window.SpeechRecognition || window.webkitSpeechRecognition;
+  constructor(enabled = true) {
+    const Recognition = enabled && (window.SpeechRecognition || window.webkitSpeechRecognition);
     this.Recognition = Recognition || null;
     this.active = null;
   }
