@@ -28,10 +28,10 @@ from app import schema, security
 from app.db import Database
 from app.main import create_app
 from app.protocol import default_protocol, parse_protocol
-from app.services import studies, users
+from app.services import questionnaires, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
-from app.tables import Role
+from app.tables import Participant, Role
 
 POSTGRES_URL = os.environ.get("TRUSTLAB_TEST_POSTGRES_URL", "")
 POSTGRES_SKIP_REASON = "PostgreSQL variant: set TRUSTLAB_TEST_POSTGRES_URL to run it"
@@ -386,6 +386,30 @@ def tablet_client(app: FastAPI, lab: Lab, code: str) -> TestClient:
     assert link.status_code == 200, link.text
     client = TestClient(app, headers={"Authorization": f"Bearer {link.json()['token']}"})
     return client
+
+
+def give_pre_study(
+    database: Database, *, study: str, participant: Participant, actor: Actor
+) -> Participant:
+    """Consent and every pre-study questionnaire, straight through the service (no tablet);
+    returns the participant as merged into that unit of work."""
+    with database.writing() as db:
+        participant = db.merge(participant)
+        protocol = studies.protocol_of(studies.get_study(db, study))
+        questionnaires.accept_consent(
+            db, participant=participant, protocol=protocol, accepted=True, actor=actor
+        )
+        for instrument, answers in PRE_STUDY_ANSWERS.items():
+            questionnaires.submit(
+                db,
+                participant=participant,
+                protocol=protocol,
+                instrument_key=instrument,
+                session=None,
+                answers=answers,
+                actor=actor,
+            )
+    return participant
 
 
 def fill_pre_study(tablet: TestClient) -> None:

@@ -18,15 +18,19 @@ StepIdPath = Annotated[RowId, Path(description="The step's id.")]
 """A step id in a route's path: out of range or not plain digits is a 422 (app/inputs.py)."""
 
 
+ZoneName = Annotated[
+    str,
+    Field(min_length=1, max_length=40, pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"),
+]
+"""A trigger zone's name as clients send it (the browser room sends the zone's category)."""
+
+
 class PromptRequest(RequestBody):
     """Ask for the question of one category."""
 
     category: str = Field(max_length=40, examples=["conation"])
-    zone: str | None = Field(
+    zone: ZoneName | None = Field(
         default=None,
-        min_length=1,
-        max_length=40,
-        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
         description="The trigger zone the participant walked into (stored with the step).",
         examples=["conation"],
     )
@@ -93,11 +97,8 @@ class PresenceRequest(RequestBody):
     heading: Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)] = Field(
         description="Degrees: 0 faces the far wall, 90 the right wall (stored modulo 360)."
     )
-    zone: str | None = Field(
+    zone: ZoneName | None = Field(
         default=None,
-        min_length=1,
-        max_length=40,
-        pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$",
         description="The trigger zone the participant stands in (null: none).",
     )
     utterance: Utterance | None = Field(

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from sqlalchemy import select
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
@@ -70,4 +69,4 @@ def record(
 
 def read(db: Session, *, station_id: int) -> RoomPresence | None:
     """The station's presence row, or None when no room client has reported yet."""
-    return db.scalar(select(RoomPresence).where(RoomPresence.station_id == station_id))
+    return db.get(RoomPresence, station_id)

@@ -11,11 +11,11 @@ from fastapi.testclient import TestClient
 
 from app.access import Principal
 from app.db import Database
-from app.services import enrolment, questionnaires, runtime, stations, studies, tablet_tokens
+from app.services import enrolment, runtime, stations, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Role
 from app.tablet import TABLET_COOKIE
-from tests.conftest import PRE_STUDY_ANSWERS, make_user, sign_in
+from tests.conftest import give_pre_study, make_user, sign_in
 
 SYSTEM = Actor.system("policy")
 
@@ -48,22 +48,9 @@ def build_world(app: FastAPI, database: Database, exp3_study: str) -> World:
             found.tokens[code] = tablet_tokens.issue_participant_token(
                 db, participant=participant, secret=found.secret, actor=SYSTEM
             )
-        with database.writing() as db:
-            participant = db.merge(participant)
-            protocol = studies.protocol_of(studies.get_study(db, exp3_study))
-            questionnaires.accept_consent(
-                db, participant=participant, protocol=protocol, accepted=True, actor=SYSTEM
-            )
-            for instrument, answers in PRE_STUDY_ANSWERS.items():
-                questionnaires.submit(
-                    db,
-                    participant=participant,
-                    protocol=protocol,
-                    instrument_key=instrument,
-                    session=None,
-                    answers=answers,
-                    actor=SYSTEM,
-                )
+        participant = give_pre_study(
+            database, study=exp3_study, participant=participant, actor=SYSTEM
+        )
         with database.writing() as db:
             stations.create_station(db, name=station, actor=SYSTEM)
         with database.writing() as db:

@@ -16,10 +16,10 @@ from playwright.sync_api import Page
 
 from app.db import Database
 from app.protocol import default_protocol
-from app.services import enrolment, questionnaires, stations, studies
+from app.services import enrolment, stations
 from app.services.audit import Actor
 from app.tables import Role
-from tests.conftest import PASSWORD, PRE_STUDY_ANSWERS, make_user
+from tests.conftest import PASSWORD, give_pre_study, make_user
 
 SYSTEM = Actor.system("room-e2e")
 WALK_SPEED = 1.4
@@ -93,22 +93,7 @@ def seat_participant(
         participant = enrolment.enroll_participant(
             db, study_name=study, actor=SYSTEM, code=code
         ).participant
-    with database.writing() as db:
-        participant = db.merge(participant)
-        protocol = studies.protocol_of(studies.get_study(db, study))
-        questionnaires.accept_consent(
-            db, participant=participant, protocol=protocol, accepted=True, actor=SYSTEM
-        )
-        for instrument, answers in PRE_STUDY_ANSWERS.items():
-            questionnaires.submit(
-                db,
-                participant=participant,
-                protocol=protocol,
-                instrument_key=instrument,
-                session=None,
-                answers=answers,
-                actor=SYSTEM,
-            )
+    participant = give_pre_study(database, study=study, participant=participant, actor=SYSTEM)
     with database.writing() as db:
         stations.create_station(db, name=station, actor=SYSTEM)
     with database.writing() as db:

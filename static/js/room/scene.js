@@ -22,7 +22,7 @@ const COLOURS = {
   innerWall: 0x8d9aab,
   start: 0x2a7a4b,
   exit: 0x2a7a4b,
-  zone: { pending: 0x6b8cc4, asked: 0xe0a100, done: 0x9aa3ad, idle: 0x6b8cc4 },
+  zone: { pending: 0x6b8cc4, asked: 0xe0a100, done: 0x9aa3ad },
   button: 0xd0312d,
   keys: 0xe8b923,
   robot: 0xf2f4f7,
@@ -34,7 +34,8 @@ const TARGET_FPS = 36;
 const MIN_PIXEL_RATIO = 0.5;
 const SUN = new THREE.Vector3(0.45, 0.8, 0.4).normalize();
 
-function lambert(colour, extra = {}) {
+/** A flat, unlit material: the cheap kind (shading, where it matters, is baked in by shade()). */
+function unlit(colour, extra = {}) {
   return new THREE.MeshBasicMaterial({ color: colour, ...extra });
 }
 
@@ -76,7 +77,7 @@ function dottedRing(radius, colour) {
 function robotFigure(style) {
   const group = new THREE.Group();
   if (style === "marker") {
-    const post = new THREE.Mesh(new THREE.CylinderGeometry(0.05, 0.05, 1.2, 12), lambert(COLOURS.marker));
+    const post = new THREE.Mesh(new THREE.CylinderGeometry(0.05, 0.05, 1.2, 12), unlit(COLOURS.marker));
     post.position.y = 0.6;
     group.add(post);
     const base = ring(0.25, 0.35, COLOURS.marker);
@@ -84,11 +85,11 @@ function robotFigure(style) {
     group.add(base);
     return group;
   }
-  const body = new THREE.Mesh(new THREE.CylinderGeometry(0.22, 0.3, 0.8, 16), lambert(COLOURS.robot));
+  const body = new THREE.Mesh(new THREE.CylinderGeometry(0.22, 0.3, 0.8, 16), unlit(COLOURS.robot));
   body.position.y = 0.4;
-  const head = new THREE.Mesh(new THREE.SphereGeometry(0.2, 16, 12), lambert(COLOURS.head));
+  const head = new THREE.Mesh(new THREE.SphereGeometry(0.2, 16, 12), unlit(COLOURS.head));
   head.position.y = 1.0;
-  const eyeMaterial = lambert(COLOURS.robotTrim);
+  const eyeMaterial = unlit(COLOURS.robotTrim);
   for (const side of [-1, 1]) {
     const eye = new THREE.Mesh(new THREE.SphereGeometry(0.035, 8, 6), eyeMaterial);
     eye.position.set(side * 0.07, 1.04, 0.18); // +z of the figure is its face
@@ -139,7 +140,7 @@ export class RoomScene {
 
   _build(options) {
     const { layout } = this;
-    const floor = new THREE.Mesh(new THREE.PlaneGeometry(layout.width, layout.depth), lambert(COLOURS.floor));
+    const floor = new THREE.Mesh(new THREE.PlaneGeometry(layout.width, layout.depth), unlit(COLOURS.floor));
     floor.rotation.x = -Math.PI / 2;
     floor.position.copy(this._at(layout.width / 2, layout.depth / 2));
     this.world.add(floor);
@@ -176,8 +177,8 @@ export class RoomScene {
     }
 
     const button = new THREE.Group();
-    const plate = new THREE.Mesh(new THREE.BoxGeometry(0.3, 0.3, 0.05), lambert(0x444b55));
-    const knob = new THREE.Mesh(new THREE.CylinderGeometry(0.09, 0.09, 0.08, 20), lambert(COLOURS.button));
+    const plate = new THREE.Mesh(new THREE.BoxGeometry(0.3, 0.3, 0.05), unlit(0x444b55));
+    const knob = new THREE.Mesh(new THREE.CylinderGeometry(0.09, 0.09, 0.08, 20), unlit(COLOURS.button));
     knob.rotation.x = Math.PI / 2;
     knob.position.z = 0.05;
     button.add(plate, knob);
@@ -186,14 +187,14 @@ export class RoomScene {
     this.world.add(button);
 
     if (layout.keys) {
-      const keyMaterial = lambert(COLOURS.keys);
+      const keyMaterial = unlit(COLOURS.keys);
       const keys = new THREE.Group();
       for (let i = 0; i < 4; i += 1) {
         const key = new THREE.Mesh(new THREE.BoxGeometry(0.05, 0.02, 0.18), keyMaterial);
         key.position.set((i - 1.5) * 0.09, 0, 0);
         keys.add(key);
       }
-      const table = new THREE.Mesh(new THREE.BoxGeometry(0.5, 0.8, 0.4), lambert(0x8a6f4d));
+      const table = new THREE.Mesh(new THREE.BoxGeometry(0.5, 0.8, 0.4), unlit(0x8a6f4d));
       table.position.y = -0.41;
       keys.add(table);
       keys.position.copy(this._at(layout.keys.x, layout.keys.z, 0.82));
@@ -214,7 +215,7 @@ export class RoomScene {
     this.world.add(wall);
   }
 
-  /** Colour a zone by where its category stands in the run: pending, asked, done or idle. */
+  /** Colour a zone by where its category stands in the run: pending, asked or done. */
   setZoneState(category, state) {
     const disc = this.zones.get(category);
     if (!disc) return;
