@@ -41,7 +41,17 @@ from app.tables import (
     utcnow,
 )
 
-SOFTWARE = ("trustlab", "numpy", "pandas", "scipy", "pingouin", "plotly", "sqlalchemy", "torch")
+SOFTWARE = (
+    "trustlab",
+    "numpy",
+    "pandas",
+    "scipy",
+    "pingouin",
+    "statsmodels",
+    "plotly",
+    "sqlalchemy",
+    "torch",
+)
 
 
 def _items(protocol: Protocol, instrument: InstrumentSpec) -> tuple[AnalysisItem, ...]:

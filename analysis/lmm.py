@@ -1,0 +1,776 @@
+"""Linear mixed models of the repeated trust ratings, beside (never instead of) the mixed ANOVA.
+
+The RM-ANOVA drops every participant who missed a session; a linear mixed model keeps every
+rating. :func:`linear_mixed_models` fits ``dv ~ between * within + (1 | subject)`` and, on request,
+the random-slope model ``(1 + within_step | subject)`` by REML with statsmodels' ``MixedLM``
+(maintained, well tested, pure Python, and already installed with pingouin), compares the two
+with a likelihood-ratio test and AIC, tests the fixed effects with Satterthwaite degrees of
+freedom (:mod:`analysis.satterthwaite`, as R's lmerTest), and gives estimated marginal means of
+every between × within cell. :func:`fit_mixed_model` is the general fitter underneath, for any
+formula (the tests check it against lme4's ``sleepstudy``).
+
+statsmodels' optimisers sometimes stop early or disagree on the flat likelihoods of small
+samples, so every model is fitted with BFGS and L-BFGS (and Powell when those two disagree or
+fail) and the converged fit with the highest REML likelihood is kept. A model none of them fits
+is reported as not converged with the optimisers' messages, never with silent estimates.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from analysis._checks import ordered_levels, to_python
+from analysis.descriptives import t_interval
+from analysis.design import prepare_mixed_design
+from analysis.errors import CannotComputeError, InvalidInputError
+from analysis.satterthwaite import RemlDesign, contrast_df, f_test_df
+
+__all__ = [
+    "EMM_COLUMNS",
+    "FIXED_COLUMNS",
+    "TEST_COLUMNS",
+    "VARIANCE_COLUMNS",
+    "LinearMixedModels",
+    "MixedModelFit",
+    "fit_mixed_model",
+    "linear_mixed_models",
+]
+
+FIXED_COLUMNS = ("term", "estimate", "se", "df", "t", "p", "ci_low", "ci_high")
+"""Columns of :attr:`MixedModelFit.fixed`."""
+
+TEST_COLUMNS = ("effect", "Source", "F", "df1", "df2", "p")
+"""Columns of :attr:`MixedModelFit.tests` (type III: sum-to-zero coding)."""
+
+VARIANCE_COLUMNS = ("component", "variance", "sd", "corr")
+"""Columns of :attr:`MixedModelFit.variance`; ``corr`` only on the intercept–slope row."""
+
+EMM_COLUMNS = ("emmean", "se", "df", "ci_low", "ci_high")
+"""Statistic columns of :attr:`MixedModelFit.emmeans` (after the between and within columns)."""
+
+_METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("bfgs", {"gtol": 1e-8}),
+    ("lbfgs", {}),
+    ("powell", {}),
+)
+_AGREE = 1e-6
+"""Two converged fits whose REML log-likelihoods differ by less than this agree."""
+_SINGULAR_SD = 1e-4
+"""A random-effect SD below this share of the residual SD is reported as zero (boundary fit)."""
+
+
+@dataclass
+class _Inference:
+    """What tests and marginal means need from a fit: β̂, C(θ̂), ∂C/∂θ and cov(θ̂)."""
+
+    beta: np.ndarray
+    cov: np.ndarray
+    gradient: np.ndarray | None
+    theta_cov: np.ndarray | None
+
+    @property
+    def satterthwaite(self) -> bool:
+        return self.theta_cov is not None and self.gradient is not None
+
+    def contrast(self, row: np.ndarray) -> tuple[float, float, float]:
+        """Estimate, SE and df of ``row · β`` (df = ∞ without Satterthwaite)."""
+        variance = float(row @ self.cov @ row)
+        df = (
+            contrast_df(row, self.gradient, self.theta_cov, variance)  # type: ignore[arg-type]
+            if self.satterthwaite
+            else float("inf")
+        )
+        return float(row @ self.beta), float(np.sqrt(variance)), df
+
+    def f_test(self, matrix: np.ndarray) -> tuple[float, float, float]:
+        """F, df1, df2 of ``matrix · β = 0`` (df2 = ∞, a Wald χ²/q, without Satterthwaite)."""
+        if self.satterthwaite:
+            return f_test_df(matrix, self.beta, self.cov, self.gradient, self.theta_cov)  # type: ignore[arg-type]
+        lcl = matrix @ self.cov @ matrix.T
+        est = matrix @ self.beta
+        q = matrix.shape[0]
+        return float(est @ np.linalg.solve(lcl, est) / q), float(q), float("inf")
+
+
+@dataclass(frozen=True)
+class MixedModelFit:
+    """One fitted linear mixed model (REML).
+
+    Attributes
+    ----------
+    name : str
+        ``"random intercept"`` or ``"random slope"`` (or the caller's name).
+    formula : str
+        The model in lme4 notation, e.g. ``trust ~ condition * session + (1 | participant)``.
+    converged : bool
+        False when no optimiser converged: then ``problem`` says so and every table is empty.
+    problem : str
+        Empty, or one line: why the model has no estimates (with the optimisers' messages).
+    notes : tuple of str
+        Warnings that do not void the fit: a boundary (singular) fit, degrees of freedom that
+        fell back to the normal approximation.
+    df_method : str
+        ``"Satterthwaite"`` or ``"normal approximation"`` (when θ's covariance is unavailable).
+    optimizer : str
+        The statsmodels method whose fit was kept.
+    loglik, aic : float
+        REML log-likelihood and ``−2 logLik + 2 k`` (k = fixed + covariance parameters), as
+        lme4 reports for REML fits: comparable between models with the same fixed effects only.
+    n_obs, n_subjects : int
+    fixed : pandas.DataFrame
+        :data:`FIXED_COLUMNS`, with t tests on Satterthwaite df and t-based CIs.
+    tests : pandas.DataFrame
+        :data:`TEST_COLUMNS`: one F test per model term (empty for :func:`fit_mixed_model` calls
+        whose formula has no terms beyond the intercept).
+    variance : pandas.DataFrame
+        :data:`VARIANCE_COLUMNS`: random-effect variances and SDs, their correlation, the residual.
+    emmeans : pandas.DataFrame
+        Estimated marginal means per between × within cell (:func:`linear_mixed_models` only).
+    """
+
+    name: str
+    formula: str
+    converged: bool
+    problem: str
+    notes: tuple[str, ...]
+    df_method: str
+    optimizer: str
+    loglik: float
+    aic: float
+    n_obs: int
+    n_subjects: int
+    n_params: int
+    fixed: pd.DataFrame
+    tests: pd.DataFrame
+    variance: pd.DataFrame
+    emmeans: pd.DataFrame = field(default_factory=lambda: pd.DataFrame(columns=list(EMM_COLUMNS)))
+    inference: _Inference | None = field(default=None, repr=False, compare=False)
+    design_info: Any = field(default=None, repr=False, compare=False)
+
+    @property
+    def status(self) -> str:
+        """One line for a reader: the problem, else the notes, else "converged"."""
+        if self.problem:
+            return self.problem
+        return "; ".join(self.notes) if self.notes else "converged"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: every number a float (NaN → None), tables as lists of records."""
+
+        def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
+            return [{k: _json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
+
+        return {
+            "name": self.name,
+            "formula": self.formula,
+            "converged": self.converged,
+            "problem": self.problem,
+            "notes": list(self.notes),
+            "df_method": self.df_method,
+            "optimizer": self.optimizer,
+            "loglik": _json_value(self.loglik),
+            "aic": _json_value(self.aic),
+            "n_obs": self.n_obs,
+            "n_subjects": self.n_subjects,
+            "fixed": records(self.fixed),
+            "tests": records(self.tests),
+            "variance": records(self.variance),
+            "emmeans": records(self.emmeans),
+        }
+
+
+def _json_value(value: Any) -> Any:
+    value = to_python(value)
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+@dataclass(frozen=True)
+class LinearMixedModels:
+    """Result of :func:`linear_mixed_models`.
+
+    Attributes
+    ----------
+    dv, within, between, subject : str
+    intercept : MixedModelFit
+        ``dv ~ between * within + (1 | subject)``.
+    slope : MixedModelFit or None
+        ``dv ~ between * within + (1 + within_step | subject)``, when asked for.
+    comparison : dict or None
+        Likelihood-ratio test of the slope model against the intercept model: ``chi2``, ``df``,
+        ``p`` (50:50 mixture of χ²(1) and χ²(2), since the slope variance is tested on its
+        boundary), ``aic_intercept``, ``aic_slope`` and ``preferred`` (the model name).
+    kept : pandas.DataFrame
+        ``subject``, ``between``, ``reason``: participants the ANOVA excludes (a missing
+        session) and the mixed model keeps, with the ANOVA's reason.
+    n_obs, n_subjects : int
+        Ratings and participants used by the mixed models.
+    """
+
+    dv: str
+    within: str
+    between: str
+    subject: str
+    intercept: MixedModelFit
+    slope: MixedModelFit | None
+    comparison: dict[str, Any] | None
+    kept: pd.DataFrame
+    n_obs: int
+    n_subjects: int
+
+    @property
+    def preferred(self) -> MixedModelFit:
+        """The model the comparison prefers (the intercept model without a usable comparison)."""
+        if (
+            self.slope is not None
+            and self.comparison
+            and self.comparison["preferred"] == (self.slope.name)
+        ):
+            return self.slope
+        return self.intercept
+
+    @property
+    def models(self) -> tuple[MixedModelFit, ...]:
+        """The fitted models, intercept first."""
+        return (self.intercept,) if self.slope is None else (self.intercept, self.slope)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (the ``trustlab mixed --json`` contract)."""
+        return {
+            "dv": self.dv,
+            "within": self.within,
+            "between": self.between,
+            "subject": self.subject,
+            "n_obs": self.n_obs,
+            "n_subjects": self.n_subjects,
+            "models": [m.to_dict() for m in self.models],
+            "comparison": (
+                {k: _json_value(v) for k, v in self.comparison.items()} if self.comparison else None
+            ),
+            "preferred": self.preferred.name,
+            "kept_by_mixed_model": [
+                {k: _json_value(v) for k, v in row.items()} for row in self.kept.to_dict("records")
+            ],
+        }
+
+
+def _fit_statsmodels(model: Any) -> tuple[Any, str, list[str]]:
+    """Fit with several optimisers; return the best converged fit, its method and the messages
+    of every attempt (``None`` as fit when none converged)."""
+    attempts: list[tuple[str, Any, list[str]]] = []
+    for method, options in _METHODS:
+        if method == "powell" and _two_agree(attempts):
+            break
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                fitted = model.fit(reml=True, method=method, **options)
+            except (np.linalg.LinAlgError, ValueError) as error:
+                attempts.append((method, None, [str(error)]))
+                continue
+        messages = [str(w.message).splitlines()[0] for w in caught]
+        attempts.append((method, fitted, messages))
+    converged = [
+        (m, f, msgs)
+        for m, f, msgs in attempts
+        if f is not None and f.converged and np.isfinite(f.llf)
+    ]
+    messages = [
+        f"{m}: {'; '.join(_distinct(msgs)) or 'did not converge'}" for m, _, msgs in attempts
+    ]
+    if not converged:
+        return None, "", messages
+    method, best, msgs = max(converged, key=lambda a: a[1].llf)
+    return best, method, msgs
+
+
+def _two_agree(attempts: list[tuple[str, Any, list[str]]]) -> bool:
+    llfs = [f.llf for _, f, _ in attempts if f is not None and f.converged]
+    return len(llfs) >= 2 and abs(llfs[0] - llfs[1]) < _AGREE
+
+
+def _distinct(messages: list[str]) -> list[str]:
+    seen: list[str] = []
+    for message in messages:
+        if message not in seen and "Retrying" not in message:
+            seen.append(message)
+    return seen
+
+
+def fit_mixed_model(
+    data: pd.DataFrame,
+    *,
+    formula: str,
+    subject: str,
+    re_formula: str | None = None,
+    name: str = "mixed model",
+    display: str | None = None,
+    confidence: float = 0.95,
+    labels: Callable[[str], str] | None = None,
+) -> MixedModelFit:
+    """Fit a linear mixed model by REML and test its fixed effects with Satterthwaite df.
+
+    Parameters
+    ----------
+    data : pandas.DataFrame
+        Long data; rows with a missing value in a model column are dropped by the caller.
+    formula : str
+        Fixed part in patsy notation, e.g. ``"Reaction ~ Days"``.
+    subject : str
+        Grouping column (one random-effects vector per level).
+    re_formula : str, optional
+        Random part, e.g. ``"~Days"`` for a random intercept and slope; default intercept only.
+    name, display : str
+        Model name, and its lme4-style formula for readers (default: built from the others).
+    confidence : float
+        Coverage of the coefficient CIs.
+    labels : callable, optional
+        Design column or term name → readable name (default: unchanged).
+
+    Returns
+    -------
+    MixedModelFit
+
+    Notes
+    -----
+    The fixed-effect t tests use Satterthwaite df (lmerTest's default); when the covariance of
+    the variance parameters cannot be computed (a degenerate Hessian), they fall back to the
+    normal approximation and a note says so. Term F tests are type III when the formula uses
+    sum-to-zero coding (``C(x, Sum)``), as :func:`linear_mixed_models` does.
+    """
+    import statsmodels.formula.api as smf
+
+    if not 0 < confidence < 1:
+        raise InvalidInputError(f"confidence must be between 0 and 1, got {confidence!r}")
+    display = display or (
+        f"{formula} + ({'1' if re_formula is None else re_formula.lstrip('~ ') + ' + 1'}"
+        f" | {subject})"
+    )
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = smf.mixedlm(formula, data, groups=data[subject], re_formula=re_formula)
+    except Exception as error:  # patsy's PatsyError and friends: a formula the data cannot fill
+        raise InvalidInputError(f"cannot build the model {display}: {error}") from None
+    n_obs = int(model.nobs)
+    n_subjects = int(model.n_groups)
+    n_params = model.k_fe + model.k_re2 + 1
+    if n_obs <= model.k_fe:
+        raise CannotComputeError(
+            f"the mixed model {display}",
+            f"it has {model.k_fe} fixed effects but only {n_obs} observations",
+        )
+    if n_subjects < 2:
+        raise CannotComputeError(f"the mixed model {display}", "it needs two or more subjects")
+    fitted, optimizer, messages = _fit_statsmodels(model)
+    names = list(model.exog_names)
+    labels = labels or (lambda column: column)
+    empty = _empty_fit(name, display, n_obs, n_subjects, n_params)
+    if fitted is None:
+        return MixedModelFit(
+            **empty,
+            converged=False,
+            problem=f"{name} model did not converge ({' | '.join(messages)}); no estimates",
+        )
+    cov_re = np.atleast_2d(np.asarray(fitted.cov_re, dtype=float))
+    scale = float(fitted.scale)
+    reml = RemlDesign(model.endog, model.exog, model.exog_re, np.asarray(model.groups))
+    theta = reml.theta(cov_re, scale)
+    cov, gradient = reml.covariance_and_gradient(theta)
+    notes: list[str] = []
+    theta_cov: np.ndarray | None
+    try:
+        theta_cov = reml.theta_covariance(theta)
+        if not np.all(np.isfinite(theta_cov)):
+            raise np.linalg.LinAlgError("non-finite covariance")
+    except np.linalg.LinAlgError as error:
+        theta_cov = None
+        notes.append(f"Satterthwaite df unavailable ({error}); tests use the normal approximation")
+    inference = _Inference(
+        beta=np.asarray(fitted.fe_params, float), cov=cov, gradient=gradient, theta_cov=theta_cov
+    )
+    re_names = list(model.data.exog_re_names)
+    notes.extend(_boundary_notes(cov_re, scale, re_names))
+    fixed = _fixed_table(inference, names, labels, confidence)
+    design_info = model.data.model_spec
+    tests = _term_tests(inference, design_info, labels)
+    return MixedModelFit(
+        name=name,
+        formula=display,
+        converged=True,
+        problem="",
+        notes=tuple(notes),
+        df_method="Satterthwaite" if inference.satterthwaite else "normal approximation",
+        optimizer=optimizer,
+        loglik=float(fitted.llf),
+        aic=float(-2 * fitted.llf + 2 * n_params),
+        n_obs=n_obs,
+        n_subjects=n_subjects,
+        n_params=n_params,
+        fixed=fixed,
+        tests=tests,
+        variance=_variance_table(cov_re, scale, re_names, subject),
+        inference=inference,
+        design_info=design_info,
+    )
+
+
+def _empty_fit(
+    name: str, display: str, n_obs: int, n_subjects: int, n_params: int
+) -> dict[str, Any]:
+    return {
+        "name": name,
+        "formula": display,
+        "notes": (),
+        "df_method": "",
+        "optimizer": "",
+        "loglik": float("nan"),
+        "aic": float("nan"),
+        "n_obs": n_obs,
+        "n_subjects": n_subjects,
+        "n_params": n_params,
+        "fixed": pd.DataFrame(columns=list(FIXED_COLUMNS)),
+        "tests": pd.DataFrame(columns=list(TEST_COLUMNS)),
+        "variance": pd.DataFrame(columns=list(VARIANCE_COLUMNS)),
+    }
+
+
+def _boundary_notes(cov_re: np.ndarray, scale: float, names: list[str]) -> list[str]:
+    notes = []
+    sds = np.sqrt(np.clip(np.diag(cov_re), 0, None))
+    for sd, re_name in zip(sds, names, strict=True):
+        if sd < _SINGULAR_SD * np.sqrt(scale):
+            notes.append(
+                f"boundary (singular) fit: the {_re_label(re_name)} variance is estimated at zero"
+            )
+    if len(sds) == 2 and sds.min() >= _SINGULAR_SD * np.sqrt(scale):
+        corr = cov_re[0, 1] / (sds[0] * sds[1])
+        if abs(corr) > 0.999:
+            notes.append(f"boundary (singular) fit: the intercept–slope correlation is {corr:+.3f}")
+    return notes
+
+
+def _re_label(name: str) -> str:
+    return "random-intercept" if name in ("Group", "Intercept") else f"random-slope ({name})"
+
+
+def _fixed_table(
+    inference: _Inference, names: list[str], labels: Callable[[str], str], confidence: float
+) -> pd.DataFrame:
+    rows = []
+    for i, column in enumerate(names):
+        row = np.zeros(len(names))
+        row[i] = 1.0
+        estimate, se, df = inference.contrast(row)
+        t = estimate / se if se > 0 else float("nan")
+        rows.append(
+            {
+                "term": labels(column),
+                "estimate": estimate,
+                "se": se,
+                "df": df,
+                "t": t,
+                "p": _t_p(t, df),
+            }
+        )
+    table = pd.DataFrame(rows, columns=list(FIXED_COLUMNS[:6]))
+    low, high = _interval(table["estimate"], table["se"], table["df"], confidence)
+    return table.assign(ci_low=low, ci_high=high)
+
+
+def _interval(
+    estimate: pd.Series, se: pd.Series, df: pd.Series, confidence: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """t interval, or the normal one where df is infinite (no Satterthwaite)."""
+    dfs = df.to_numpy(float)
+    low, high = t_interval(
+        estimate.to_numpy(float),
+        se.to_numpy(float),
+        np.where(np.isfinite(dfs), dfs, 1e9),
+        confidence,
+    )
+    return low, high
+
+
+def _t_p(t: float, df: float) -> float:
+    if not np.isfinite(t) or not df > 0:
+        return float("nan")
+    return (
+        float(2 * stats.t.sf(abs(t), df)) if np.isfinite(df) else float(2 * stats.norm.sf(abs(t)))
+    )
+
+
+def _term_tests(
+    inference: _Inference, design_info: Any, labels: Callable[[str], str]
+) -> pd.DataFrame:
+    rows = []
+    for term, columns in design_info.term_name_slices.items():
+        if term == "Intercept":
+            continue
+        matrix = np.eye(len(inference.beta))[columns]
+        f, df1, df2 = inference.f_test(matrix)
+        p = (
+            float(stats.f.sf(f, df1, df2))
+            if np.isfinite(df2)
+            else float(stats.chi2.sf(f * df1, df1))
+        )
+        rows.append(
+            {"effect": term, "Source": labels(term), "F": f, "df1": df1, "df2": df2, "p": p}
+        )
+    return pd.DataFrame(rows, columns=list(TEST_COLUMNS))
+
+
+def _variance_table(
+    cov_re: np.ndarray, scale: float, names: list[str], subject: str
+) -> pd.DataFrame:
+    rows = []
+    sds = np.sqrt(np.clip(np.diag(cov_re), 0, None))
+    for i, re_name in enumerate(names):
+        label = "(Intercept)" if re_name in ("Group", "Intercept") else re_name
+        corr = float("nan")
+        if i == 1 and sds[0] > 0 and sds[1] > 0:
+            corr = float(cov_re[0, 1] / (sds[0] * sds[1]))
+        rows.append(
+            {
+                "component": f"{subject}: {label}",
+                "variance": float(cov_re[i, i]),
+                "sd": float(sds[i]),
+                "corr": corr,
+            }
+        )
+    rows.append(
+        {
+            "component": "Residual",
+            "variance": scale,
+            "sd": float(np.sqrt(scale)),
+            "corr": float("nan"),
+        }
+    )
+    return pd.DataFrame(rows, columns=list(VARIANCE_COLUMNS))
+
+
+# --- the study's model: between × within ---------------------------------------------------
+
+_TERM = re.compile(r"C\((\w+), Sum\)\[S\.(.*?)\]")
+
+
+def linear_mixed_models(
+    data: pd.DataFrame,
+    *,
+    dv: str,
+    within: str,
+    between: str,
+    subject: str,
+    random_slope: bool = True,
+    within_levels: list[Any] | None = None,
+    confidence: float = 0.95,
+) -> LinearMixedModels:
+    """The mixed-model counterpart of :func:`analysis.anova.mixed_anova`.
+
+    Parameters
+    ----------
+    data : pandas.DataFrame
+        Long format, one row per subject × within level (a missing row or NaN is allowed: the
+        participant keeps the other ratings).
+    dv, within, between, subject : str
+        Column names.
+    random_slope : bool
+        Also fit ``(1 + within_step | subject)`` and compare it with the intercept model.
+        ``within_step`` is the within level's position (0 for the first session), so the random
+        intercept is the participant's first-session level and the slope their change per session.
+    within_levels : list, optional
+        The declared within levels (default: those in the data).
+    confidence : float
+        Coverage of every CI.
+
+    Returns
+    -------
+    LinearMixedModels
+
+    Raises
+    ------
+    InvalidInputError, DuplicateObservationError
+        As :func:`analysis.design.prepare_mixed_design`.
+    CannotComputeError
+        Fewer than two participants with a rating, or only one between or within level.
+
+    Notes
+    -----
+    Both factors use sum-to-zero coding, so each term's F test is type III, as in the ANOVA.
+    With balanced complete data and a positive participant variance, the random-intercept
+    model's F for the within effect and the interaction equal the RM-ANOVA's (under compound
+    symmetry); the mixed model differs where the ANOVA drops incomplete participants.
+    References: Kuznetsova et al. (2017), lmerTest; Stram & Lee (1994) for the boundary LRT.
+    """
+    # Validation (columns, numbers, duplicates, one group per subject) and the ANOVA's list of
+    # participants it would drop, from the same code as the ANOVA.
+    design = prepare_mixed_design(
+        data, dv=dv, within=within, between=between, subject=subject, within_levels=within_levels
+    )
+    levels = list(design.within_levels)
+    frame = pd.DataFrame(
+        {
+            "y": pd.to_numeric(data[dv], errors="coerce").to_numpy(float),
+            "subject": data[subject].map(to_python).astype(str).to_numpy(),
+            "between": data[between].to_numpy(),
+            "within": data[within].to_numpy(),
+        }
+    )
+    frame = frame[np.isfinite(frame["y"])].reset_index(drop=True)
+    group_levels = ordered_levels(data.loc[data[dv].notna(), between])
+    present_levels = [lv for lv in levels if lv in set(frame["within"])]
+    if frame["subject"].nunique() < 2:
+        raise CannotComputeError(f"the mixed model of {dv!r}", "fewer than two participants rated")
+    if len(group_levels) < 2 or len(present_levels) < 2:
+        raise CannotComputeError(
+            f"the mixed model of {dv!r}",
+            f"it needs two or more levels of {between!r} and of {within!r} with ratings",
+        )
+    frame["between"] = pd.Categorical(frame["between"], categories=group_levels)
+    frame["within"] = pd.Categorical(frame["within"], categories=present_levels)
+    frame["within_step"] = frame["within"].cat.codes.astype(float)
+    formula = "y ~ C(between, Sum) * C(within, Sum)"
+    labels = _term_labeller(between, within)
+    base = f"{dv} ~ {between} * {within}"
+    fits = [
+        fit_mixed_model(
+            frame,
+            formula=formula,
+            subject="subject",
+            name="random intercept",
+            display=f"{base} + (1 | {subject})",
+            confidence=confidence,
+            labels=labels,
+        )
+    ]
+    if random_slope:
+        fits.append(
+            fit_mixed_model(
+                frame,
+                formula=formula,
+                subject="subject",
+                re_formula="~within_step",
+                name="random slope",
+                display=f"{base} + (1 + {within} | {subject})",
+                confidence=confidence,
+                labels=labels,
+            )
+        )
+    fits = [
+        _with_emmeans(fit, frame, between, within, group_levels, present_levels, confidence)
+        for fit in fits
+    ]
+    fits = [_study_names(fit, subject, within) for fit in fits]
+    kept = design.excluded[design.excluded["subject"].astype(str).isin(set(frame["subject"]))]
+    return LinearMixedModels(
+        dv=dv,
+        within=within,
+        between=between,
+        subject=subject,
+        intercept=fits[0],
+        slope=fits[1] if random_slope else None,
+        comparison=_compare(fits[0], fits[1]) if random_slope else None,
+        kept=kept.reset_index(drop=True),
+        n_obs=len(frame),
+        n_subjects=int(frame["subject"].nunique()),
+    )
+
+
+def _term_labeller(between: str, within: str) -> Callable[[str], str]:
+    """Readable names of the patsy columns and terms.
+
+    ``C(between, Sum)[S.C1]`` becomes ``condition[C1]`` and ``C(between, Sum):C(within, Sum)``
+    becomes ``condition × session``."""
+    names = {"between": between, "within": within}
+
+    def label(column: str) -> str:
+        if column == "Intercept":
+            return "(Intercept)"
+        text = _TERM.sub(lambda m: f"{names[m[1]]}[{m[2]}]", column)
+        text = re.sub(r"C\((\w+), Sum\)", lambda m: names[m[1]], text)
+        return text.replace(":", " × ") if "[" not in text else text
+
+    return label
+
+
+def _with_emmeans(
+    fit: MixedModelFit,
+    frame: pd.DataFrame,
+    between: str,
+    within: str,
+    group_levels: list[Any],
+    within_levels: list[Any],
+    confidence: float,
+) -> MixedModelFit:
+    if not fit.converged or fit.inference is None:
+        empty = pd.DataFrame(columns=[between, within, *EMM_COLUMNS])
+        return _replace(fit, emmeans=empty)
+    from patsy import build_design_matrices
+
+    grid = pd.DataFrame(
+        [(b, w) for b in group_levels for w in within_levels], columns=["between", "within"]
+    )
+    grid["between"] = pd.Categorical(grid["between"], categories=group_levels)
+    grid["within"] = pd.Categorical(grid["within"], categories=within_levels)
+    grid["y"] = 0.0
+    rows = np.asarray(build_design_matrices([fit.design_info], grid)[0])
+    stats_rows = [fit.inference.contrast(row) for row in rows]
+    table = pd.DataFrame(
+        {
+            between: [to_python(b) for b in grid["between"]],
+            within: [to_python(w) for w in grid["within"]],
+            "emmean": [s[0] for s in stats_rows],
+            "se": [s[1] for s in stats_rows],
+            "df": [s[2] for s in stats_rows],
+        }
+    )
+    low, high = _interval(table["emmean"], table["se"], table["df"], confidence)
+    return _replace(fit, emmeans=table.assign(ci_low=low, ci_high=high))
+
+
+def _study_names(fit: MixedModelFit, subject: str, within: str) -> MixedModelFit:
+    effects = {
+        "C(between, Sum)": "between",
+        "C(within, Sum)": "within",
+        "C(between, Sum):C(within, Sum)": "interaction",
+    }
+    tests = fit.tests.assign(effect=fit.tests["effect"].map(lambda e: effects.get(e, e)))
+    variance = fit.variance.assign(
+        component=fit.variance["component"]
+        .str.replace("subject: ", f"{subject}: ", regex=False)
+        .str.replace("within_step", within, regex=False)
+    )
+    return _replace(fit, variance=variance, tests=tests)
+
+
+def _replace(fit: MixedModelFit, **changes: Any) -> MixedModelFit:
+    from dataclasses import replace
+
+    return replace(fit, **changes)
+
+
+def _compare(intercept: MixedModelFit, slope: MixedModelFit) -> dict[str, Any] | None:
+    """LRT and AIC of the two REML fits (same fixed effects, so REML likelihoods compare)."""
+    if not (intercept.converged and slope.converged):
+        return None
+    chi2 = max(0.0, 2 * (slope.loglik - intercept.loglik))
+    df = slope.n_params - intercept.n_params
+    p = 0.5 * stats.chi2.sf(chi2, df - 1) + 0.5 * stats.chi2.sf(chi2, df)
+    preferred = slope.name if slope.aic < intercept.aic and p < 0.05 else intercept.name
+    return {
+        "chi2": chi2,
+        "df": df,
+        "p": float(p),
+        "aic_intercept": intercept.aic,
+        "aic_slope": slope.aic,
+        "preferred": preferred,
+    }

@@ -1,0 +1,153 @@
+"""Linear mixed models against lme4/lmerTest values and against the mixed ANOVA."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis import lmm
+from analysis.anova import mixed_anova
+from analysis.descriptives import cell_descriptives
+from analysis.errors import CannotComputeError, InvalidInputError
+from analysis.lmm import fit_mixed_model, linear_mixed_models
+from tests.analysis.conftest import DATA, make_mixed
+
+KW = {"dv": "y", "within": "time", "between": "group", "subject": "subject"}
+
+
+@pytest.fixture(scope="module")
+def sleepstudy_fit() -> lmm.MixedModelFit:
+    data = pd.read_csv(DATA / "sleepstudy.csv")
+    return fit_mixed_model(data, formula="Reaction ~ Days", subject="Subject", re_formula="~Days")
+
+
+def test_sleepstudy_matches_lme4(sleepstudy_fit: lmm.MixedModelFit) -> None:
+    # lme4 1.1 / lmerTest 3.1: lmer(Reaction ~ Days + (Days | Subject), sleepstudy), REML.
+    # Fixed 251.405 (SE 6.825, df 17.000, t 36.838), 10.467 (SE 1.546, df 17.000, t 6.771);
+    # SDs 24.741, 5.922, corr .066, residual 25.592; REML criterion 1743.6.
+    # The REML optimum itself is SD 24.7405 (lme4 prints 24.741 from its own stopping point),
+    # so values are compared to within 0.001.
+    fit = sleepstudy_fit
+    assert fit.converged and fit.problem == ""
+    fixed = fit.fixed.set_index("term")
+    assert fixed.loc["Intercept", "estimate"] == pytest.approx(251.405, abs=1e-3)
+    assert fixed.loc["Days", "estimate"] == pytest.approx(10.467, abs=1e-3)
+    assert fixed.loc["Intercept", "se"] == pytest.approx(6.825, abs=1e-3)
+    assert fixed.loc["Days", "se"] == pytest.approx(1.546, abs=1e-3)
+    assert fixed.loc["Days", "t"] == pytest.approx(6.771, abs=1e-3)
+    assert fixed.loc["Intercept", "t"] == pytest.approx(36.838, abs=1e-3)
+    assert fixed["df"].to_numpy() == pytest.approx([17.0, 17.0], abs=0.01)
+    assert fit.df_method == "Satterthwaite"
+    variance = fit.variance.set_index("component")
+    assert variance["sd"].to_numpy() == pytest.approx([24.741, 5.922, 25.592], abs=1e-3)
+    assert variance.loc["Subject: Days", "corr"] == pytest.approx(0.066, abs=1e-3)
+    assert -2 * fit.loglik == pytest.approx(1743.6, abs=0.05)
+
+
+def test_random_intercept_reproduces_the_anova_f_on_balanced_data() -> None:
+    data = make_mixed((9, 11), 4, seed=3, effect=0.4)
+    result = linear_mixed_models(data, **KW, random_slope=False)
+    anova = mixed_anova(data, **KW).table.set_index("effect")
+    tests = result.intercept.tests.set_index("effect")
+    for effect in ("between", "within", "interaction"):
+        assert tests.loc[effect, "F"] == pytest.approx(anova.loc[effect, "F"], rel=1e-6)
+        assert tests.loc[effect, "df1"] == anova.loc[effect, "DF1"]
+        # Satterthwaite reproduces the ANOVA's error strata: N − 2 and (N − 2)(S − 1).
+        assert tests.loc[effect, "df2"] == pytest.approx(anova.loc[effect, "DF2"], abs=1e-3)
+        assert tests.loc[effect, "p"] == pytest.approx(anova.loc[effect, "p_unc"], abs=1e-6)
+    assert result.kept.empty and result.slope is None and result.comparison is None
+
+
+def test_marginal_means_of_balanced_data_are_the_cell_means() -> None:
+    data = make_mixed((6, 6), 3, seed=5)
+    fit = linear_mixed_models(data, **KW, random_slope=False).intercept
+    cells = cell_descriptives(data, dv="y", within="time", between="group")
+    merged = fit.emmeans.merge(cells[["group", "time", "mean"]], on=["group", "time"])
+    assert len(merged) == 6
+    assert merged["emmean"].to_numpy() == pytest.approx(merged["mean"].to_numpy(), abs=1e-8)
+    assert (merged["ci_low"] < merged["emmean"]).all()
+    assert (merged["emmean"] < merged["ci_high"]).all()
+
+
+def test_a_participant_with_a_missing_session_is_kept_and_listed() -> None:
+    data = pd.read_csv(DATA / "mixed_2x4_dropouts.csv")
+    kw = {"dv": "trust", "within": "session", "between": "condition", "subject": "participant"}
+    anova = mixed_anova(data, **kw)
+    result = linear_mixed_models(data, **kw)
+    partial = set(anova.excluded["subject"])
+    assert partial, "the fixture has incomplete participants"
+    assert set(result.kept["subject"]) == partial
+    assert result.n_subjects == anova.n_subjects_used + len(partial)
+    assert result.n_obs == int(data["trust"].notna().sum())
+    assert result.kept["reason"].str.startswith("incomplete").all()
+
+
+def test_random_slope_is_compared_with_a_boundary_lrt_and_aic() -> None:
+    rng = np.random.default_rng(11)
+    rows = []
+    for i in range(40):
+        intercept, slope = rng.normal(0, 1), rng.normal(0, 0.8)
+        for t in range(4):
+            rows.append((i, "AB"[i % 2], t + 1, intercept + slope * t + rng.normal(0, 0.3)))
+    data = pd.DataFrame(rows, columns=["subject", "group", "time", "y"])
+    result = linear_mixed_models(data, **KW)
+    assert result.slope is not None and result.comparison is not None
+    comparison = result.comparison
+    assert comparison["df"] == 2
+    assert comparison["chi2"] == pytest.approx(2 * (result.slope.loglik - result.intercept.loglik))
+    assert comparison["p"] < 1e-6 and comparison["aic_slope"] < comparison["aic_intercept"]
+    assert result.preferred is result.slope
+    sd = result.slope.variance.set_index("component")["sd"]
+    assert sd["subject: time"] == pytest.approx(0.8, abs=0.3)
+
+
+def test_a_participant_variance_of_zero_is_reported_as_a_boundary_fit() -> None:
+    rng = np.random.default_rng(2)
+    noise = rng.normal(0, 1, size=(30, 3))
+    noise -= noise.mean(axis=1, keepdims=True)  # every participant has the same mean
+    rows = [(i, "AB"[i % 2], t + 1, noise[i, t]) for i in range(30) for t in range(3)]
+    data = pd.DataFrame(rows, columns=["subject", "group", "time", "y"])
+    fit = linear_mixed_models(data, **KW, random_slope=False).intercept
+    assert fit.converged
+    assert fit.variance.set_index("component").loc["subject: (Intercept)", "sd"] < 1e-3
+    assert any("boundary (singular) fit" in note for note in fit.notes)
+    assert "random-intercept variance is estimated at zero" in fit.status
+
+
+def test_a_model_that_does_not_converge_says_so_in_one_line(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(lmm, "_METHODS", (("bfgs", {"maxiter": 1}), ("lbfgs", {"maxiter": 1})))
+    data = make_mixed((8, 8), 4, seed=1)
+    result = linear_mixed_models(data, **KW)
+    for fit in result.models:
+        assert not fit.converged
+        assert "did not converge" in fit.problem and "\n" not in fit.problem
+        assert "bfgs" in fit.problem
+        assert fit.fixed.empty and fit.tests.empty and fit.emmeans.empty
+        assert fit.status == fit.problem
+    assert result.comparison is None
+    json.dumps(result.to_dict(), allow_nan=False)
+
+
+def test_to_dict_is_json_without_nan() -> None:
+    data = pd.read_csv(DATA / "mixed_2x4_dropouts.csv")
+    kw = {"dv": "trust", "within": "session", "between": "condition", "subject": "participant"}
+    payload = linear_mixed_models(data, **kw).to_dict()
+    text = json.dumps(payload, allow_nan=False)
+    assert '"Satterthwaite"' in text
+    assert {m["name"] for m in payload["models"]} == {"random intercept", "random slope"}
+    assert payload["kept_by_mixed_model"]
+
+
+def test_bad_input_is_refused_with_a_clear_message() -> None:
+    data = make_mixed((5, 5), 3)
+    with pytest.raises(InvalidInputError, match="no column 'y'"):
+        linear_mixed_models(data.drop(columns="y"), **KW)
+    with pytest.raises(CannotComputeError, match="two or more levels"):
+        linear_mixed_models(data[data["group"] == "G1"], **KW)
+    with pytest.raises(CannotComputeError, match="two or more levels"):
+        linear_mixed_models(data[data["time"] == 1], **KW)
