@@ -85,6 +85,9 @@ class ProtocolSummary(TypedDict):
     """How answers become rewards, e.g. "yes → 1, no → 0"."""
     version: NotRequired[str]
     """Protocol version or file hash."""
+    reply_levels: NotRequired[list[str]]
+    """Names of the robot's reply levels, least to most confident (the step log's
+    ``reply_level`` indexes them)."""
     population: NotRequired[dict[str, Any]]
     """The population C2 was meta-trained for (issue 20): ``sha256``, ``source`` (in words),
     ``enrolling_reason`` and per category ``participants``, ``prior``, ``prior_ci``, ``slip``,

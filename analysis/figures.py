@@ -48,6 +48,7 @@ __all__ = [
     "score_distribution_payload",
     "trajectories_figure",
     "trajectories_payload",
+    "trust_confidence_payload",
 ]
 
 PALETTE = ("#0072B2", "#E69F00", "#009E73", "#CC79A7", "#56B4E9", "#D55E00", "#F0E442", "#000000")
@@ -647,6 +648,82 @@ def adaptation_figure(
     return figure_from_payload(
         adaptation_payload(steps, preferred_arms, confidence=confidence, title=title, colors=colors)
     )
+
+
+# --------------------------------------------------------------------------- trust × confidence
+
+
+def trust_confidence_payload(
+    data: pd.DataFrame,
+    *,
+    dv: str,
+    x: str = "confidence",
+    between: str = "condition",
+    title: str | None = None,
+    x_label: str = "Robot's confidence (mean probability behind its replies)",
+    y_label: str | None = None,
+    y_range: tuple[float, float] | None = None,
+    colors: Mapping[Any, str] | None = None,
+) -> dict[str, Any]:
+    """Trust against the robot's confidence, one point per participant × session, by condition.
+
+    Each condition gets its points and its least-squares line over the range it covers: a
+    description of the joint spread, not the mixed model (whose within- and between-participant
+    slopes are in :mod:`analysis.adaptation_trust`).
+
+    Returns
+    -------
+    dict
+        ``{"kind": "trust_confidence", "dv", "x", "data": [...], "layout": {...}}``.
+    """
+    require_columns(data, [dv, x, between], "trust and adaptation data")
+    rows = data[data[dv].notna() & data[x].notna()]
+    levels = ordered_levels(rows[between])
+    palette = condition_colors(levels, colors)
+    traces: list[dict[str, Any]] = []
+    for level in levels:
+        part = rows[rows[between] == level]
+        color = palette[level]
+        xs, ys = part[x].to_numpy(float), part[dv].to_numpy(float)
+        traces.append(
+            {
+                "type": "scatter",
+                "mode": "markers",
+                "name": str(level),
+                "legendgroup": str(level),
+                "x": _json_list(xs),
+                "y": _json_list(ys),
+                "marker": {"color": _rgba(color, 0.55), "size": 7},
+                "hovertemplate": f"{level}<br>confidence %{{x:.2f}}<br>{dv} %{{y:.2f}}"
+                "<extra></extra>",
+            }
+        )
+        if len(xs) >= 2 and np.ptp(xs) > 0:
+            slope, intercept = np.polyfit(xs, ys, 1)
+            ends = np.array([xs.min(), xs.max()])
+            traces.append(
+                {
+                    "type": "scatter",
+                    "mode": "lines",
+                    "name": f"{level} (least squares)",
+                    "legendgroup": str(level),
+                    "showlegend": False,
+                    "x": _json_list(ends),
+                    "y": _json_list(intercept + slope * ends),
+                    "line": {"color": color, "width": 2},
+                    "hoverinfo": "skip",
+                }
+            )
+    layout = {
+        **_BASE_LAYOUT,
+        "title": {"text": title or f"{dv} and the robot's confidence"},
+        "xaxis": _axis(x_label, range=[0, 1]),
+        "yaxis": _axis(
+            y_label or dv,
+            **({"range": [y_range[0] - 0.25, y_range[1] + 0.25]} if y_range else {}),
+        ),
+    }
+    return {"kind": "trust_confidence", "dv": dv, "x": x, "data": traces, "layout": layout}
 
 
 # --------------------------------------------------------------------------- distributions

@@ -265,9 +265,15 @@ class LinearMixedModels:
 
 def _fit_statsmodels(model: Any) -> tuple[Any, str, list[str]]:
     """Fit with several optimisers; return the best converged fit, its method and the messages
-    of every attempt (``None`` as fit when none converged)."""
+    of every attempt (``None`` as fit when none converged).
+
+    A random intercept alone has a one-dimensional profile likelihood, which the first
+    optimiser that converges finds; with a random slope the surface is flatter and optimisers
+    stop at different points, so two must agree (or a third decides)."""
     attempts: list[tuple[str, Any, list[str]]] = []
     for method, options in _METHODS:
+        if model.k_re == 1 and _converged(attempts):
+            break
         if method == "powell" and _two_agree(attempts):
             break
         with warnings.catch_warnings(record=True) as caught:
@@ -291,6 +297,10 @@ def _fit_statsmodels(model: Any) -> tuple[Any, str, list[str]]:
         return None, "", messages
     method, best, msgs = max(converged, key=lambda a: a[1].llf)
     return best, method, msgs
+
+
+def _converged(attempts: list[tuple[str, Any, list[str]]]) -> bool:
+    return any(f is not None and f.converged and np.isfinite(f.llf) for _, f, _ in attempts)
 
 
 def _two_agree(attempts: list[tuple[str, Any, list[str]]]) -> bool:

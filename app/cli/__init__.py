@@ -8,7 +8,17 @@ from __future__ import annotations
 
 import typer
 
-from app.cli import accounts, admin, analysis, engine, exports, population, robot, runtime
+from app.cli import (
+    accounts,
+    admin,
+    analysis,
+    engine,
+    exports,
+    mixed,
+    population,
+    robot,
+    runtime,
+)
 from app.cli.errors import ErrorsAsMessages
 
 cli = typer.Typer(
@@ -24,6 +34,7 @@ accounts.register(cli)
 runtime.register(cli)
 robot.register(cli)
 analysis.register(cli)
+mixed.register(cli)
 exports.register(cli)
 engine.register(cli)
 population.register(cli)

@@ -26,7 +26,7 @@ from analysis.anova import MixedAnovaResult, mixed_anova
 from analysis.apa import anova_sentences, format_df, format_number, sphericity_sentence
 from analysis.errors import AnalysisError
 
-__all__ = ["EXIT_BAD_INPUT", "anova_command", "register"]
+__all__ = ["EXIT_BAD_INPUT", "anova_command", "bad_input", "read_csv_file", "register"]
 
 EXIT_BAD_INPUT = 2
 """Exit status for unusable input (as for command-line usage errors)."""
@@ -37,22 +37,24 @@ def register(cli: typer.Typer) -> None:
     cli.command("anova")(anova_command)
 
 
-def _fail(message: str) -> typer.Exit:
+def bad_input(message: str) -> typer.Exit:
+    """Print ``error: message`` (one line) and return the exit to raise (status 2)."""
     typer.echo("error: " + " ".join(message.split()), err=True)
     return typer.Exit(EXIT_BAD_INPUT)
 
 
-def _read_csv(path: Path) -> pd.DataFrame:
+def read_csv_file(path: Path) -> pd.DataFrame:
+    """Read a CSV file, turning every way it can be unreadable into one ``error:`` line."""
     if not path.exists():
-        raise _fail(f"no such file: {path}")
+        raise bad_input(f"no such file: {path}")
     if path.is_dir():
-        raise _fail(f"{path} is a directory, not a CSV file")
+        raise bad_input(f"{path} is a directory, not a CSV file")
     try:
         return pd.read_csv(path)
     except pd.errors.EmptyDataError:
-        raise _fail(f"{path} is empty") from None
+        raise bad_input(f"{path} is empty") from None
     except (pd.errors.ParserError, UnicodeDecodeError, PermissionError) as error:
-        raise _fail(f"cannot read {path} as CSV: {error}") from None
+        raise bad_input(f"cannot read {path} as CSV: {error}") from None
 
 
 def anova_command(
@@ -70,8 +72,8 @@ def anova_command(
 ) -> None:
     """Mixed ANOVA (between × within) with sphericity statistics, type III by default."""
     if ss_type not in (2, 3):
-        raise _fail(f"--ss-type must be 2 or 3, not {ss_type}")
-    data = _read_csv(csv)
+        raise bad_input(f"--ss-type must be 2 or 3, not {ss_type}")
+    data = read_csv_file(csv)
     try:
         result = mixed_anova(
             data,
@@ -82,7 +84,7 @@ def anova_command(
             ss_type=3 if ss_type == 3 else 2,
         )
     except AnalysisError as error:
-        raise _fail(str(error)) from None
+        raise bad_input(str(error)) from None
     if as_json:
         typer.echo(json.dumps(result.to_dict(), allow_nan=False))
     else:

@@ -173,6 +173,7 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
         ),
         "feedback": f"yes → {protocol.reward.yes:g}, no → {protocol.reward.no:g}",
         "version": study.protocol_sha256,
+        "reply_levels": [level.name for level in protocol.replies.levels],
     }
     return summary
 
@@ -279,6 +280,8 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
             Answer.probabilities_after,
             Answer.answer,
             Answer.reward,
+            Answer.probability,
+            Answer.confidence_level,
         )
         .join(Prompt, Prompt.id == Answer.prompt_id)
         .join(Run, Run.id == Prompt.run_id)
@@ -306,6 +309,8 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
             "probs_after",
             "answer",
             "reward",
+            "reply_probability",
+            "reply_level",
         ],
     )
 
