@@ -308,11 +308,25 @@ def _two_agree(attempts: list[tuple[str, Any, list[str]]]) -> bool:
     return len(llfs) >= 2 and abs(llfs[0] - llfs[1]) < _AGREE
 
 
+_GENERIC = (
+    "Retrying",
+    "Maximum Likelihood optimization failed to converge",
+    "MixedLM optimization failed, trying a different optimizer",
+    "divide by zero",
+    "invalid value",
+    "overflow",
+)
+"""Warnings that repeat on every failed attempt and say nothing about why."""
+
+
 def _distinct(messages: list[str]) -> list[str]:
+    """The informative messages of one attempt (e.g. ``|grad| = 1.92``), each once."""
     seen: list[str] = []
     for message in messages:
-        if message not in seen and "Retrying" not in message:
+        if message not in seen and not any(g in message for g in _GENERIC):
             seen.append(message)
+    if not seen:  # only the generic ones: keep the optimiser's own verdict
+        seen = [m.split(". Check")[0] for m in messages if "optimization failed" in m][:1]
     return seen
 
 
@@ -636,6 +650,10 @@ def linear_mixed_models(
         }
     )
     frame = frame[np.isfinite(frame["y"])].reset_index(drop=True)
+    if len(frame) and frame["y"].nunique() == 1:
+        raise CannotComputeError(
+            f"the mixed model of {dv!r}", f"every rating is the same ({frame['y'].iloc[0]:g})"
+        )
     group_levels = ordered_levels(data.loc[data[dv].notna(), between])
     present_levels = [lv for lv in levels if lv in set(frame["within"])]
     if frame["subject"].nunique() < 2:

@@ -30,8 +30,16 @@ from analysis.figures import (
     mean_ci_payload_from_cells,
     score_distribution_payload,
     trajectories_payload,
+    trust_confidence_payload,
 )
 from analysis.methods import analysis_paragraph, design_paragraph, participants_paragraph
+from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
+from analysis.mixed_prose import (
+    adaptation_sentences,
+    comparison_sentence,
+    lmm_sentences,
+    ordinal_sentences,
+)
 from analysis.prose import item_title
 from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
 
@@ -93,6 +101,7 @@ def build_report(
     ss_type: SSType = 3,
     confidence: float = 0.95,
     title: str | None = None,
+    mixed: StudyMixedModels | None = None,
 ) -> str:
     """The complete report as one HTML string.
 
@@ -107,6 +116,9 @@ def build_report(
         Coverage of the confidence intervals.
     title : str, optional
         Heading; default "Study report: <study name>".
+    mixed : StudyMixedModels, optional
+        The mixed models (:func:`analysis.mixed_models.analyse_mixed_models`) of this analysis,
+        reported in their own section beside the ANOVAs; without them the section is left out.
 
     Returns
     -------
@@ -125,6 +137,7 @@ def build_report(
         _methods(result, confidence),
         _participants(result),
         *[_outcome_section(result, o, figures, confidence) for o in result.outcomes],
+        *([mixed_models_section(result, mixed, figures)] if mixed is not None else []),
         _adaptation(result, figures, confidence),
         _questionnaires(result, figures),
         _manifest(result, confidence),
@@ -152,13 +165,18 @@ def write_report(
     ss_type: SSType = 3,
     confidence: float = 0.95,
     title: str | None = None,
+    mixed_models: bool = True,
 ) -> Path:
-    """Write :func:`build_report` to ``path`` (UTF-8) and return the path."""
-    target = Path(path)
-    target.write_text(
-        build_report(dataset, ss_type=ss_type, confidence=confidence, title=title),
-        encoding="utf-8",
+    """Write :func:`build_report` to ``path`` (UTF-8) and return the path; with
+    ``mixed_models`` (the default) the mixed models of every measure are fitted and reported."""
+    result = (
+        dataset
+        if isinstance(dataset, StudyAnalysis)
+        else analyse_study(dataset, ss_type=ss_type, confidence=confidence)
     )
+    mixed = analyse_mixed_models(result) if mixed_models else None
+    target = Path(path)
+    target.write_text(build_report(result, title=title, mixed=mixed), encoding="utf-8")
     return target
 
 
@@ -466,6 +484,81 @@ def _outcome_section(
         )
     parts.append("</section>")
     return anchor, title, "".join(parts)
+
+
+def mixed_models_section(
+    result: StudyAnalysis, mixed: StudyMixedModels, figures: _FigureCounter
+) -> tuple[str, str, str]:
+    """The mixed models of every measure: sentences, the preferred model's tests, the kept
+    participants, the ordinal model and whether trust follows the robot's confidence."""
+    parts = [
+        '<section id="mixed-models"><h2>Mixed models</h2>',
+        "<p>Beside the ANOVAs: linear mixed models (REML, Satterthwaite degrees of freedom, "
+        "type III tests) keep every rating, including those of participants with a missing "
+        "session; a proportional-odds model with participant-clustered standard errors treats "
+        "each single item as ordinal; and trust is modelled on the adaptation measures of the "
+        "same session, split by person-mean centring into within- and between-participant "
+        "slopes (per unit of the measure, controlling for condition and session).</p>",
+    ]
+    outcomes = {o.key: o for o in result.outcomes}
+    for models in mixed.outcomes:
+        outcome = outcomes[models.key]
+        title = item_title(outcome.label, reverse_keyed=outcome.reverse_keyed)
+        parts.append(f"<h3>{html.escape(title)} ({html.escape(models.key)})</h3>")
+        sentences: list[str] = []
+        if models.lmm is not None:
+            sentences += lmm_sentences(models.lmm)
+            if models.lmm.slope is not None:
+                sentences.append(comparison_sentence(models.lmm))
+        else:
+            sentences.append(models.lmm_problem)
+        if models.ordinal is not None:
+            sentences += ordinal_sentences(models.ordinal)
+        elif models.ordinal_problem:
+            sentences.append(f"No ordinal model: {models.ordinal_problem}.")
+        if models.adaptation is not None:
+            sentences += adaptation_sentences(models.adaptation)
+        else:
+            sentences.append(f"No adaptation-and-trust model: {models.adaptation_problem}.")
+        parts.append(
+            '<ul class="apa">' + "".join(f"<li>{html.escape(t)}</li>" for t in sentences) + "</ul>"
+        )
+        if models.lmm is not None and models.lmm.preferred.converged:
+            fit = models.lmm.preferred
+            parts.append(
+                f'<p class="note">{html.escape(fit.name.capitalize())} model: '
+                f"<code>{html.escape(fit.formula)}</code></p>"
+            )
+            parts.append(
+                _table(
+                    fit.tests,
+                    [
+                        ("Source", "Effect", None),
+                        ("F", "F", _num(2)),
+                        ("df1", "df1", _df),
+                        ("df2", "df2 (Satterthwaite)", _num(2)),
+                        ("p", "p", _p),
+                    ],
+                    left=("Source",),
+                )
+            )
+            if len(models.lmm.kept):
+                kept = ", ".join(str(s) for s in models.lmm.kept["subject"])
+                parts.append(f"<p>Kept here, excluded by the ANOVA: {html.escape(kept)}.</p>")
+        if models.adaptation is not None and "confidence" in models.adaptation.data.columns:
+            data = models.adaptation.data
+            dv = models.key if models.key in data.columns else "value"
+            payload = trust_confidence_payload(
+                data,
+                dv=dv,
+                title=f"{title} and the robot's confidence",
+                y_label=title,
+                y_range=outcome.value_range,
+                colors=result.colors,
+            )
+            parts.append(figures.html(payload, height=400))
+    parts.append("</section>")
+    return "mixed-models", "Mixed models", "".join(parts)
 
 
 def _adaptation(

@@ -19,7 +19,9 @@ from analysis.exports.codebook import codebook_json, codebook_table
 from analysis.exports.csvfile import write_csv
 from analysis.exports.spss import write_sav
 from analysis.exports.tables import long_table, steps_table, wide_table
+from analysis.mixed_models import analyse_mixed_models
 from analysis.report import write_report
+from analysis.study import analyse_study
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -42,6 +44,17 @@ def sha256_file(path: str | Path) -> str:
 def _json(dataset: StudyDataset, path: Path) -> Path:
     path.write_text(
         json.dumps(codebook_json(dataset), indent=2, ensure_ascii=False) + "\n", encoding="utf-8"
+    )
+    return path
+
+
+def _mixed_json(dataset: StudyDataset, path: Path) -> Path:
+    """Every mixed model of the study, with the data manifest that produced them."""
+    models = analyse_mixed_models(analyse_study(dataset))
+    payload = {"manifest": dict(dataset.manifest), **models.to_dict()}
+    path.write_text(
+        json.dumps(payload, indent=2, ensure_ascii=False, allow_nan=False) + "\n",
+        encoding="utf-8",
     )
     return path
 
@@ -115,6 +128,14 @@ EXPORT_FORMATS: Mapping[str, ExportFormat] = {
             "application/x-spss-sav",
             "SPSS file of the wide table with variable and value labels",
             write_sav,
+        ),
+        ExportFormat(
+            "mixed-json",
+            "mixed_models.json",
+            "application/json",
+            "Mixed models of every measure: linear (Satterthwaite), ordinal, adaptation and "
+            "trust (JSON)",
+            _mixed_json,
         ),
         ExportFormat(
             "html",

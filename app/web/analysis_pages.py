@@ -12,6 +12,7 @@ from starlette.responses import FileResponse
 
 from analysis.errors import AnalysisError
 from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
+from analysis.mixed_models import analyse_mixed_models
 from analysis.study import analyse_study
 from app.deps import AnalystUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput, NotFound
@@ -19,6 +20,7 @@ from app.inputs import Count
 from app.services import audit, blinding, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
+from app.services.mixed_view import mixed_view
 from app.web.templating import render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
@@ -53,6 +55,45 @@ def analysis_page(
             "step_log": STEP_LOG_EXPORT,
             "steps_withheld": dataset.steps_withheld,
         },
+    )
+
+
+@router.get("/studies/{name}/analysis/mixed")
+def mixed_models_page(
+    request: Request,
+    db: SessionDep,
+    user: AnalystUser,
+    name: str,
+    measure: str = "",
+    slope: bool = False,
+) -> Response:
+    """One measure's mixed models (fitted now): the whole page, or its section for htmx."""
+    study = studies.get_study(db, name)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True)
+    view, error = None, ""
+    try:
+        result = analyse_study(dataset)
+        if not result.outcomes:
+            error = (
+                "Nothing to model yet: the mixed models of each trust measure appear here once "
+                "participants have answered the questionnaire after their sessions."
+            )
+        else:
+            key = measure or result.outcomes[0].key
+            keys = [o.key for o in result.outcomes]
+            if key not in keys:
+                raise InvalidInput(
+                    f"measure: no per-session measure {key!r}; choose one of {', '.join(keys)}"
+                )
+            models = analyse_mixed_models(result, keys=[key], random_slope=slope)
+            view = mixed_view(result, models.outcomes[0], random_slope=slope)
+    except AnalysisError as exc:
+        error = str(exc)
+    return render(
+        request,
+        "analysis_mixed.html",
+        {"study": study, "view": view, "error": error},
+        block="mixed_models",
     )
 
 

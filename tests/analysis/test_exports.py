@@ -198,9 +198,18 @@ def test_csv_bytes_are_stable(dataset: StudyDataset) -> None:
 
 def test_registry_and_bundle(dataset: StudyDataset, tmp_path: Path) -> None:
     assert set(EXPORT_FORMATS) == {
-        "long-csv", "wide-csv", "steps-csv", "codebook-csv", "codebook-json", "sav", "html",
+        "long-csv", "wide-csv", "steps-csv", "codebook-csv", "codebook-json", "sav",
+        "mixed-json", "html",
     }  # fmt: skip
     written = write_all_exports(dataset, tmp_path / "bundle")
+    mixed = json.loads(written["mixed-json"].read_text(encoding="utf-8"))
+    assert mixed["manifest"] == json.loads(json.dumps(dict(dataset.manifest)))
+    keys = [o["key"] for o in mixed["outcomes"]]
+    assert keys == [f"trust_{i}" for i in range(1, 6)]
+    first = mixed["outcomes"][0]
+    assert first["lmm"]["models"][0]["df_method"] == "Satterthwaite"
+    assert first["ordinal"]["converged"] is True
+    assert "Mixed models" in written["html"].read_text(encoding="utf-8")
     assert {p.name for p in written.values()} == {f.filename for f in EXPORT_FORMATS.values()}
     sums = (tmp_path / "bundle" / "SHA256SUMS").read_text().splitlines()
     assert len(sums) == len(EXPORT_FORMATS)

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from analysis import lmm
 from analysis.dataset import StudyDataset
+from analysis.mixed_models import analyse_mixed_models
 from analysis.report import analysis_provenance, build_report, write_report
 from analysis.study import StudyAnalysis, analyse_study
 from analysis.synthetic import synthetic_study
@@ -147,3 +149,31 @@ def test_figures_render_offline_in_chromium(report: str, tmp_path: Path) -> None
         check=True,
     ).stdout
     assert dom.count('class="main-svg"') >= 13
+
+
+def test_mixed_models_section(
+    result: StudyAnalysis, report: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    assert 'id="mixed-models"' not in report  # only when the models are given
+    mixed = analyse_mixed_models(result, keys=["trust_1", "trust_5"])
+    text = build_report(result, mixed=mixed)
+    section = text[text.index('<section id="mixed-models">') :]
+    section = section[: section.index("</section>")]
+    assert '<a href="#mixed-models">Mixed models</a>' in text
+    assert section.count("<h3>") == 2
+    assert "A linear mixed model (REML, random intercept per participant; Satterthwaite df)" in (
+        section
+    )
+    assert "excluded for a missing session" in section
+    assert "Kept here, excluded by the ANOVA: " in section
+    assert "Letting the session slope vary by participant" in section
+    assert "A proportional-odds (cumulative logit) model" in section
+    assert "within participants b = " in section
+    assert section.count('class="plotly-graph-div"') == 2  # trust × confidence, per measure
+    # A model that does not converge is one line in the report, never a silent estimate.
+    monkeypatch.setattr(lmm, "_METHODS", (("bfgs", {"maxiter": 1}),))
+    failed = build_report(result, mixed=analyse_mixed_models(result, keys=["trust_1"]))
+    part = failed[failed.index('<section id="mixed-models">') :]
+    part = part[: part.index("</section>")]
+    assert "random slope model did not converge (bfgs: " in part
+    assert "Type III" not in part and "Satterthwaite)</th>" not in part
