@@ -57,12 +57,16 @@ EMM_COLUMNS = ("emmean", "se", "df", "ci_low", "ci_high")
 """Statistic columns of :attr:`MixedModelFit.emmeans` (after the between and within columns)."""
 
 _METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("bfgs", {"gtol": 1e-8}),
+    ("bfgs", {}),
     ("lbfgs", {}),
     ("powell", {}),
 )
-_AGREE = 1e-6
-"""Two converged fits whose REML log-likelihoods differ by less than this agree."""
+"""Optimisers in the order tried: BFGS, confirmed by L-BFGS, and Powell to decide when the two
+disagree. (A stricter BFGS gradient tolerance than statsmodels' default stalls for seconds on
+large samples without moving the likelihood.)"""
+_AGREE = 1e-4
+"""Two fits whose REML log-likelihoods differ by less than this agree (a difference that moves
+the likelihood-ratio statistic by 0.0002): with one of them converged, the optimum is found."""
 _SINGULAR_SD = 1e-4
 """A random-effect SD below this share of the residual SD is reported as zero (boundary fit)."""
 
@@ -268,23 +272,21 @@ def _fit_statsmodels(model: Any) -> tuple[Any, str, list[str]]:
     of every attempt (``None`` as fit when none converged).
 
     A random intercept alone has a one-dimensional profile likelihood, which the first
-    optimiser that converges finds; with a random slope the surface is flatter and optimisers
-    stop at different points, so two must agree (or a third decides)."""
+    optimiser that converges finds. With a random slope the surface is flatter (often with the
+    optimum on a boundary, a correlation of ±1) and optimisers stop at different points, so two
+    must agree; otherwise L-BFGS restarts from the best point reached so far, and Powell decides
+    only if that restart does not converge to it."""
     attempts: list[tuple[str, Any, list[str]]] = []
     for method, options in _METHODS:
         if model.k_re == 1 and _converged(attempts):
             break
-        if method == "powell" and _two_agree(attempts):
-            break
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            try:
-                fitted = model.fit(reml=True, method=method, **options)
-            except (np.linalg.LinAlgError, ValueError) as error:
-                attempts.append((method, None, [str(error)]))
-                continue
-        messages = [str(w.message).splitlines()[0] for w in caught]
-        attempts.append((method, fitted, messages))
+        if method == "powell":
+            if _two_agree(attempts):
+                break
+            attempts.append(_attempt(model, "lbfgs (restarted)", "lbfgs", _best_start(attempts)))
+            if _restart_settles(attempts):
+                break
+        attempts.append(_attempt(model, method, method, None, **options))
     converged = [
         (m, f, msgs)
         for m, f, msgs in attempts
@@ -299,13 +301,47 @@ def _fit_statsmodels(model: Any) -> tuple[Any, str, list[str]]:
     return best, method, msgs
 
 
+def _attempt(
+    model: Any, name: str, method: str, start: Any, **options: Any
+) -> tuple[str, Any, list[str]]:
+    """One fit: (name, result or None, the warnings it raised)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            fitted = model.fit(reml=True, method=method, start_params=start, **options)
+        except (np.linalg.LinAlgError, ValueError) as error:
+            return name, None, [str(error)]
+    return name, fitted, [str(w.message).splitlines()[0] for w in caught]
+
+
+def _best_start(attempts: list[tuple[str, Any, list[str]]]) -> Any:
+    fits = [f for _, f, _ in attempts if f is not None and np.isfinite(f.llf)]
+    return max(fits, key=lambda f: f.llf).params_object if fits else None
+
+
+def _restart_settles(attempts: list[tuple[str, Any, list[str]]]) -> bool:
+    """The restart converged at (or above) the best likelihood any attempt reached."""
+    _, restart, _ = attempts[-1]
+    if restart is None or not restart.converged or not np.isfinite(restart.llf):
+        return False
+    best = max(f.llf for _, f, _ in attempts if f is not None and np.isfinite(f.llf))
+    return bool(restart.llf >= best - _AGREE)
+
+
 def _converged(attempts: list[tuple[str, Any, list[str]]]) -> bool:
     return any(f is not None and f.converged and np.isfinite(f.llf) for _, f, _ in attempts)
 
 
 def _two_agree(attempts: list[tuple[str, Any, list[str]]]) -> bool:
-    llfs = [f.llf for _, f, _ in attempts if f is not None and f.converged]
-    return len(llfs) >= 2 and abs(llfs[0] - llfs[1]) < _AGREE
+    """Whether a converged fit is confirmed by another attempt reaching the same likelihood
+    (BFGS often stops just short of its strict gradient tolerance at the optimum L-BFGS
+    reports converged)."""
+    fits = [f for _, f, _ in attempts if f is not None and np.isfinite(f.llf)]
+    return (
+        len(fits) >= 2
+        and any(f.converged for f in fits)
+        and abs(fits[0].llf - fits[1].llf) < _AGREE
+    )
 
 
 _GENERIC = (
