@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -38,6 +40,14 @@ def to_python(value: Any) -> Any:
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and np.isnan(value):
+        return None
+    return value
+
+
+def json_value(value: Any) -> Any:
+    """A plain Python value for JSON: NumPy scalars unwrapped, NaN and ±inf as None."""
+    value = to_python(value)
+    if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
 
@@ -115,13 +125,24 @@ def ordered_levels(series: pd.Series) -> list[Any]:
     """Levels of a factor in a stable, meaningful order.
 
     Categorical columns keep their declared category order (only observed categories);
-    anything else is sorted, so sessions 1..S come out in time order.
+    anything else is sorted, so sessions 1..S come out in time order; text labels are sorted
+    naturally ("S2" before "S10"). Labels without numbers ("pre", "post") sort alphabetically:
+    declare their order where it matters.
     """
     if isinstance(series.dtype, pd.CategoricalDtype):
         present = set(series.dropna().unique())
         return [c for c in series.cat.categories if c in present]
     levels = list(pd.unique(series.dropna()))
+    if levels and all(isinstance(level, str) for level in levels):
+        return sorted(levels, key=_natural_key)
     try:
         return sorted(levels)
     except TypeError:
         return sorted(levels, key=str)
+
+
+def _natural_key(text: str) -> tuple[tuple[int, Any], ...]:
+    """Sort key that orders the digits in a label by value: "S2" before "S10"."""
+    return tuple(
+        (0, int(part)) if part.isdigit() else (1, part) for part in re.split(r"(\d+)", text) if part
+    )

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis._checks import require_columns, to_python
+from analysis._checks import json_value, require_columns, to_python
 from analysis.adaptation import probability_matrix, validate_steps
 from analysis.errors import AnalysisError, CannotComputeError, InvalidInputError
 from analysis.lmm import MixedModelFit, fit_mixed_model
@@ -199,13 +199,10 @@ class AdaptationTrust:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (NaN → None)."""
-        rows = [{k: _json(v) for k, v in row.items()} for row in self.effects.to_dict("records")]
+        rows = [
+            {k: json_value(v) for k, v in row.items()} for row in self.effects.to_dict("records")
+        ]
         return {"dv": self.dv, "effects": rows, "problems": dict(self.problems)}
-
-
-def _json(value: Any) -> Any:
-    value = to_python(value)
-    return None if isinstance(value, float) and not np.isfinite(value) else value
 
 
 def adaptation_trust(

@@ -25,9 +25,9 @@ from analysis._checks import (
     require_no_missing,
     to_python,
 )
-from analysis.errors import DuplicateObservationError, InvalidInputError
+from analysis.errors import CannotComputeError, DuplicateObservationError, InvalidInputError
 
-__all__ = ["EXCLUSION_COLUMNS", "MixedDesign", "prepare_mixed_design"]
+__all__ = ["EXCLUSION_COLUMNS", "MixedDesign", "prepare_mixed_design", "refuse_empty_cells"]
 
 EXCLUSION_COLUMNS = ("subject", "between", "reason")
 """Columns of every exclusions frame returned by this package."""
@@ -257,3 +257,35 @@ def _exclusions(
             }
         )
     return pd.DataFrame(rows, columns=list(EXCLUSION_COLUMNS))
+
+
+def refuse_empty_cells(
+    between: pd.Series,
+    within: pd.Series,
+    group_levels: Sequence[Any],
+    within_levels: Sequence[Any],
+    what: str,
+) -> None:
+    """Refuse a between × within design with a cell nobody rated (a model with the interaction
+    cannot estimate it: at an interim look, say, when no one in one condition has reached the
+    last session yet), naming the cells.
+
+    Raises
+    ------
+    CannotComputeError
+        Saying which cells are empty and what to do.
+    """
+    seen = set(zip(between.map(to_python), within.map(to_python), strict=True))
+    empty = [
+        (to_python(b), to_python(w))
+        for b in group_levels
+        for w in within_levels
+        if (to_python(b), to_python(w)) not in seen
+    ]
+    if empty:
+        cells = ", ".join(f"{b} × {w}" for b, w in empty)
+        raise CannotComputeError(
+            what,
+            f"no one has a rating in {len(empty)} cell(s) ({cells}); analyse the sessions every "
+            "condition has reached (or wait for more data)",
+        )

@@ -27,9 +27,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis._checks import ordered_levels, to_python
+from analysis._checks import json_value, ordered_levels, to_python
 from analysis.descriptives import t_interval
-from analysis.design import prepare_mixed_design
+from analysis.design import prepare_mixed_design, refuse_empty_cells
 from analysis.errors import CannotComputeError, InvalidInputError
 from analysis.satterthwaite import RemlDesign, contrast_df, f_test_df
 
@@ -42,6 +42,7 @@ __all__ = [
     "MixedModelFit",
     "fit_mixed_model",
     "linear_mixed_models",
+    "term_labeller",
 ]
 
 FIXED_COLUMNS = ("term", "estimate", "se", "df", "t", "p", "ci_low", "ci_high")
@@ -92,7 +93,7 @@ class _Inference:
             if self.satterthwaite
             else float("inf")
         )
-        return float(row @ self.beta), float(np.sqrt(variance)), df
+        return float(row @ self.beta), float(np.sqrt(max(variance, 0.0))), df
 
     def f_test(self, matrix: np.ndarray) -> tuple[float, float, float]:
         """F, df1, df2 of ``matrix · β = 0`` (df2 = ∞, a Wald χ²/q, without Satterthwaite)."""
@@ -170,7 +171,7 @@ class MixedModelFit:
         """JSON-ready: every number a float (NaN → None), tables as lists of records."""
 
         def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
-            return [{k: _json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
+            return [{k: json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
 
         return {
             "name": self.name,
@@ -180,8 +181,8 @@ class MixedModelFit:
             "notes": list(self.notes),
             "df_method": self.df_method,
             "optimizer": self.optimizer,
-            "loglik": _json_value(self.loglik),
-            "aic": _json_value(self.aic),
+            "loglik": json_value(self.loglik),
+            "aic": json_value(self.aic),
             "n_obs": self.n_obs,
             "n_subjects": self.n_subjects,
             "fixed": records(self.fixed),
@@ -189,13 +190,6 @@ class MixedModelFit:
             "variance": records(self.variance),
             "emmeans": records(self.emmeans),
         }
-
-
-def _json_value(value: Any) -> Any:
-    value = to_python(value)
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 @dataclass(frozen=True)
@@ -218,6 +212,10 @@ class LinearMixedModels:
         session) and the mixed model keeps, with the ANOVA's reason.
     n_obs, n_subjects : int
         Ratings and participants used by the mixed models.
+    within_levels : tuple
+        The within levels with ratings, in order; level ``i`` is slope step ``i``.
+    slope_skipped : str
+        Why the random-slope model was asked for but not fitted (fewer than three within levels).
     """
 
     dv: str
@@ -230,6 +228,8 @@ class LinearMixedModels:
     kept: pd.DataFrame
     n_obs: int
     n_subjects: int
+    within_levels: tuple[Any, ...] = ()
+    slope_skipped: str = ""
 
     @property
     def preferred(self) -> MixedModelFit:
@@ -237,7 +237,7 @@ class LinearMixedModels:
         if (
             self.slope is not None
             and self.comparison
-            and self.comparison["preferred"] == (self.slope.name)
+            and self.comparison["preferred"] == self.slope.name
         ):
             return self.slope
         return self.intercept
@@ -258,11 +258,13 @@ class LinearMixedModels:
             "n_subjects": self.n_subjects,
             "models": [m.to_dict() for m in self.models],
             "comparison": (
-                {k: _json_value(v) for k, v in self.comparison.items()} if self.comparison else None
+                {k: json_value(v) for k, v in self.comparison.items()} if self.comparison else None
             ),
             "preferred": self.preferred.name,
+            "slope_skipped": self.slope_skipped,
+            "within_levels": [json_value(level) for level in self.within_levels],
             "kept_by_mixed_model": [
-                {k: _json_value(v) for k, v in row.items()} for row in self.kept.to_dict("records")
+                {k: json_value(v) for k, v in row.items()} for row in self.kept.to_dict("records")
             ],
         }
 
@@ -283,9 +285,11 @@ def _fit_statsmodels(model: Any) -> tuple[Any, str, list[str]]:
         if method == "powell":
             if _two_agree(attempts):
                 break
-            attempts.append(_attempt(model, "lbfgs (restarted)", "lbfgs", _best_start(attempts)))
-            if _restart_settles(attempts):
-                break
+            start = _best_start(attempts)
+            if start is not None:
+                attempts.append(_attempt(model, "lbfgs (restarted)", "lbfgs", start))
+                if _restart_settles(attempts):
+                    break
         attempts.append(_attempt(model, method, method, None, **options))
     converged = [
         (m, f, msgs)
@@ -309,6 +313,7 @@ def _attempt(
         warnings.simplefilter("always")
         try:
             fitted = model.fit(reml=True, method=method, start_params=start, **options)
+            _ = fitted.llf  # computed lazily: here, where its warnings are caught
         except (np.linalg.LinAlgError, ValueError) as error:
             return name, None, [str(error)]
     return name, fitted, [str(w.message).splitlines()[0] for w in caught]
@@ -431,6 +436,15 @@ def fit_mixed_model(
         )
     if n_subjects < 2:
         raise CannotComputeError(f"the mixed model {display}", "it needs two or more subjects")
+    if np.ptp(model.endog) == 0:
+        raise CannotComputeError(
+            f"the mixed model {display}", f"every value is the same ({model.endog[0]:g})"
+        )
+    if np.linalg.matrix_rank(model.exog) < model.k_fe:
+        raise CannotComputeError(
+            f"the mixed model {display}",
+            "its fixed effects are not all estimable from these data (collinear predictors)",
+        )
     fitted, optimizer, messages = _fit_statsmodels(model)
     names = list(model.exog_names)
     labels = labels or (lambda column: column)
@@ -645,8 +659,10 @@ def linear_mixed_models(
         Column names.
     random_slope : bool
         Also fit ``(1 + within_step | subject)`` and compare it with the intercept model.
-        ``within_step`` is the within level's position (0 for the first session), so the random
-        intercept is the participant's first-session level and the slope their change per session.
+        ``within_step`` is the within level's position (0 for the first session, levels taken as
+        equally spaced), so the random intercept is the participant's first-session level and the
+        slope their change per session. Needs three or more within levels; with two the model is
+        not fitted and ``slope_skipped`` says why.
     within_levels : list, optional
         The declared within levels (default: those in the data).
     confidence : float
@@ -699,11 +715,23 @@ def linear_mixed_models(
             f"the mixed model of {dv!r}",
             f"it needs two or more levels of {between!r} and of {within!r} with ratings",
         )
+    what = f"the mixed model of {dv!r}"
+    refuse_empty_cells(frame["between"], frame["within"], group_levels, present_levels, what)
     frame["between"] = pd.Categorical(frame["between"], categories=group_levels)
     frame["within"] = pd.Categorical(frame["within"], categories=present_levels)
     frame["within_step"] = frame["within"].cat.codes.astype(float)
+    slope_skipped = ""
+    if random_slope and len(present_levels) < 3:
+        # With two ratings per participant, intercept variance, slope variance, their
+        # covariance and the residual cannot be told apart (lme4 refuses this model too).
+        slope_skipped = (
+            f"a random slope needs three or more levels of {within!r} (there are "
+            f"{len(present_levels)}): with two ratings per participant it cannot be told apart "
+            "from the residual"
+        )
+        random_slope = False
     formula = "y ~ C(between, Sum) * C(within, Sum)"
-    labels = _term_labeller(between, within)
+    labels = term_labeller(between, within)
     base = f"{dv} ~ {between} * {within}"
     fits = [
         fit_mixed_model(
@@ -724,7 +752,7 @@ def linear_mixed_models(
                 subject="subject",
                 re_formula="~within_step",
                 name="random slope",
-                display=f"{base} + (1 + {within} | {subject})",
+                display=f"{base} + (1 + {within}_step | {subject})",
                 confidence=confidence,
                 labels=labels,
             )
@@ -743,13 +771,15 @@ def linear_mixed_models(
         intercept=fits[0],
         slope=fits[1] if random_slope else None,
         comparison=_compare(fits[0], fits[1]) if random_slope else None,
+        slope_skipped=slope_skipped,
+        within_levels=tuple(to_python(level) for level in present_levels),
         kept=kept.reset_index(drop=True),
         n_obs=len(frame),
         n_subjects=int(frame["subject"].nunique()),
     )
 
 
-def _term_labeller(between: str, within: str) -> Callable[[str], str]:
+def term_labeller(between: str, within: str) -> Callable[[str], str]:
     """Readable names of the patsy columns and terms.
 
     ``C(between, Sum)[S.C1]`` becomes ``condition[C1]`` and ``C(between, Sum):C(within, Sum)``
@@ -811,7 +841,7 @@ def _study_names(fit: MixedModelFit, subject: str, within: str) -> MixedModelFit
     variance = fit.variance.assign(
         component=fit.variance["component"]
         .str.replace("subject: ", f"{subject}: ", regex=False)
-        .str.replace("within_step", within, regex=False)
+        .str.replace("within_step", f"{within}_step", regex=False)
     )
     return _replace(fit, variance=variance, tests=tests)
 

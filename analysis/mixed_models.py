@@ -14,13 +14,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from analysis.adaptation_trust import AdaptationTrust, adaptation_trust, session_adaptation
 from analysis.errors import AnalysisError, InvalidInputError
 from analysis.lmm import LinearMixedModels, linear_mixed_models
-from analysis.ordinal import OrdinalFit, ordinal_model
+from analysis.ordinal import OrdinalFit, not_single_item, ordinal_model
 from analysis.study import OutcomeAnalysis, StudyAnalysis
 
 __all__ = ["OutcomeMixedModels", "StudyMixedModels", "analyse_mixed_models"]
@@ -236,5 +235,5 @@ def _outcome_models(
 
 
 def _is_single_item(outcome: OutcomeAnalysis) -> bool:
-    values = outcome.data["value"].dropna().to_numpy(float)
-    return outcome.kind == "item" and bool(np.all(values == np.round(values)))
+    values = outcome.data["value"].to_numpy(float)
+    return outcome.kind == "item" and not not_single_item(values, outcome.key)

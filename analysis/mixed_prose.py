@@ -61,10 +61,14 @@ def lmm_sentences(models: LinearMixedModels, fit: MixedModelFit | None = None) -
 def comparison_sentence(models: LinearMixedModels) -> str:
     """The random-slope comparison in one sentence (empty when it was not made)."""
     if models.slope is None:
-        return ""
+        return f"No random-slope model: {models.slope_skipped}." if models.slope_skipped else ""
     if models.comparison is None:
-        failed = models.slope if not models.slope.converged else models.intercept
-        return f"The random-slope comparison could not be made: {failed.problem}"
+        failed = [m.name for m in models.models if not m.converged]
+        return (
+            "The random-slope comparison could not be made: the "
+            + " and the ".join(failed)
+            + " model did not converge."
+        )
     c = models.comparison
     verdict = (
         "improved the fit"

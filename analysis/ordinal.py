@@ -21,9 +21,7 @@ original it treats the ratings as independent, so it is a screen, not an exact t
 from __future__ import annotations
 
 import itertools
-import re
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -31,9 +29,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis._checks import ordered_levels, to_python
-from analysis.design import prepare_mixed_design
+from analysis._checks import json_value, ordered_levels, to_python
+from analysis.design import prepare_mixed_design, refuse_empty_cells
 from analysis.errors import CannotComputeError, InvalidInputError
+from analysis.lmm import term_labeller
 
 __all__ = [
     "COEFFICIENT_COLUMNS",
@@ -42,6 +41,7 @@ __all__ = [
     "WALD_COLUMNS",
     "OrdinalFit",
     "fit_proportional_odds",
+    "not_single_item",
     "ordinal_model",
 ]
 
@@ -113,7 +113,7 @@ class OrdinalFit:
         """JSON-ready (NaN → None)."""
 
         def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
-            return [{k: _json(v) for k, v in row.items()} for row in frame.to_dict("records")]
+            return [{k: json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
 
         return {
             "formula": self.formula,
@@ -121,8 +121,8 @@ class OrdinalFit:
             "problem": self.problem,
             "notes": list(self.notes),
             "se_type": self.se_type,
-            "loglik": _json(self.loglik),
-            "aic": _json(self.aic),
+            "loglik": json_value(self.loglik),
+            "aic": json_value(self.aic),
             "n_obs": self.n_obs,
             "n_clusters": self.n_clusters,
             "categories": [to_python(c) for c in self.categories],
@@ -132,13 +132,6 @@ class OrdinalFit:
             "po_check": records(self.po_check),
             "po_problem": self.po_problem,
         }
-
-
-def _json(value: Any) -> Any:
-    value = to_python(value)
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def fit_proportional_odds(
@@ -192,6 +185,14 @@ def fit_proportional_odds(
             f"the ordinal model of {y.name!r}", "every rating is the same category"
         )
     exog = exog.astype(float)
+    if (
+        np.linalg.matrix_rank(np.column_stack([np.ones(len(exog)), exog.to_numpy()]))
+        <= exog.shape[1]
+    ):
+        raise CannotComputeError(
+            f"the ordinal model of {y.name!r}",
+            "its predictors are not all estimable from these data (collinear, or one is constant)",
+        )
     model = OrderedModel(pd.Series(codes, name=y.name), exog, distr="logit")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -471,6 +472,22 @@ def _logit(x: np.ndarray, outcome: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 # --- the study's model: between × within ---------------------------------------------------
 
+MAX_ITEM_CATEGORIES = 11
+"""More distinct values than this (a 0–10 scale has 11) is not one rating item."""
+
+
+def not_single_item(values: np.ndarray, dv: str) -> str:
+    """Why ``values`` are not the ratings of one item (empty when they are): whole numbers with
+    at most :data:`MAX_ITEM_CATEGORIES` distinct values. A mean of items is not ordinal."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    fractional = finite[finite != np.round(finite)]
+    if len(fractional):
+        return f"{dv} has {fractional[0]:g}, not a whole-number rating (e.g. a scale mean)"
+    if len(np.unique(finite)) > MAX_ITEM_CATEGORIES:
+        return f"{dv} has more than {MAX_ITEM_CATEGORIES} distinct values"
+    return ""
+
 
 def ordinal_model(
     data: pd.DataFrame,
@@ -513,11 +530,9 @@ def ordinal_model(
     ratings = pd.to_numeric(data[dv], errors="coerce")
     rows = data[ratings.notna()].reset_index(drop=True)
     values = ratings[ratings.notna()].to_numpy(float)
-    if np.any(values != np.round(values)):
-        raise InvalidInputError(
-            f"the ordinal model needs whole-number ratings (a single Likert item); {dv!r} has "
-            f"{values[values != np.round(values)][0]:g}"
-        )
+    problem = not_single_item(values, dv)
+    if problem:
+        raise InvalidInputError(f"the ordinal model needs one rating item: {problem}")
     group_levels = ordered_levels(rows[between])
     within_present = [w for w in design.within_levels if w in set(rows[within])]
     if len(group_levels) < 2 or len(within_present) < 2:
@@ -525,6 +540,9 @@ def ordinal_model(
             f"the ordinal model of {dv!r}",
             f"it needs two or more levels of {between!r} and of {within!r} with ratings",
         )
+    refuse_empty_cells(
+        rows[between], rows[within], group_levels, within_present, f"the ordinal model of {dv!r}"
+    )
     frame = pd.DataFrame(
         {
             "between": pd.Categorical(rows[between], categories=group_levels),
@@ -533,7 +551,7 @@ def ordinal_model(
     )
     matrix = dmatrix("C(between, Sum) * C(within, Sum)", frame, return_type="dataframe")
     info = matrix.design_info
-    label = _labeller(between, within)
+    label = term_labeller(between, within)
     exog = matrix.drop(columns="Intercept").rename(columns=label)
     terms = {
         label(term): [label(c) for c in matrix.columns[cols]]
@@ -572,15 +590,3 @@ def ordinal_model(
             f"no rating of {', '.join(map(str, missing))}: those cut-points are merged",
         )
     return replace(fit, tests=tests, notes=notes, po_check=po_check, po_problem=po_problem)
-
-
-def _labeller(between: str, within: str) -> Callable[[str], str]:
-    """Readable names of the patsy columns (``C(between, Sum)[S.C1]`` → ``condition[C1]``)."""
-    pattern = re.compile(r"C\((between|within), Sum\)(\[S\.(.*?)\])?")
-    names = {"between": between, "within": within}
-
-    def label(column: str) -> str:
-        text = pattern.sub(lambda m: names[m[1]] + (f"[{m[3]}]" if m[2] else ""), column)
-        return text.replace(":", " × ") if "[" not in text else text
-
-    return label

@@ -536,7 +536,7 @@ def mixed_models_section(
                         ("Source", "Effect", None),
                         ("F", "F", _num(2)),
                         ("df1", "df1", _df),
-                        ("df2", "df2 (Satterthwaite)", _num(2)),
+                        ("df2", f"df2 ({fit.df_method})", _num(2)),
                         ("p", "p", _p),
                     ],
                     left=("Source",),

@@ -149,6 +149,13 @@ class RemlDesign:
     def theta_covariance(self, theta: np.ndarray) -> np.ndarray:
         """Asymptotic covariance of ``θ̂``: the inverse negative Hessian of the REML
         log-likelihood, by central differences with steps relative to each parameter."""
+        with np.errstate(all="ignore"):  # steps past a boundary give -inf, checked below
+            hess = self._hessian(theta)
+        if not np.all(np.isfinite(hess)):
+            raise np.linalg.LinAlgError("the REML likelihood is not finite around the estimate")
+        return np.linalg.inv(-hess)
+
+    def _hessian(self, theta: np.ndarray) -> np.ndarray:
         h = 1e-4 * np.maximum(np.abs(theta), 1e-3 * max(abs(theta[-1]), 1e-12))
         k = len(theta)
         hess = np.zeros((k, k))
@@ -168,9 +175,7 @@ class RemlDesign:
                     - self.reml_loglik(theta - ei + ej)
                     + self.reml_loglik(theta - ei - ej)
                 ) / (4 * h[i] * h[j])
-        if not np.all(np.isfinite(hess)):
-            raise np.linalg.LinAlgError("the REML likelihood is not finite around the estimate")
-        return np.linalg.inv(-hess)
+        return hess
 
 
 def contrast_df(

@@ -29,13 +29,10 @@ from analysis.apa import format_number
 from analysis.errors import AnalysisError
 from analysis.lmm import LinearMixedModels, MixedModelFit, linear_mixed_models
 from analysis.mixed_prose import comparison_sentence, lmm_sentences, ordinal_sentences
-from analysis.ordinal import OrdinalFit, ordinal_model
+from analysis.ordinal import OrdinalFit, not_single_item, ordinal_model
 from app.cli.analysis import bad_input, read_csv_file
 
-__all__ = ["MAX_ORDINAL_CATEGORIES", "mixed_command", "register"]
-
-MAX_ORDINAL_CATEGORIES = 11
-"""More distinct whole-number values than this (0–10 scales) is not treated as one item."""
+__all__ = ["mixed_command", "register"]
 
 
 def register(cli: typer.Typer) -> None:
@@ -56,15 +53,25 @@ def mixed_command(
             help="Also fit (1 + within | subject) and compare it with the intercept model.",
         ),
     ] = False,
+    within_levels: Annotated[
+        str,
+        typer.Option(
+            "--within-levels",
+            help="The within levels in order, comma-separated (e.g. pre,mid,post); default: "
+            "numbers ascending, text in natural order (S2 before S10).",
+        ),
+    ] = "",
     as_json: Annotated[
         bool, typer.Option("--json", help="Print one JSON object (the stable contract).")
     ] = False,
 ) -> None:
     """Linear mixed models (REML, Satterthwaite df) that keep incomplete participants."""
     data = read_csv_file(csv)
+    levels = _declared_levels(within_levels, data, within)
     ordinal_reason = _ordinal_reason(data, dv)
     steps = 1 + int(random_slope) + int(not ordinal_reason)
     problem = ""
+    ordinal = None
     with tqdm(total=steps, desc="models", unit="model", file=sys.stderr, leave=False) as bar:
         try:
             bar.set_postfix_str("linear mixed model" + ("s" if random_slope else ""))
@@ -75,17 +82,25 @@ def mixed_command(
                 between=between,
                 subject=subject,
                 random_slope=random_slope,
+                within_levels=levels,
             )
             bar.update(1 + int(random_slope))
-            ordinal = None
-            if not ordinal_reason:
-                bar.set_postfix_str("proportional-odds model")
-                ordinal = ordinal_model(
-                    data, dv=dv, within=within, between=between, subject=subject
-                )
-                bar.update(1)
         except AnalysisError as error:
             problem = str(error)
+        if not problem and not ordinal_reason:
+            bar.set_postfix_str("proportional-odds model")
+            try:  # its failure must not hide the linear models
+                ordinal = ordinal_model(
+                    data,
+                    dv=dv,
+                    within=within,
+                    between=between,
+                    subject=subject,
+                    within_levels=levels,
+                )
+            except AnalysisError as error:
+                ordinal_reason = str(error)
+            bar.update(1)
     if problem:  # after the bar has cleared its line
         raise bad_input(problem)
     if as_json:
@@ -99,32 +114,68 @@ def mixed_command(
         typer.echo(render_text(models, ordinal, ordinal_reason))
 
 
+def _declared_levels(text: str, data: pd.DataFrame, within: str) -> list[Any] | None:
+    """``--within-levels`` as values of the column's type (numbers when the column is numeric)."""
+    if not text:
+        return None
+    levels: list[Any] = [part.strip() for part in text.split(",") if part.strip()]
+    if within in data.columns and pd.api.types.is_numeric_dtype(data[within]):
+        try:
+            numbers = [float(level) for level in levels]
+        except ValueError:
+            raise bad_input(
+                f"--within-levels: {within!r} holds numbers, so the levels must be numbers: {text}"
+            ) from None
+        levels = [int(n) if n.is_integer() else n for n in numbers]
+    return levels
+
+
 def _ordinal_reason(data: pd.DataFrame, dv: str) -> str:
     """Why the ordinal model is not fitted (empty when it is)."""
     if dv not in data.columns:
         return ""  # linear_mixed_models names the missing column
-    values = pd.to_numeric(data[dv], errors="coerce").dropna().to_numpy(float)
-    if len(values) == 0 or np.any(values != np.round(values)):
-        return f"{dv} is not whole-number ratings (e.g. a scale mean)"
-    if len(np.unique(values)) > MAX_ORDINAL_CATEGORIES:
-        return f"{dv} has more than {MAX_ORDINAL_CATEGORIES} distinct values"
-    return ""
+    values = pd.to_numeric(data[dv], errors="coerce").to_numpy(float)
+    if not np.isfinite(values).any():
+        return f"{dv} has no numeric ratings"
+    return not_single_item(values, dv)
 
 
 def render_text(models: LinearMixedModels, ordinal: OrdinalFit | None, ordinal_reason: str) -> str:
-    """Plain-text summary: each model's status, tests and variances, sentences, who was kept."""
+    """Plain-text summary: each model's status, tests and variances, the comparison, sentences,
+    the marginal means, who was kept; a model that failed says so once, in its own line."""
+    steps = ", ".join(f"{level} = {i}" for i, level in enumerate(models.within_levels))
     lines = [
         f"Linear mixed models of {models.dv!r}: {models.between} (between) × {models.within} "
         f"(within), {models.n_obs} ratings of {models.n_subjects} participants",
+        f"{models.within} levels in order (slope steps): {steps}",
     ]
     for fit in models.models:
         lines += ["", *_fit_lines(fit)]
-    if models.slope is not None:
-        lines += ["", comparison_sentence(models)]
-    lines += ["", *(f"  {s}" for s in lmm_sentences(models))]
-    if len(models.kept):
-        lines += ["", "Kept by the mixed model, excluded by the ANOVA:"]
-        lines += [f"  {r.subject}: {r.reason}" for r in models.kept.itertuples(index=False)]
+    comparison = comparison_sentence(models)
+    if comparison:
+        lines += ["", comparison]
+    preferred = models.preferred
+    if preferred.converged:
+        lines += ["", *(f"  {s}" for s in lmm_sentences(models))]
+        lines += ["", f"Estimated marginal means ({preferred.name} model, 95 % CI):"]
+        lines += _aligned(
+            [("", models.between, models.within, "EMM", "SE", "df", "95 % CI")]
+            + [
+                (
+                    "",
+                    str(r[models.between]),
+                    str(r[models.within]),
+                    format_number(r["emmean"], 3),
+                    format_number(r["se"], 3),
+                    format_number(r["df"], 1),
+                    f"[{format_number(r['ci_low'], 3)}, {format_number(r['ci_high'], 3)}]",
+                )
+                for r in preferred.emmeans.to_dict("records")
+            ]
+        )
+        if len(models.kept):
+            lines += ["", "Kept by the mixed model, excluded by the ANOVA:"]
+            lines += [f"  {r.subject}: {r.reason}" for r in models.kept.itertuples(index=False)]
     lines.append("")
     if ordinal is not None:
         lines.append(f"Ordinal model: {ordinal.formula}")

@@ -47,6 +47,7 @@ class FitView:
     formula: str
     status: str
     converged: bool
+    df_method: str = ""
     tests: list[dict[str, str]] = field(default_factory=list)
     variance: list[dict[str, str]] = field(default_factory=list)
     emmeans: list[dict[str, str]] = field(default_factory=list)
@@ -77,7 +78,7 @@ class MixedView:
 
 
 def _fit_view(fit: Any) -> FitView:
-    view = FitView(fit.name, fit.formula, fit.status, fit.converged)
+    view = FitView(fit.name, fit.formula, fit.status, fit.converged, fit.df_method)
     if not fit.converged:
         return view
     view.aic = _num(fit.aic, 1)

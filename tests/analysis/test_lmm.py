@@ -13,6 +13,7 @@ from analysis.anova import mixed_anova
 from analysis.descriptives import cell_descriptives
 from analysis.errors import CannotComputeError, InvalidInputError
 from analysis.lmm import fit_mixed_model, linear_mixed_models
+from analysis.mixed_prose import comparison_sentence
 from tests.analysis.conftest import DATA, make_mixed
 
 KW = {"dv": "y", "within": "time", "between": "group", "subject": "subject"}
@@ -101,7 +102,7 @@ def test_random_slope_is_compared_with_a_boundary_lrt_and_aic() -> None:
     assert comparison["p"] < 1e-6 and comparison["aic_slope"] < comparison["aic_intercept"]
     assert result.preferred is result.slope
     sd = result.slope.variance.set_index("component")["sd"]
-    assert sd["subject: time"] == pytest.approx(0.8, abs=0.3)
+    assert sd["subject: time_step"] == pytest.approx(0.8, abs=0.3)
 
 
 def test_a_participant_variance_of_zero_is_reported_as_a_boundary_fit() -> None:
@@ -151,3 +152,27 @@ def test_bad_input_is_refused_with_a_clear_message() -> None:
         linear_mixed_models(data[data["group"] == "G1"], **KW)
     with pytest.raises(CannotComputeError, match="two or more levels"):
         linear_mixed_models(data[data["time"] == 1], **KW)
+
+
+def test_an_empty_cell_is_named_instead_of_a_rank_deficient_fit() -> None:
+    data = make_mixed((6, 6), 4, seed=4)
+    interim = data[~((data["group"] == "G2") & (data["time"] == 4))]
+    with pytest.raises(CannotComputeError, match=r"no one has a rating in 1 cell\(s\) \(G2 × 4\)"):
+        linear_mixed_models(interim, **KW)
+
+
+def test_two_sessions_fit_no_random_slope_and_say_why() -> None:
+    data = make_mixed((8, 8), 2, seed=6)
+    result = linear_mixed_models(data, **KW, random_slope=True)
+    assert result.slope is None and result.comparison is None
+    assert "a random slope needs three or more levels of 'time'" in result.slope_skipped
+    assert comparison_sentence(result).startswith("No random-slope model: a random slope needs")
+    assert result.within_levels == (1, 2)
+
+
+def test_text_levels_keep_their_numbers_in_order() -> None:
+    data = make_mixed((5, 5), 3, seed=2)
+    data["time"] = data["time"].map({1: "S1", 2: "S2", 3: "S10"})
+    result = linear_mixed_models(data, **KW)
+    assert result.within_levels == ("S1", "S2", "S10")  # not S1, S10, S2
+    assert list(result.intercept.emmeans["time"][:3]) == ["S1", "S2", "S10"]

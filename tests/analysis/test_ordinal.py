@@ -123,12 +123,15 @@ def test_study_model_keeps_incomplete_participants_and_tests_each_term() -> None
 def test_study_model_refuses_averages_and_single_category_items() -> None:
     data = _study()
     averaged = data.assign(rating=data["rating"] + 0.5)
-    with pytest.raises(InvalidInputError, match="whole-number ratings"):
+    with pytest.raises(InvalidInputError, match="not a whole-number rating"):
         ordinal_model(averaged, **KW)
     with pytest.raises(CannotComputeError, match="every rating is the same"):
         ordinal_model(data.assign(rating=4), **KW)
     with pytest.raises(CannotComputeError, match="two or more levels"):
         ordinal_model(data[data["condition"] == "C1"], **KW)
+    interim = data[~((data["condition"] == "C1") & (data["session"] == 4))]
+    with pytest.raises(CannotComputeError, match=r"1 cell\(s\) \(C1 × 4\)"):
+        ordinal_model(interim, **KW)
 
 
 def test_sparse_categories_are_named_in_the_po_check_notes() -> None:

@@ -175,5 +175,6 @@ def test_mixed_models_section(
     failed = build_report(result, mixed=analyse_mixed_models(result, keys=["trust_1"]))
     part = failed[failed.index('<section id="mixed-models">') :]
     part = part[: part.index("</section>")]
-    assert "random slope model did not converge (bfgs: " in part
+    assert "random intercept model did not converge (bfgs: " in part
+    assert "the random intercept and the random slope model did not converge." in part
     assert "Type III" not in part and "Satterthwaite)</th>" not in part

@@ -101,3 +101,21 @@ def test_bad_input_is_one_line(cli: typer.Typer, args: list[str], message: str) 
     assert result.exit_code == EXIT_BAD_INPUT
     assert result.stderr.strip().splitlines()[-1].startswith(message)
     assert "Traceback" not in result.stderr
+
+
+def test_declared_text_levels_set_the_slope_steps(cli: typer.Typer, tmp_path: Path) -> None:
+    data = pd.read_csv(DROPOUTS)
+    data = data[data["session"] <= 3].assign(
+        session=lambda d: d["session"].map({1: "pre", 2: "mid", 3: "post"})
+    )
+    path = tmp_path / "prepost.csv"
+    data.to_csv(path, index=False)
+    default = run(cli, str(path), *ARGS, "--random-slope")
+    assert "session levels in order (slope steps): mid = 0, post = 1, pre = 2" in default.stdout
+    declared = run(cli, str(path), *ARGS, "--random-slope", "--within-levels", "pre,mid,post")
+    assert declared.exit_code == 0, declared.stderr
+    assert "session levels in order (slope steps): pre = 0, mid = 1, post = 2" in declared.stdout
+    assert "Estimated marginal means (random intercept model, 95 % CI):" in declared.stdout
+    numeric = run(cli, str(DROPOUTS), *ARGS, "--within-levels", "one,two")
+    assert numeric.exit_code == EXIT_BAD_INPUT
+    assert "--within-levels: 'session' holds numbers" in numeric.stderr

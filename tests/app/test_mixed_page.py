@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from analysis.adaptation_trust import session_adaptation
 from app.db import Database
+from app.services import studies, study_data
 from app.tables import Role
 from bench.seed import seed_study
 from tests.conftest import UserClientFactory
@@ -45,7 +47,7 @@ def test_the_section_shows_every_model_of_a_measure(
     assert (
         "The robot&#39;s confidence (probability behind its reply): within participants b =" in text
     )
-    assert 'id="figure-mixed-trust_1"' in text
+    assert 'id="figure-mixed-trust_1" data-figure-payload=\'{"data": [' in text
     assert "<script>" not in text
 
 
@@ -62,8 +64,9 @@ def test_htmx_gets_the_section_alone_and_the_slope_comparison_on_request(
     assert section.text.lstrip().startswith('<section class="card mixed-models" id="mixed-models"')
     assert "<html" not in section.text
     assert '<option value="trust_3" selected>' in section.text
-    assert "Random slope: <code>trust_3 ~ condition * session + (1 + session | participant)" in (
-        section.text
+    assert (
+        "Random slope: <code>trust_3 ~ condition * session + (1 + session_step | participant)"
+        in (section.text)
     )
     assert "Letting the session slope vary by participant" in section.text
 
@@ -84,3 +87,25 @@ def test_bad_measures_roles_and_empty_studies(
     tiny = analyst.get("/studies/tiny/analysis/mixed")
     assert tiny.status_code == 200
     assert "cannot be computed because" in tiny.text
+
+
+def test_the_step_log_carries_the_reply_the_participant_heard(
+    seeded: str, database: Database
+) -> None:
+    with database.read_session() as db:
+        dataset = study_data.load_dataset(db, study=studies.get_study(db, seeded), for_staff=True)
+    steps = dataset.steps
+    assert {"reply_probability", "reply_level"} <= set(steps.columns)
+    assert dataset.protocol["reply_levels"] == ["low", "medium_low", "medium", "high"]
+    # The server chose each reply by the asked question's probability (the protocol's basis).
+    asked = [
+        before[action]
+        for before, action in zip(steps["probs_before"], steps["action"], strict=True)
+    ]
+    assert steps["reply_probability"].to_numpy() == pytest.approx(asked)
+    measures = session_adaptation(
+        steps, dataset.protocol["preferred_arms"], reply_levels=dataset.protocol["reply_levels"]
+    )
+    shares = measures[[f"share_{n}" for n in dataset.protocol["reply_levels"]]]
+    assert shares.sum(axis=1).to_numpy() == pytest.approx(1.0)
+    assert (measures["share_top"] == measures["share_high"]).all()
