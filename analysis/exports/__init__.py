@@ -21,9 +21,11 @@ from analysis.exports.files import (
 from analysis.exports.names import session_column, spss_name
 from analysis.exports.spss import write_sav
 from analysis.exports.tables import (
+    ADAPTATION_BASE_COLUMNS,
     LONG_COLUMNS,
     STEP_EXPORT_BASE_COLUMNS,
     WideColumn,
+    adaptation_trust_table,
     long_table,
     steps_table,
     wide_columns,
@@ -31,6 +33,7 @@ from analysis.exports.tables import (
 )
 
 __all__ = [
+    "ADAPTATION_BASE_COLUMNS",
     "CODEBOOK_COLUMNS",
     "CSV_TEXT_RULE",
     "EXPORT_FORMATS",
@@ -38,6 +41,7 @@ __all__ = [
     "STEP_EXPORT_BASE_COLUMNS",
     "ExportFormat",
     "WideColumn",
+    "adaptation_trust_table",
     "codebook_json",
     "codebook_table",
     "csv_bytes",

@@ -18,7 +18,12 @@ from analysis.errors import InvalidInputError
 from analysis.exports.codebook import codebook_json, codebook_table
 from analysis.exports.csvfile import write_csv
 from analysis.exports.spss import write_sav
-from analysis.exports.tables import long_table, steps_table, wide_table
+from analysis.exports.tables import (
+    adaptation_trust_table,
+    long_table,
+    steps_table,
+    wide_table,
+)
 from analysis.mixed_models import analyse_mixed_models
 from analysis.report import write_report
 from analysis.study import analyse_study
@@ -128,6 +133,14 @@ EXPORT_FORMATS: Mapping[str, ExportFormat] = {
             "application/x-spss-sav",
             "SPSS file of the wide table with variable and value labels",
             write_sav,
+        ),
+        ExportFormat(
+            "adaptation-csv",
+            "adaptation_trust.csv",
+            "text/csv",
+            "Per participant × session: the robot's confidence, reply-level shares, answers to "
+            ".95, with that session's trust ratings",
+            lambda d, p: write_csv(adaptation_trust_table(d), p),
         ),
         ExportFormat(
             "mixed-json",

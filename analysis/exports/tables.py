@@ -15,14 +15,17 @@ import numpy as np
 import pandas as pd
 
 from analysis.adaptation import probability_matrix
+from analysis.adaptation_trust import session_adaptation
 from analysis.dataset import PARTICIPANT_COLUMNS, StudyDataset
 from analysis.exports.names import session_column, spss_name
 from analysis.scoring import score_responses, score_scales
 
 __all__ = [
+    "ADAPTATION_BASE_COLUMNS",
     "LONG_COLUMNS",
     "STEP_EXPORT_BASE_COLUMNS",
     "WideColumn",
+    "adaptation_trust_table",
     "long_table",
     "steps_table",
     "wide_columns",
@@ -48,6 +51,18 @@ STEP_EXPORT_BASE_COLUMNS = (
 )
 """Columns of :func:`steps_table` before the per-arm probabilities ``p_before_<arm>`` /
 ``p_after_<arm>`` (0-based arm index, like ``action``)."""
+
+
+ADAPTATION_BASE_COLUMNS = (
+    "participant",
+    "condition",
+    "session",
+    "n_answers",
+    "confidence",
+    "p_accepted",
+    "answers_to_95",
+)
+"""Columns of :func:`adaptation_trust_table` before the reply-level shares and the ratings."""
 
 
 @dataclass(frozen=True)
@@ -278,3 +293,60 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     for j in range(n_arms):
         out[f"p_after_{j}"] = p_after[:, j]
     return out
+
+
+def adaptation_trust_table(dataset: StudyDataset) -> pd.DataFrame:
+    """Per participant × session: the adaptation measures and that session's trust ratings.
+
+    The data of the adaptation-and-trust models (:mod:`analysis.adaptation_trust`), for
+    re-analysis elsewhere: :data:`ADAPTATION_BASE_COLUMNS`, ``share_<level>`` per reply level,
+    then every per-session item (scored: reverse keys applied) and per-session scale. One row
+    per participant × session with adaptation steps; empty (with its base columns) when the step
+    log is empty or withheld.
+    """
+    steps = dataset.steps
+    if steps.empty:
+        return pd.DataFrame(columns=list(ADAPTATION_BASE_COLUMNS))
+    condition = pd.Series(
+        dataset.participants["condition"].to_numpy(),
+        index=dataset.participants["participant"].to_numpy(),
+    )
+    steps = steps.assign(condition=steps["participant"].map(condition).to_numpy())
+    table = session_adaptation(
+        steps, dataset.protocol["preferred_arms"], reply_levels=dataset.protocol.get("reply_levels")
+    )
+    shares = [f"share_{level}" for level in dataset.protocol.get("reply_levels", [])]
+    table = table[[*ADAPTATION_BASE_COLUMNS, *[c for c in shares if c in table.columns]]]
+    per_session = [spec for spec in dataset.instruments if spec.per_session]
+    names = {spec.name for spec in per_session}
+    responses = dataset.responses[dataset.responses["instrument"].isin(names)]
+    ratings = []
+    if len(responses):
+        scored = score_responses(responses, per_session)
+        numeric = scored[scored["scored"].notna() & scored["session"].notna()]
+        ratings.append(
+            numeric.pivot_table(
+                index=["participant", "session"], columns="item", values="scored", aggfunc="first"
+            )
+        )
+        scales = [s for s in dataset.scales if s.instrument in names]
+        if scales:
+            scores = score_scales(responses, scales)
+            ratings.append(
+                scores.pivot_table(
+                    index=["participant", "session"],
+                    columns="scale",
+                    values="score",
+                    aggfunc="first",
+                )
+            )
+    if ratings:
+        wide = pd.concat(ratings, axis=1).reset_index()
+        wide["session"] = wide["session"].astype("int64")
+        wide.columns = [str(c) for c in wide.columns]
+        keys = [item.key for spec in per_session for item in spec.items]
+        keys += [s.name for s in dataset.scales if s.instrument in names]
+        wide = wide[["participant", "session", *[k for k in keys if k in wide.columns]]]
+        table = table.merge(wide, on=["participant", "session"], how="left")
+    order = pd.Index(dataset.participants["participant"]).get_indexer(table["participant"])
+    return table.iloc[np.lexsort((table["session"].to_numpy(), order))].reset_index(drop=True)

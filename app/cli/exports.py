@@ -30,7 +30,8 @@ def export(
     out: Annotated[Path, typer.Option(help="File to write (a folder for 'all').")],
     as_json: JsonFlag = False,
 ) -> None:
-    """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, or the report."""
+    """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
+    models (JSON) or the report."""
     if format != ALL and format not in EXPORT_FORMATS:
         raise InvalidInput(f"--format {format!r}: choose one of {', '.join(EXPORT_FORMATS)}, {ALL}")
     database = open_database(Settings())

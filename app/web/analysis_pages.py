@@ -25,8 +25,8 @@ from app.web.templating import render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
-STEP_LOG_EXPORT = "steps-csv"
-"""The export that is the learners' step log (refused while the study is blinded)."""
+STEP_LOG_EXPORTS = frozenset({"steps-csv", "adaptation-csv"})
+"""The exports made of the learners' step log (refused while the study is blinded)."""
 
 
 @router.get("/studies/{name}/analysis")
@@ -52,7 +52,7 @@ def analysis_page(
             "error": error,
             "formats": EXPORT_FORMATS.values(),
             "manifest": dataset.manifest,
-            "step_log": STEP_LOG_EXPORT,
+            "step_logs": STEP_LOG_EXPORTS,
             "steps_withheld": dataset.steps_withheld,
         },
     )
@@ -106,7 +106,7 @@ def download(
     if spec is None:
         raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
     study = studies.get_study(db, name)
-    if export == STEP_LOG_EXPORT and not blinding.shows_learners(study):
+    if export in STEP_LOG_EXPORTS and not blinding.shows_learners(study):
         raise Conflict(f"no step log yet: {blinding.LEARNERS_SEALED}")  # before reading it all
     dataset = study_data.load_dataset(db, study=study, for_staff=True)
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))

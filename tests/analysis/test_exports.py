@@ -15,9 +15,11 @@ import pytest
 from analysis.dataset import StudyDataset
 from analysis.errors import InvalidInputError
 from analysis.exports import (
+    ADAPTATION_BASE_COLUMNS,
     CODEBOOK_COLUMNS,
     EXPORT_FORMATS,
     LONG_COLUMNS,
+    adaptation_trust_table,
     codebook_json,
     codebook_table,
     csv_bytes,
@@ -199,7 +201,7 @@ def test_csv_bytes_are_stable(dataset: StudyDataset) -> None:
 def test_registry_and_bundle(dataset: StudyDataset, tmp_path: Path) -> None:
     assert set(EXPORT_FORMATS) == {
         "long-csv", "wide-csv", "steps-csv", "codebook-csv", "codebook-json", "sav",
-        "mixed-json", "html",
+        "adaptation-csv", "mixed-json", "html",
     }  # fmt: skip
     written = write_all_exports(dataset, tmp_path / "bundle")
     mixed = json.loads(written["mixed-json"].read_text(encoding="utf-8"))
@@ -241,3 +243,30 @@ def test_long_table_order(dataset: StudyDataset) -> None:
     assert trust["session"].is_monotonic_increasing
     assert trust["item"].iloc[:5].tolist() == [f"trust_{i}" for i in range(1, 6)]
     assert first.index.max() < out[out["participant"] != first["participant"].iloc[0]].index.min()
+
+
+def test_adaptation_table_joins_the_measures_to_the_ratings(dataset: StudyDataset) -> None:
+    protocol = {**dataset.protocol, "reply_levels": ["low", "high"]}
+    steps = dataset.steps.assign(
+        reply_level=[
+            int(p[a] >= 0.5)
+            for p, a in zip(dataset.steps["probs_before"], dataset.steps["action"], strict=True)
+        ]
+    )
+    with_levels = dataclasses.replace(dataset, steps=steps, protocol=protocol)
+    table = adaptation_trust_table(with_levels)
+    assert list(table.columns[:7]) == list(ADAPTATION_BASE_COLUMNS)
+    assert list(table.columns[7:9]) == ["share_low", "share_high"]
+    assert list(table.columns[9:]) == [f"trust_{i}" for i in range(1, 6)]
+    first = table.iloc[0]
+    answers = dataset.responses[
+        (dataset.responses["participant"] == first["participant"])
+        & (dataset.responses["session"] == first["session"])
+        & (dataset.responses["item"] == "trust_5")
+    ]["value"]
+    assert first["trust_5"] == 6 - answers.iloc[0]  # scored: the reverse key applied
+    assert (table["share_low"] + table["share_high"]).to_numpy() == pytest.approx(1.0)
+    sessions = table.groupby("participant", sort=False)["session"].apply(list)
+    assert all(s == sorted(s) for s in sessions)
+    empty = adaptation_trust_table(dataclasses.replace(dataset, steps=dataset.steps.iloc[0:0]))
+    assert list(empty.columns) == list(ADAPTATION_BASE_COLUMNS) and empty.empty

@@ -237,6 +237,12 @@ def test_analysts_see_no_learners_until_the_study_is_unblinded(
     assert 'href="/studies/blind/exports/steps-csv"' not in page.text
     refused = analyst.get("/studies/blind/exports/steps-csv")
     assert refused.status_code == 409 and "until an admin unblinds it" in refused.text
+    assert 'href="/studies/blind/exports/adaptation-csv"' not in page.text
+    joined = analyst.get("/studies/blind/exports/adaptation-csv")
+    assert joined.status_code == 409 and "until an admin unblinds it" in joined.text
+    mixed = analyst.get("/studies/blind/exports/mixed-json")
+    assert mixed.status_code == 200 and "this study is blinded" in mixed.text
+    assert _leaks(mixed.text, secret, replies=False, words=False) == []
     report = analyst.get("/studies/blind/exports/html")
     assert report.status_code == 200 and "this study is blinded" in report.text
     assert _leaks(report.text, secret, replies=False, words=False) == []

@@ -77,7 +77,9 @@ def test_every_download_neutralises_tablet_formulas(
 ) -> None:
     codes = _answer_on_tablets(lab)
     analyst = user_client(Role.ANALYST)
-    assert set(CSV_EXPORTS) == {"long-csv", "wide-csv", "steps-csv", "codebook-csv"}
+    assert set(CSV_EXPORTS) == {
+        "long-csv", "wide-csv", "steps-csv", "codebook-csv", "adaptation-csv",
+    }  # fmt: skip
     for name in CSV_EXPORTS:
         response = analyst.get(f"/studies/{lab.study}/exports/{name}")
         assert response.status_code == 200
