@@ -577,6 +577,12 @@ window.addEventListener("keyup", (event) => {
   if (KEYS[event.code]) room.held.delete(KEYS[event.code]);
 });
 window.addEventListener("blur", () => room.held.clear());
+// The pose is saved with each presence report (at most twice a second); save the exact one when
+// the page goes away, so a reload puts the participant back where they stood, not where they
+// were half a second earlier.
+window.addEventListener("pagehide", () => {
+  if (room.pose && runKey()) savePose();
+});
 window.addEventListener("resize", () => room.scene && room.scene.resize());
 
 el("answer-yes").addEventListener("click", () => answer("yes", "button"));
