@@ -52,6 +52,18 @@ def json_value(value: Any) -> Any:
     return value
 
 
+def fit_status(problem: str, notes: Sequence[str]) -> str:
+    """A fitted model's state in one line: its problem, else its notes, else "converged"."""
+    if problem:
+        return problem
+    return "; ".join(notes) if notes else "converged"
+
+
+def json_records(frame: pd.DataFrame) -> list[dict[str, Any]]:
+    """The rows of ``frame`` as JSON-ready dicts (see :func:`json_value`)."""
+    return [{k: json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
+
+
 def require_frame(data: object, what: str = "data") -> pd.DataFrame:
     """Refuse anything that is not a non-empty DataFrame."""
     if not isinstance(data, pd.DataFrame):

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis._checks import json_value, require_columns, to_python
+from analysis._checks import json_records, require_columns, to_python
 from analysis.adaptation import probability_matrix, validate_steps
 from analysis.errors import AnalysisError, CannotComputeError, InvalidInputError
 from analysis.lmm import MixedModelFit, fit_mixed_model
@@ -32,6 +32,7 @@ from analysis.lmm import MixedModelFit, fit_mixed_model
 __all__ = [
     "EFFECT_COLUMNS",
     "MEASURES",
+    "MEASURE_COLUMNS",
     "TARGET",
     "AdaptationTrust",
     "adaptation_trust",
@@ -49,6 +50,17 @@ MEASURES: dict[str, str] = {
 }
 """Measures modelled, with the words readers see. ``answers_to_95`` is a property of the
 participant (it does not vary by session), so only its between part is modelled."""
+
+MEASURE_COLUMNS = (
+    "participant",
+    "condition",
+    "session",
+    "n_answers",
+    "confidence",
+    "p_accepted",
+    "answers_to_95",
+)
+"""Columns of :func:`session_adaptation` before the reply-level shares."""
 
 EFFECT_COLUMNS = (
     "measure",
@@ -106,17 +118,7 @@ def session_adaptation(
     """
     steps = validate_steps(steps, preferred_arms)
     if steps.empty:
-        return pd.DataFrame(
-            columns=[
-                "participant",
-                "condition",
-                "session",
-                "n_answers",
-                "confidence",
-                "p_accepted",
-                "answers_to_95",
-            ]
-        )
+        return pd.DataFrame(columns=list(MEASURE_COLUMNS))
     actions = steps["action"].to_numpy(dtype=np.int64)
     asked = np.empty(len(steps))
     for category in pd.unique(steps["category"]):
@@ -199,10 +201,11 @@ class AdaptationTrust:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (NaN → None)."""
-        rows = [
-            {k: json_value(v) for k, v in row.items()} for row in self.effects.to_dict("records")
-        ]
-        return {"dv": self.dv, "effects": rows, "problems": dict(self.problems)}
+        return {
+            "dv": self.dv,
+            "effects": json_records(self.effects),
+            "problems": dict(self.problems),
+        }
 
 
 def adaptation_trust(

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis._checks import json_value, ordered_levels, to_python
+from analysis._checks import fit_status, json_records, json_value, ordered_levels, to_python
 from analysis.descriptives import t_interval
 from analysis.design import prepare_mixed_design, refuse_empty_cells
 from analysis.errors import CannotComputeError, InvalidInputError
@@ -163,15 +163,10 @@ class MixedModelFit:
     @property
     def status(self) -> str:
         """One line for a reader: the problem, else the notes, else "converged"."""
-        if self.problem:
-            return self.problem
-        return "; ".join(self.notes) if self.notes else "converged"
+        return fit_status(self.problem, self.notes)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: every number a float (NaN → None), tables as lists of records."""
-
-        def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
-            return [{k: json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
 
         return {
             "name": self.name,
@@ -185,10 +180,10 @@ class MixedModelFit:
             "aic": json_value(self.aic),
             "n_obs": self.n_obs,
             "n_subjects": self.n_subjects,
-            "fixed": records(self.fixed),
-            "tests": records(self.tests),
-            "variance": records(self.variance),
-            "emmeans": records(self.emmeans),
+            "fixed": json_records(self.fixed),
+            "tests": json_records(self.tests),
+            "variance": json_records(self.variance),
+            "emmeans": json_records(self.emmeans),
         }
 
 
@@ -263,9 +258,7 @@ class LinearMixedModels:
             "preferred": self.preferred.name,
             "slope_skipped": self.slope_skipped,
             "within_levels": [json_value(level) for level in self.within_levels],
-            "kept_by_mixed_model": [
-                {k: json_value(v) for k, v in row.items()} for row in self.kept.to_dict("records")
-            ],
+            "kept_by_mixed_model": json_records(self.kept),
         }
 
 

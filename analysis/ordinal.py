@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis._checks import json_value, ordered_levels, to_python
+from analysis._checks import fit_status, json_records, json_value, ordered_levels, to_python
 from analysis.design import prepare_mixed_design, refuse_empty_cells
 from analysis.errors import CannotComputeError, InvalidInputError
 from analysis.lmm import term_labeller
@@ -104,16 +104,11 @@ class OrdinalFit:
 
     @property
     def status(self) -> str:
-        """One line: the problem, else the notes, else "converged"."""
-        if self.problem:
-            return self.problem
-        return "; ".join(self.notes) if self.notes else "converged"
+        """One line for a reader: the problem, else the notes, else "converged"."""
+        return fit_status(self.problem, self.notes)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (NaN → None)."""
-
-        def records(frame: pd.DataFrame) -> list[dict[str, Any]]:
-            return [{k: json_value(v) for k, v in row.items()} for row in frame.to_dict("records")]
 
         return {
             "formula": self.formula,
@@ -126,10 +121,10 @@ class OrdinalFit:
             "n_obs": self.n_obs,
             "n_clusters": self.n_clusters,
             "categories": [to_python(c) for c in self.categories],
-            "coefficients": records(self.coefficients),
-            "thresholds": records(self.thresholds),
-            "tests": records(self.tests),
-            "po_check": records(self.po_check),
+            "coefficients": json_records(self.coefficients),
+            "thresholds": json_records(self.thresholds),
+            "tests": json_records(self.tests),
+            "po_check": json_records(self.po_check),
             "po_problem": self.po_problem,
         }
 

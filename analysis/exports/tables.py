@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.adaptation import probability_matrix
-from analysis.adaptation_trust import session_adaptation
+from analysis.adaptation_trust import MEASURE_COLUMNS, session_adaptation
 from analysis.dataset import PARTICIPANT_COLUMNS, StudyDataset
 from analysis.exports.names import session_column, spss_name
 from analysis.scoring import score_responses, score_scales
@@ -53,15 +53,7 @@ STEP_EXPORT_BASE_COLUMNS = (
 ``p_after_<arm>`` (0-based arm index, like ``action``)."""
 
 
-ADAPTATION_BASE_COLUMNS = (
-    "participant",
-    "condition",
-    "session",
-    "n_answers",
-    "confidence",
-    "p_accepted",
-    "answers_to_95",
-)
+ADAPTATION_BASE_COLUMNS = MEASURE_COLUMNS
 """Columns of :func:`adaptation_trust_table` before the reply-level shares and the ratings."""
 
 

@@ -94,7 +94,7 @@ def test_wide_csv_neutralises_answers_and_attributes(bundle: dict[str, Path]) ->
 
 def test_no_csv_cell_starts_a_formula(bundle: dict[str, Path]) -> None:
     csvs = [name for name, spec in EXPORT_FORMATS.items() if spec.media_type == "text/csv"]
-    assert set(csvs) == {"long-csv", "wide-csv", "steps-csv", "codebook-csv"}
+    assert set(csvs) == {"long-csv", "wide-csv", "steps-csv", "codebook-csv", "adaptation-csv"}
     for name in csvs:
         with bundle[name].open(newline="", encoding="utf-8") as handle:
             for row in csv.reader(handle):
