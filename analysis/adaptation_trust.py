@@ -310,15 +310,16 @@ def _fit(
             **{f"{measure}_{p}": rows[f"{measure}_{p}"].to_numpy(float) for p in parts},
         }
     )
+    # (patsy term, what readers see), factors with sum-to-zero coding
     terms = [
-        *(["C(condition, Sum)"] if frame["condition"].nunique() > 1 else []),
-        *(["C(session, Sum)"] if frame["session"].nunique() > 1 else []),
-        *[f"{measure}_{p}" for p in parts],
+        *([("C(condition, Sum)", "condition")] if frame["condition"].nunique() > 1 else []),
+        *([("C(session, Sum)", "session")] if frame["session"].nunique() > 1 else []),
+        *[(f"{measure}_{p}", f"{measure}_{p}") for p in parts],
     ]
-    shown = " + ".join([t.split("(")[1].split(",")[0] if t.startswith("C(") else t for t in terms])
+    shown = " + ".join(name for _, name in terms)
     return fit_mixed_model(
         frame,
-        formula="y ~ " + " + ".join(terms),
+        formula="y ~ " + " + ".join(term for term, _ in terms),
         subject="participant",
         name=measure,
         display=f"{dv} ~ {shown} + (1 | participant)",

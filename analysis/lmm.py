@@ -20,7 +20,7 @@ from __future__ import annotations
 import re
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -800,7 +800,7 @@ def _with_emmeans(
 ) -> MixedModelFit:
     if not fit.converged or fit.inference is None:
         empty = pd.DataFrame(columns=[between, within, *EMM_COLUMNS])
-        return _replace(fit, emmeans=empty)
+        return replace(fit, emmeans=empty)
     from patsy import build_design_matrices
 
     grid = pd.DataFrame(
@@ -821,7 +821,7 @@ def _with_emmeans(
         }
     )
     low, high = _interval(table["emmean"], table["se"], table["df"], confidence)
-    return _replace(fit, emmeans=table.assign(ci_low=low, ci_high=high))
+    return replace(fit, emmeans=table.assign(ci_low=low, ci_high=high))
 
 
 def _study_names(fit: MixedModelFit, subject: str, within: str) -> MixedModelFit:
@@ -836,13 +836,7 @@ def _study_names(fit: MixedModelFit, subject: str, within: str) -> MixedModelFit
         .str.replace("subject: ", f"{subject}: ", regex=False)
         .str.replace("within_step", f"{within}_step", regex=False)
     )
-    return _replace(fit, variance=variance, tests=tests)
-
-
-def _replace(fit: MixedModelFit, **changes: Any) -> MixedModelFit:
-    from dataclasses import replace
-
-    return replace(fit, **changes)
+    return replace(fit, variance=variance, tests=tests)
 
 
 def _compare(intercept: MixedModelFit, slope: MixedModelFit) -> dict[str, Any] | None:

@@ -547,10 +547,9 @@ def mixed_models_section(
                 parts.append(f"<p>Kept here, excluded by the ANOVA: {html.escape(kept)}.</p>")
         if models.adaptation is not None and "confidence" in models.adaptation.data.columns:
             data = models.adaptation.data
-            dv = models.key if models.key in data.columns else "value"
             payload = trust_confidence_payload(
                 data,
-                dv=dv,
+                dv=models.adaptation.dv,
                 title=f"{title} and the robot's confidence",
                 y_label=title,
                 y_range=outcome.value_range,

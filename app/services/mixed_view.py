@@ -179,11 +179,10 @@ def mixed_view(
         ]
         data = models.adaptation.data
         if len(data) and "confidence" in data.columns:
-            dv = outcome.key if outcome.key in data.columns else "value"
             view.figure = json_safe(
                 trust_confidence_payload(
                     data,
-                    dv=dv,
+                    dv=models.adaptation.dv,
                     title=f"{title} and the robot's confidence",
                     y_label=title,
                     y_range=outcome.value_range,
