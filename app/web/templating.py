@@ -7,6 +7,8 @@ every such response carries ``Vary: HX-Request`` so caches keep the two apart.
 
 from __future__ import annotations
 
+import base64
+import binascii
 from datetime import datetime
 from typing import Any
 from urllib.parse import quote
@@ -64,21 +66,36 @@ def _base_context(request: Request) -> dict[str, Any]:
     }
 
 
+def _cookie_safe(text: str) -> str:
+    """``text`` as URL-safe base64 of its UTF-8: a cookie header carries Latin-1 only, and a
+    notice can name a device label or a study title in any script. The padding is left off:
+    "=" would make the cookie a quoted string."""
+    return base64.urlsafe_b64encode(text.encode()).decode("ascii").rstrip("=")
+
+
+def _from_cookie_safe(value: str) -> str:
+    """The text :func:`_cookie_safe` encoded ("" for anything else)."""
+    try:
+        padded = value + "=" * (-len(value) % 4)
+        return base64.urlsafe_b64decode(padded.encode("ascii")).decode()
+    except (binascii.Error, UnicodeError):
+        return ""
+
+
 def _read_notice(request: Request) -> str:
     signed = request.cookies.get(NOTICE_COOKIE)
     if not signed:
         return ""
     value = unsign(request.app.state.settings.secret, signed)
-    return value or ""
+    return _from_cookie_safe(value) if value else ""
 
 
 def redirect_with_notice(request: Request, url: str, notice: str) -> RedirectResponse:
     """A See-Other redirect that shows ``notice`` once on the next page (a signed cookie)."""
     response = RedirectResponse(url, status_code=303)
     secret = request.app.state.settings.secret
-    response.set_cookie(
-        NOTICE_COOKIE, sign(secret, notice[:300]), max_age=60, httponly=True, samesite="lax"
-    )
+    signed = sign(secret, _cookie_safe(notice[:300]))
+    response.set_cookie(NOTICE_COOKIE, signed, max_age=60, httponly=True, samesite="lax")
     return response
 
 

@@ -17,6 +17,10 @@
     } catch (_) {
       // not JSON: fall through to the status
     }
+    if (xhr.status >= 500) {
+      // A server fault can come after the change was stored: do not claim it was not.
+      return `The server failed (HTTP ${xhr.status}); reload the page to see whether the change was made.`;
+    }
     return `The server refused the request (HTTP ${xhr.status}); nothing was changed.`;
   }
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from fastapi.testclient import TestClient
 
 from app.protocol import default_protocol
@@ -112,3 +113,28 @@ def test_security_headers(client: TestClient) -> None:
     assert headers["x-frame-options"] == "DENY"
     body = client.get("/login").text
     assert "<script>" not in body  # every script is an external file (the CSP forbids inline)
+
+
+WIDE_TEXT = "Schlüssel … 机器人 ✓"
+"""Text outside Latin-1 (a cookie header's alphabet): device labels and titles may hold any."""
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # cookies, not storage
+def test_notices_carry_any_text(user_client: UserClientFactory, study_name: str) -> None:
+    admin = user_client(Role.ADMIN)
+    assert admin.post("/stations", data={"name": "lab-1"}).status_code == 200
+    issued = admin.post("/stations/lab-1/devices", data={"label": WIDE_TEXT})
+    assert issued.status_code == 200
+    device_id = issued.text.split('action="/devices/')[1].split("/revoke")[0]
+    revoked = admin.post(f"/devices/{device_id}/revoke")
+    assert revoked.status_code == 200
+    assert f"Revoked {WIDE_TEXT} (" in revoked.text and "…) at lab-1." in revoked.text
+    source = default_protocol().source_text.encode()
+    admin.post(
+        "/admin/studies",
+        data={"name": "wide", "title": WIDE_TEXT},
+        files={"protocol": ("p.toml", source, "text/plain")},
+    )
+    archived = admin.post("/admin/studies/wide/archive", data={"archived": "true"})
+    assert archived.status_code == 200
+    assert f"Archived {WIDE_TEXT}: it is hidden" in archived.text

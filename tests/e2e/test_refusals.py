@@ -91,6 +91,13 @@ def test_an_unknown_code_and_a_dead_server_are_explained(
     seat.get_by_role("button", name="Seat here").click()
     expect(page.locator("#console p.refusal")).to_contain_text("could not be reached")
     page.screenshot(path=str(artifacts / "console-unreachable.png"), full_page=True)
+    # A server fault may come after the change was stored (issue 35, item 1): no "nothing changed".
+    page.unroute("**/stations/lab-1/assign")
+    page.route("**/stations/lab-1/assign", lambda route: route.fulfill(status=500, body="fault"))
+    seat.get_by_role("button", name="Seat here").click()
+    expect(page.locator("#console p.refusal")).to_have_text(
+        "The server failed (HTTP 500); reload the page to see whether the change was made."
+    )
     context.close()
 
 
