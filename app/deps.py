@@ -70,19 +70,26 @@ CSRF_HEADER = "X-CSRF-Token"
 CSRF_FIELD = "csrf_token"
 
 
+def cookie_is_secure(request: Request, settings: Settings) -> bool:
+    """Whether a cookie set in answer to ``request`` gets the Secure flag: as configured, else
+    when the request came over HTTPS (the connection's scheme, or X-Forwarded-Proto from a
+    trusted proxy: the proxy-headers middleware has already put it into the URL). One rule for
+    every cookie, so no credential travels in clear where the login cookie would not."""
+    if settings.cookie_secure is not None:
+        return settings.cookie_secure
+    return request.url.scheme == "https"
+
+
 def set_session_cookie(
     response: Response, request: Request, settings: Settings, token: str
 ) -> None:
     """Give the browser its login cookie: HttpOnly, SameSite=Lax, Secure over HTTPS."""
-    secure = settings.cookie_secure
-    if secure is None:
-        secure = request.url.scheme == "https"
     response.set_cookie(
         SESSION_COOKIE,
         token,
         httponly=True,
         samesite="lax",
-        secure=secure,
+        secure=cookie_is_secure(request, settings),
         max_age=int(settings.session_hours * 3600),
     )
 

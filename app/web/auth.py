@@ -24,6 +24,7 @@ from app.deps import (
     OneHopRouter,
     SessionDep,
     SettingsDep,
+    cookie_is_secure,
     set_session_cookie,
 )
 from app.errors import TooManyAttempts
@@ -61,7 +62,10 @@ def _login_page(
         },
         status_code=status_code,
     )
-    response.set_cookie(LOGIN_NONCE_COOKIE, nonce, httponly=True, samesite="strict", max_age=3600)
+    secure = cookie_is_secure(request, request.app.state.settings)
+    response.set_cookie(
+        LOGIN_NONCE_COOKIE, nonce, httponly=True, samesite="strict", secure=secure, max_age=3600
+    )
     return response
 
 

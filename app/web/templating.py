@@ -17,7 +17,7 @@ from fastapi import Request
 from fastapi.responses import HTMLResponse, RedirectResponse
 from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
 
-from app.deps import CSRF_FIELD, CSRF_HEADER
+from app.deps import CSRF_FIELD, CSRF_HEADER, cookie_is_secure
 from app.security import sign, unsign
 from app.settings import REPO_ROOT
 from app.web.assets import asset
@@ -93,9 +93,11 @@ def _read_notice(request: Request) -> str:
 def redirect_with_notice(request: Request, url: str, notice: str) -> RedirectResponse:
     """A See-Other redirect that shows ``notice`` once on the next page (a signed cookie)."""
     response = RedirectResponse(url, status_code=303)
-    secret = request.app.state.settings.secret
-    signed = sign(secret, _cookie_safe(notice[:300]))
-    response.set_cookie(NOTICE_COOKIE, signed, max_age=60, httponly=True, samesite="lax")
+    signed = sign(request.app.state.settings.secret, _cookie_safe(notice[:300]))
+    secure = cookie_is_secure(request, request.app.state.settings)
+    response.set_cookie(
+        NOTICE_COOKIE, signed, max_age=60, httponly=True, samesite="lax", secure=secure
+    )
     return response
 
 

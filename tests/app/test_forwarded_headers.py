@@ -22,7 +22,8 @@ from app.db import Database
 from app.main import create_app
 from app.settings import Settings
 from app.tables import LoginAttempt, Role
-from tests.conftest import PASSWORD, make_user
+from app.tablet import TABLET_COOKIE
+from tests.conftest import PASSWORD, Lab, UserClientFactory, make_user
 from tests.servers import ServerProcess
 
 SPOOFED = "203.0.113.9"
@@ -88,6 +89,47 @@ def test_the_forwarded_scheme_counts_only_from_trusted_proxies(
         )
     assert response.status_code == 200
     assert ("secure" in response.headers["set-cookie"].lower()) is secure
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # headers, not storage
+@pytest.mark.parametrize(("trusted", "secure"), [((), False), (("127.0.0.1",), True)])
+def test_the_tablet_cookie_is_secure_by_the_same_rule(
+    settings: Settings, lab: Lab, trusted: tuple[str, ...], secure: bool
+) -> None:
+    """A participant's tablet cookie is a bearer credential like the login cookie (issue 35)."""
+    code = lab.enrol_and_assign()
+    link = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/{code}/link")
+    app = create_app(settings.model_copy(update={"trusted_proxies": trusted}))
+    with TestClient(app, client=("127.0.0.1", 40000)) as tablet:
+        opened = tablet.get(
+            f"/t/{link.json()['token']}",
+            headers={"X-Forwarded-Proto": "https"},
+            follow_redirects=False,
+        )
+    assert opened.status_code == 303
+    cookie = opened.headers["set-cookie"]
+    assert cookie.startswith(f"{TABLET_COOKIE}=")
+    assert ("secure" in cookie.lower()) is secure
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # headers, not storage
+@pytest.mark.parametrize(("trusted", "secure"), [((), False), (("127.0.0.1",), True)])
+def test_the_sign_in_and_notice_cookies_follow_the_same_rule(
+    settings: Settings, user_client: UserClientFactory, trusted: tuple[str, ...], secure: bool
+) -> None:
+    admin = user_client(Role.ADMIN)  # signed in over plain HTTP, so its cookies travel here too
+    app = create_app(settings.model_copy(update={"trusted_proxies": trusted}))
+    https = {"X-Forwarded-Proto": "https"}
+    with TestClient(app, client=("127.0.0.1", 40000), headers=https) as client:
+        login = client.get("/login")
+        client.cookies, client.headers["X-CSRF-Token"] = (
+            admin.cookies,
+            admin.headers["X-CSRF-Token"],
+        )
+        noticed = client.post("/stations", data={"name": "lab-9"}, follow_redirects=False)
+    assert ("secure" in login.headers["set-cookie"].lower()) is secure
+    assert noticed.status_code == 303
+    assert ("secure" in noticed.headers["set-cookie"].lower()) is secure
 
 
 class TrustlabServe(ServerProcess):
