@@ -52,6 +52,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/api/v1/openapi.json"): EVERYONE,
     ("GET", "/api/v1/docs"): EVERYONE,
     ("GET", "/static"): EVERYONE,
+    ("GET", "/favicon.ico"): EVERYONE,
     ("GET", "/login"): EVERYONE,
     ("POST", "/login"): EVERYONE,
     ("POST", "/api/v1/session"): EVERYONE,

@@ -26,6 +26,7 @@ from app.web import (
     accounts,
     admin,
     analysis_pages,
+    assets,
     audit_pages,
     auth,
     dashboard,
@@ -129,6 +130,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         audit_pages.router,
         docs.router,
         tablet_pages.router,
+        assets.router,
     ):
         app.include_router(pages)
     app.mount("/static", VersionedStaticFiles(directory=STATIC_ROOT), name="static")

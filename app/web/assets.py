@@ -16,7 +16,8 @@ from functools import lru_cache
 from pathlib import Path
 from urllib.parse import parse_qs
 
-from starlette.responses import Response
+from fastapi import APIRouter
+from starlette.responses import FileResponse, Response
 from starlette.staticfiles import StaticFiles
 from starlette.types import Scope
 
@@ -27,6 +28,10 @@ STATIC_URL = "/static/"
 VERSION_PARAMETER = "v"
 IMMUTABLE = "public, max-age=31536000, immutable"
 REVALIDATE = "no-cache"
+FAVICON = "favicon.ico"
+"""The site icon under static/; every page template links it (``asset(FAVICON)``)."""
+
+router = APIRouter(include_in_schema=False)
 
 
 @lru_cache(maxsize=256)
@@ -77,3 +82,11 @@ class VersionedStaticFiles(StaticFiles):
             current = asked and asked == content_version(path, self.root)
             response.headers["cache-control"] = IMMUTABLE if current else REVALIDATE
         return response
+
+
+@router.get("/favicon.ico")
+def favicon() -> Response:
+    """The site icon where browsers look when a page names none (a JSON answer, a bookmark):
+    the same file the pages link by version, revalidated like any unversioned asset."""
+    path = STATIC_ROOT / FAVICON
+    return FileResponse(path, media_type="image/x-icon", headers={"cache-control": REVALIDATE})

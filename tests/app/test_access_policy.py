@@ -106,6 +106,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/api/v1/openapi.json"): get("/api/v1/openapi.json"),
     ("GET", "/api/v1/docs"): get("/api/v1/docs"),
     ("GET", "/static"): get("/static/css/app.css"),
+    ("GET", "/favicon.ico"): get("/favicon.ico"),
     ("GET", "/login"): get("/login"),
     ("POST", "/login"): _login_probe,
     ("POST", "/api/v1/session"): send(

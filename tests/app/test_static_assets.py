@@ -16,6 +16,7 @@ from app.web.assets import IMMUTABLE, REVALIDATE, VersionedStaticFiles, asset, c
 from tests.conftest import Lab, UserClientFactory
 
 LINK = re.compile(r'(?:src|href)="(/static/[^"]+)"')
+ICON = re.compile(r'<link rel="icon" href="(/static/[^"]+)"')
 
 
 @pytest.fixture
@@ -84,3 +85,21 @@ def test_staff_pages_link_every_static_file_by_version(
         fetched = admin.get(link)
         assert fetched.status_code == 200, link
         assert fetched.headers["cache-control"] == IMMUTABLE, link
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # files, not storage
+def test_every_page_has_a_favicon(lab: Lab) -> None:
+    """Staff, tablet and room pages link one icon by version, and a browser that asks at the
+    root anyway (a JSON answer, a bookmark) gets the same file, not a 404 (issue 35)."""
+    code = lab.enrol_and_assign()
+    token = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/{code}/link")
+    client = TestClient(lab.app)
+    pages = ["/login", f"/stations/{lab.station}/room", f"/t/{token.json()['token']}"]
+    for page in pages:
+        icons = ICON.findall(client.get(page).text)
+        assert len(icons) == 1 and "?v=" in icons[0], page
+    icon = client.get(icons[0])
+    assert icon.status_code == 200 and icon.content[:4] == b"\x00\x00\x01\x00"  # an ICO file
+    root = client.get("/favicon.ico")
+    assert root.status_code == 200 and root.content == icon.content
+    assert root.headers["content-type"] == "image/x-icon"
