@@ -66,7 +66,7 @@ class ProtocolSummary(TypedDict):
     """The parts of a study protocol the report describes (a plain JSON-able dict)."""
 
     study: str
-    """Study name."""
+    """The study's own title (as the lab named it; not the protocol's, which studies share)."""
     conditions: list[ConditionSummary]
     """Conditions in allocation order."""
     categories: dict[str, list[str]]

@@ -115,7 +115,7 @@ def build_report(
     confidence : float
         Coverage of the confidence intervals.
     title : str, optional
-        Heading; default "Study report: <study name>".
+        Heading; default "Study report: <study title>" (``protocol["study"]``).
     mixed : StudyMixedModels, optional
         The mixed models (:func:`analysis.mixed_models.analyse_mixed_models`) of this analysis,
         reported in their own section beside the ANOVAs; without them the section is left out.

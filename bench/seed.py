@@ -44,13 +44,16 @@ def _exp3_protocol() -> str:
     return default_protocol().source_text.replace('learner = "meta"', 'learner = "exp3"')
 
 
-def seed_study(database: Database, *, name: str, participants: int, seed: int = 1) -> None:
-    """Create study ``name`` with ``participants`` fully completed participants."""
+def seed_study(
+    database: Database, *, name: str, participants: int, seed: int = 1, title: str | None = None
+) -> None:
+    """Create study ``name`` with ``participants`` fully completed participants (``title``: the
+    study's own, else the protocol's)."""
     rng = random.Random(seed)
     loaded = parse_protocol(_exp3_protocol())
     protocol = loaded.protocol
     with database.writing() as db:
-        study = studies.create_study(db, name=name, loaded=loaded, actor=SYSTEM)
+        study = studies.create_study(db, name=name, loaded=loaded, actor=SYSTEM, title=title)
         study_id = study.id
         study_seed = bytes.fromhex(study.allocation_seed)
     with database.writing() as db:

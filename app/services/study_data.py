@@ -157,7 +157,8 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
     """What the report's methods paragraph needs to know about the protocol."""
     with_preferred = [c for c in protocol.categories if c.preferred is not None]
     summary: ProtocolSummary = {
-        "study": protocol.study.title,
+        # The study's own title, not the protocol's: a pilot and the main study share a protocol.
+        "study": study.title,
         "conditions": [{"code": c.id, "label": c.label} for c in protocol.conditions],
         "categories": {c.name: list(c.questions) for c in with_preferred},
         "preferred_arms": {c.name: c.preferred for c in with_preferred},  # type: ignore[misc]
@@ -356,6 +357,7 @@ def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> Study
         summary["population"] = population
     manifest = {
         "study": study.name,
+        "title": study.title,
         "exported_at": utcnow().isoformat(timespec="seconds"),
         "data_sha256": _data_sha256(participants, responses, steps),
         "protocol_sha256": study.protocol_sha256,

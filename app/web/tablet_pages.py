@@ -75,7 +75,7 @@ def _context(request: Request, tablet: Tablet, settings: SettingsDep) -> dict[st
     return {
         "tablet": tablet,
         "form_token": form_token(settings.secret, tablet.credential),
-        "study_title": tablet.protocol.study.title,
+        "study_title": tablet.study.title,
     }
 
 

@@ -9,6 +9,7 @@ import io
 import json
 from pathlib import Path
 
+import pyreadstat
 import pytest
 from sqlalchemy import select
 from typer.testing import CliRunner
@@ -106,6 +107,29 @@ def test_every_download(
     with database.read_session() as db:
         event = db.scalars(select(AuditEvent).where(AuditEvent.action == "export.downloaded")).one()
     assert event.subject == export and event.actor.startswith("admin")
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # no database question here
+def test_exports_and_pages_name_the_study_by_its_own_title(
+    database: Database, user_client: UserClientFactory, tmp_path: Path
+) -> None:
+    """Issue 35 item 4: a pilot and the main study share a protocol (and its title); the report,
+    the exports' metadata and the study's pages name each study by the title the lab gave it."""
+    title = "Pilot 2 — corridor layout"
+    seed_study(database, name="pilot", participants=4, seed=3, title=title)
+    protocol_title = default_protocol().protocol.study.title
+    analyst = user_client(Role.ANALYST)
+    report = analyst.get("/studies/pilot/exports/html").text
+    assert f"<h1>Study report: {title}</h1>" in report
+    assert f"<title>Study report: {title}</title>" in report
+    assert protocol_title not in report
+    assert analyst.get("/studies/pilot/exports/codebook-json").json()["study"] == title
+    assert analyst.get("/studies/pilot/exports/mixed-json").json()["manifest"]["title"] == title
+    sav = tmp_path / "pilot.sav"
+    sav.write_bytes(analyst.get("/studies/pilot/exports/sav").content)
+    assert pyreadstat.read_sav(str(sav), metadataonly=True)[1].file_label == f"{title} (trustlab)"
+    for page in ("/studies/pilot", "/studies/pilot/analysis", "/studies/pilot/analysis/mixed"):
+        assert f"{title} · trustlab</title>" in analyst.get(page).text, page
 
 
 def test_unknown_download_and_roles(seeded: str, user_client: UserClientFactory) -> None:
