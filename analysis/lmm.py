@@ -31,7 +31,8 @@ from analysis._checks import fit_status, json_records, json_value, ordered_level
 from analysis.descriptives import t_interval
 from analysis.design import prepare_mixed_design, refuse_empty_cells
 from analysis.errors import CannotComputeError, InvalidInputError
-from analysis.satterthwaite import RemlDesign, contrast_df, f_test_df
+from analysis.reml import SINGULAR_TOL, RemlDesign, RemlFit
+from analysis.satterthwaite import contrast_df, f_test_df, varpar_covariance
 
 __all__ = [
     "EMM_COLUMNS",
@@ -68,28 +69,27 @@ large samples without moving the likelihood.)"""
 _AGREE = 1e-4
 """Two fits whose REML log-likelihoods differ by less than this agree (a difference that moves
 the likelihood-ratio statistic by 0.0002): with one of them converged, the optimum is found."""
-_SINGULAR_SD = 1e-4
-"""A random-effect SD below this share of the residual SD is reported as zero (boundary fit)."""
 
 
 @dataclass
 class _Inference:
-    """What tests and marginal means need from a fit: β̂, C(θ̂), ∂C/∂θ and cov(θ̂)."""
+    """What tests and marginal means need from a fit: β̂, C = Var(β̂), ∂C/∂varpar and
+    cov(varpar), varpar = (θ, σ) as lmerTest (:mod:`analysis.satterthwaite`)."""
 
     beta: np.ndarray
     cov: np.ndarray
-    gradient: np.ndarray | None
-    theta_cov: np.ndarray | None
+    jacobian: np.ndarray | None
+    varpar_cov: np.ndarray | None
 
     @property
     def satterthwaite(self) -> bool:
-        return self.theta_cov is not None and self.gradient is not None
+        return self.varpar_cov is not None and self.jacobian is not None
 
     def contrast(self, row: np.ndarray) -> tuple[float, float, float]:
         """Estimate, SE and df of ``row · β`` (df = ∞ without Satterthwaite)."""
         variance = float(row @ self.cov @ row)
         df = (
-            contrast_df(row, self.gradient, self.theta_cov, variance)  # type: ignore[arg-type]
+            contrast_df(row, self.jacobian, self.varpar_cov, variance)  # type: ignore[arg-type]
             if self.satterthwaite
             else float("inf")
         )
@@ -98,7 +98,7 @@ class _Inference:
     def f_test(self, matrix: np.ndarray) -> tuple[float, float, float]:
         """F, df1, df2 of ``matrix · β = 0`` (df2 = ∞, a Wald χ²/q, without Satterthwaite)."""
         if self.satterthwaite:
-            return f_test_df(matrix, self.beta, self.cov, self.gradient, self.theta_cov)  # type: ignore[arg-type]
+            return f_test_df(matrix, self.beta, self.cov, self.jacobian, self.varpar_cov)  # type: ignore[arg-type]
         lcl = matrix @ self.cov @ matrix.T
         est = matrix @ self.beta
         q = matrix.shape[0]
@@ -448,25 +448,21 @@ def fit_mixed_model(
             converged=False,
             problem=f"{name} model did not converge ({' | '.join(messages)}); no estimates",
         )
-    cov_re = np.atleast_2d(np.asarray(fitted.cov_re, dtype=float))
-    scale = float(fitted.scale)
     reml = RemlDesign(model.endog, model.exog, model.exog_re, np.asarray(model.groups))
-    theta = reml.theta(cov_re, scale)
-    cov, gradient = reml.covariance_and_gradient(theta)
+    start = reml.theta_of(np.atleast_2d(np.asarray(fitted.cov_re, float)), float(fitted.scale))
+    estimate = reml.estimates(start)
+    cov, jacobian = reml.beta_covariance_jacobian(estimate.varpar)
     notes: list[str] = []
-    theta_cov: np.ndarray | None
+    varpar_cov: np.ndarray | None
     try:
-        theta_cov = reml.theta_covariance(theta)
-        if not np.all(np.isfinite(theta_cov)):
-            raise np.linalg.LinAlgError("non-finite covariance")
+        varpar_cov = varpar_covariance(reml, estimate.varpar)
     except np.linalg.LinAlgError as error:
-        theta_cov = None
+        varpar_cov = None
         notes.append(f"Satterthwaite df unavailable ({error}); tests use the normal approximation")
-    inference = _Inference(
-        beta=np.asarray(fitted.fe_params, float), cov=cov, gradient=gradient, theta_cov=theta_cov
-    )
+    inference = _Inference(beta=estimate.beta, cov=cov, jacobian=jacobian, varpar_cov=varpar_cov)
     re_names = list(model.data.exog_re_names)
-    notes.extend(_boundary_notes(cov_re, scale, re_names))
+    scale = estimate.sigma**2
+    notes.extend(_boundary_notes(estimate, re_names))
     fixed = _fixed_table(inference, names, labels, confidence)
     design_info = model.data.model_spec
     tests = _term_tests(inference, design_info, labels)
@@ -478,14 +474,14 @@ def fit_mixed_model(
         notes=tuple(notes),
         df_method="Satterthwaite" if inference.satterthwaite else "normal approximation",
         optimizer=optimizer,
-        loglik=float(fitted.llf),
-        aic=float(-2 * fitted.llf + 2 * n_params),
+        loglik=estimate.loglik,
+        aic=-2 * estimate.loglik + 2 * n_params,
         n_obs=n_obs,
         n_subjects=n_subjects,
         n_params=n_params,
         fixed=fixed,
         tests=tests,
-        variance=_variance_table(cov_re, scale, re_names, subject),
+        variance=_variance_table(estimate.cov_re, scale, re_names, subject),
         inference=inference,
         design_info=design_info,
     )
@@ -511,19 +507,22 @@ def _empty_fit(
     }
 
 
-def _boundary_notes(cov_re: np.ndarray, scale: float, names: list[str]) -> list[str]:
-    notes = []
-    sds = np.sqrt(np.clip(np.diag(cov_re), 0, None))
-    for sd, re_name in zip(sds, names, strict=True):
-        if sd < _SINGULAR_SD * np.sqrt(scale):
-            notes.append(
-                f"boundary (singular) fit: the {_re_label(re_name)} variance is estimated at zero"
-            )
-    if len(sds) == 2 and sds.min() >= _SINGULAR_SD * np.sqrt(scale):
-        corr = cov_re[0, 1] / (sds[0] * sds[1])
-        if abs(corr) > 0.999:
-            notes.append(f"boundary (singular) fit: the intercept–slope correlation is {corr:+.3f}")
-    return notes
+def _boundary_notes(estimate: RemlFit, names: list[str]) -> list[str]:
+    """Why a singular fit is singular: a variance estimated at zero, else a correlation of ±1
+    (lme4's ``isSingular``: a diagonal element of the relative Cholesky factor below 10⁻⁴)."""
+    if not estimate.singular:
+        return []
+    sds = np.sqrt(np.clip(np.diag(estimate.cov_re), 0, None))
+    zero = sds < SINGULAR_TOL * estimate.sigma
+    notes = [
+        f"boundary (singular) fit: the {_re_label(re_name)} variance is estimated at zero"
+        for re_name, is_zero in zip(names, zero, strict=True)
+        if is_zero
+    ]
+    if not notes and len(sds) == 2:
+        corr = estimate.cov_re[0, 1] / (sds[0] * sds[1])
+        notes.append(f"boundary (singular) fit: the intercept–slope correlation is {corr:+.3f}")
+    return notes or ["boundary (singular) fit: the random-effects covariance is singular"]
 
 
 def _re_label(name: str) -> str:
@@ -580,20 +579,58 @@ def _term_tests(
     inference: _Inference, design_info: Any, labels: Callable[[str], str]
 ) -> pd.DataFrame:
     rows = []
-    for term, columns in design_info.term_name_slices.items():
-        if term == "Intercept":
+    for term in design_info.terms:
+        if not term.factors:  # the intercept
             continue
-        matrix = np.eye(len(inference.beta))[columns]
+        matrix = _term_contrasts(design_info, term, len(inference.beta))
         f, df1, df2 = inference.f_test(matrix)
         p = (
             float(stats.f.sf(f, df1, df2))
             if np.isfinite(df2)
             else float(stats.chi2.sf(f * df1, df1))
         )
+        name = term.name()
         rows.append(
-            {"effect": term, "Source": labels(term), "F": f, "df1": df1, "df2": df2, "p": p}
+            {"effect": name, "Source": labels(name), "F": f, "df1": df1, "df2": df2, "p": p}
         )
     return pd.DataFrame(rows, columns=list(TEST_COLUMNS))
+
+
+def _term_contrasts(design_info: Any, term: Any, n_columns: int) -> np.ndarray:
+    """The type III hypothesis of one term, written in lmerTest's basis.
+
+    F is the same in any basis of the hypothesis, but the Satterthwaite df of a multi-df test
+    (Fai & Cornelius' combination of one df per rotated contrast) is not. lmerTest's
+    ``anova(type = 3)`` tests a factor coded with sum-to-zero contrasts as the differences of
+    each level from the first (``level j − level 1`` of the marginal means), and an interaction
+    as the products of those differences; this builds the same rows from patsy's contrast
+    matrices (patsy varies the first factor of an interaction fastest, hence the reversed
+    Kronecker product). Other codings keep the term's own columns.
+    """
+    columns = design_info.term_slices[term]
+    identity = np.eye(n_columns)[columns]
+    codings = design_info.term_codings[term]
+    if len(codings) != 1:
+        return identity
+    subterm = codings[0]
+    blocks: list[np.ndarray] = []
+    for factor in subterm.factors:
+        contrast = subterm.contrast_matrices.get(factor)
+        if contrast is None:  # a numeric factor: its own columns
+            blocks.append(np.eye(design_info.factor_infos[factor].num_columns))
+            continue
+        matrix = np.asarray(contrast.matrix, float)
+        if not np.allclose(matrix.sum(axis=0), 0):  # not a sum-to-zero coding
+            return identity
+        blocks.append(matrix[1:] - matrix[0])
+    rows: np.ndarray = blocks[-1]
+    for block in reversed(blocks[:-1]):
+        rows = np.kron(rows, block)
+    if rows.shape[1] != columns.stop - columns.start:
+        return identity
+    full = np.zeros((rows.shape[0], n_columns))
+    full[:, columns] = rows
+    return full
 
 
 def _variance_table(

@@ -176,3 +176,67 @@ def test_text_levels_keep_their_numbers_in_order() -> None:
     result = linear_mixed_models(data, **KW)
     assert result.within_levels == ("S1", "S2", "S10")  # not S1, S10, S2
     assert list(result.intercept.emmeans["time"][:3]) == ["S1", "S2", "S10"]
+
+
+# --- boundary (singular) fits against lmerTest --------------------------------------------------
+# R 4.2.2, lme4 1.1.31, lmerTest 3.1.3: tests/analysis/data/lmm_boundary.R fits each CSV with
+# lmer(trust ~ condition * session_f + (1 | participant)) and (1 + step | participant), REML,
+# contr.sum, and prints isSingular, logLik, VarCorr and anova(m, type = 3) (Satterthwaite).
+# sd: participant SDs then the residual SD; corr: the intercept–slope correlation.
+LMERTEST = {
+    ("lmm_boundary_intercept", "random intercept"): {
+        # the participant variance is estimated at zero: the model is OLS, df = 48 − 8 = 40
+        "singular": True,
+        "loglik": -38.33533776,
+        "sd": [0.0, 0.4591581971],
+        "F": [23.223003540, 2.146247996, 1.607178502],
+        "df2": [40.0, 40.0, 40.0],
+        "p": [2.103940894e-05, 1.095311676e-01, 2.028439823e-01],
+        "coef_df": [40.0] * 8,  # summary(m): every coefficient's t test
+    },
+    ("lmm_boundary_slope", "random intercept"): {
+        "singular": False,
+        "loglik": -56.9466944,
+        "sd": [0.6282040119, 0.5905006110],
+        "F": [0.2867046221, 1.5576093155, 1.5287394350],
+        "df2": [9.999999923, 30.000000034, 30.000000034],
+        "p": [0.6040431973, 0.2201565562, 0.2272935747],
+    },
+    ("lmm_flat_intercept", "random slope"): {
+        # not on the boundary, but the session df depend on lmerTest's basis of the hypothesis
+        "singular": False,
+        "loglik": -43.58127133,
+        "sd": [0.2242877781, 0.1034439553, 0.4999793401],
+        "corr": -0.8929865261,
+        "F": [8.372903498, 0.539108081, 4.587569458],
+        "df2": [10.00001494, 22.31090032, 22.31090032],
+        "p": [0.01600819865, 0.66040147435, 0.01201951801],
+    },
+}
+STUDY = {"dv": "trust", "within": "session", "between": "condition", "subject": "participant"}
+
+
+@pytest.fixture(scope="module")
+def boundary_fits() -> dict[str, lmm.LinearMixedModels]:
+    cases = {case for case, _ in LMERTEST}
+    return {case: linear_mixed_models(pd.read_csv(DATA / f"{case}.csv"), **STUDY) for case in cases}
+
+
+@pytest.mark.parametrize(("case", "model"), list(LMERTEST))
+def test_boundary_fits_match_lmertest(
+    boundary_fits: dict[str, lmm.LinearMixedModels], case: str, model: str
+) -> None:
+    expected = LMERTEST[(case, model)]
+    result = boundary_fits[case]
+    fit = result.intercept if model == "random intercept" else result.slope
+    assert fit is not None and fit.converged
+    assert fit.loglik == pytest.approx(expected["loglik"], abs=1e-5)
+    assert fit.variance["sd"].to_numpy() == pytest.approx(expected["sd"], abs=1e-4)
+    if "corr" in expected:
+        assert fit.variance["corr"].iloc[1] == pytest.approx(expected["corr"], abs=1e-4)
+    assert fit.tests["F"].to_numpy() == pytest.approx(expected["F"], rel=1e-4)
+    assert fit.tests["df2"].to_numpy() == pytest.approx(expected["df2"], abs=0.01)
+    assert fit.tests["p"].to_numpy() == pytest.approx(expected["p"], abs=1e-4)
+    assert ("boundary (singular) fit" in fit.status) == expected["singular"]
+    if "coef_df" in expected:
+        assert fit.fixed["df"].to_numpy() == pytest.approx(expected["coef_df"], abs=0.01)
