@@ -238,7 +238,6 @@ def test_a_reload_mid_run_finishes_it_without_duplicates(
     )
     drive.walk(page, drive.TO_COGNITION_FROM_AFFECTION)
     drive.answer_by_rules(page, "cognition", drive.wait_question(page, "cognition"))
-    drive.walk_out(page)
     expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
 
     steps = _steps(database, lab.code)
@@ -278,6 +277,54 @@ def test_a_dropped_network_shows_a_banner_and_resumes(
     drive.walk(page, drive.TO_AFFECTION_FROM_CONATION)  # and the room goes on
     drive.answer_by_rules(page, "affection", drive.wait_question(page, "affection"))
     assert len(_answers_for(database, lab.code, "affection")) == 1
+
+
+def _walkable(page: Page) -> bool:
+    """Whether holding the forward key for a few drawn frames moves the participant."""
+    before = drive.pose(page)
+    frames = page.evaluate("() => window.trustlabRoom.frames")
+    page.keyboard.down("ArrowUp")
+    page.wait_for_function("(n) => window.trustlabRoom.frames > n + 10", arg=frames)
+    page.keyboard.up("ArrowUp")
+    return drive.pose(page) != before
+
+
+def _wizard_run(page: Page, lab: drive.RoomLab, categories: list[str]) -> list[str]:
+    """Each category prompted and answered yes from the console while the room shows it; the
+    replies, in order."""
+    replies = []
+    for category in categories:
+        step = lab.wizard_prompt(category)
+        drive.wait_question(page, category)
+        replies.append(lab.wizard_answer(step))
+    return replies
+
+
+CATEGORIES = [category for category, _ in drive.PAPER_ORDER]
+
+
+@pytest.mark.e2e
+def test_a_session_finished_from_the_console_shows_what_comes_next_also_after_a_reload(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+    artifacts: Path,
+) -> None:
+    page = context_of(viewport=DESKTOP).new_page()
+    drive.open_room(page, lab)
+    lab.start_session()  # the practice run, every answer given by Wizard-of-Oz
+    expect(page.locator("#run-label")).to_have_text("Practice run (not counted)")
+    _wizard_run(page, lab, CATEGORIES)
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+    expect(page.locator("#run-label")).to_have_text("Escape room")
+    expect(page.locator("#captions")).not_to_have_attribute("data-kind", "question")
+    assert not _walkable(page)
+    page.screenshot(path=str(artifacts / "01-finished-by-wizard.png"))
+
+    page.reload()  # between sessions: the same, from the server's state alone
+    drive.wait_ready(page)
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+    assert not _walkable(page)
 
 
 FAKE_SPEECH = """
