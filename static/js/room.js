@@ -47,6 +47,8 @@ const room = {
   state: null, // the station's state as the server last said it
   pose: null,
   question: null, // the open prompt shown to the participant
+  shown: null, // the step id of the last question shown here (its reply may come from elsewhere)
+  answeredHere: new Set(), // step ids answered from this tab (their replies come as results)
   promptInFlight: null, // the category whose prompt was requested and not yet answered
   refused: new Map(), // category → when the server last refused its prompt
   answering: false,
@@ -122,7 +124,7 @@ function applyState(state) {
   if (!room.question && open.length > 0 && !room.promptInFlight) {
     showQuestion(open[0], { speak: true });
   } else if (room.question && !room.answering && !open.some((p) => p.step_id === room.question.step_id)) {
-    // Answered elsewhere, or its run ended.
+    // Answered elsewhere (its reply comes with the answer_recorded push), or its run ended.
     closeQuestion();
     if (el("captions").dataset.kind === "question") hideCaption();
   }
@@ -135,6 +137,17 @@ function applyState(state) {
 function newParticipant() {
   hideCaption();
   room.presence = { ...room.presence, said: null };
+  room.shown = null;
+}
+
+/** The reply to the shown question when someone else answered it (Wizard-of-Oz on the console):
+ * the participant hears it as if the room had sent the answer. Pushed after the state that
+ * closed the question (docs/robot-integration.md: run_ended, session_ended, answer_recorded). */
+function answeredElsewhere(data) {
+  const step = data && data.step_id;
+  if (!step || step !== room.shown || room.answeredHere.has(step) || !data.reply) return;
+  room.shown = null;
+  say("reply", data.reply, { speak: true, hint: needsExit() ? TO_THE_EXIT : "" });
 }
 
 /** Between two runs the participant walks out through the exit; the caption says so whenever
@@ -245,6 +258,7 @@ function maybePrompt(zone) {
 
 function showQuestion(prompt, { speak, zone } = {}) {
   room.question = prompt;
+  room.shown = prompt.step_id;
   say("question", prompt.question, { speak: false });
   if (zone) {
     requestAnimationFrame(() => {
@@ -299,6 +313,7 @@ function randomKey() {
 function answer(value, modality, heard) {
   if (!room.question || room.answering) return;
   room.answering = true;
+  room.answeredHere.add(room.question.step_id);
   room.listener.stop();
   room.voice.stop();
   const pending = {
@@ -345,6 +360,7 @@ function resumeStoredAnswer() {
   const stored = JSON.parse(localStorage.getItem(stores.answer) || "null");
   if (!stored) return;
   room.answering = true;
+  room.answeredHere.add(stored.step_id);
   if (!room.question) room.question = { step_id: stored.step_id, question: "" };
   sendAnswer(stored);
 }
@@ -575,7 +591,10 @@ function connect() {
       }
       applyState(message.state);
     },
-    event: (message) => applyState(message.state),
+    event: (message) => {
+      applyState(message.state);
+      if (message.event === "answer_recorded") answeredElsewhere(message.data);
+    },
   });
   room.socket.connect();
 }

@@ -327,6 +327,37 @@ def test_a_session_finished_from_the_console_shows_what_comes_next_also_after_a_
     assert not _walkable(page)
 
 
+@pytest.mark.e2e
+def test_a_wizard_of_oz_answer_shows_the_reply_and_the_way_out_in_the_room(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+    artifacts: Path,
+) -> None:
+    page = context_of(viewport=DESKTOP).new_page()
+    drive.open_room(page, lab)
+    lab.start_session()
+    step = lab.wizard_prompt("conation")
+    drive.wait_question(page, "conation")
+    reply = lab.wizard_answer(step)  # answered on the console while the room shows the question
+    expect(page.locator("#captions")).to_have_attribute("data-kind", "reply")
+    expect(page.locator("#caption-text")).to_have_text(reply)
+    expect(page.locator("#answer")).to_be_hidden()
+    _wizard_run(page, lab, CATEGORIES[1:])
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+
+    lab.start_session()  # run 1 of 3: its last answer sends the participant to the exit
+    expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 3")
+    *_, last = _wizard_run(page, lab, CATEGORIES)
+    walk_out = "Now walk to the exit: the solid circle."
+    expect(page.locator("#caption-text")).to_have_text(f"{last} {walk_out}")
+    page.screenshot(path=str(artifacts / "01-reply-from-the-console.png"))
+    page.reload()  # between runs: the way out is still shown
+    drive.wait_ready(page)
+    expect(page.locator("#caption-text")).to_have_text(walk_out)
+    expect(page.locator("#notice")).to_be_hidden()
+
+
 FAKE_SPEECH = """
 window.__heard = [];
 class FakeRecognition {
