@@ -133,10 +133,10 @@ function applyState(state) {
 }
 
 /** Another participant is seated (or nobody is): nothing of the last one's stays on screen or
- * goes to the console as theirs. */
+ * goes to the console as theirs, and the console hears at once where this one stands. */
 function newParticipant() {
   hideCaption();
-  room.presence = { ...room.presence, said: null };
+  room.presence = { ...room.presence, at: 0, x: NaN, said: null };
   room.shown = null;
 }
 

@@ -77,6 +77,10 @@ class RoomLab:
         started = self.experimenter.post(f"/api/v1/stations/{self.station}/sessions")
         assert started.status_code == 201, started.text
 
+    def end_session(self) -> None:
+        ended = self.experimenter.post(f"/api/v1/stations/{self.station}/sessions/current/end")
+        assert ended.status_code == 200, ended.text
+
     def wizard_prompt(self, category: str) -> int:
         """Trigger ``category`` from the console (Wizard-of-Oz); the step's id."""
         prompted = self.experimenter.post(
@@ -95,6 +99,16 @@ class RoomLab:
         assert answered.status_code == 200, answered.text
         reply: str = answered.json()["reply"]
         return reply
+
+    def seat(self, database: Database, study: str, code: str) -> None:
+        """Enrol ``code`` in ``study`` and seat them here in the previous participant's place."""
+        with database.writing() as db:
+            enrolment.enroll_participant(db, study_name=study, actor=SYSTEM, code=code)
+        seated = self.experimenter.put(
+            f"/api/v1/stations/{self.station}/participant", json={"study": study, "code": code}
+        )
+        assert seated.status_code == 200, seated.text
+        self.code = code
 
     def revoke_keys(self) -> None:
         listed = self.experimenter.get("/api/v1/stations").json()

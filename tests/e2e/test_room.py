@@ -279,6 +279,19 @@ def test_a_dropped_network_shows_a_banner_and_resumes(
     assert len(_answers_for(database, lab.code, "affection")) == 1
 
 
+def _console(
+    room_server: RoomServer, lab: drive.RoomLab, context_of: Callable[..., BrowserContext]
+) -> Page:
+    """The station's operator console, signed in as the lab's admin."""
+    console = context_of(viewport=DESKTOP).new_page()
+    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
+    console.get_by_label("Username").fill(lab.admin)
+    console.get_by_label("Password").fill(PASSWORD)
+    console.get_by_role("button", name="Sign in").click()
+    expect(console.locator("#room-panel")).to_be_visible()
+    return console
+
+
 def _walkable(page: Page) -> bool:
     """Whether holding the forward key for a few drawn frames moves the participant."""
     before = drive.pose(page)
@@ -358,6 +371,28 @@ def test_a_wizard_of_oz_answer_shows_the_reply_and_the_way_out_in_the_room(
     expect(page.locator("#notice")).to_be_hidden()
 
 
+@pytest.mark.e2e
+def test_the_console_shows_no_line_of_the_previous_participant(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+    artifacts: Path,
+) -> None:
+    console = _console(room_server, lab, context_of)
+    page = context_of(viewport=DESKTOP).new_page()
+    drive.open_room(page, lab)
+    lab.start_session()
+    lab.wizard_prompt("conation")
+    question = drive.wait_question(page, "conation")
+    expect(console.locator("#room-panel .utterance")).to_contain_text(question)
+    lab.end_session()
+
+    lab.seat(room_server.database, STUDY, lab.code.replace("R", "S"))  # the next participant
+    expect(console.locator("#room-panel .room-facts")).to_be_visible()  # where they stand
+    expect(console.locator("#room-panel .utterance")).to_have_text("nothing said yet")
+    console.screenshot(path=str(artifacts / "01-console-next-participant.png"), full_page=True)
+
+
 FAKE_SPEECH = """
 window.__heard = [];
 class FakeRecognition {
@@ -385,11 +420,7 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     artifacts: Path,
 ) -> None:
     database = room_server.database
-    console = context_of(viewport=DESKTOP).new_page()
-    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
-    console.get_by_label("Username").fill(lab.admin)
-    console.get_by_label("Password").fill(PASSWORD)
-    console.get_by_role("button", name="Sign in").click()
+    console = _console(room_server, lab, context_of)
     expect(console.locator("#room-panel")).to_contain_text("No room client has reported yet")
 
     context = context_of(viewport=DESKTOP)
