@@ -718,6 +718,7 @@ def record_answer(
                 category=step.category,
                 answer=answer,
                 confidence=reply.name,
+                reply=reply.text,  # a room client says it when Wizard-of-Oz answered
             )
             _audit(
                 ctx,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import uuid
 from collections import defaultdict
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from fastapi import Form, Request
@@ -37,6 +38,7 @@ from app.tables import (
     LearnerState,
     Participant,
     ParticipantStatus,
+    RoomPresence,
     Station,
     Study,
     User,
@@ -309,15 +311,31 @@ def room_panel_context(db: SessionDep, station: Station) -> dict[str, Any]:
     earlier = presence is not None and (seated_at is None or presence.updated_at < seated_at)
     if earlier:
         presence = None
+    said = _said_since(presence, seated_at)
     sealed = study is not None and blinding.is_sealed(study)
     return {
         "station": station,
         "room": studies.protocol_of(study).room_layout() if study is not None else None,
         "presence": presence,
+        "said": said,
         "earlier": earlier,
-        "reply_hidden": sealed and presence is not None and presence.utterance_kind == "reply",
+        "reply_hidden": sealed and said is not None and said.kind == "reply",
         "age": (utcnow() - presence.updated_at).total_seconds() if presence is not None else None,
     }
+
+
+def _said_since(
+    presence: RoomPresence | None, seated_at: datetime | None
+) -> room_presence.Said | None:
+    """The last line said in the room, if it was said since the seated participant sat down.
+
+    The presence row keeps its last line until a new one is said, so a position reported after
+    the next participant is seated would otherwise carry the previous participant's words."""
+    if presence is None or presence.utterance is None or presence.utterance_kind is None:
+        return None
+    if seated_at is None or presence.utterance_at is None or presence.utterance_at < seated_at:
+        return None
+    return room_presence.Said(presence.utterance_kind, presence.utterance)
 
 
 @router.get("/stations/{name}/room-panel")

@@ -34,6 +34,7 @@ const PRESENCE_KEEPALIVE_MS = 10000; // and at least one every ten seconds
 const DRAG_DEGREES = 0.25; // a mouse drag turns the participant this much per pixel
 const RETRY_REFUSED_MS = 3000; // a refused prompt is not asked again sooner (standing in its zone)
 const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no.";
+const TO_THE_EXIT = "Now walk to the exit: the solid circle.";
 const el = (id) => document.getElementById(id);
 const options = new URLSearchParams(location.search);
 
@@ -46,6 +47,8 @@ const room = {
   state: null, // the station's state as the server last said it
   pose: null,
   question: null, // the open prompt shown to the participant
+  shown: null, // the step id of the last question shown here (its reply may come from elsewhere)
+  answeredHere: new Set(), // step ids answered from this tab (their replies come as results)
   promptInFlight: null, // the category whose prompt was requested and not yet answered
   refused: new Map(), // category → when the server last refused its prompt
   answering: false,
@@ -72,28 +75,39 @@ function runKey(state = room.state) {
   return `${state.participant}/${state.session.number}/${state.run.number}`;
 }
 
+function sessionKey(state) {
+  if (!state || !state.participant) return "";
+  return `${state.participant}/${state.session ? state.session.number : ""}`;
+}
+
 function sessionRunning() {
   return Boolean(room.state && room.state.session && room.state.session.status === "running");
 }
 
-/** The run is answered in full but the participant has not walked out through the exit yet. */
+/** The run is answered in full, another run of the session comes next, and the participant has
+ * not walked out through the exit yet. After a session's last run there is no walk out: the
+ * server expects the tablet (or the next session), and the room says so at once. */
 function needsExit() {
   const state = room.state;
   return Boolean(
-    state && state.run && state.run.status === "completed" &&
+    sessionRunning() && state.run && state.run.status === "completed" &&
       sessionStorage.getItem(stores.exited) !== runKey(),
   );
 }
 
 function canWalk() {
-  return Boolean(room.layout) && (sessionRunning() || needsExit());
+  return Boolean(room.layout) && sessionRunning();
 }
 
+/** Make the room what the server's state says, whatever led here: the room's own request, a
+ * push about something done elsewhere (Wizard-of-Oz, the console), a reload or a reconnection. */
 function applyState(state) {
   const before = room.state;
   room.state = state;
   if (state.study && room.study && state.study !== room.study) closeRoom(); // another study's room
   if (!room.scene && state.study && !room.loading) loadRoom(); // e.g. a seating we did not hear of
+  if ((before && before.participant) !== state.participant) newParticipant();
+  else if (sessionKey(before) !== sessionKey(state)) hideCaption(); // the last session's words
   if (runKey(before) !== runKey(state)) {
     room.refused.clear();
     restorePose();
@@ -102,13 +116,45 @@ function applyState(state) {
     sessionStorage.setItem(stores.exited, runKey()); // the experimenter ended it: back to the start
     room.pose = room.layout ? startPose(room.layout) : null;
   }
+  if (!sessionRunning() && room.layout) {
+    room.pose = startPose(room.layout); // out of the room until the next session starts
+    room.held.clear();
+  }
   const open = state.open_prompts || [];
   if (!room.question && open.length > 0 && !room.promptInFlight) {
     showQuestion(open[0], { speak: true });
   } else if (room.question && !room.answering && !open.some((p) => p.step_id === room.question.step_id)) {
-    closeQuestion(); // its run ended before it was answered
+    // Answered elsewhere (its reply comes with the answer_recorded push), or its run ended.
+    closeQuestion();
+    if (el("captions").dataset.kind === "question") hideCaption();
   }
+  if (needsExit() && !room.answering) guideToExit();
   render();
+}
+
+/** Another participant is seated (or nobody is): nothing of the last one's stays on screen or
+ * goes to the console as theirs, and the console hears at once where this one stands. */
+function newParticipant() {
+  hideCaption();
+  room.presence = { ...room.presence, at: 0, x: NaN, said: null };
+  room.shown = null;
+}
+
+/** The reply to the shown question when someone else answered it (Wizard-of-Oz on the console):
+ * the participant hears it as if the room had sent the answer. Pushed after the state that
+ * closed the question (docs/robot-integration.md: run_ended, session_ended, answer_recorded). */
+function answeredElsewhere(data) {
+  const step = data && data.step_id;
+  if (!step || step !== room.shown || room.answeredHere.has(step) || !data.reply) return;
+  room.shown = null;
+  say("reply", data.reply, { speak: true, hint: needsExit() ? TO_THE_EXIT : "" });
+}
+
+/** Between two runs the participant walks out through the exit; the caption says so whenever
+ * it does not already (after a reply elsewhere, a reload or a reconnection too). */
+function guideToExit() {
+  if (!el("captions").hidden && el("caption-text").textContent.includes(TO_THE_EXIT)) return;
+  say("robot", TO_THE_EXIT, { speak: false });
 }
 
 async function refreshState() {
@@ -174,10 +220,9 @@ function afterMove() {
 function reachExit() {
   if (needsExit()) {
     sessionStorage.setItem(stores.exited, runKey());
-    const finished = room.state.session.status !== "running";
     room.pose = startPose(room.layout);
     room.held.clear(); // a key still held from the walk out does not walk them off again
-    say("robot", finished ? "Well done, that was the last run of this session." : "Well done! Back to the start for the next run.", { speak: true });
+    say("robot", "Well done! Back to the start for the next run.", { speak: true });
     render();
   } else if (sessionRunning() && !room.exitHint && room.state.run && room.state.run.status === "running") {
     room.exitHint = true;
@@ -187,6 +232,7 @@ function reachExit() {
 
 function maybePrompt(zone) {
   const state = room.state;
+  if (needsExit()) guideToExit(); // a zone asks nothing before the walk out: say where to go
   if (!state || !room.socket || room.question || room.promptInFlight || needsExit()) return;
   const expected = state.expected;
   if (expected.action !== "prompt" || !expected.categories.includes(zone.category)) return;
@@ -212,6 +258,7 @@ function maybePrompt(zone) {
 
 function showQuestion(prompt, { speak, zone } = {}) {
   room.question = prompt;
+  room.shown = prompt.step_id;
   say("question", prompt.question, { speak: false });
   if (zone) {
     requestAnimationFrame(() => {
@@ -266,6 +313,7 @@ function randomKey() {
 function answer(value, modality, heard) {
   if (!room.question || room.answering) return;
   room.answering = true;
+  room.answeredHere.add(room.question.step_id);
   room.listener.stop();
   room.voice.stop();
   const pending = {
@@ -290,7 +338,7 @@ function sendAnswer(pending) {
     .then((reply) => {
       localStorage.removeItem(stores.answer);
       closeQuestion();
-      const hint = reply.run_completed ? "Now walk to the exit: the solid circle." : "";
+      const hint = reply.run_completed && !reply.session_completed ? TO_THE_EXIT : "";
       say("reply", reply.reply, { speak: true, hint });
       refreshState();
     })
@@ -312,6 +360,7 @@ function resumeStoredAnswer() {
   const stored = JSON.parse(localStorage.getItem(stores.answer) || "null");
   if (!stored) return;
   room.answering = true;
+  room.answeredHere.add(stored.step_id);
   if (!room.question) room.question = { step_id: stored.step_id, question: "" };
   sendAnswer(stored);
 }
@@ -326,6 +375,11 @@ function say(kind, text, { speak, hint } = {}) {
   el("captions").dataset.kind = kind;
   room.presence.said = { kind, text: text.slice(0, 300) };
   if (speak) room.voice.say(text);
+}
+
+function hideCaption() {
+  el("captions").hidden = true;
+  delete el("captions").dataset.kind;
 }
 
 function reportPresence(zone) {
@@ -363,7 +417,7 @@ const WAITING = {
 function render() {
   const state = room.state;
   const label = el("run-label");
-  if (state && state.session && (sessionRunning() || needsExit())) {
+  if (state && state.session && sessionRunning()) {
     const s = state.session;
     const run = state.run ? ` · run ${state.run.number} of ${s.runs}` : "";
     label.textContent = s.familiarisation ? "Practice run (not counted)" : `Session ${s.number}${run}`;
@@ -537,7 +591,10 @@ function connect() {
       }
       applyState(message.state);
     },
-    event: (message) => applyState(message.state),
+    event: (message) => {
+      applyState(message.state);
+      if (message.event === "answer_recorded") answeredElsewhere(message.data);
+    },
   });
   room.socket.connect();
 }

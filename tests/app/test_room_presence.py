@@ -144,3 +144,5 @@ def test_the_panel_shows_only_the_seated_participants_reports(lab: Lab) -> None:
     assert lab.robot.put("/api/v1/station/presence", json=HERE).status_code == 204
     panel = lab.experimenter.get(f"/stations/{lab.station}/room-panel").text
     assert "facing 10°" in panel
+    # P002's place, but not P001's last words: the row keeps a line until a new one is said.
+    assert "“yes”" not in panel and "nothing said yet" in panel

@@ -8,6 +8,7 @@ fast or slow the machine draws frames; it never relies on a key held for an exac
 from __future__ import annotations
 
 import math
+import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -75,6 +76,39 @@ class RoomLab:
     def start_session(self) -> None:
         started = self.experimenter.post(f"/api/v1/stations/{self.station}/sessions")
         assert started.status_code == 201, started.text
+
+    def end_session(self) -> None:
+        ended = self.experimenter.post(f"/api/v1/stations/{self.station}/sessions/current/end")
+        assert ended.status_code == 200, ended.text
+
+    def wizard_prompt(self, category: str) -> int:
+        """Trigger ``category`` from the console (Wizard-of-Oz); the step's id."""
+        prompted = self.experimenter.post(
+            f"/api/v1/stations/{self.station}/prompts", json={"category": category}
+        )
+        assert prompted.status_code == 201, prompted.text
+        step_id: int = prompted.json()["step_id"]
+        return step_id
+
+    def wizard_answer(self, step_id: int, answer: str = "yes") -> str:
+        """Record the participant's answer from the console (Wizard-of-Oz); the robot's reply."""
+        answered = self.experimenter.post(
+            f"/api/v1/stations/{self.station}/steps/{step_id}/answer",
+            json={"answer": answer, "idempotency_key": uuid.uuid4().hex},
+        )
+        assert answered.status_code == 200, answered.text
+        reply: str = answered.json()["reply"]
+        return reply
+
+    def seat(self, database: Database, study: str, code: str) -> None:
+        """Enrol ``code`` in ``study`` and seat them here in the previous participant's place."""
+        with database.writing() as db:
+            enrolment.enroll_participant(db, study_name=study, actor=SYSTEM, code=code)
+        seated = self.experimenter.put(
+            f"/api/v1/stations/{self.station}/participant", json={"study": study, "code": code}
+        )
+        assert seated.status_code == 200, seated.text
+        self.code = code
 
     def revoke_keys(self) -> None:
         listed = self.experimenter.get("/api/v1/stations").json()
@@ -210,16 +244,25 @@ def answer_by_rules(page: Page, category: str, question: str, *, how: str = "key
     return said
 
 
+def session_running(page: Page) -> bool:
+    """Whether the room's state has a running session, once it knows the run is over."""
+    page.wait_for_function("() => window.trustlabRoom.state.run.status === 'completed'")
+    running: bool = page.evaluate("() => window.trustlabRoom.state.session.status === 'running'")
+    return running
+
+
 def run_through(
     page: Page, order: list[tuple[str, list[tuple[float, float]]]], *, how: str = "key"
 ) -> list[str]:
     """One run: each category's zone in ``order``, answered by the rules, then out at the exit
-    (which takes the participant back to the start). Returns the categories in the order asked."""
+    (which takes the participant back to the start) when another run of the session follows.
+    Returns the categories in the order asked."""
     asked = []
     for category, waypoints in order:
         walk(page, waypoints)
         question = wait_question(page, category)
         answer_by_rules(page, category, question, how=how)
         asked.append(category)
-    walk_out(page)
+    if session_running(page):
+        walk_out(page)
     return asked

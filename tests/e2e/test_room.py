@@ -238,7 +238,6 @@ def test_a_reload_mid_run_finishes_it_without_duplicates(
     )
     drive.walk(page, drive.TO_COGNITION_FROM_AFFECTION)
     drive.answer_by_rules(page, "cognition", drive.wait_question(page, "cognition"))
-    drive.walk_out(page)
     expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
 
     steps = _steps(database, lab.code)
@@ -280,6 +279,120 @@ def test_a_dropped_network_shows_a_banner_and_resumes(
     assert len(_answers_for(database, lab.code, "affection")) == 1
 
 
+def _console(
+    room_server: RoomServer, lab: drive.RoomLab, context_of: Callable[..., BrowserContext]
+) -> Page:
+    """The station's operator console, signed in as the lab's admin."""
+    console = context_of(viewport=DESKTOP).new_page()
+    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
+    console.get_by_label("Username").fill(lab.admin)
+    console.get_by_label("Password").fill(PASSWORD)
+    console.get_by_role("button", name="Sign in").click()
+    expect(console.locator("#room-panel")).to_be_visible()
+    return console
+
+
+def _walkable(page: Page) -> bool:
+    """Whether holding the forward key for a few drawn frames moves the participant."""
+    before = drive.pose(page)
+    frames = page.evaluate("() => window.trustlabRoom.frames")
+    page.keyboard.down("ArrowUp")
+    page.wait_for_function("(n) => window.trustlabRoom.frames > n + 10", arg=frames)
+    page.keyboard.up("ArrowUp")
+    return drive.pose(page) != before
+
+
+def _wizard_run(page: Page, lab: drive.RoomLab, categories: list[str]) -> list[str]:
+    """Each category prompted and answered yes from the console while the room shows it; the
+    replies, in order."""
+    replies = []
+    for category in categories:
+        step = lab.wizard_prompt(category)
+        drive.wait_question(page, category)
+        replies.append(lab.wizard_answer(step))
+    return replies
+
+
+CATEGORIES = [category for category, _ in drive.PAPER_ORDER]
+
+
+@pytest.mark.e2e
+def test_a_session_finished_from_the_console_shows_what_comes_next_also_after_a_reload(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+    artifacts: Path,
+) -> None:
+    page = context_of(viewport=DESKTOP).new_page()
+    drive.open_room(page, lab)
+    lab.start_session()  # the practice run, every answer given by Wizard-of-Oz
+    expect(page.locator("#run-label")).to_have_text("Practice run (not counted)")
+    _wizard_run(page, lab, CATEGORIES)
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+    expect(page.locator("#run-label")).to_have_text("Escape room")
+    expect(page.locator("#captions")).not_to_have_attribute("data-kind", "question")
+    assert not _walkable(page)
+    page.screenshot(path=str(artifacts / "01-finished-by-wizard.png"))
+
+    page.reload()  # between sessions: the same, from the server's state alone
+    drive.wait_ready(page)
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+    assert not _walkable(page)
+
+
+@pytest.mark.e2e
+def test_a_wizard_of_oz_answer_shows_the_reply_and_the_way_out_in_the_room(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+    artifacts: Path,
+) -> None:
+    page = context_of(viewport=DESKTOP).new_page()
+    drive.open_room(page, lab)
+    lab.start_session()
+    step = lab.wizard_prompt("conation")
+    drive.wait_question(page, "conation")
+    reply = lab.wizard_answer(step)  # answered on the console while the room shows the question
+    expect(page.locator("#captions")).to_have_attribute("data-kind", "reply")
+    expect(page.locator("#caption-text")).to_have_text(reply)
+    expect(page.locator("#answer")).to_be_hidden()
+    _wizard_run(page, lab, CATEGORIES[1:])
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
+
+    lab.start_session()  # run 1 of 3: its last answer sends the participant to the exit
+    expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 3")
+    *_, last = _wizard_run(page, lab, CATEGORIES)
+    walk_out = "Now walk to the exit: the solid circle."
+    expect(page.locator("#caption-text")).to_have_text(f"{last} {walk_out}")
+    page.screenshot(path=str(artifacts / "01-reply-from-the-console.png"))
+    page.reload()  # between runs: the way out is still shown
+    drive.wait_ready(page)
+    expect(page.locator("#caption-text")).to_have_text(walk_out)
+    expect(page.locator("#notice")).to_be_hidden()
+
+
+@pytest.mark.e2e
+def test_the_console_shows_no_line_of_the_previous_participant(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+    artifacts: Path,
+) -> None:
+    console = _console(room_server, lab, context_of)
+    page = context_of(viewport=DESKTOP).new_page()
+    drive.open_room(page, lab)
+    lab.start_session()
+    lab.wizard_prompt("conation")
+    question = drive.wait_question(page, "conation")
+    expect(console.locator("#room-panel .utterance")).to_contain_text(question)
+    lab.end_session()
+
+    lab.seat(room_server.database, STUDY, lab.code.replace("R", "S"))  # the next participant
+    expect(console.locator("#room-panel .room-facts")).to_be_visible()  # where they stand
+    expect(console.locator("#room-panel .utterance")).to_have_text("nothing said yet")
+    console.screenshot(path=str(artifacts / "01-console-next-participant.png"), full_page=True)
+
+
 FAKE_SPEECH = """
 window.__heard = [];
 class FakeRecognition {
@@ -307,11 +420,7 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     artifacts: Path,
 ) -> None:
     database = room_server.database
-    console = context_of(viewport=DESKTOP).new_page()
-    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
-    console.get_by_label("Username").fill(lab.admin)
-    console.get_by_label("Password").fill(PASSWORD)
-    console.get_by_role("button", name="Sign in").click()
+    console = _console(room_server, lab, context_of)
     expect(console.locator("#room-panel")).to_contain_text("No room client has reported yet")
 
     context = context_of(viewport=DESKTOP)
