@@ -6,10 +6,12 @@ headers. uvicorn runs it with ``--factory`` (see ``trustlab serve``); tests buil
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, FastAPI
+from sqlalchemy.exc import DBAPIError
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from app import collector
@@ -20,6 +22,7 @@ from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
 from app.events import PostgresListener
 from app.http import BodyLimit, SecurityHeaders, install_error_handlers
+from app.services import login_throttle
 from app.services.freshness import FreshnessCache
 from app.settings import Settings
 from app.web import (
@@ -55,6 +58,22 @@ many dashboards watch it (app/services/freshness.py). A dashboard still redraws 
 second of an answer (issue 6): 100 ms event coalescing + 300 ms refetch delay + at most this wait
 and two computations."""
 
+log = logging.getLogger(__name__)
+
+
+def _abandon_unfinished_sign_ins(database: Database) -> None:
+    """A start: the password checks the last server began will never finish, so they must
+    neither count nor be waited for (app.services.login_throttle)."""
+    try:
+        with database.writing() as db:
+            abandoned = login_throttle.abandon_unfinished(db)
+            db.commit()
+    except DBAPIError as exc:  # down or not migrated yet: requests will say so clearly
+        log.warning("unfinished sign-ins were not abandoned at start: %s", exc.orig or exc)
+        return
+    if abandoned:
+        log.info("%d sign-in checks interrupted by the last stop were abandoned", abandoned)
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """A trustlab application for ``settings`` (read from the environment when omitted)."""
@@ -73,6 +92,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
         if listener is not None:
             listener.start()
+        _abandon_unfinished_sign_ins(database)
         database.start_background_work()
         activity.start()
         collector.freeze_startup_objects()

@@ -544,13 +544,26 @@ class Submission(Base):
     revised_at: Mapped[datetime | None]
 
 
+class AttemptOutcome(StrEnum):
+    """Where a password check stands (app.services.login_throttle): only ``failed`` counts
+    towards a lockout."""
+
+    PENDING = "pending"
+    """Counted before the check and being checked: holds a place, never a failure."""
+    FAILED = "failed"
+    SUCCEEDED = "succeeded"
+    ABANDONED = "abandoned"
+    """Never finished (the server stopped during the check): found pending at a start."""
+
+
 class LoginAttempt(Base):
     """A password check (a sign-in or a password change), kept to slow down password guessing
-    per account and per address: recorded as a failure before the check, marked succeeded after a
-    right one (app.services.login_throttle)."""
+    per account and per address: recorded pending before the check, then failed or succeeded
+    (app.services.login_throttle)."""
 
     __tablename__ = "login_attempt"
     __table_args__ = (
+        _one_of("outcome", AttemptOutcome),
         Index("ix_login_attempt_username_attempted_at", "username", "attempted_at"),
         Index("ix_login_attempt_client_address_attempted_at", "client_address", "attempted_at"),
     )
@@ -558,7 +571,8 @@ class LoginAttempt(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(String(64))
     client_address: Mapped[str] = mapped_column(String(64))
-    succeeded: Mapped[bool]
+    outcome: Mapped[str] = mapped_column(String(16), default=AttemptOutcome.PENDING)
+    """An :class:`AttemptOutcome` (0011; before it, a ``succeeded`` flag set false up front)."""
     attempted_at: Mapped[datetime] = mapped_column(default=utcnow)
     cleared_at: Mapped[datetime | None]
     """When an admin unlocked the account: a cleared failure no longer counts (0006)."""

@@ -120,8 +120,9 @@ def _record_refusal(
 def begin_password_check(
     db: Session, *, username: str, client_address: str = "", failed_action: str = SIGN_IN_FAILED
 ) -> PasswordCheck:
-    """The first step of every password check: count the attempt (login_throttle.reserve) and
-    read the account it names, in one write transaction; commits.
+    """The first step of every password check: record the attempt as pending
+    (login_throttle.reserve_when_free: it waits while other checks of the account or the address
+    could still reach a limit) and read the account it names, in one write transaction; commits.
 
     Raises TooManyAttempts while the account or the address has failed too often; that refusal
     is audited as ``failed_action`` with the reason ``locked``. The password is checked next, with
@@ -129,7 +130,7 @@ def begin_password_check(
     """
     name = normalise_username(username)[:64]
     address = client_address[:64]
-    reserved = login_throttle.reserve(db, username=name, client_address=address)
+    reserved = login_throttle.reserve_when_free(db, username=name, client_address=address)
     if isinstance(reserved, login_throttle.Locked):
         _record_refusal(
             db,
@@ -172,8 +173,9 @@ def check_password(
     elif not user.is_active:
         refusal = Refusal.DISABLED
     else:
-        login_throttle.mark_succeeded(db, check.attempt_id)
+        login_throttle.finish(db, check.attempt_id, succeeded=True)
         return user
+    login_throttle.finish(db, check.attempt_id, succeeded=False)
     _record_refusal(
         db,
         action=failed_action,

@@ -14,7 +14,7 @@ from sqlalchemy import event, select, update
 from app.db import Database
 from app.services import accounts, users
 from app.services.audit import Actor
-from app.tables import AuditEvent, LoginAttempt, LoginSession, Role, utcnow
+from app.tables import AttemptOutcome, AuditEvent, LoginAttempt, LoginSession, Role, utcnow
 from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in
 
 
@@ -245,7 +245,7 @@ def test_sign_in_refuses_an_account_disabled_after_it_was_read(database: Databas
         )
     assert refused is users.Refusal.DISABLED
     with database.read_session() as db:
-        assert db.scalars(select(LoginAttempt.succeeded)).all() == [False]
+        assert db.scalars(select(LoginAttempt.outcome)).all() == [AttemptOutcome.FAILED]
 
 
 def test_new_passwords_are_hashed_with_no_transaction_open(

@@ -1,4 +1,5 @@
-"""The login throttle under real concurrency: exactly ``limit`` passwords are ever checked."""
+"""The login throttle under real concurrency: no more than ``limit`` wrong passwords are ever
+checked, right ones are never refused for being many at once, and a restart locks nobody out."""
 
 from __future__ import annotations
 
@@ -8,12 +9,16 @@ from collections.abc import Callable
 from datetime import timedelta
 
 import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from app.db import Database
 from app.errors import TooManyAttempts
+from app.main import create_app
 from app.services import login_throttle, users
-from app.tables import AuditEvent, LoginAttempt, Role, utcnow
+from app.settings import Settings
+from app.tables import AttemptOutcome, AuditEvent, LoginAttempt, Role, utcnow
 from tests.conftest import PASSWORD, make_user
 
 PARALLEL = 30
@@ -109,6 +114,57 @@ def test_parallel_guesses_from_one_address_check_exactly_the_address_limit(
     limit = login_throttle.MAX_FAILURES_PER_ADDRESS
     assert len(checked) == limit
     assert outcomes == {"unknown user": limit, "throttled": PARALLEL - limit}
+
+
+def test_parallel_right_passwords_all_sign_in(
+    app: FastAPI, database: Database, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Twenty tablets signing in as one account at once (issue 35, item 12: 15 of them got 429).
+    The checks are held until ``limit`` of them run at once, so every round of them overlaps:
+    then the rest wait for a free place instead of being refused."""
+    make_user(database, "lab", Role.EXPERIMENTER)
+    limit = login_throttle.MAX_FAILURES_PER_ACCOUNT
+    together = threading.Barrier(limit)
+    verify = users.verify_password
+
+    def overlapping(password_hash: str | None, password: str) -> bool:
+        together.wait(timeout=60)  # a guard against a hang, not a timing assumption
+        return verify(password_hash, password)
+
+    monkeypatch.setattr(users, "verify_password", overlapping)
+    parallel = 4 * limit
+    with TestClient(app) as client:
+
+        def sign_in() -> str:
+            body = {"username": "lab", "password": PASSWORD}
+            return str(client.post("/api/v1/session", json=body).status_code)
+
+        outcomes = _all_at_once(database, [sign_in] * parallel)
+    assert outcomes == {"200": parallel}
+    with database.read_session() as db:
+        assert set(db.scalars(select(LoginAttempt.outcome))) == {AttemptOutcome.SUCCEEDED}
+        assert login_throttle.locked_until(db, username="lab") is None
+
+
+def test_a_restart_abandons_the_checks_it_interrupted(
+    database: Database, settings: Settings
+) -> None:
+    """A server that stopped during sign-ins (here: attempts counted, their checks never
+    finished) leaves nobody locked out nor waiting once it starts again."""
+    make_user(database, "ada", Role.EXPERIMENTER)
+    for _ in range(login_throttle.MAX_FAILURES_PER_ACCOUNT):
+        with database.writing() as counting:
+            users.begin_password_check(counting, username="ada", client_address="10.0.0.1")
+    with TestClient(create_app(settings)) as restarted:
+        with database.read_session() as db:
+            outcomes = set(db.scalars(select(LoginAttempt.outcome)))
+        assert outcomes == {AttemptOutcome.ABANDONED}
+        wrong = restarted.post("/api/v1/session", json={"username": "ada", "password": "nope"})
+        assert wrong.status_code == 401
+        right = restarted.post("/api/v1/session", json={"username": "ada", "password": PASSWORD})
+        assert right.status_code == 200
+    with database.read_session() as db:
+        assert login_throttle.locked_until(db, username="ada") is None
 
 
 def test_a_right_password_frees_its_reserved_attempt(database: Database) -> None:

@@ -149,3 +149,49 @@ def test_0008_hides_nothing_and_ties_no_station_to_a_study(blank_database_url: s
     schema.upgrade(database)
     assert _differences(database) == []
     database.dispose()
+
+
+def test_0011_turns_the_sign_in_flag_into_outcomes(blank_database_url: str) -> None:
+    """Old rows keep counting as they did (a failure stays a failure for its window); on the way
+    down, attempts that never failed (pending, abandoned) are cleared so the old code does not
+    count them."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0010")
+    with database.engine.begin() as connection:
+        for succeeded in ("true", "false"):
+            connection.execute(
+                text(
+                    "INSERT INTO login_attempt (username, client_address, succeeded, attempted_at)"
+                    f" VALUES ('ada', '', {succeeded}, CURRENT_TIMESTAMP)"
+                )
+            )
+    schema.upgrade(database, "0011")
+    with database.engine.begin() as connection:
+        outcomes = connection.execute(text("SELECT outcome FROM login_attempt ORDER BY id"))
+        assert list(outcomes.scalars()) == ["succeeded", "failed"]
+        for outcome in ("pending", "abandoned"):
+            connection.execute(
+                text(
+                    "INSERT INTO login_attempt (username, client_address, outcome, attempted_at)"
+                    f" VALUES ('ada', '', '{outcome}', CURRENT_TIMESTAMP)"
+                )
+            )
+        with pytest.raises(DBAPIError), connection.begin_nested():
+            connection.execute(
+                text(
+                    "INSERT INTO login_attempt (username, client_address, outcome, "
+                    "attempted_at) VALUES ('ada', '', 'maybe', CURRENT_TIMESTAMP)"
+                )
+            )
+    schema.downgrade(database, "0010")
+    with database.engine.connect() as connection:
+        rows = connection.execute(
+            text("SELECT succeeded, cleared_at IS NULL FROM login_attempt ORDER BY id")
+        )
+        assert [(bool(s), bool(c)) for s, c in rows] == [
+            (True, True),
+            (False, True),
+            (False, False),
+            (False, False),
+        ]
+    database.dispose()
