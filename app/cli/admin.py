@@ -111,9 +111,20 @@ def init(
     database.dispose()
 
 
+DEFAULT_HOST = Settings.model_fields["host"].default
+DEFAULT_PORT = Settings.model_fields["port"].default
+"""The settings' own defaults, named in ``serve --help`` without being repeated."""
+
+
 def serve(
-    host: Annotated[str | None, typer.Option(help="Interface to listen on.")] = None,
-    port: Annotated[int | None, typer.Option(help="Port to listen on.")] = None,
+    host: Annotated[
+        str | None,
+        typer.Option(help=f"Interface to listen on (default: TRUSTLAB_HOST, else {DEFAULT_HOST})."),
+    ] = None,
+    port: Annotated[
+        int | None,
+        typer.Option(help=f"Port to listen on (default: TRUSTLAB_PORT, else {DEFAULT_PORT})."),
+    ] = None,
     workers: Annotated[int, typer.Option(min=1, help="Worker processes (PostgreSQL for >1).")] = 1,
 ) -> None:
     """Serve the dashboard, the tablet pages and the API."""

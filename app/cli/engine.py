@@ -378,8 +378,8 @@ def pretrain_command(
         Path | None,
         typer.Option(
             "--protocol",
-            help="online: train for this protocol's [learners.feedback] and reward map "
-            "(default: the shipped protocol's).",
+            help="online: train for this protocol's feedback model (learners.feedback) and "
+            "reward map (default: the shipped protocol's).",
         ),
     ] = None,
     paper_feedback: Annotated[

@@ -29,7 +29,7 @@ from app.services import studies, study_data
 from app.settings import Settings
 from app.tables import StudyStatus
 
-population_cli = typer.Typer(help="Populations fitted from earlier participants (issue 20).")
+population_cli = typer.Typer(help="Populations fitted from earlier participants.")
 
 
 def register(cli: typer.Typer) -> None:

@@ -12,6 +12,7 @@ from app.inputs import MAX_ROW_ID
 from app.services import stations, verify
 from app.services.audit import Actor
 from app.settings import Settings
+from app.wording import counted
 
 station_cli = typer.Typer(help="Stations where robots meet participants.", no_args_is_help=True)
 device_cli = typer.Typer(help="Robot clients' API keys.", no_args_is_help=True)
@@ -115,17 +116,20 @@ def verify_command(
     if as_json:
         emit_json(report.to_json())
     else:
-        typer.echo(
-            f"study {report.study!r}: {report.participants} participants, {report.learners} "
-            f"learners, {report.steps} steps, {report.answers} answers replayed"
+        counts = (
+            counted(report.participants, "participant"),
+            counted(report.learners, "learner"),
+            counted(report.steps, "step"),
+            counted(report.answers, "answer"),
         )
+        typer.echo(f"study {report.study!r}: {', '.join(counts)} replayed")
         for finding in report.findings:
             who = f" {finding.participant}" if finding.participant else ""
             typer.echo(f"  [{finding.check}]{who}: {finding.detail}")
         typer.echo(
             "ok: every learner matches its replay"
             if report.ok
-            else f"{len(report.findings)} problem(s) found"
+            else f"{counted(len(report.findings), 'problem')} found"
         )
     if not report.ok:
         raise typer.Exit(1)

@@ -73,7 +73,7 @@ class QuestionnaireInvalid(InvalidInput):
     def __init__(self, errors: dict[str, str]) -> None:
         first = next(iter(errors.items()))
         super().__init__(
-            f"{len(errors)} item(s) need attention, e.g. {first[0]}: {first[1]}"
+            f"{len(errors)} items need attention, e.g. {first[0]}: {first[1]}"
             if len(errors) > 1
             else f"{first[0]}: {first[1]}"
         )
@@ -217,41 +217,42 @@ def blocker_given(
 def _validate_item(
     item: ItemSpec, raw: str, protocol: Protocol, answers: Mapping[str, str]
 ) -> tuple[dict[str, str], str | None]:
-    """(values to store, error) for one given answer."""
+    """(values to store, error) for one given answer: the error is a sentence, shown to the
+    participant beside the question as it is."""
     if item.kind is ItemKind.LIKERT:
         assert item.scale is not None
         scale = protocol.scale(item.scale)
         try:
             point = int(raw)
         except ValueError:
-            return {}, f"choose one of {scale.minimum}-{scale.maximum}"
+            return {}, f"Choose one of {scale.minimum}–{scale.maximum}."
         if not scale.minimum <= point <= scale.maximum:
-            return {}, f"choose one of {scale.minimum}-{scale.maximum}"
+            return {}, f"Choose one of {scale.minimum}–{scale.maximum}."
         return {item.key: str(point)}, None
     if item.kind is ItemKind.NUMBER:
         try:
             number = int(raw)
         except ValueError:
-            return {}, "enter a whole number"
+            return {}, "Enter a whole number."
         assert item.minimum is not None and item.maximum is not None
         if not item.minimum <= number <= item.maximum:
-            return {}, f"enter a number from {item.minimum} to {item.maximum}"
+            return {}, f"Enter a number from {item.minimum} to {item.maximum}."
         return {item.key: str(number)}, None
     if item.kind is ItemKind.CHOICE:
         option = next((o for o in item.options if o.value == raw), None)
         if option is None:
-            return {}, "choose one of the options"
+            return {}, "Choose one of the options."
         values = {item.key: option.value}
         if option.describe:
             description = answers.get(item.key + DESCRIPTION_SUFFIX, "").strip()
             if len(description) > DESCRIPTION_MAX:
-                return {}, f"describe in at most {DESCRIPTION_MAX} characters"
+                return {}, f"Describe it in at most {DESCRIPTION_MAX} characters."
             if description:
                 values[item.key + DESCRIPTION_SUFFIX] = description
         return values, None
     text = raw.strip()
     if len(text) > item.max_length:
-        return {}, f"write at most {item.max_length} characters"
+        return {}, f"Write at most {item.max_length} characters."
     return ({item.key: text} if text else {}), None
 
 

@@ -44,6 +44,7 @@ from app.tables import (
     Study,
     StudySession,
 )
+from app.wording import counted
 from models.replies import confidence_level
 
 
@@ -247,7 +248,9 @@ def _replay(data: _Study, row: LearnerState, prompts: list[Prompt], report: Veri
     if row.version != len(answers):
         report.findings.append(
             Finding(
-                "replay", code, f"{where}: stored version {row.version} but {len(answers)} answers"
+                "replay",
+                code,
+                f"{where}: stored version {row.version} but {counted(len(answers), 'answer')}",
             )
         )
     elif not _states_close(learner.state_dict(), row.state):

@@ -10,6 +10,7 @@ from fastapi.responses import Response
 
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
+from app.inputs import STUDY_NAME
 from app.protocol import ProtocolError, parse_protocol
 from app.services import accounts, blinding, studies, users
 from app.services.audit import Actor
@@ -74,10 +75,17 @@ def create_user(
     return redirect_with_notice(request, "/admin/users", f"Created {username.strip().lower()}.")
 
 
+def _new_study_form(error: str, name: str, title: str) -> dict[str, str]:
+    """The New study form's values, with the name rule in the server's own words (the browser's
+    "match the requested format" does not say what the format is)."""
+    rule = STUDY_NAME.rule[0].upper() + STUDY_NAME.rule[1:]
+    return {"error": error, "name": name, "title": title, "name_rule": f"{rule}."}
+
+
 @router.get("/studies/new")
 def new_study_form(request: Request, admin: AdminUser) -> Response:
     """Upload a protocol file to create a study."""
-    return render(request, "admin_new_study.html", {"error": "", "name": "", "title": ""})
+    return render(request, "admin_new_study.html", _new_study_form("", "", ""))
 
 
 @router.post("/studies")
@@ -113,7 +121,7 @@ def create_study(
         return render(
             request,
             "admin_new_study.html",
-            {"error": error, "name": name, "title": title},
+            _new_study_form(error, name, title),
             status_code=422,
         )
     return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")

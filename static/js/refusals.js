@@ -61,6 +61,9 @@
   }
 
   function refuse(elt, message) {
+    // An earlier request's outcome (p.notice: "Enrolled P1: allocated to …") would read as this
+    // request's, beside the refusal that says otherwise.
+    document.querySelectorAll("p.notice").forEach((notice) => notice.remove());
     const anchor = anchorOf(elt);
     const region = elt && elt.closest("[data-refresh-on-refusal]");
     pending = {

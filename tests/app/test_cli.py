@@ -3,18 +3,22 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
+import typer
 from typer.testing import CliRunner
 
+from analysis.exports import EXPORT_FORMATS
 from app import demo, schema
 from app.cli import cli
 from app.db import Database
 from app.services import users
-from app.settings import Settings
+from app.settings import REPO_ROOT, Settings
 from tests.conftest import protocol_text
 
 runner = CliRunner()
@@ -191,3 +195,66 @@ def test_unreachable_database_is_one_line_and_nonzero(command: list[str]) -> Non
     lines = completed.stderr.strip().splitlines()
     assert len(lines) == 1
     assert lines[0].startswith(f"error: cannot reach the database at {url}: ")
+
+
+def _commands() -> dict[str, Any]:
+    """Every command that does something (not a group), by its words after ``trustlab``."""
+    found: dict[str, Any] = {}
+
+    def walk(command: Any, words: tuple[str, ...]) -> None:
+        subcommands = getattr(command, "commands", None)
+        if subcommands is None:
+            found[" ".join(words)] = command
+        for name, sub in (subcommands or {}).items():
+            walk(sub, (*words, name))
+
+    walk(typer.main.get_command(cli), ())
+    return found
+
+
+def _readme_entries() -> dict[str, str]:
+    """The README's command list: each entry (a ``trustlab …`` line and its indented
+    continuation lines) by its command words."""
+    text = (REPO_ROOT / "README.md").read_text()
+    block = text.split("## The `trustlab` command", 1)[1].split("```text\n", 1)[1].split("```")[0]
+    commands = _commands()
+    entries: dict[str, str] = {}
+    words = ""
+    for line in block.splitlines():
+        if line.startswith("trustlab "):
+            tokens = line.split()[1:]
+            words = ""
+            while tokens and not commands.get(words) and re.fullmatch(r"[a-z][a-z-]*", tokens[0]):
+                words = f"{words} {tokens.pop(0)}".strip()
+            assert words in commands, f"README: no such command (one a line): {line!r}"
+            assert words not in entries, f"README lists `trustlab {words}` twice"
+            entries[words] = line
+        else:
+            assert line.startswith(" ") and words, f"README: stray line {line!r}"
+            entries[words] += "\n" + line
+    return entries
+
+
+def test_the_readme_lists_every_command_with_every_option() -> None:
+    entries = _readme_entries()
+    for words, command in _commands().items():
+        assert words in entries, f"README lacks `trustlab {words}`"
+        for param in command.params:
+            names = [*param.opts, *param.secondary_opts]
+            if param.param_type_name != "option" or "--help" in names:
+                continue
+            mentioned = any(re.search(rf"{name}(?![\w-])", entries[words]) for name in names)
+            assert mentioned, f"README: `trustlab {words}` lacks {' / '.join(names)}"
+    for export in EXPORT_FORMATS:
+        assert re.search(rf"\b{export}\b", entries["export"]), f"README: export lacks {export}"
+
+
+def test_help_texts_name_defaults_and_no_issue_numbers() -> None:
+    served = runner.invoke(cli, ["serve", "--help"], env={"COLUMNS": "200"})
+    assert "else 127.0.0.1)" in served.stdout and "else 8000)" in served.stdout
+    pretrain = runner.invoke(cli, ["pretrain", "--help"], env={"COLUMNS": "200"})
+    assert "protocol's feedback model (learners.feedback)" in pretrain.stdout  # no word lost
+    for words in ("", *{w.rsplit(" ", 1)[0] for w in _commands() if " " in w}, *_commands()):
+        shown = runner.invoke(cli, [*words.split(), "--help"], env={"COLUMNS": "200"})
+        assert shown.exit_code == 0, words
+        assert not re.search(r"\bissues? \d", shown.stdout, re.IGNORECASE), words

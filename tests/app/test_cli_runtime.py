@@ -53,6 +53,9 @@ def test_verify_is_clean_then_flags_tampering(lab: Lab, database_url: str) -> No
     assert report["ok"] is True and report["answers"] == 12 and report["findings"] == []
     code, out, _ = run(database_url, "verify", "--study", lab.study)
     assert code == 0 and out.strip().endswith("ok: every learner matches its replay")
+    assert out.startswith(
+        f"study {lab.study!r}: 1 participant, 3 learners, "
+    )  # not "1 participants"
     with lab.database.writing() as db:
         db.execute(
             update(LearnerState).where(LearnerState.category == "conation").values(version=7)
@@ -67,3 +70,8 @@ def test_verify_is_clean_then_flags_tampering(lab: Lab, database_url: str) -> No
         assert (
             db.scalar(select(LearnerState.version).where(LearnerState.category == "affection")) == 3
         )
+    code, out, _ = run(database_url, "verify", "--study", lab.study)
+    assert code == 1 and out.strip().endswith(
+        f"{len(findings)} problem{'s' * (len(findings) > 1)} found"
+    )
+    assert "(s)" not in out

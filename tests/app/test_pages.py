@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import html
+
 import pytest
 from fastapi.testclient import TestClient
 
+from app.inputs import STUDY_NAME
 from app.protocol import default_protocol
 from app.tables import Role
 from tests.conftest import UserClientFactory, protocol_text
@@ -92,6 +95,20 @@ def test_admin_uploads_a_protocol(user_client: UserClientFactory) -> None:
     assert "Study created." in accepted.text
     closed = admin.post("/admin/studies/lab/status", data={"status": "closed"})
     assert "Study is now closed." in closed.text and "Reopen enrolment" in closed.text
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # a form, not storage
+def test_the_new_study_form_says_the_name_rule(user_client: UserClientFactory) -> None:
+    """The rule is said beside the field, not left to the browser's "match the requested format"
+    (issue 35): the server's own words, so the two cannot drift apart."""
+    form = user_client(Role.ADMIN).get("/admin/studies/new").text
+    field = form.split('<input name="name"', 1)[1].split(">", 1)[0]
+    assert 'aria-describedby="study-name-rule"' in field
+    rule = STUDY_NAME.rule[0].upper() + STUDY_NAME.rule[1:]
+    said = form.split('id="study-name-rule">', 1)[1].split("<", 1)[0]
+    assert html.unescape(said) == f"{rule}."
+    title = field.split('title="', 1)[1].split('"', 1)[0]
+    assert html.unescape(title) == f"{rule}."  # the browser's own message quotes it too
 
 
 def test_unknown_pages_and_studies_render_html_errors(user_client: UserClientFactory) -> None:

@@ -103,12 +103,12 @@ def test_invalid_answers_are_refused_and_nothing_partial_is_stored(app: FastAPI,
         "/api/v1/tablet/questionnaires/demographics",
         json={"answers": {"age": 17, "gender": "female"}},
     )
-    assert item_errors(out_of_range) == {"age": "enter a number from 18 to 99"}
+    assert item_errors(out_of_range) == {"age": "Enter a number from 18 to 99."}
     bad_option = tablet.post(
         "/api/v1/tablet/questionnaires/demographics",
         json={"answers": {"age": 30, "gender": "robot"}},
     )
-    assert item_errors(bad_option) == {"gender": "choose one of the options"}
+    assert item_errors(bad_option) == {"gender": "Choose one of the options."}
     unknown = tablet.post(
         "/api/v1/tablet/questionnaires/demographics",
         json={"answers": {"age": 30, "gender": "male", "shoe_size": 44}},
@@ -119,7 +119,7 @@ def test_invalid_answers_are_refused_and_nothing_partial_is_stored(app: FastAPI,
         "/api/v1/tablet/questionnaires/tipi",
         json={"answers": {f"tipi_{n}": 8 if n == 3 else 4 for n in range(1, 11)}},
     )
-    assert item_errors(too_high) == {"tipi_3": "choose one of 1-7"}
+    assert item_errors(too_high) == {"tipi_3": "Choose one of 1–7."}
     early = tablet.post(
         "/api/v1/tablet/questionnaires/trust", json={"session": 1, "answers": TRUST_ANSWERS}
     )

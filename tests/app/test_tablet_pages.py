@@ -65,7 +65,7 @@ def test_missing_items_get_messages_beside_them(app: FastAPI, lab: Lab) -> None:
         "/tablet/q/demographics", data={"csrf_token": _token(page.text), "age": "16"}
     )
     assert answer.status_code == 422
-    assert 'id="err-age" role="alert">enter a number from 18 to 99' in answer.text
+    assert 'id="err-age" role="alert">Enter a number from 18 to 99.<' in answer.text
     assert 'id="err-gender" role="alert">Please answer this question.' in answer.text
     assert 'value="16"' in answer.text  # what was typed is kept
     ok = tablet.post(

@@ -55,6 +55,11 @@ def test_refusals_are_shown_next_to_their_control(
     form.get_by_role("button", name="Enrol and randomise").click()
     expect(page.get_by_role("status")).to_contain_text("allocated to")
     expect(page.locator("p.refusal")).to_have_count(0)
+    # A refusal next: the earlier success goes, so it cannot read as this one's outcome (issue 35).
+    form.get_by_label("Code").fill("P778")
+    form.get_by_role("button", name="Enrol and randomise").click()
+    expect(refusal).to_contain_text("'P778' is already used")
+    expect(page.locator("p.notice")).to_have_count(0)
     # Issue 21, defect 5: the enrolment cards count the new participant without a reload.
     counts = page.locator("#enrolment-cards .stat-value").all_inner_texts()
     assert sum(int(n) for n in counts) == 2, counts
