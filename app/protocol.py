@@ -10,9 +10,12 @@ problem.
 
 from __future__ import annotations
 
+import copy
+import functools
 import hashlib
 import itertools
 import math
+import re
 import tomllib
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -589,16 +592,167 @@ def parse_protocol(text: str, *, source: str = "<protocol>") -> LoadedProtocol:
 
 
 def protocol_from_dict(data: dict[str, Any], *, source: str = "<protocol>") -> Protocol:
-    """Validate an already-parsed protocol (e.g. the JSON stored with a study)."""
+    """Validate an already-parsed protocol (e.g. the JSON stored with a study).
+
+    Every mistake is reported at once: the per-field (pydantic) problems and the cross-field
+    checks of :func:`check_protocol`, so fixing one never just uncovers the next."""
     try:
         protocol = Protocol.model_validate(data)
     except ValidationError as exc:
-        problems = [Problem(_key_path(e["loc"]), e["msg"]) for e in exc.errors()]
-        raise ProtocolError(source, problems) from exc
+        errors = exc.errors()
+        problems = [Problem(_key_path(e["loc"]), e["msg"]) for e in errors]
+        problems += _checks_beside(data, errors)
+        raise ProtocolError(source, _in_file_order(problems, data)) from exc
     problems = check_protocol(protocol)
     if problems:
-        raise ProtocolError(source, problems)
+        raise ProtocolError(source, _in_file_order(problems, data))
     return protocol
+
+
+def _checks_beside(data: dict[str, Any], errors: Sequence[Any]) -> list[Problem]:
+    """The cross-field problems of a protocol that also has per-field ones.
+
+    The checks need a valid protocol, so they run on a stand-in: a misspelt key is left out (the
+    rest of its table is as written), a bad value is replaced by the shipped protocol's value at
+    the same key (or by its default), and a section that cannot be mended so is replaced by the
+    shipped protocol's. Problems the stand-in's guesses could cause are left out: they would be
+    about values the file does not hold."""
+    if not isinstance(data, dict):
+        return []
+    stand_in, doubtful = _stand_in(data, errors)
+    if stand_in is None:
+        return []
+    return [p for p in check_protocol(stand_in) if not _near_any(p.path, doubtful)]
+
+
+def _stand_in(data: dict[str, Any], errors: Sequence[Any]) -> tuple[Protocol | None, set[str]]:
+    """A valid protocol as close to ``data`` as the errors allow, and the key paths whose checks
+    could see a guessed value."""
+    repaired = copy.deepcopy(data)
+    mended: set[str] = set()
+    replaced: set[str] = set()
+    for error in errors:
+        location = tuple(error["loc"])
+        if error["type"] == "extra_forbidden" and _delete(repaired, location):
+            continue
+        if len(location) > 1 and _mend(repaired, location):
+            mended.add(_guessed_scope(location))
+        else:
+            replaced.add(str(location[0]) if location else "")
+    for _ in range(2):  # a mended value the model still refuses: replace its section instead
+        try:
+            stand_in = Protocol.model_validate(_replace_sections(repaired, replaced))
+        except ValidationError as exc:
+            if any(not e["loc"] for e in exc.errors()):
+                break
+            replaced |= {str(e["loc"][0]) for e in exc.errors()}
+            continue
+        return stand_in, _doubtful(mended, replaced)
+    return None, set()
+
+
+def _mend(data: dict[str, Any], location: tuple[int | str, ...]) -> bool:
+    """Put the shipped protocol's value at ``location`` in place of a bad one, or remove the key
+    (its default applies); False if neither can be done."""
+    shipped = _value_at(_shipped_data(), location)
+    if shipped is not _ABSENT:
+        parent = _value_at(data, location[:-1])
+        if isinstance(parent, dict):  # a bad value, or a missing one the model requires
+            parent[location[-1]] = copy.deepcopy(shipped)
+            return True
+    return _delete(data, location)
+
+
+def _guessed_scope(location: tuple[int | str, ...]) -> str:
+    """What a mended value can mislead: its table, or its whole section when it sits in a list
+    (the checks compare list entries with each other and across lists)."""
+    if any(isinstance(part, int) for part in location):
+        return str(location[0])
+    return _key_path(location[:-1])
+
+
+def _doubtful(mended: set[str], replaced: set[str]) -> set[str]:
+    """Key paths whose checks could see a guessed value: what was mended or replaced, the room
+    when a category changed (its zones name them), the allocation when the conditions were
+    replaced (their number sets the block sizes; mending keeps it)."""
+    doubtful = mended | replaced
+    if any(_within(path, "categories") for path in doubtful):
+        doubtful.add("room")
+    if "conditions" in replaced:
+        doubtful.add("allocation")
+    return doubtful
+
+
+_ABSENT = object()
+
+
+def _value_at(data: Any, location: Sequence[int | str]) -> Any:
+    """The value at ``location`` in nested dicts and lists, or ``_ABSENT``."""
+    for part in location:
+        in_table = isinstance(data, dict) and part in data
+        in_list = isinstance(data, list) and isinstance(part, int) and 0 <= part < len(data)
+        if not (in_table or in_list):
+            return _ABSENT
+        data = data[part]
+    return data
+
+
+def _delete(data: dict[str, Any], location: tuple[int | str, ...]) -> bool:
+    """Remove the table key at ``location``; False if it is not there. (A list element is never
+    removed: that would renumber the rest.)"""
+    parent = _value_at(data, location[:-1])
+    if not location or not isinstance(parent, dict) or location[-1] not in parent:
+        return False
+    del parent[location[-1]]
+    return True
+
+
+def _replace_sections(data: dict[str, Any], sections: set[str]) -> dict[str, Any]:
+    """``data`` with each named top-level section taken from the shipped protocol (left out
+    where the shipped protocol has none: it is optional)."""
+    shipped = _shipped_data()
+    replaced = dict(data)
+    for section in sections:
+        if section in shipped:
+            replaced[section] = copy.deepcopy(shipped[section])
+        else:
+            replaced.pop(section, None)
+    return replaced
+
+
+@functools.cache
+def _shipped_data() -> dict[str, Any]:
+    text = resources.files("app.protocols").joinpath(DEFAULT_PROTOCOL).read_text(encoding="utf-8")
+    return tomllib.loads(text)
+
+
+def _near_any(path: str, doubtful: set[str]) -> bool:
+    """Whether ``path`` lies within, or contains, a guessed key path."""
+    return any(_within(path, guess) or _within(guess, path) for guess in doubtful)
+
+
+def _within(path: str, outer: str) -> bool:
+    return path == outer or path.startswith((f"{outer}.", f"{outer}["))
+
+
+def _in_file_order(problems: Sequence[Problem], data: dict[str, Any]) -> list[Problem]:
+    """Problems in the order their keys come in the file, so both kinds read as one list."""
+    return sorted(problems, key=lambda p: _position(p.path, data))
+
+
+def _position(path: str, data: Any) -> list[int]:
+    """Where ``path`` is in ``data``: per step a table key's place or a list index (a key the
+    file leaves out comes after its table's others)."""
+    position = []
+    for index, key in re.findall(r"\[(\d+)\]|([^.\[\]]+)", path):
+        if key:
+            keys = list(data) if isinstance(data, dict) else []
+            position.append(keys.index(key) if key in keys else len(keys))
+            data = data.get(key) if isinstance(data, dict) else None
+        else:
+            position.append(int(index))
+            data = data[int(index)] if isinstance(data, list) and int(index) < len(data) else None
+    return position
 
 
 def load_protocol_file(path: Path) -> LoadedProtocol:

@@ -111,11 +111,13 @@ def test_admin_creates_a_study_and_bad_protocols_are_explained(
         "/api/v1/studies",
         json={
             "name": "pilot-2",
-            "protocol_toml": protocol_text(**{"sessions = 4": "sessions = -1"}),
+            "protocol_toml": protocol_text(**{"sessions = 4": "sessions = -1", "[2, 4]": "[2, 3]"}),
         },
     )
     assert bad.status_code == 422
-    assert bad.json()["detail"].startswith("protocol_toml: schedule.sessions: ")
+    first, second = bad.json()["detail"].splitlines()  # every problem at once (issue 35 item 9)
+    assert first.startswith("protocol_toml: schedule.sessions: ")
+    assert second.startswith("protocol_toml: allocation.block_sizes[1]: block size 3 is not")
     again = admin.post(
         "/api/v1/studies",
         json={"name": "pilot", "protocol_toml": default_protocol().source_text},

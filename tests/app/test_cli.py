@@ -165,12 +165,14 @@ def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) ->
 
 def test_bad_protocol_file_is_one_line_per_problem(database_url: str, tmp_path: Path) -> None:
     protocol = tmp_path / "bad.toml"
-    protocol.write_text(protocol_text(**{"runs_per_session = 3": "runs_per_session = 'three'"}))
+    bad = {"runs_per_session = 3": "runs_per_session = 'three'", "[2, 4]": "[2, 3]"}
+    protocol.write_text(protocol_text(**bad))
     code, _, err = run(database_url, "study", "create", "--protocol", str(protocol), "--name", "x")
     assert code == 2
-    assert err.strip() == (
+    assert err.strip() == (  # both kinds of problem at once (issue 35 item 9)
         f"error: {protocol}: schedule.runs_per_session: Input should be a valid integer, "
-        "unable to parse string as an integer"
+        f"unable to parse string as an integer\n  {protocol}: allocation.block_sizes[1]: "
+        "block size 3 is not a positive multiple of the 2 conditions"
     )
 
 

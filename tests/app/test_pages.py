@@ -78,7 +78,7 @@ def test_admin_manages_users(user_client: UserClientFactory) -> None:
 
 def test_admin_uploads_a_protocol(user_client: UserClientFactory) -> None:
     admin = user_client(Role.ADMIN)
-    bad = protocol_text(**{"block_sizes = [2, 4]": "block_sizes = [3]"})
+    bad = protocol_text(**{"block_sizes = [2, 4]": "block_sizes = [3]", "sessions =": "sesions ="})
     refused = admin.post(
         "/admin/studies",
         data={"name": "lab"},
@@ -86,6 +86,7 @@ def test_admin_uploads_a_protocol(user_client: UserClientFactory) -> None:
     )
     assert refused.status_code == 422
     assert "lab.toml: allocation.block_sizes[0]: block size 3" in refused.text
+    assert "lab.toml: schedule.sesions: Extra inputs" in refused.text  # both kinds at once
     accepted = admin.post(
         "/admin/studies",
         data={"name": "lab"},

@@ -147,6 +147,69 @@ def test_every_problem_is_listed_one_per_line() -> None:
     assert all(line.startswith("lab.toml: ") for line in lines)
 
 
+def test_both_kinds_of_mistake_are_reported_at_once_in_file_order() -> None:
+    """Issue 35 item 9: a misspelt key (per-field) no longer hides a bad block size (cross-field);
+    the guide's example, line for line."""
+    text = protocol_text(
+        **{"block_sizes = [2, 4]": "block_sizes = [2, 3]", "sessions = 4": "sesions = 4"}
+    )
+    assert _problems(text).splitlines() == [
+        "lab.toml: schedule.sesions: Extra inputs are not permitted",
+        "lab.toml: allocation.block_sizes[1]: block size 3 is not a positive multiple of the 2 "
+        "conditions",
+    ]
+
+
+def test_every_mistake_of_a_file_is_listed() -> None:
+    text = protocol_text(
+        **{
+            "gamma = 0.5": "gamma = 0.0",
+            "preferred = 1": "preferred = 9",
+            "sessions = 4": "sessions = 0",
+            "block_sizes = [2, 4]": "block_sizes = [2, 3]",
+            'id = "C2"': 'id = "C1"\ncolour = "red"',
+        }
+    )
+    assert _problems(text).splitlines() == [
+        "lab.toml: conditions[1]: duplicate condition id 'C1'",
+        "lab.toml: conditions[1].colour: Extra inputs are not permitted",
+        "lab.toml: learners.exp3.gamma: Input should be greater than 0",
+        "lab.toml: categories[2].preferred: index 9 but only 4 questions",
+        "lab.toml: schedule.sessions: Input should be greater than or equal to 1",
+        "lab.toml: allocation.block_sizes[1]: block size 3 is not a positive multiple of the 2 "
+        "conditions",
+    ]
+
+
+_LEVELS = '\nlevels = [\n    { name = "low", text = "I do not believe it but fine." },\n'
+
+
+@pytest.mark.parametrize(
+    ("replacements", "expected"),
+    [
+        # Unreadable thresholds: their number cannot be checked against the (now 3) levels.
+        (
+            {f"thresholds = [0.5, 0.65, 0.8]{_LEVELS}": 'thresholds = "0.5"\nlevels = [\n'},
+            "lab.toml: replies.thresholds: Input should be a valid list",
+        ),
+        # A third condition without a learner: the stand-in's two conditions say nothing of
+        # blocks of 3, which suit the file's three.
+        (
+            {
+                'neutral_label = "Group B"\n': 'neutral_label = "Group B"\n\n'
+                '[[conditions]]\nid = "C3"\nlabel = "Third"\n',
+                "block_sizes = [2, 4]": "block_sizes = [3, 6]",
+            },
+            "lab.toml: conditions[2].learner: Field required",
+        ),
+    ],
+)
+def test_no_problem_is_reported_about_a_value_the_file_does_not_hold(
+    replacements: dict[str, str], expected: str
+) -> None:
+    assert _problems(protocol_text(**replacements)).splitlines() == [expected]
+
+
 def test_invalid_toml_reports_the_position() -> None:
     message = _problems("[study]\ntitle = \n")
     assert message.startswith("lab.toml: not valid TOML: ")
