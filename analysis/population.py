@@ -1,5 +1,8 @@
-"""A study's population as a file: fitted from a step log (models/population.py), saved with
-where it came from and a hash of its content, and read back verified (issue 20).
+"""A study's population as a file: the answers a step log holds, the file saved with where it
+came from and a hash of its content, and read back verified (issue 20).
+
+The fit itself is the adaptation engine's model (models/population.py); the app joins the two
+(app/services/population_fit.py), since analysis knows only pandas and statistics.
 
 The file is JSON::
 
@@ -20,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,7 +33,6 @@ import plotly.graph_objects as go
 from plotly.subplots import make_subplots
 
 from analysis.figures import PALETTE
-from models.population import AnswerSequences, bootstrap, fit_category
 
 FORMAT = "trustlab-population"
 VERSION = 1
@@ -56,9 +57,20 @@ def steps_sha256(steps: pd.DataFrame) -> str:
     return hashlib.sha256(frame.to_csv(index=False).encode("utf-8")).hexdigest()
 
 
-def sequences_from_steps(
+@dataclass(frozen=True)
+class StepAnswers:
+    """One category's answers, a row per participant in the order they were given:
+    ``actions[n, t]`` the question asked (−1 past a participant's last answer) and
+    ``answers[n, t]`` whether they said yes; ``n_arms`` questions."""
+
+    n_arms: int
+    actions: np.ndarray
+    answers: np.ndarray
+
+
+def answers_from_steps(
     steps: pd.DataFrame, arms: dict[str, int] | None = None
-) -> dict[str, AnswerSequences]:
+) -> dict[str, StepAnswers]:
     """Each category's answer sequences, in session, run, iteration order per participant.
 
     ``arms`` gives each category's K; without it K is read from the ``p_before_*`` columns a
@@ -72,7 +84,7 @@ def sequences_from_steps(
     missing = [column for column in STEP_COLUMNS if column not in steps.columns]
     if missing:
         raise ValueError(f"the steps table lacks the column(s) {', '.join(missing)}")
-    result: dict[str, AnswerSequences] = {}
+    result: dict[str, StepAnswers] = {}
     for category, rows in steps.groupby("category", sort=True):
         name = str(category)
         k = (arms or {}).get(name) or _arms_from_probabilities(rows, name)
@@ -95,7 +107,7 @@ def sequences_from_steps(
             raise ValueError(f"category {name!r}: every answer must be 0 (no) or 1 (yes)")
         actions[index, position] = asked
         answers[index, position] = said == 1
-        result[name] = AnswerSequences(k, actions, answers)
+        result[name] = StepAnswers(k, actions, answers)
     return result
 
 
@@ -121,6 +133,11 @@ class Population:
 
     content: dict[str, Any]
     sha256: str
+
+    @classmethod
+    def of(cls, content: dict[str, Any]) -> Population:
+        """A population with this content and the hash of it (the fit's result)."""
+        return cls(content, _digest(content))
 
     @property
     def categories(self) -> dict[str, dict[str, Any]]:
@@ -185,48 +202,6 @@ class Population:
             "hazard": fitted["hazard"],
             "hazard_ci": list(fitted["hazard_ci"]),
         }
-
-
-def fit_population(
-    steps: pd.DataFrame,
-    source: dict[str, Any],
-    *,
-    arms: dict[str, int] | None = None,
-    replicates: int = 200,
-    seed: int = 0,
-    progress: Callable[[], None] | None = None,
-) -> Population:
-    """Fit every category of ``steps`` with bootstrap intervals over participants."""
-    rng = np.random.default_rng(seed)
-    categories: dict[str, Any] = {}
-    for name, seq in sequences_from_steps(steps, arms).items():
-        try:
-            fit = fit_category(seq)
-        except ValueError as exc:
-            raise ValueError(f"category {name!r}: {exc}") from None
-        intervals = bootstrap(seq, fit, rng, replicates=replicates, progress=progress)
-        categories[name] = {
-            "arms": seq.n_arms,
-            "participants": seq.participants,
-            "answers": int(seq.observed.sum()),
-            "prior": fit.prior.tolist(),
-            "prior_ci": intervals.prior.tolist(),
-            "slip": fit.slip,
-            "slip_ci": list(intervals.slip),
-            "hazard": fit.hazard,
-            "hazard_ci": list(intervals.hazard),
-            "log_likelihood": fit.log_likelihood,
-            "iterations": fit.iterations,
-            "converged": fit.converged,
-        }
-    if not categories:
-        raise ValueError("the steps table has no answers to fit")
-    content = {
-        "source": {**source, "steps_sha256": steps_sha256(steps)},
-        "categories": categories,
-        "bootstrap": {"replicates": replicates, "level": 0.95, "seed": seed},
-    }
-    return Population(content, _digest(content))
 
 
 def _digest(content: dict[str, Any]) -> str:

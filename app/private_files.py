@@ -1,10 +1,11 @@
-"""Files that hold secrets: backups and the SQLite database.
+"""Files that hold secrets: backups, the SQLite database and the exports of study data.
 
-They carry allocation seeds and password and token hashes, so only their owner may read them
-(mode 0600, whatever the umask). A new one is never written through a symbolic link (a link
-planted at the path would send the secrets wherever it points) and appears complete or not at
-all: it is written to a temporary file beside its path and then linked into place, which, unlike
-a rename, never replaces a file that appeared there meanwhile.
+They carry allocation seeds, password and token hashes or participants' answers, so only their
+owner may read them (mode 0600, whatever the umask). A new one is never written through a
+symbolic link (a link planted at the path would send the secrets wherever it points) and appears
+complete or not at all: it is written to a temporary file beside its path and then linked into
+place, which, unlike a rename, never replaces a file that appeared there meanwhile. Replacing an
+existing file is a choice the caller makes explicitly (``replace=True``); it renames over it.
 """
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ from pathlib import Path
 
 from app.errors import InvalidInput
 
-__all__ = ["PRIVATE_MODE", "create_private", "new_private_file", "refuse_link"]
+__all__ = [
+    "PRIVATE_MODE",
+    "create_private",
+    "new_private_file",
+    "refuse_existing",
+    "refuse_link",
+]
 
 PRIVATE_MODE = 0o600
 """Read and write for the owner, nothing for anyone else."""
@@ -55,16 +62,16 @@ def create_private(path: Path) -> bool:
 
 
 @contextlib.contextmanager
-def new_private_file(target: Path) -> Iterator[Path]:
+def new_private_file(target: Path, *, replace: bool = False) -> Iterator[Path]:
     """A temporary file (mode 0600) beside ``target`` to write into, published at ``target``.
 
     When the ``with`` block ends normally the file is flushed to disk and appears at ``target``
     in one step; if ``target`` exists by then, nothing is replaced and :class:`InvalidInput` is
-    raised. Whatever happens, the temporary file is gone afterwards.
+    raised, unless ``replace`` (then an existing regular file is replaced in one step, never
+    followed if it is a link). Whatever happens, the temporary file is gone afterwards.
     """
     refuse_link(target)
-    if target.exists():
-        raise InvalidInput(f"{target} exists; choose a new file name")
+    refuse_existing(target, replace=replace)
     descriptor, name = tempfile.mkstemp(
         dir=target.parent, prefix=f".{target.name}.", suffix=".partial"
     )
@@ -74,10 +81,24 @@ def new_private_file(target: Path) -> Iterator[Path]:
         os.close(descriptor)
         yield temporary
         _sync(temporary)
-        _publish(temporary, target)
+        if replace:
+            os.replace(temporary, target)  # renames over a link planted meanwhile, never into it
+        else:
+            _publish(temporary, target)
         _sync(target.parent)
     finally:
         temporary.unlink(missing_ok=True)
+
+
+def refuse_existing(target: Path, *, replace: bool = False) -> None:
+    """Raise :class:`InvalidInput` if ``target`` exists, unless ``replace`` and it is a regular
+    file (a folder is never replaced)."""
+    if not target.exists():
+        return
+    if not replace:
+        raise InvalidInput(f"{target} exists; choose a new file name")
+    if not target.is_file():
+        raise InvalidInput(f"{target} exists and is not a file; choose a new file name")
 
 
 def _publish(temporary: Path, target: Path) -> None:

@@ -13,7 +13,9 @@ from analysis.exports.csvfile import (
 )
 from analysis.exports.files import (
     EXPORT_FORMATS,
+    SUMS_FILE,
     ExportFormat,
+    Staging,
     sha256_file,
     write_all_exports,
     write_export,
@@ -39,7 +41,9 @@ __all__ = [
     "EXPORT_FORMATS",
     "LONG_COLUMNS",
     "STEP_EXPORT_BASE_COLUMNS",
+    "SUMS_FILE",
     "ExportFormat",
+    "Staging",
     "WideColumn",
     "adaptation_trust_table",
     "codebook_json",

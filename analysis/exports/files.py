@@ -7,9 +7,11 @@ complete bundle (with a ``SHA256SUMS`` file) for archiving.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +32,9 @@ from analysis.study import analyse_study
 
 __all__ = [
     "EXPORT_FORMATS",
+    "SUMS_FILE",
     "ExportFormat",
+    "Staging",
     "sha256_file",
     "write_all_exports",
     "write_export",
@@ -179,17 +183,36 @@ def write_export(dataset: StudyDataset, format_name: str, path: str | Path) -> P
     return export.write(dataset, Path(path))
 
 
-def write_all_exports(dataset: StudyDataset, directory: str | Path) -> dict[str, Path]:
-    """Write every format into ``directory`` (created if needed) plus ``SHA256SUMS``.
+SUMS_FILE = "SHA256SUMS"
+"""The bundle's list of checksums (``sha256sum -c`` reads it)."""
+
+Staging = Callable[[Path], AbstractContextManager[Path]]
+"""``staging(target)`` gives the path to write a file to; the file is at ``target`` once the
+``with`` block ends (the app writes private temporary files and moves them into place)."""
+
+
+@contextlib.contextmanager
+def _in_place(target: Path) -> Iterator[Path]:
+    yield target
+
+
+def write_all_exports(
+    dataset: StudyDataset, directory: str | Path, *, staging: Staging = _in_place
+) -> dict[str, Path]:
+    """Write every format into ``directory`` (created if needed) plus ``SHA256SUMS``, each file
+    through ``staging`` (default: straight to its path).
 
     Returns the path of each format by name.
     """
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
-    written = {
-        name: export.write(dataset, folder / export.filename)
-        for name, export in EXPORT_FORMATS.items()
-    }
+    written = {}
+    for name, export in EXPORT_FORMATS.items():
+        target = folder / export.filename
+        with staging(target) as draft:
+            export.write(dataset, draft)
+        written[name] = target
     sums = "".join(f"{sha256_file(p)}  {p.name}\n" for p in written.values())
-    (folder / "SHA256SUMS").write_text(sums, encoding="utf-8")
+    with staging(folder / SUMS_FILE) as draft:
+        draft.write_text(sums, encoding="utf-8")
     return written

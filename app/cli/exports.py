@@ -1,20 +1,31 @@
-"""``trustlab export``: the PI's files from the stored data, like the dashboard's buttons."""
+"""``trustlab export``: the PI's files from the stored data, like the dashboard's buttons.
+
+Exports hold participants' answers, so they are written as the backups are
+(:mod:`app.private_files`): mode 0600 whatever the umask, never through a symbolic link, each
+file complete or not at all, and never over an existing file unless ``--force`` says so.
+"""
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from analysis.exports import EXPORT_FORMATS, sha256_file, write_all_exports, write_export
+from analysis.exports import EXPORT_FORMATS, SUMS_FILE, sha256_file, write_all_exports, write_export
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
+from app.private_files import new_private_file, refuse_existing, refuse_link
 from app.services import audit, studies, study_data
 from app.services.audit import Actor
+from app.services.blinding import is_sealed
 from app.settings import Settings
 
 ALL = "all"
+
+FOLDER_MODE = 0o700
+"""A new bundle folder: for its owner only, like its files."""
 
 
 def register(cli: typer.Typer) -> None:
@@ -28,30 +39,41 @@ def export(
         str, typer.Option(help=f"One of {', '.join(EXPORT_FORMATS)}, or '{ALL}' (a folder).")
     ],
     out: Annotated[Path, typer.Option(help="File to write (a folder for 'all').")],
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace files that exist (never a symbolic link).")
+    ] = False,
     as_json: JsonFlag = False,
 ) -> None:
     """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
-    models (JSON) or the report."""
+    models (JSON) or the report. Files are readable by their owner only; existing files are
+    kept unless --force."""
     if format != ALL and format not in EXPORT_FORMATS:
         raise InvalidInput(f"--format {format!r}: choose one of {', '.join(EXPORT_FORMATS)}, {ALL}")
+    targets = _targets(format, out)
+    for target in targets:  # refuse before the (slow) export, and before writing any file
+        refuse_link(target)
+        if target.exists() and not force:
+            raise InvalidInput(f"{target} exists; choose a new file name, or --force to replace it")
+        refuse_existing(target, replace=force)  # a folder is never replaced
     database = open_database(Settings())
     require_current_schema(database)
     with database.read_session() as db:
         found = studies.get_study(db, study)
         dataset = study_data.load_dataset(db, study=found)
-        study_id = found.id
+        study_id, sealed = found.id, is_sealed(found)
+    staging = partial(new_private_file, replace=force)
     if format == ALL:
-        out.mkdir(parents=True, exist_ok=True)
-        written = write_all_exports(dataset, out)
-        files = {
-            name: {"path": str(path), "sha256": sha256_file(path)} for name, path in written.items()
-        }
+        out.mkdir(mode=FOLDER_MODE, parents=True, exist_ok=True)
+        written = write_all_exports(dataset, out, staging=staging)
     else:
-        if out.is_dir():
-            out = out / EXPORT_FORMATS[format].filename
+        out = targets[0]
         out.parent.mkdir(parents=True, exist_ok=True)
-        path = write_export(dataset, format, out)
-        files = {format: {"path": str(path), "sha256": sha256_file(path)}}
+        with staging(out) as draft:
+            write_export(dataset, format, draft)
+        written = {format: out}
+    files = {
+        name: {"path": str(path), "sha256": sha256_file(path)} for name, path in written.items()
+    }
     with database.writing() as db:
         audit.record(
             db,
@@ -59,11 +81,31 @@ def export(
             action="export.written",
             study_id=study_id,
             subject=format,
-            details={"files": files, "data_sha256": dataset.manifest["data_sha256"]},
+            details={
+                "files": files,
+                "data_sha256": dataset.manifest["data_sha256"],
+                "for_unblinded_use": sealed,
+            },
         )
         db.commit()
+    if sealed:
+        typer.echo(
+            f"note: {study!r} is blinded: this export holds the real conditions and the learners' "
+            "data, for unblinded use only (recorded in the audit log)",
+            err=True,
+        )
     if as_json:
         emit_json({"study": study, "data_sha256": dataset.manifest["data_sha256"], "files": files})
         return
     for name, info in files.items():
         typer.echo(f"{name:<13} {info['path']}  sha256 {info['sha256'][:16]}…")
+
+
+def _targets(format: str, out: Path) -> list[Path]:
+    """The files an export writes: one file (into ``out`` if it is a folder), or the bundle's."""
+    refuse_link(out)
+    if format != ALL:
+        return [out / EXPORT_FORMATS[format].filename if out.is_dir() else out]
+    if out.exists() and not out.is_dir():
+        raise InvalidInput(f"--out {out}: '{ALL}' writes a folder, and this is a file")
+    return [out / export.filename for export in EXPORT_FORMATS.values()] + [out / SUMS_FILE]

@@ -2,9 +2,9 @@
 
 Reads the steps of one or more stored studies (or an exported steps CSV), fits each category's
 prior over the preferred question, slip rate and hazard by EM with bootstrap intervals over
-participants (analysis/population.py), writes the population file and, beside it, a figure of
-the fitted prior with its intervals (``FILE-stem.prior.html``), and prints a one-page summary.
-Nothing is written when the input is unusable.
+participants (app/services/population_fit.py), writes the population file and, beside it, a
+figure of the fitted prior with its intervals (``FILE-stem.prior.html``), and prints a one-page
+summary. Nothing is written when the input is unusable.
 """
 
 from __future__ import annotations
@@ -16,16 +16,11 @@ import pandas as pd
 import typer
 
 from analysis.exports.tables import steps_table
-from analysis.population import (
-    STEP_COLUMNS,
-    Population,
-    fit_population,
-    write_population,
-    write_prior_figure,
-)
+from analysis.population import STEP_COLUMNS, Population, write_population, write_prior_figure
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
 from app.services import studies, study_data
+from app.services.population_fit import fit_population
 from app.settings import Settings
 from app.tables import StudyStatus
 

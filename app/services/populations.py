@@ -9,6 +9,8 @@ study still enrolling participants. The last one matters for between-subjects de
 fitted on participants of a study while it runs, used for the conditions of a study that runs
 beside it (or the same one), lets one condition's participants shape the other's learner. A lab
 that has a reason (a pilot study left open by mistake, say) records it as ``enrolling_reason``.
+Study creation (:func:`app.services.studies.check_population_use`) puts these checks together
+with the learners' checkpoint loading, which builds on this module (never the other way round).
 """
 
 from __future__ import annotations
@@ -106,39 +108,17 @@ def check_trained_for(
         )
 
 
-def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | None:
-    """Check the protocol's population before a study is created from it; what the audit log
-    records of it (None when the protocol names no population).
+def check_sources(db: Session, protocol: Protocol, population: Population) -> dict[str, Any]:
+    """Refuse a population fitted from a study that is still enrolling, unless the protocol
+    records why; what the audit log records of the population.
 
     Raises
     ------
-    InvalidInput
-        For an unusable file, a category the population lacks or whose questions differ, or a
-        missing or broken checkpoint.
     Conflict
-        For a checkpoint trained for another population, or a source study still enrolling
-        without ``enrolling_reason``.
+        For a source study still enrolling without ``enrolling_reason``.
     """
-    from app.services.learners import accepted_mismatch, checkpoint_at
-
-    population = population_of(protocol)
-    if population is None:
-        return None
     settings = protocol.learners.population
-    assert settings is not None
-    for category in protocol.categories:  # the questions first: a wrong file, not checkpoints
-        try:
-            population.prior(category.name, len(category.questions), list(category.questions))
-        except ValueError as exc:
-            raise InvalidInput(f"{KEY}.file: {exc}") from None
-    for category in protocol.categories:
-        path = checkpoint_path(protocol, category)
-        try:
-            checkpoint = checkpoint_at(path, len(category.questions))
-        except ValueError as exc:
-            raise InvalidInput(f"{KEY}.checkpoints: {exc}") from None
-        check_trained_for(checkpoint, population, category)
-        accepted_mismatch(protocol, checkpoint)  # the feedback model, now rather than at enrolment
+    assert settings is not None  # callers ask only when the protocol names a population
     sources = [str(name) for name in population.content["source"].get("studies", [])]
     enrolling = list(
         db.scalars(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import secrets
+from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
@@ -11,7 +12,7 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import STUDY_NAME
 from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
-from app.services import audit, populations
+from app.services import audit, learners, populations
 from app.services.audit import Actor
 from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
@@ -41,7 +42,7 @@ def create_study(
     shown_title = study_title(title, loaded)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:
         raise Conflict(f"a study named {name!r} already exists")
-    population = populations.check_population_use(db, loaded.protocol)
+    population = check_population_use(db, loaded.protocol)
     study = Study(
         name=name,
         title=shown_title,
@@ -67,6 +68,41 @@ def create_study(
     )
     db.commit()
     return study
+
+
+def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | None:
+    """Check the protocol's population before a study is created from it; what the audit log
+    records of it (None when the protocol names no population). Here, above both, because it
+    joins the population (app.services.populations) with the learners' checkpoints
+    (app.services.learners), which are built from the population.
+
+    Raises
+    ------
+    InvalidInput
+        For an unusable file, a category the population lacks or whose questions differ, or a
+        missing or broken checkpoint.
+    Conflict
+        For a checkpoint trained for another population, or a source study still enrolling
+        without ``enrolling_reason``.
+    """
+    population = populations.population_of(protocol)
+    if population is None:
+        return None
+    for category in protocol.categories:  # the questions first: a wrong file, not checkpoints
+        try:
+            population.prior(category.name, len(category.questions), list(category.questions))
+        except ValueError as exc:
+            raise InvalidInput(f"{populations.KEY}.file: {exc}") from None
+    for category in protocol.categories:
+        path = populations.checkpoint_path(protocol, category)
+        try:
+            checkpoint = learners.checkpoint_at(path, len(category.questions))
+        except ValueError as exc:
+            raise InvalidInput(f"{populations.KEY}.checkpoints: {exc}") from None
+        populations.check_trained_for(checkpoint, population, category)
+        # The feedback model the checkpoint was trained for: now rather than at enrolment.
+        learners.accepted_mismatch(protocol, checkpoint)
+    return populations.check_sources(db, protocol, population)
 
 
 _protocol_cache: dict[tuple[int, str], Protocol] = {}

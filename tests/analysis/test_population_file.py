@@ -10,12 +10,12 @@ import pandas as pd
 import pytest
 
 from analysis.population import (
-    fit_population,
+    answers_from_steps,
     read_population,
-    sequences_from_steps,
     steps_sha256,
     write_population,
 )
+from app.services.population_fit import fit_population
 
 
 def _steps(
@@ -51,7 +51,7 @@ def _steps(
 
 def test_sequences_follow_session_run_and_iteration_order() -> None:
     steps = _steps(8)
-    sequences = sequences_from_steps(steps)
+    sequences = answers_from_steps(steps)
     assert {name: s.n_arms for name, s in sequences.items()} == {"conation": 4, "cognition": 3}
     first = steps[(steps.participant == "P000") & (steps.category == "conation")]
     first = first.sort_values(["session", "run", "iteration"])
@@ -61,9 +61,9 @@ def test_sequences_follow_session_run_and_iteration_order() -> None:
     row = people.index("P000")
     np.testing.assert_array_equal(sequences["conation"].actions[row], first["action"].to_numpy())
     with pytest.raises(ValueError, match=r"lacks the column.*answer"):
-        sequences_from_steps(steps.drop(columns=["answer"]))
+        answers_from_steps(steps.drop(columns=["answer"]))
     with pytest.raises(ValueError, match="number of questions is unknown"):
-        sequences_from_steps(steps.drop(columns=[f"p_before_{i}" for i in range(4)]))
+        answers_from_steps(steps.drop(columns=[f"p_before_{i}" for i in range(4)]))
 
 
 def test_a_fitted_file_round_trips_and_refuses_edits(tmp_path: Path) -> None:

@@ -7,22 +7,26 @@ import csv
 import hashlib
 import io
 import json
+import os
+import stat
+from collections.abc import Iterator
 from pathlib import Path
 
 import pyreadstat
 import pytest
 from sqlalchemy import select
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from analysis.exports import EXPORT_FORMATS
 from analysis.scoring import TIPI_SCALES, nars_scales
 from app.cli import cli
 from app.db import Database
-from app.protocol import default_protocol
-from app.services import study_data
-from app.tables import AuditEvent, Role
+from app.protocol import default_protocol, parse_protocol
+from app.services import studies, study_data
+from app.services.audit import Actor
+from app.tables import AuditEvent, Role, Study
 from bench.seed import seed_study
-from tests.conftest import Lab, UserClientFactory
+from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
 
 
 @pytest.fixture
@@ -174,6 +178,12 @@ def test_export_command(seeded: str, database_url: str, tmp_path: Path) -> None:
     assert bundle.exit_code == 0, bundle.output
     sums = (tmp_path / "bundle" / "SHA256SUMS").read_text()
     assert "report.html" in sums and "participants_wide.sav" in sums
+    # Issue 35 item 13: every file of the bundle is its owner's only, whatever the umask, and
+    # no temporary file is left beside them.
+    assert _mode(tmp_path / "bundle") == 0o700
+    bundled = sorted(f.name for f in (tmp_path / "bundle").iterdir())
+    assert bundled == sorted([*(e.filename for e in EXPORT_FORMATS.values()), "SHA256SUMS"])
+    assert {_mode(tmp_path / "bundle" / name) for name in bundled} == {0o600}
     wrong = runner.invoke(
         cli,
         ["export", "--study", seeded, "--format", "xlsx", "--out", str(tmp_path / "x")],
@@ -181,6 +191,97 @@ def test_export_command(seeded: str, database_url: str, tmp_path: Path) -> None:
     )
     assert wrong.exit_code == 2
     assert wrong.stderr.startswith("error: --format 'xlsx': choose one of long-csv")
+
+
+def _mode(path: Path) -> int:
+    return stat.S_IMODE(path.stat().st_mode)
+
+
+@pytest.fixture
+def umask_022() -> Iterator[None]:
+    """The usual umask, under which a plain write is readable by everyone."""
+    previous = os.umask(0o022)
+    yield
+    os.umask(previous)
+
+
+def _export(database_url: str, study: str, format: str, out: Path, *extra: str) -> Result:
+    return CliRunner().invoke(
+        cli,
+        ["export", "--study", study, "--format", format, "--out", str(out), *extra],
+        env={"TRUSTLAB_DATABASE_URL": database_url},
+    )
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # files, not the database
+def test_export_command_writes_private_files_and_never_over_others(
+    database: Database, database_url: str, tmp_path: Path, umask_022: None
+) -> None:
+    """Issue 35 item 13: 0600 whatever the umask, no symbolic link followed, no file replaced
+    unless --force (and then in one step), and a bundle refused before any file is written."""
+    seed_study(database, name="small", participants=2, seed=5)
+    out = tmp_path / "steps.csv"
+    assert _export(database_url, "small", "steps-csv", out).exit_code == 0
+    assert _mode(out) == 0o600
+    first = out.read_bytes()
+    out.write_text("the PI's notes")
+    again = _export(database_url, "small", "steps-csv", out)
+    assert (again.exit_code, again.stderr) == (
+        2,
+        f"error: {out} exists; choose a new file name, or --force to replace it\n",
+    )
+    assert out.read_text() == "the PI's notes"
+    forced = _export(database_url, "small", "steps-csv", out, "--force")
+    assert forced.exit_code == 0, forced.output
+    assert (out.read_bytes(), _mode(out)) == (first, 0o600)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("not yours")
+    for link, force in ((tmp_path / "link.csv", ()), (tmp_path / "link2.csv", ("--force",))):
+        link.symlink_to(victim)
+        followed = _export(database_url, "small", "long-csv", link, *force)
+        assert followed.exit_code == 2
+        assert followed.stderr.startswith(f"error: {link} is a symbolic link")
+    dangling = tmp_path / "dangling.csv"
+    dangling.symlink_to(tmp_path / "nowhere.csv")
+    assert _export(database_url, "small", "long-csv", dangling).exit_code == 2
+    assert victim.read_text() == "not yours" and not (tmp_path / "nowhere.csv").exists()
+    bundle = tmp_path / "bundle"
+    bundle.mkdir()
+    (bundle / "codebook.json").write_text("{}")
+    refused = _export(database_url, "small", "all", bundle)
+    assert refused.exit_code == 2
+    assert refused.stderr.startswith(f"error: {bundle / 'codebook.json'} exists; choose a new")
+    assert [f.name for f in bundle.iterdir()] == ["codebook.json"]
+    leftovers = [f.name for f in tmp_path.iterdir() if f.name.endswith(".partial")]
+    assert leftovers == []
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
+def test_a_sealed_studys_export_says_it_is_for_unblinded_use(
+    database: Database, database_url: str, tmp_path: Path
+) -> None:
+    """Issue 35 item 13: the command line is not blinded, but it says so, and the audit log
+    records that a blinded study's data left for unblinded use."""
+    blinded = protocol_text(**EXP3_ONLY, **{"blinded = false": "blinded = true"})
+    with database.writing() as db:
+        studies.create_study(
+            db, name="sealed", loaded=parse_protocol(blinded), actor=Actor.system()
+        )
+    seed_study(database, name="open", participants=2, seed=5)
+    sealed = _export(database_url, "sealed", "long-csv", tmp_path / "sealed.csv", "--json")
+    assert sealed.exit_code == 0, sealed.output
+    assert sealed.stderr == (
+        "note: 'sealed' is blinded: this export holds the real conditions and the learners' "
+        "data, for unblinded use only (recorded in the audit log)\n"
+    )
+    assert json.loads(sealed.stdout)["study"] == "sealed"  # stdout stays one JSON object
+    plain = _export(database_url, "open", "long-csv", tmp_path / "open.csv")
+    assert plain.exit_code == 0 and plain.stderr == ""
+    with database.read_session() as db:
+        events = db.scalars(select(AuditEvent).where(AuditEvent.action == "export.written"))
+        used = {e.study_id: e.details["for_unblinded_use"] for e in events}
+        ids = {s.name: s.id for s in db.scalars(select(Study))}
+    assert used == {ids["sealed"]: True, ids["open"]: False}
 
 
 def test_degenerate_data_is_explained_not_crashed(

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from analysis.methods import design_paragraph
-from analysis.population import Population, fit_population, write_population
+from analysis.population import Population, write_population
 from app.db import Database
 from app.errors import Conflict, InvalidInput
 from app.protocol import default_protocol, parse_protocol
@@ -18,6 +18,7 @@ from app.services import studies
 from app.services.audit import Actor
 from app.services.enrolment import enroll_participant
 from app.services.learners import feedback_model, restore
+from app.services.population_fit import fit_population
 from app.services.study_data import load_dataset
 from app.tables import AuditEvent, LearnerState, Role, StudyStatus
 from models.checkpoints import checkpoint_name, observation_for, write_checkpoint
