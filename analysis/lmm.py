@@ -12,7 +12,10 @@ formula (the tests check it against lme4's ``sleepstudy``).
 statsmodels' optimisers sometimes stop early or disagree on the flat likelihoods of small
 samples, so every model is fitted with BFGS and L-BFGS (and Powell when those two disagree or
 fail) and the converged fit with the highest REML likelihood is kept. A model none of them fits
-is reported as not converged with the optimisers' messages, never with silent estimates.
+is reported as not converged with the optimisers' messages, never with silent estimates. The
+kept fit is then finished in lme4's parameterisation and checked against the boundary
+(:meth:`analysis.reml.RemlDesign.refine`): a fit whose optimum is a variance of zero or a
+correlation of ±1 is reported there, as singular.
 """
 
 from __future__ import annotations
@@ -125,7 +128,7 @@ class MixedModelFit:
     df_method : str
         ``"Satterthwaite"`` or ``"normal approximation"`` (when θ's covariance is unavailable).
     optimizer : str
-        The statsmodels method whose fit was kept.
+        The statsmodels method whose fit was kept, then finished by BFGS on lme4's θ.
     loglik, aic : float
         REML log-likelihood and ``−2 logLik + 2 k`` (k = fixed + covariance parameters), as
         lme4 reports for REML fits: comparable between models with the same fixed effects only.
@@ -450,7 +453,7 @@ def fit_mixed_model(
         )
     reml = RemlDesign(model.endog, model.exog, model.exog_re, np.asarray(model.groups))
     start = reml.theta_of(np.atleast_2d(np.asarray(fitted.cov_re, float)), float(fitted.scale))
-    estimate = reml.estimates(start)
+    estimate = reml.refine(start)
     cov, jacobian = reml.beta_covariance_jacobian(estimate.varpar)
     notes: list[str] = []
     varpar_cov: np.ndarray | None
@@ -473,7 +476,7 @@ def fit_mixed_model(
         problem="",
         notes=tuple(notes),
         df_method="Satterthwaite" if inference.satterthwaite else "normal approximation",
-        optimizer=optimizer,
+        optimizer=f"{optimizer}, then BFGS on θ",
         loglik=estimate.loglik,
         aic=-2 * estimate.loglik + 2 * n_params,
         n_obs=n_obs,
