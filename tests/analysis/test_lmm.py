@@ -282,3 +282,35 @@ def test_a_fit_that_approaches_the_boundary_is_reported_on_it(
     )
     assert result.comparison["chi2"] == pytest.approx(2 * (56.9466944 - 56.91137869), abs=1e-4)
     assert result.preferred is result.intercept
+
+
+def _noiseless(per_session_change: bool) -> pd.DataFrame:
+    """Each rating = its condition × session cell + the participant's level (+ their own
+    linear change per session): nothing is left for the residual."""
+    rng = np.random.default_rng(7)
+    rows = []
+    for i in range(10):
+        level, change = rng.normal(0, 0.5), rng.normal(0, 0.2) * per_session_change
+        for t in range(4):
+            cell = 3 + (0.3 if i % 2 else -0.1) * t
+            rows.append((i, "AB"[i % 2], t + 1, cell + level + change * t))
+    return pd.DataFrame(rows, columns=["subject", "group", "time", "y"])
+
+
+def test_data_without_residual_variation_are_refused_in_one_line() -> None:
+    with pytest.raises(CannotComputeError, match="reproduce every value exactly") as caught:
+        linear_mixed_models(_noiseless(per_session_change=False), **KW)
+    assert "\n" not in str(caught.value)
+    assert str(caught.value).startswith("the mixed model y ~ group * time + (1 | subject)")
+
+
+def test_only_the_slope_model_is_refused_when_it_alone_leaves_no_residual() -> None:
+    result = linear_mixed_models(_noiseless(per_session_change=True), **KW)
+    assert result.intercept.converged and result.intercept.variance["sd"].iloc[-1] > 0.01
+    assert result.slope is not None and not result.slope.converged
+    assert "reproduce every value exactly (no residual variation)" in result.slope.problem
+    assert result.slope.tests.empty and result.comparison is None
+    assert result.preferred is result.intercept
+    assert comparison_sentence(result) == (
+        f"The random-slope comparison could not be made: {result.slope.problem}."
+    )
