@@ -258,8 +258,7 @@ class RemlDesign:
 
     def estimates(self, theta: np.ndarray) -> RemlFit:
         """β, σ, G and the REML log-likelihood at ``θ`` (σ² at its optimum)."""
-        theta = np.asarray(theta, float).copy()
-        theta[self.diagonal] = np.abs(theta[self.diagonal])  # the deviance is even in each
+        theta = self._canonical(np.asarray(theta, float))
         pieces = self._pieces(theta)
         deviance, _ = self.profiled_deviance(theta)
         sigma2 = pieces.quad / (self.n - self.p)
@@ -279,20 +278,19 @@ class RemlDesign:
         The profiled deviance is minimised over θ without bounds (it depends on Λ only through
         ΛΛ', which flipping the sign of a column of Λ leaves unchanged, so nothing is lost; and
         no bound can stall the search at the boundary, where the gradient is zero), from
-        ``start`` and from
-        lme4's default start (Λ = I), which guards against a start in the wrong valley or on
-        the stationary point θ = 0. Then the boundary model (the last diagonal element of Λ
-        fixed at zero: a variance of zero with one random effect, a rank-one covariance, i.e.
-        a correlation of ±1 or a zero variance, with two) is fitted and kept when its
-        likelihood is at least as good, so a fit that only approaches the boundary is reported
-        on it, as lme4's bounded optimiser ends on it.
+        ``start`` and from lme4's default start (Λ = I), which guards against a start in the
+        wrong valley or on the stationary point θ = 0. Then the boundary model (the last
+        diagonal element of Λ fixed at zero: a variance of zero with one random effect; a
+        rank-one covariance, i.e. a correlation of ±1 or a zero variance, with two) is fitted
+        and kept when its likelihood is at least as good, so a fit that only approaches the
+        boundary is reported on it, as lme4's bounded optimiser ends on it.
         """
         free_starts = [np.asarray(start, float), self._default_start()]
         free = min((self._minimise(s, fixed=None) for s in free_starts), key=lambda r: r.fun)
         last = int(np.flatnonzero(self.diagonal)[-1])
         boundary = self._minimise(free.x, fixed=last)
         best = boundary if boundary.fun <= free.fun + _KEEP_BOUNDARY else free
-        return self.estimates(self._canonical(best.x))
+        return self.estimates(best.x)
 
     def _default_start(self) -> np.ndarray:
         return self.diagonal.astype(float)
