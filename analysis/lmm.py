@@ -12,7 +12,10 @@ formula (the tests check it against lme4's ``sleepstudy``).
 statsmodels' optimisers sometimes stop early or disagree on the flat likelihoods of small
 samples, so every model is fitted with BFGS and L-BFGS (and Powell when those two disagree or
 fail) and the converged fit with the highest REML likelihood is kept. A model none of them fits
-is reported as not converged with the optimisers' messages, never with silent estimates.
+is reported as not converged with the optimisers' messages, never with silent estimates. The
+kept fit is then finished in lme4's parameterisation and checked against the boundary
+(:meth:`analysis.reml.RemlDesign.refine`): a fit whose optimum is a variance of zero or a
+correlation of ±1 is reported there, as singular.
 """
 
 from __future__ import annotations
@@ -66,6 +69,8 @@ _METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
 """Optimisers in the order tried: BFGS, confirmed by L-BFGS, and Powell to decide when the two
 disagree. (A stricter BFGS gradient tolerance than statsmodels' default stalls for seconds on
 large samples without moving the likelihood.)"""
+_NO_RESIDUAL = 1e-10
+"""A residual sum of squares at or below this share of the total is zero (as the ANOVA's)."""
 _AGREE = 1e-4
 """Two fits whose REML log-likelihoods differ by less than this agree (a difference that moves
 the likelihood-ratio statistic by 0.0002): with one of them converged, the optimum is found."""
@@ -125,7 +130,7 @@ class MixedModelFit:
     df_method : str
         ``"Satterthwaite"`` or ``"normal approximation"`` (when θ's covariance is unavailable).
     optimizer : str
-        The statsmodels method whose fit was kept.
+        The statsmodels method whose fit was kept, then finished by BFGS on lme4's θ.
     loglik, aic : float
         REML log-likelihood and ``−2 logLik + 2 k`` (k = fixed + covariance parameters), as
         lme4 reports for REML fits: comparable between models with the same fixed effects only.
@@ -398,6 +403,15 @@ def fit_mixed_model(
     -------
     MixedModelFit
 
+    Raises
+    ------
+    InvalidInputError
+        A formula the data cannot fill, or a confidence outside (0, 1).
+    CannotComputeError
+        Too few observations or subjects, a constant response, collinear fixed effects, or a
+        model that reproduces every value exactly (no residual variation: REML has no optimum,
+        and any F would be an artefact of rounding).
+
     Notes
     -----
     The fixed-effect t tests use Satterthwaite df (lmerTest's default); when the covariance of
@@ -438,6 +452,12 @@ def fit_mixed_model(
             f"the mixed model {display}",
             "its fixed effects are not all estimable from these data (collinear predictors)",
         )
+    if _fits_exactly(model):
+        raise CannotComputeError(
+            f"the mixed model {display}",
+            "its fixed and random effects reproduce every value exactly (no residual "
+            "variation), so its variances and tests are undefined",
+        )
     fitted, optimizer, messages = _fit_statsmodels(model)
     names = list(model.exog_names)
     labels = labels or (lambda column: column)
@@ -450,7 +470,7 @@ def fit_mixed_model(
         )
     reml = RemlDesign(model.endog, model.exog, model.exog_re, np.asarray(model.groups))
     start = reml.theta_of(np.atleast_2d(np.asarray(fitted.cov_re, float)), float(fitted.scale))
-    estimate = reml.estimates(start)
+    estimate = reml.refine(start)
     cov, jacobian = reml.beta_covariance_jacobian(estimate.varpar)
     notes: list[str] = []
     varpar_cov: np.ndarray | None
@@ -473,7 +493,7 @@ def fit_mixed_model(
         problem="",
         notes=tuple(notes),
         df_method="Satterthwaite" if inference.satterthwaite else "normal approximation",
-        optimizer=optimizer,
+        optimizer=f"{optimizer}, then BFGS on θ",
         loglik=estimate.loglik,
         aic=-2 * estimate.loglik + 2 * n_params,
         n_obs=n_obs,
@@ -485,6 +505,24 @@ def fit_mixed_model(
         inference=inference,
         design_info=design_info,
     )
+
+
+def _fits_exactly(model: Any) -> bool:
+    """Whether ``y`` lies in the span of the fixed effects and every subject's random effects:
+    then the residual variance is zero, REML has no optimum (the likelihood grows without
+    bound) and any F or df would be an artefact of rounding."""
+    groups = np.asarray(model.groups)
+    codes = np.unique(groups, return_inverse=True)[1]
+    z = np.asarray(model.exog_re, float)
+    per_subject = np.zeros((len(groups), z.shape[1] * (codes.max() + 1)))
+    per_subject[
+        np.arange(len(groups))[:, None], codes[:, None] * z.shape[1] + np.arange(z.shape[1])
+    ] = z
+    design = np.hstack([np.asarray(model.exog, float), per_subject])
+    y = np.asarray(model.endog, float)
+    fitted = design @ np.linalg.lstsq(design, y, rcond=None)[0]
+    total = float(np.sum((y - y.mean()) ** 2))
+    return float(np.sum((y - fitted) ** 2)) <= _NO_RESIDUAL * total
 
 
 def _empty_fit(
@@ -707,7 +745,10 @@ def linear_mixed_models(
     InvalidInputError, DuplicateObservationError
         As :func:`analysis.design.prepare_mixed_design`.
     CannotComputeError
-        Fewer than two participants with a rating, or only one between or within level.
+        Fewer than two participants with a rating, only one between or within level, or data
+        the random-intercept model reproduces exactly (no residual variation). When only the
+        random-slope model reproduces them exactly, it alone is refused: its ``problem`` says
+        why and the intercept model stands.
 
     Notes
     -----
@@ -775,18 +816,28 @@ def linear_mixed_models(
         )
     ]
     if random_slope:
-        fits.append(
-            fit_mixed_model(
+        slope_display = f"{base} + (1 + {within}_step | {subject})"
+        try:
+            slope = fit_mixed_model(
                 frame,
                 formula=formula,
                 subject="subject",
                 re_formula="~within_step",
                 name="random slope",
-                display=f"{base} + (1 + {within}_step | {subject})",
+                display=slope_display,
                 confidence=confidence,
                 labels=labels,
             )
-        )
+        except CannotComputeError as error:  # e.g. no residual left: the intercept model stands
+            empty = _empty_fit(
+                "random slope",
+                slope_display,
+                fits[0].n_obs,
+                fits[0].n_subjects,
+                fits[0].n_params + 2,
+            )
+            slope = MixedModelFit(**empty, converged=False, problem=str(error))
+        fits.append(slope)
     fits = [
         _with_emmeans(fit, frame, between, within, group_levels, present_levels, confidence)
         for fit in fits

@@ -63,10 +63,13 @@ def comparison_sentence(models: LinearMixedModels) -> str:
     if models.slope is None:
         return f"No random-slope model: {models.slope_skipped}." if models.slope_skipped else ""
     if models.comparison is None:
-        failed = [m.name for m in models.models if not m.converged]
+        failed = [m for m in models.models if not m.converged]
+        refused = [m.problem for m in failed if "did not converge" not in m.problem]
+        if refused:
+            return "The random-slope comparison could not be made: " + "; ".join(refused) + "."
         return (
             "The random-slope comparison could not be made: the "
-            + " and the ".join(failed)
+            + " and the ".join(m.name for m in failed)
             + " model did not converge."
         )
     c = models.comparison

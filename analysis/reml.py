@@ -1,4 +1,4 @@
-"""The REML likelihood of a linear mixed model in lme4's parameterisation.
+"""The REML likelihood of a linear mixed model in lme4's parameterisation, and its optimum.
 
 lme4 writes the random-effects covariance as ``G = σ² Λ Λ'`` with ``Λ`` the lower-triangular
 *relative Cholesky factor*, the diagonal of ``Λ`` bounded below by zero. The likelihood is smooth
@@ -10,6 +10,13 @@ valid parameterisation (the likelihood is not even defined beyond it).
 or at a given ``σ``), with exact gradients. The same parameterisation, ``varpar = (θ, σ)``, is
 the one lmerTest uses for Satterthwaite's df (:mod:`analysis.satterthwaite`), which therefore
 stay valid at the boundary.
+
+statsmodels' ``MixedLM`` finds a good neighbourhood but, on the flat likelihoods of small
+samples, sometimes stops short of the optimum, most of all when the optimum is on the boundary,
+which its parameterisation can approach but never reach (a correlation of .9958 where lme4
+finds 1). :meth:`RemlDesign.refine` therefore finishes every fit here: it minimises the
+deviance in ``θ`` and also fits the boundary model (a rank-deficient ``Λ``), keeping it when its
+likelihood is at least as good, so a fit whose optimum is on the boundary is reported there.
 
 ``θ`` holds the elements of the lower triangle of ``Λ`` column by column (lme4's order:
 ``Λ[0,0], Λ[1,0], Λ[1,1]`` for an intercept and a slope). The fit is singular, as lme4's
@@ -26,11 +33,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import optimize
 
 __all__ = ["SINGULAR_TOL", "RemlDesign", "RemlFit"]
 
 SINGULAR_TOL = 1e-4
 """A diagonal element of ``Λ`` below this is on the boundary (lme4's ``isSingular`` default)."""
+
+_KEEP_BOUNDARY = 1e-9
+"""The boundary fit is kept when its REML deviance is at most this much above the free fit's:
+"at least as good" up to the rounding of the deviance itself."""
 
 
 @dataclass(frozen=True)
@@ -246,8 +258,7 @@ class RemlDesign:
 
     def estimates(self, theta: np.ndarray) -> RemlFit:
         """β, σ, G and the REML log-likelihood at ``θ`` (σ² at its optimum)."""
-        theta = np.asarray(theta, float).copy()
-        theta[self.diagonal] = np.abs(theta[self.diagonal])  # the deviance is even in each
+        theta = self._canonical(np.asarray(theta, float))
         pieces = self._pieces(theta)
         deviance, _ = self.profiled_deviance(theta)
         sigma2 = pieces.quad / (self.n - self.p)
@@ -260,3 +271,55 @@ class RemlDesign:
             loglik=-0.5 * deviance,
             singular=bool(np.any(theta[self.diagonal] < SINGULAR_TOL)),
         )
+
+    def refine(self, start: np.ndarray) -> RemlFit:
+        """The REML optimum, from ``start`` (a θ), checked against the boundary.
+
+        The profiled deviance is minimised over θ without bounds (it depends on Λ only through
+        ΛΛ', which flipping the sign of a column of Λ leaves unchanged, so nothing is lost; and
+        no bound can stall the search at the boundary, where the gradient is zero), from
+        ``start`` and from lme4's default start (Λ = I), which guards against a start in the
+        wrong valley or on the stationary point θ = 0. Then the boundary model (the last
+        diagonal element of Λ fixed at zero: a variance of zero with one random effect; a
+        rank-one covariance, i.e. a correlation of ±1 or a zero variance, with two) is fitted
+        and kept when its likelihood is at least as good, so a fit that only approaches the
+        boundary is reported on it, as lme4's bounded optimiser ends on it.
+        """
+        free_starts = [np.asarray(start, float), self._default_start()]
+        free = min((self._minimise(s, fixed=None) for s in free_starts), key=lambda r: r.fun)
+        last = int(np.flatnonzero(self.diagonal)[-1])
+        boundary = self._minimise(free.x, fixed=last)
+        best = boundary if boundary.fun <= free.fun + _KEEP_BOUNDARY else free
+        return self.estimates(best.x)
+
+    def _default_start(self) -> np.ndarray:
+        return self.diagonal.astype(float)
+
+    def _canonical(self, theta: np.ndarray) -> np.ndarray:
+        """The same ΛΛ' with a non-negative diagonal: flip the sign of each column of Λ whose
+        diagonal element is negative (lme4's convention)."""
+        lam = self.factor(theta)
+        lam = lam * np.where(np.diag(lam) < 0, -1.0, 1.0)[None, :]
+        return np.array([lam[r, c] for r, c in self.index])
+
+    def _minimise(self, start: np.ndarray, fixed: int | None) -> optimize.OptimizeResult:
+        """BFGS on the profiled deviance, with θ[fixed] held at zero when given."""
+        free = np.ones(self.n_theta, dtype=bool)
+        if fixed is not None:
+            free[fixed] = False
+
+        def deviance(values: np.ndarray) -> tuple[float, np.ndarray]:
+            theta = np.zeros(self.n_theta)
+            theta[free] = values
+            value, gradient = self.profiled_deviance(theta)
+            return value, gradient[free]
+
+        if not free.any():  # a single random effect at zero: nothing to optimise
+            value, _ = self.profiled_deviance(np.zeros(self.n_theta))
+            return optimize.OptimizeResult(x=np.zeros(self.n_theta), fun=value)
+        result = optimize.minimize(
+            deviance, start[free], jac=True, method="BFGS", options={"gtol": 1e-9, "maxiter": 500}
+        )
+        theta = np.zeros(self.n_theta)
+        theta[free] = result.x
+        return optimize.OptimizeResult(x=theta, fun=float(result.fun))

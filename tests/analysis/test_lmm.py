@@ -194,6 +194,35 @@ LMERTEST = {
         "p": [2.103940894e-05, 1.095311676e-01, 2.028439823e-01],
         "coef_df": [40.0] * 8,  # summary(m): every coefficient's t test
     },
+    ("lmm_boundary_intercept", "random slope"): {
+        # the intercept–slope correlation at −1 (lme4's θ[2] = 3e-5, below isSingular's 1e-4)
+        "singular": True,
+        "loglik": -36.46167769,
+        "sd": [0.2804424592, 0.2140849730, 0.3897176640],
+        "corr": -0.9999999983,
+        "F": [30.889525822, 1.454598475, 1.166821767],
+        "df2": [24.53390212, 21.81094335, 21.81094335],
+        "p": [9.457276521e-06, 2.544197762e-01, 3.450725867e-01],
+    },
+    ("lmm_boundary_slope", "random slope"): {
+        # the correlation at +1, where statsmodels stops short (.99…, REML logLik 0.0012 lower)
+        "singular": True,
+        "loglik": -56.91137869,
+        "sd": [0.59272337399, 0.02380859827, 0.58965294187],
+        "corr": 1.0,
+        "F": [0.2866797679, 1.5560727978, 1.5302657291],
+        "df2": [10.00035813, 29.90702012, 29.90702012],
+        "p": [0.6040582473, 0.2205982820, 0.2269775375],
+    },
+    ("lmm_flat_intercept", "random intercept"): {
+        # statsmodels "converges" with the REML logLik 0.156 short of this optimum
+        "singular": False,
+        "loglik": -43.66933153,
+        "sd": [0.08813338431, 0.51750765474],
+        "F": [8.3729209569, 0.5141521109, 4.9096646547],
+        "df2": [9.999998085, 29.999996731, 29.999996731],
+        "p": [0.016008142266, 0.675654653436, 0.006813144557],
+    },
     ("lmm_boundary_slope", "random intercept"): {
         "singular": False,
         "loglik": -56.9466944,
@@ -240,3 +269,48 @@ def test_boundary_fits_match_lmertest(
     assert ("boundary (singular) fit" in fit.status) == expected["singular"]
     if "coef_df" in expected:
         assert fit.fixed["df"].to_numpy() == pytest.approx(expected["coef_df"], abs=0.01)
+
+
+def test_a_fit_that_approaches_the_boundary_is_reported_on_it(
+    boundary_fits: dict[str, lmm.LinearMixedModels],
+) -> None:
+    # lmerTest (as above): REML logLik −56.9466944 (intercept) and −56.91137869 (slope, singular)
+    result = boundary_fits["lmm_boundary_slope"]
+    assert result.slope is not None and result.comparison is not None
+    assert (
+        result.slope.status == "boundary (singular) fit: the intercept–slope correlation is +1.000"
+    )
+    assert result.comparison["chi2"] == pytest.approx(2 * (56.9466944 - 56.91137869), abs=1e-4)
+    assert result.preferred is result.intercept
+
+
+def _noiseless(per_session_change: bool) -> pd.DataFrame:
+    """Each rating = its condition × session cell + the participant's level (+ their own
+    linear change per session): nothing is left for the residual."""
+    rng = np.random.default_rng(7)
+    rows = []
+    for i in range(10):
+        level, change = rng.normal(0, 0.5), rng.normal(0, 0.2) * per_session_change
+        for t in range(4):
+            cell = 3 + (0.3 if i % 2 else -0.1) * t
+            rows.append((i, "AB"[i % 2], t + 1, cell + level + change * t))
+    return pd.DataFrame(rows, columns=["subject", "group", "time", "y"])
+
+
+def test_data_without_residual_variation_are_refused_in_one_line() -> None:
+    with pytest.raises(CannotComputeError, match="reproduce every value exactly") as caught:
+        linear_mixed_models(_noiseless(per_session_change=False), **KW)
+    assert "\n" not in str(caught.value)
+    assert str(caught.value).startswith("the mixed model y ~ group * time + (1 | subject)")
+
+
+def test_only_the_slope_model_is_refused_when_it_alone_leaves_no_residual() -> None:
+    result = linear_mixed_models(_noiseless(per_session_change=True), **KW)
+    assert result.intercept.converged and result.intercept.variance["sd"].iloc[-1] > 0.01
+    assert result.slope is not None and not result.slope.converged
+    assert "reproduce every value exactly (no residual variation)" in result.slope.problem
+    assert result.slope.tests.empty and result.comparison is None
+    assert result.preferred is result.intercept
+    assert comparison_sentence(result) == (
+        f"The random-slope comparison could not be made: {result.slope.problem}."
+    )

@@ -119,3 +119,22 @@ def test_declared_text_levels_set_the_slope_steps(cli: typer.Typer, tmp_path: Pa
     numeric = run(cli, str(DROPOUTS), *ARGS, "--within-levels", "one,two")
     assert numeric.exit_code == EXIT_BAD_INPUT
     assert "--within-levels: 'session' holds numbers" in numeric.stderr
+
+
+def test_data_without_residual_variation_are_refused_in_one_line(
+    cli: typer.Typer, tmp_path: Path
+) -> None:
+    # every rating = its condition × session cell + the participant's own level, exactly
+    data = pd.read_csv(DROPOUTS).dropna()
+    level = data["participant"].str[1:].astype(int) / 10
+    data["trust"] = 3 + data["session"] * (data["condition"] == "C2") * 0.25 + level
+    path = tmp_path / "noiseless.csv"
+    data.to_csv(path, index=False)
+    result = run(cli, str(path), *ARGS)
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert "Traceback" not in result.stderr and "converged" not in result.stdout
+    assert result.stderr.strip().splitlines()[-1] == (
+        "error: the mixed model trust ~ condition * session + (1 | participant) cannot be "
+        "computed because its fixed and random effects reproduce every value exactly (no "
+        "residual variation), so its variances and tests are undefined"
+    )
