@@ -71,9 +71,6 @@ class Enrolled(BaseModel):
 
     code: str
     condition: str = Field(description="Condition id, or its neutral label for blinded roles.")
-    allocation_index: int | None = Field(
-        description="Position in the stratum's sequence (null for a dropout replacement)."
-    )
     stratum: str
     replaces: str | None = None
 

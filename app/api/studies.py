@@ -139,7 +139,6 @@ def enrol(name: str, body: EnrolmentRequest, db: SessionDep, user: ExperimenterU
     return Enrolled(
         code=result.participant.code,
         condition=enrolment.condition_label(study, result.condition, actor=actor),
-        allocation_index=result.allocation.sequence_index,
         stratum=result.participant.stratum,
         replaces=replaced_code,
     )

@@ -347,18 +347,13 @@ def participant_enroll(
             code=code,
             strata=_parse_strata(stratum or []),
         )
-        payload = {
-            "code": result.participant.code,
-            "condition": result.condition,
-            "allocation_index": result.allocation.sequence_index,
-        }
+        # Not the entry's place in the allocation sequence: it is concealed while the study
+        # enrols (app.services.blinding.allocation_disclosed).
+        payload = {"code": result.participant.code, "condition": result.condition}
     if as_json:
         emit_json(payload)
     else:
-        typer.echo(
-            f"enrolled {payload['code']} in {study!r}: condition {payload['condition']} "
-            f"(allocation {payload['allocation_index']})"
-        )
+        typer.echo(f"enrolled {payload['code']} in {study!r}: condition {payload['condition']}")
 
 
 @participant_cli.command("withdraw")

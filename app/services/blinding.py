@@ -13,6 +13,13 @@ The robot still receives everything it needs (its own routes and WebSocket are n
 responses), and the command line, run by whoever holds the server and its database, is not
 blinded.
 
+**Allocation concealment** is a third secret, kept from everyone (admins too) while the study
+enrols: where each allocation stands in its stratum's sequence (its index, its block's number and
+size, its place in the block) and the seed. Knowing the blocks, one can tell the rest of a block
+before it is allocated. Nothing shows them before :func:`allocation_disclosed`; the audit log has
+stopped recording them, and older entries that did are shown without them until then
+(:func:`visible_details`). The seed itself is never shown (exports carry its SHA-256 only).
+
 A study stays sealed until an admin unblinds it (:func:`unblind`, audited, once and for good);
 from then on everyone sees conditions and learners. Unblinding needs the study closed for
 enrolment, and an unblinded study cannot be reopened: a participant enrolled after it would run
@@ -20,6 +27,8 @@ unblinded.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
@@ -58,6 +67,28 @@ def shows_conditions(study: Study, actor: Actor) -> bool:
 def shows_learners(study: Study) -> bool:
     """Whether staff may see the learners' probabilities, confidence levels and reply history."""
     return not is_sealed(study)
+
+
+CONCEALED_ALLOCATION_DETAILS = frozenset(
+    {"sequence_index", "block_number", "block_size", "position_in_block"}
+)
+"""Audit-detail keys that place an allocation in its sequence (older entries recorded them)."""
+
+
+def allocation_disclosed(study: Study) -> bool:
+    """Whether where each allocation stands in the sequence may be shown: once the study is
+    closed for enrolment, and if it is blinded, once it has been unblinded too (which also keeps
+    it closed for good). Only audit entries written before issue 35 hold these details: a study
+    that is not blinded and is reopened after they were read continues the same sequence."""
+    return study.status == StudyStatus.CLOSED and not is_sealed(study)
+
+
+def visible_details(details: dict[str, Any], *, disclosed: bool) -> dict[str, Any]:
+    """An audit entry's details as staff may read them: without the allocation's place in its
+    sequence unless its study has :func:`allocation_disclosed` it."""
+    if disclosed:
+        return details
+    return {key: value for key, value in details.items() if key not in CONCEALED_ALLOCATION_DETAILS}
 
 
 def unfinished_participants(db: Session, study: Study) -> int:

@@ -225,11 +225,10 @@ def enroll_participant(
         action="allocation.revealed",
         study_id=study.id,
         subject=participant.code,
+        # Never the entry's place in the sequence or its block: with them, whoever reads the
+        # log could tell the rest of a block in advance (app.services.blinding).
         details={
             "condition": allocation.condition,
-            "sequence_index": allocation.sequence_index,
-            "block_number": allocation.block_number,
-            "block_size": allocation.block_size,
             "replaces_participant_id": allocation.replaces_participant_id,
         },
     )

@@ -1,18 +1,24 @@
-"""The audit log for admins: browse with filters, export as CSV."""
+"""The audit log for admins: browse with filters, export as CSV.
+
+Both leave out what older entries recorded of an allocation's place in its sequence until its study
+discloses it (app.services.blinding.allocation_disclosed): before, the block numbers and sizes made
+the rest of each block predictable."""
 
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import pandas as pd
 from fastapi import Request
 from fastapi.responses import Response
 from sqlalchemy import Select, func, select
+from sqlalchemy.orm import Session
 
 from analysis.exports import csv_bytes
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.inputs import PageNumber
-from app.services import audit
+from app.services import audit, blinding
 from app.services.audit import Actor
 from app.tables import AuditEvent, Study
 from app.web.templating import render
@@ -54,6 +60,16 @@ def _detail_value(value: object) -> str:
     return str(value)
 
 
+def _disclosing_studies(db: Session) -> set[int]:
+    """The studies whose allocations' places in the sequence may be shown
+    (app.services.blinding.allocation_disclosed): older audit entries recorded them."""
+    return {study.id for study in db.scalars(select(Study)) if blinding.allocation_disclosed(study)}
+
+
+def _shown_details(event: AuditEvent, disclosing: set[int]) -> dict[str, Any]:
+    return blinding.visible_details(event.details, disclosed=event.study_id in disclosing)
+
+
 def _filtered(study: str, action: str, actor: str) -> Select[AuditEvent, str]:
     query: Select[AuditEvent, str] = select(AuditEvent, Study.name).outerjoin(
         Study, Study.id == AuditEvent.study_id
@@ -84,11 +100,15 @@ def audit_log(
     rows = db.execute(
         query.order_by(AuditEvent.id.desc()).limit(PAGE_SIZE).offset((page - 1) * PAGE_SIZE)
     ).all()
+    disclosing = _disclosing_studies(db)
     return render(
         request,
         "audit.html",
         {
-            "rows": [(event, name, detail_pairs(event.details)) for event, name in rows],
+            "rows": [
+                (event, name, detail_pairs(_shown_details(event, disclosing)))
+                for event, name in rows
+            ],
             "total": total,
             "page": page,
             "pages": max(1, -(-total // PAGE_SIZE)),
@@ -112,6 +132,7 @@ def audit_export(
     Written by :func:`analysis.exports.csv_bytes` like every CSV, so an actor or subject that a
     spreadsheet would run as a formula (the login name of whoever ran a command, say) stays text.
     """
+    disclosing = _disclosing_studies(db)
     rows = [
         (
             event.id,
@@ -121,7 +142,7 @@ def audit_export(
             event.action,
             study_name or "",
             event.subject,
-            json.dumps(event.details, sort_keys=True),
+            json.dumps(_shown_details(event, disclosing), sort_keys=True),
         )
         for event, study_name in db.execute(_filtered(study, action, actor).order_by(AuditEvent.id))
     ]

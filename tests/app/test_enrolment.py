@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import re
 import threading
 from collections import Counter, defaultdict
 
@@ -11,14 +12,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from sqlalchemy import func, select
 
+from analysis.exports import EXPORT_FORMATS
+from app.access import POLICY, Principal
 from app.db import Database
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import parse_protocol
 from app.randomisation import entry_at
-from app.services import enrolment, studies
+from app.services import audit, enrolment, studies
 from app.services.audit import Actor
-from app.tables import Allocation, AuditEvent, Participant, StudyStatus
-from tests.conftest import protocol_text
+from app.tables import Allocation, AuditEvent, Participant, Role, StudyStatus
+from tests.conftest import Lab, UserClientFactory, protocol_text
 
 ACTOR = Actor.command_line()
 
@@ -55,6 +58,71 @@ def test_every_reveal_is_audited(database: Database, study_name: str) -> None:
     assert reveal.subject == "A1"
     assert reveal.details["condition"] == result.condition
     assert reveal.actor_kind == "cli"
+
+
+PLACE_IN_SEQUENCE = re.compile(
+    r"block[ _]number|block[ _]size(?!s)|sequence[ _]index|allocation[ _]index"
+    r"|position[ _]in[ _]block|allocation[ _]seed(?!_sha256)",
+    re.IGNORECASE,
+)
+"""How a page, export or log would name an allocation's place in its sequence (issue 35, item 11:
+the audit log's block numbers and sizes made 41 of the next 100 allocations certain)."""
+
+
+def _admin_reads(study: str, station: str, username: str) -> list[str]:
+    """Every page, read and export the access policy lets an admin fetch (a new route is swept
+    without changing this test); event streams carry change types only, tablet links need a
+    participant's token."""
+    paths = []
+    for (method, path), allowed in sorted(POLICY.items()):
+        if method != "GET" or Principal.ADMIN not in allowed:
+            continue
+        if (
+            path.endswith("/events")
+            or "{token}" in path
+            or path.startswith(("/static", "/api/v1/docs", "/api/v1/openapi"))
+        ):
+            continue
+        if "{export}" in path:
+            paths += [path.format(name=study, export=export) for export in EXPORT_FORMATS]
+            continue
+        name = station if path.startswith(("/stations", "/api/v1/stations")) else study
+        paths.append(path.format(name=name, code="P001", username=username))
+    return paths
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"])  # what is shown does not depend on the engine
+def test_no_page_export_or_log_places_an_allocation_before_the_study_closes(
+    lab: Lab, user_client: UserClientFactory, database: Database
+) -> None:
+    admin = user_client(Role.ADMIN, "auditor")
+    lab.enrol_and_assign("P001")  # seated, with answers: every page and export has data
+    for _ in range(5):
+        enrolled = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants", json={})
+        assert enrolled.status_code == 201 and not PLACE_IN_SEQUENCE.search(enrolled.text)
+    with database.writing() as db:  # an entry as written before the fix: shown once closed
+        audit.record(
+            db,
+            actor=Actor.system("tests"),
+            action="allocation.revealed",
+            study_id=studies.get_study(db, lab.study).id,
+            subject="P001",
+            details={"condition": "C1", "sequence_index": 0, "block_number": 0, "block_size": 4},
+        )
+        db.commit()
+    leaks = {}
+    for path in _admin_reads(lab.study, lab.station, "auditor"):
+        response = admin.get(path)
+        assert response.status_code < 500, f"{path}: {response.status_code}"
+        if PLACE_IN_SEQUENCE.search(response.text):
+            leaks[path] = sorted(set(PLACE_IN_SEQUENCE.findall(response.text)))
+    assert leaks == {}
+    assert admin.get("/admin/audit.csv").text.count("allocation.revealed") == 7
+
+    closed = admin.post(f"/api/v1/studies/{lab.study}/status", json={"status": "closed"})
+    assert closed.status_code == 200
+    assert "block number" in admin.get("/admin/audit").text
+    assert admin.get("/admin/audit.csv").text.count("block_number") == 1  # the old entry only
 
 
 @pytest.mark.parametrize("code", ["", " ", "x" * 33, "a b", "-lead", "P1;drop"])
