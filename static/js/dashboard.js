@@ -63,10 +63,13 @@
       drawing.push(plot(card.querySelector(".chart"), measure.payload));
     }
     // null while the study is blinded: the curves would show which group is which
+    // (and then the chart's area goes too: an empty 380 px box says nothing)
     const hidden = document.getElementById("adaptation-hidden");
+    const adaptation = document.getElementById("adaptation");
     hidden.hidden = latest.adaptation !== null;
+    adaptation.hidden = latest.adaptation === null;
     if (latest.adaptation) {
-      drawing.push(plot(document.getElementById("adaptation"), latest.adaptation));
+      drawing.push(plot(adaptation, latest.adaptation));
     } else {
       Plotly.purge("adaptation");
       hidden.textContent = `Adaptation curves: ${latest.learners_hidden}.`;

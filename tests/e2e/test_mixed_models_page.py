@@ -37,9 +37,23 @@ def test_the_section_loads_draws_and_switches_measure(
     section.get_by_label("Measure").select_option("trust_3")
     expect(page.locator("#mixed-models h2")).to_contain_text("(trust_3)")
     expect(page.locator("#mixed-models .js-plotly-plot .main-svg").first).to_be_visible()
-    page.locator("#mixed-models").get_by_label(
+    slope = page.locator("#mixed-models").get_by_label(
         "also fit a random slope for session and compare"
-    ).check()
+    )
+    # The box sits on its words' line, left of them, not above them (issue 35).
+    box, words = slope.evaluate(
+        """(box) => {
+             const range = document.createRange();
+             range.selectNodeContents(box.closest("label"));
+             range.setStartAfter(box);
+             return [box.getBoundingClientRect(), range.getBoundingClientRect()].map(
+               (r) => ({left: r.left, right: r.right, top: r.top, bottom: r.bottom}));
+           }"""
+    )
+    page.locator("#mixed-models form").screenshot(path=str(artifacts / "mixed-choice.png"))
+    assert box["right"] <= words["left"], (box, words)
+    assert box["top"] < words["bottom"] and words["top"] < box["bottom"], (box, words)
+    slope.check()
     expect(page.locator("#mixed-models")).to_contain_text(
         "Letting the session slope vary by participant"
     )

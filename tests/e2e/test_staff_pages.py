@@ -5,14 +5,18 @@ an experimenter unless chosen otherwise."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 from playwright.sync_api import Browser, Page, expect
 
 from app.db import Database
+from app.protocol import parse_protocol
+from app.services import studies
+from app.services.audit import Actor
 from app.tables import Participant, ParticipantStatus, Role
-from tests.conftest import Lab, make_user
+from tests.conftest import EXP3_ONLY, Lab, make_user, protocol_text
 from tests.e2e.test_refusals import SIZES, _sign_in
 from tests.servers import ServerProcess
 
@@ -105,4 +109,44 @@ def test_the_staff_pages_fit_and_read(
 
     page.goto(f"{live_server.url}/admin/users")
     assert page.get_by_label("Role").input_value() == "experimenter"
+    context.close()
+
+
+@pytest.mark.e2e
+def test_a_blinded_study_shows_what_is_sealed_without_empty_or_dead_controls(
+    browser: Browser, live_server: ServerProcess, database: Database, artifacts: Path
+) -> None:
+    """Issue 35: the dashboard's adaptation chart is not an empty box while the learners are
+    sealed, and the sealed downloads are visibly disabled, with the reason and no link."""
+    with database.writing() as db:
+        studies.create_study(
+            db,
+            name="blind",
+            loaded=parse_protocol(
+                protocol_text(**EXP3_ONLY, **{"blinded = false": "blinded = true"})
+            ),
+            actor=Actor.system(),
+        )
+    make_user(database, "operator", Role.ADMIN)
+    context = browser.new_context(viewport={"width": 1366, "height": 900})
+    page = context.new_page()
+    _sign_in(page, live_server, "/studies/blind/dashboard")
+    expect(page.locator("#dashboard")).to_have_attribute("data-drawn", re.compile(r"[1-9]"))
+    expect(page.locator("#adaptation-hidden")).to_contain_text("this study is blinded")
+    expect(page.get_by_test_id("adaptation")).to_be_hidden()
+    card = page.locator("#adaptation-hidden").locator("xpath=..").bounding_box()
+    assert card is not None and card["height"] < 150, card  # the note, not a 380 px chart area
+    page.screenshot(path=str(artifacts / "blinded-dashboard.png"), full_page=True)
+
+    page.goto(f"{live_server.url}/studies/blind/analysis")
+    downloads = page.locator("ul.downloads li")
+    for sealed in ("adaptation_steps.csv", "adaptation_trust.csv"):
+        item = downloads.filter(has_text=sealed)
+        expect(item.get_by_role("link")).to_have_count(0)
+        control = item.locator("[aria-disabled=true]")
+        expect(control).to_have_css("cursor", "not-allowed")
+        assert float(control.evaluate("el => getComputedStyle(el).opacity")) <= 0.6
+        expect(item).to_contain_text("not until the study is unblinded (it would show which group")
+    expect(downloads.filter(has_text="answers_long.csv").get_by_role("link")).to_have_count(1)
+    page.screenshot(path=str(artifacts / "blinded-downloads.png"), full_page=True)
     context.close()
