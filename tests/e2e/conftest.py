@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, Playwright, sync_playwright
+from playwright.sync_api import Browser, Playwright, expect, sync_playwright
 
 from app.db import Database
 from app.settings import REPO_ROOT
@@ -26,6 +26,11 @@ CHROMIUM_ARGS = [
 ]
 ARTIFACTS = REPO_ROOT / "test-artifacts"
 SECRET = b"subprocess-test-secret-0123456789abcdef"
+
+# Assertions wait for what the page shows, never for a time; the ceiling only decides how long a
+# broken page takes to fail. Playwright's 5 s default was too short for server work such as a mixed
+# model fit while the parallel suite shares two cores (the mixed-models page failed at load 7-9).
+expect.set_options(timeout=30_000)
 
 
 @pytest.fixture
