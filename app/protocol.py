@@ -67,7 +67,11 @@ class ConditionSpec(_Strict):
     label: Text
     learner: LearnerKind
     neutral_label: Text | None = Field(
-        default=None, description="Label shown to blinded roles; 'Group A', 'Group B'… if unset."
+        default=None,
+        description=(
+            "One of the labels blinded roles see ('Group A', 'Group B'… if unset). The labels "
+            "are a set: each blinded study gives them to its conditions in a random order."
+        ),
     )
 
 
@@ -332,12 +336,14 @@ class Protocol(_Strict):
                 return condition
         raise KeyError(condition_id)
 
-    def neutral_label(self, condition_id: str) -> str:
-        """The blinded label of a condition: its own, or 'Group A', 'Group B'… by position."""
-        for position, condition in enumerate(self.conditions):
-            if condition.id == condition_id:
-                return condition.neutral_label or f"Group {chr(ord('A') + position)}"
-        raise KeyError(condition_id)
+    def neutral_labels(self) -> list[str]:
+        """The labels blinded roles see, one per condition: each condition's own, or 'Group A',
+        'Group B'… by position. Which condition gets which is drawn per study
+        (app.services.studies): the protocol is no secret, so its order must not decide."""
+        return [
+            condition.neutral_label or f"Group {chr(ord('A') + position)}"
+            for position, condition in enumerate(self.conditions)
+        ]
 
     def category(self, name: str) -> CategorySpec:
         """The category with this name (KeyError if the protocol has none)."""

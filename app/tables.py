@@ -167,6 +167,9 @@ class Study(Base):
     protocol_source: Mapped[str] = mapped_column(Text, deferred=True)
     protocol_sha256: Mapped[str] = mapped_column(String(64))
     allocation_seed: Mapped[str] = mapped_column(String(64))
+    # A blinded study's condition id → neutral label, drawn at random when it is created and as
+    # secret as the seed until it is unblinded (app.services.blinding); None when not blinded.
+    neutral_labels: Mapped[dict[str, Any] | None]
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     created_by: Mapped[str] = mapped_column(String(64), default="")
     closed_at: Mapped[datetime | None]

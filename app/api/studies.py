@@ -39,10 +39,8 @@ def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
         blinded=protocol.study.blinded,
         unblinded_at=study.unblinded_at,
         enrolment=[
-            ConditionCount(
-                label=enrolment.condition_label(study, condition, actor=actor), **by_status
-            )
-            for condition, by_status in studies.enrolment_counts(db, study).items()
+            ConditionCount(label=label, **by_status)
+            for label, by_status in enrolment.counts_by_label(db, study, actor=actor).items()
         ],
     )
 
@@ -91,10 +89,12 @@ def get_protocol(name: str, db: SessionDep, user: CurrentUser) -> dict[str, Any]
     study = studies.get_study(db, name)
     protocol = studies.protocol_of(study)
     data = protocol.model_dump(mode="json")
-    if not blinding.shows_conditions(study, Actor.of_user(user)):
+    actor = Actor.of_user(user)
+    if not blinding.shows_conditions(study, actor):
+        # Listed by label: the protocol's order of the conditions would tell which is which.
         data["conditions"] = [
-            {"id": protocol.neutral_label(c.id), "label": protocol.neutral_label(c.id)}
-            for c in protocol.conditions
+            {"id": label, "label": label}
+            for label in dict.fromkeys(blinding.condition_labels(study, actor).values())
         ]
         data["learners"] = {}
     return data

@@ -313,6 +313,10 @@ def study_unblind(
     with database.writing() as db:
         study = blinding.unblind(db, name=name, actor=Actor.command_line())
         typer.echo(f"unblinded study {study.name!r} at {study.unblinded_at:%Y-%m-%d %H:%M} UTC")
+        labels = study.neutral_labels or {}
+        if labels:
+            pairs = ", ".join(f"{condition} was {label}" for condition, label in labels.items())
+            typer.echo(f"while blinded: {pairs}")
 
 
 def _parse_strata(pairs: list[str]) -> dict[str, str]:

@@ -3,7 +3,12 @@
 A protocol with ``[study] blinded = true`` hides two things from staff:
 
 - **the conditions**: experimenters see the neutral labels (*Group A*, *Group B*); admins and
-  analysts see the real ones (:attr:`app.services.audit.Actor.sees_conditions`);
+  analysts see the real ones (:attr:`app.services.audit.Actor.sees_conditions`). Which condition
+  carries which label is drawn at random when the study is created (app.services.studies) and
+  kept with the study's secrets: the protocol, which experimenters read, only says which labels
+  there are. Neutral labels are listed in label order, never in the protocol's order of the
+  conditions (the first would be C1). The assignment is shown only once the study is unblinded
+  (recorded in the audit entry ``study.unblinded`` and on the study page);
 - **the learners**: their probabilities, the confidence level behind each reply and the history
   of replies. C1's Exp3 starts at exactly 1/K for every question and C2's policy does not, so any
   of these would show an experimenter the condition at the first prompt. While the study is
@@ -64,6 +69,26 @@ def shows_conditions(study: Study, actor: Actor) -> bool:
     return not is_sealed(study) or actor.sees_conditions
 
 
+HIDDEN_GROUP = "Hidden group"
+"""What a blinded role sees of a condition the study has no neutral label for (none should exist:
+a blinded study gets its labels when it is created, migration 0012 gave older ones theirs)."""
+
+
+def neutral_label(study: Study, condition_id: str) -> str:
+    """The neutral label this study gave ``condition_id``."""
+    return (study.neutral_labels or {}).get(condition_id, HIDDEN_GROUP)
+
+
+def condition_labels(study: Study, actor: Actor) -> dict[str, str]:
+    """Each condition id → what ``actor`` may see of it, in the order to list them: the
+    protocol's for real ids, the labels' own (alphabetical) for neutral ones."""
+    ids = [condition.id for condition in protocol_of(study).conditions]
+    if shows_conditions(study, actor):
+        return {condition_id: condition_id for condition_id in ids}
+    labelled = {condition_id: neutral_label(study, condition_id) for condition_id in ids}
+    return dict(sorted(labelled.items(), key=lambda pair: (pair[1], pair[0])))
+
+
 def shows_learners(study: Study) -> bool:
     """Whether staff may see the learners' probabilities, confidence levels and reply history."""
     return not is_sealed(study)
@@ -116,7 +141,10 @@ def unblind(db: Session, *, name: str, actor: Actor) -> Study:
         action="study.unblinded",
         study_id=study.id,
         subject=study.name,
-        details={"active_participants": unfinished_participants(db, study)},
+        details={
+            "active_participants": unfinished_participants(db, study),
+            "neutral_labels": study.neutral_labels or {},
+        },
     )
     # Open dashboards refetch, and their data now carries the learners and the real conditions.
     events.publish(db, topics=[stations.study_topic(study.id)], type="study.unblinded")

@@ -39,8 +39,7 @@ from analysis.figures import (
 )
 from app.protocol import ItemKind, ItemSpec, Protocol
 from app.services.audit import Actor
-from app.services.blinding import LEARNERS_SEALED, shows_learners
-from app.services.enrolment import condition_label
+from app.services.blinding import LEARNERS_SEALED, condition_labels, shows_learners
 from app.services.studies import protocol_of
 from app.tables import (
     Allocation,
@@ -120,14 +119,10 @@ _plans_guard = threading.Lock()
 MAX_PLANS = 256
 
 
-def _labels(study: Study, protocol: Protocol, actor: Actor) -> dict[str, str]:
-    return {c.id: condition_label(study, c.id, actor=actor) for c in protocol.conditions}
-
-
 def plan_for(study: Study, actor: Actor) -> Plan:
     """The study's :class:`Plan` for what ``actor`` may see (made once per protocol version)."""
     protocol = protocol_of(study)
-    labels = _labels(study, protocol, actor)
+    labels = condition_labels(study, actor)
     learners = shows_learners(study)
     cache_key = (study.id, study.protocol_sha256, study.name, tuple(labels.items()), learners)
     plan = _plans.get(cache_key)
@@ -336,7 +331,8 @@ def json_safe(value: Any) -> Any:
 def compute(db: Session, plan: Plan) -> dict[str, Any]:
     """Everything the live dashboard draws, as JSON-able payloads (NaN already null)."""
     trust = trust_cells(db, plan)
-    # Each condition's colour by its place in the protocol (labels keep the protocol's order).
+    # Each condition's colour by its place in the protocol (neutral labels: by their own order,
+    # which tells nothing about the conditions: app.services.blinding.condition_labels).
     colors = condition_colors(list(plan.labels.values()))
     measures = []
     for measure in plan.measures:

@@ -23,7 +23,7 @@ from app.protocol import AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
 from app.services import audit, blinding, learners
 from app.services.audit import Actor
-from app.services.studies import get_study, protocol_of
+from app.services.studies import enrolment_counts, get_study, protocol_of
 from app.tables import (
     Allocation,
     LearnerState,
@@ -53,7 +53,23 @@ def condition_label(study: Study, condition_id: str, *, actor: Actor) -> str:
     blinded (app.services.blinding)."""
     if blinding.shows_conditions(study, actor):
         return condition_id
-    return protocol_of(study).neutral_label(condition_id)
+    return blinding.neutral_label(study, condition_id)
+
+
+def counts_by_label(db: Session, study: Study, *, actor: Actor) -> dict[str, dict[str, int]]:
+    """Participants per status under each label ``actor`` may see, in the order to list them
+    (app.services.blinding.condition_labels); conditions sharing a neutral label are pooled."""
+    counts = enrolment_counts(db, study)
+    labels = blinding.condition_labels(study, actor)
+    pooled: dict[str, dict[str, int]] = {}
+    for condition_id, label in labels.items():
+        by_status = counts.pop(condition_id, {})
+        into = pooled.setdefault(label, dict.fromkeys(ParticipantStatus, 0))
+        for status, n in by_status.items():
+            into[status] += n
+    for condition_id, by_status in counts.items():  # a condition the protocol lacks
+        pooled[condition_label(study, condition_id, actor=actor)] = by_status
+    return pooled
 
 
 def _validate_strata(spec: AllocationSpec, strata: Mapping[str, str]) -> dict[str, str]:

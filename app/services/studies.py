@@ -33,10 +33,23 @@ def study_title(given: str | None, loaded: LoadedProtocol) -> str:
     return title
 
 
+def draw_neutral_labels(protocol: Protocol) -> dict[str, str] | None:
+    """A blinded study's condition id → neutral label, the protocol's labels shuffled with the
+    system's secure randomness (None when the protocol is not blinded)."""
+    if not protocol.study.blinded:
+        return None
+    labels = protocol.neutral_labels()
+    shuffled = secrets.SystemRandom().sample(labels, len(labels))
+    return {
+        condition.id: label for condition, label in zip(protocol.conditions, shuffled, strict=True)
+    }
+
+
 def create_study(
     db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor, title: str | None = None
 ) -> Study:
-    """Create an open study with a fresh secret allocation seed; commits. ``title``: see
+    """Create an open study with a fresh secret allocation seed (and, if blinded, a fresh secret
+    assignment of neutral labels: :func:`draw_neutral_labels`); commits. ``title``: see
     :func:`study_title`."""
     STUDY_NAME.check(name)
     shown_title = study_title(title, loaded)
@@ -50,6 +63,7 @@ def create_study(
         protocol_source=loaded.source_text,
         protocol_sha256=loaded.sha256,
         allocation_seed=secrets.token_hex(32),
+        neutral_labels=draw_neutral_labels(loaded.protocol),
         created_by=actor.name,
     )
     db.add(study)

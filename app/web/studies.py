@@ -28,14 +28,11 @@ def study_list(
     actor = Actor.of_user(user)
     rows = []
     for study in studies.list_studies(db, archived=archived):
-        counts = studies.enrolment_counts(db, study)
+        counts = enrolment.counts_by_label(db, study, actor=actor)
         rows.append(
             {
                 "study": study,
-                "counts": {
-                    enrolment.condition_label(study, condition, actor=actor): by_status
-                    for condition, by_status in counts.items()
-                },
+                "counts": counts,
                 "total": sum(sum(by_status.values()) for by_status in counts.values()),
             }
         )
@@ -67,6 +64,11 @@ def _study_page(
             "protocol": protocol,
             "overview": overview.study_overview(db, study=study, actor=Actor.of_user(user)),
             "shows_conditions": blinding.shows_conditions(study, Actor.of_user(user)),
+            "neutral_groups": list(
+                dict.fromkeys(blinding.condition_labels(study, Actor.of_user(user)).values())
+            ),
+            # Which neutral label each condition had: only once the study is unblinded.
+            "blinded_as": (study.neutral_labels or {}) if study.unblinded_at else {},
             "sealed": blinding.is_sealed(study),
             "can_enrol": user.role in (Role.ADMIN, Role.EXPERIMENTER),
             "form_error": form_error,

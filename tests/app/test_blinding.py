@@ -277,8 +277,9 @@ def test_unblinding_is_an_admins_audited_one_way_act(
     assert reopen.status_code == 409 and "has been unblinded" in reopen.json()["detail"]
     with database.read_session() as db:
         events = db.scalars(select(AuditEvent).where(AuditEvent.action == "study.unblinded")).all()
+        labels = studies.get_study(db, "blind").neutral_labels
         assert [(e.actor, e.subject, e.details) for e in events] == [
-            ("boss", "blind", {"active_participants": 1})
+            ("boss", "blind", {"active_participants": 1, "neutral_labels": labels})
         ]
         assert studies.get_study(db, "blind").status == StudyStatus.CLOSED
 
@@ -292,6 +293,57 @@ def test_unblinding_is_an_admins_audited_one_way_act(
     assert experimenter.get("/studies/blind/dashboard.json").json()["adaptation"] is not None
     assert analyst.get("/studies/blind/exports/steps-csv").status_code == 200
     assert "No adaptation curves" not in analyst.get("/studies/blind/analysis").text
+
+
+def test_each_blinded_study_draws_which_condition_gets_which_label() -> None:
+    """The protocol (which experimenters read) gives the set of labels, never the assignment
+    (issue 35, item 10: C1 was always Group A)."""
+    protocol = parse_protocol(protocol_text(**EXP3_ONLY, **BLINDED)).protocol
+    draws = {tuple(studies.draw_neutral_labels(protocol).items()) for _ in range(64)}  # type: ignore[union-attr]
+    # both assignments come up (that one never would has odds 2 × 2⁻⁶⁴)
+    assert draws == {(("C1", "Group A"), ("C2", "Group B")), (("C1", "Group B"), ("C2", "Group A"))}
+    assert studies.draw_neutral_labels(parse_protocol(protocol_text()).protocol) is None
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"])  # what is shown does not depend on the engine
+def test_staff_see_the_studys_own_labels_and_the_assignment_only_once_unblinded(
+    database: Database, user_client: UserClientFactory
+) -> None:
+    with database.writing() as db:
+        study = studies.create_study(
+            db,
+            name="drawn",
+            loaded=parse_protocol(protocol_text(**EXP3_ONLY, **BLINDED)),
+            actor=Actor.system(),
+        )
+        assert sorted(study.neutral_labels.values()) == ["Group A", "Group B"]  # type: ignore[union-attr]
+        study.neutral_labels = {"C1": "Group B", "C2": "Group A"}  # against the protocol's order
+        db.commit()
+    experimenter, analyst = user_client(Role.EXPERIMENTER), user_client(Role.ANALYST)
+    admin = user_client(Role.ADMIN)
+    for _ in range(2):
+        assert experimenter.post("/api/v1/studies/drawn/participants", json={}).status_code == 201
+    truth = {
+        p["code"]: p["condition"] for p in analyst.get("/api/v1/studies/drawn/participants").json()
+    }
+    shown = {
+        p["code"]: p["condition"]
+        for p in experimenter.get("/api/v1/studies/drawn/participants").json()
+    }
+    assert shown == {code: {"C1": "Group B", "C2": "Group A"}[c] for code, c in truth.items()}
+    page = experimenter.get("/studies/drawn/participants/P001").text
+    assert shown["P001"] in page
+    summary = experimenter.get("/api/v1/studies/drawn").json()["enrolment"]
+    assert [group["label"] for group in summary] == ["Group A", "Group B"]  # by label
+    protocol = experimenter.get("/api/v1/studies/drawn/protocol").json()
+    assert [c["id"] for c in protocol["conditions"]] == ["Group A", "Group B"]
+    assert "Group A; Group B" in experimenter.get("/studies/drawn").text
+    assert "while blinded" not in analyst.get("/studies/drawn").text  # sealed: not yet
+
+    admin.post("/api/v1/studies/drawn/status", json={"status": "closed"})
+    assert admin.post("/api/v1/studies/drawn/unblind").status_code == 200
+    page = experimenter.get("/studies/drawn").text
+    assert "(was Group B while blinded)" in page and "(was Group A while blinded)" in page
 
 
 def test_the_unblind_page_says_what_it_does_and_refuses_clearly(
@@ -339,6 +391,10 @@ def test_the_command_line_unblinds_after_asking(blind: Lab, database_url: str) -
         studies.set_study_status(db, name="blind", status=StudyStatus.CLOSED, actor=Actor.system())
     code, out, _ = run(database_url, "study", "unblind", "blind", "--yes")
     assert code == 0 and out.startswith("unblinded study 'blind' at ")
+    assert out.splitlines()[1] in {
+        "while blinded: C1 was Group A, C2 was Group B",
+        "while blinded: C1 was Group B, C2 was Group A",
+    }
     with blind.database.read_session() as db:
         event = db.scalars(select(AuditEvent).where(AuditEvent.action == "study.unblinded")).one()
         assert event.actor_kind == "cli" and event.subject == "blind"

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
-from sqlalchemy import inspect, text
+from sqlalchemy import MetaData, Table, inspect, select, text
 from sqlalchemy.exc import DBAPIError
 
 from app import schema
 from app.db import Database
+from app.protocol import default_protocol
 from app.services import audit
 from app.services.audit import Actor
 from app.tables import AuditEvent, Base
@@ -194,4 +197,63 @@ def test_0011_turns_the_sign_in_flag_into_outcomes(blank_database_url: str) -> N
             (False, False),
             (False, False),
         ]
+    database.dispose()
+
+
+def test_0012_gives_each_blinded_study_its_labels(blank_database_url: str) -> None:
+    """A blinded study with participants keeps the labels it has shown (the protocol's, by
+    position: C1 is Group A); one nobody is enrolled in gets a random draw of the same labels; a
+    study that is not blinded gets none."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0011")
+    blinded = default_protocol().protocol.model_dump(mode="json")
+    blinded["study"]["blinded"] = True
+    with database.engine.begin() as connection:
+        study = Table("study", MetaData(), autoload_with=connection)
+        participant = Table("participant", MetaData(), autoload_with=connection)
+        for name, protocol in (
+            ("running", blinded),
+            ("empty", blinded),
+            ("open", default_protocol().protocol.model_dump(mode="json")),
+        ):
+            connection.execute(
+                study.insert().values(
+                    name=name,
+                    title=name,
+                    status="open",
+                    protocol=protocol,
+                    protocol_source="",
+                    protocol_sha256="0" * 64,
+                    allocation_seed="0" * 64,
+                    created_at=datetime.now(UTC),
+                    created_by="tests",
+                )
+            )
+        running = connection.execute(select(study.c.id).where(study.c.name == "running"))
+        connection.execute(
+            participant.insert().values(
+                study_id=running.scalar_one(),
+                code="P001",
+                stratum="",
+                strata={},
+                status="active",
+                enrolled_at=datetime.now(UTC),
+                enrolled_by="tests",
+                withdrawal_reason="",
+            )
+        )
+    schema.upgrade(database, "0012")
+    with database.engine.connect() as connection:
+        study = Table("study", MetaData(), autoload_with=connection)
+        labels = dict(connection.execute(select(study.c.name, study.c.neutral_labels)).all())
+    assert labels["running"] == {"C1": "Group A", "C2": "Group B"}
+    assert labels["empty"] in (
+        {"C1": "Group A", "C2": "Group B"},
+        {"C1": "Group B", "C2": "Group A"},
+    )
+    assert labels["open"] is None
+    schema.downgrade(database, "0011")
+    assert "neutral_labels" not in {
+        c["name"] for c in inspect(database.engine).get_columns("study")
+    }
     database.dispose()
