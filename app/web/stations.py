@@ -321,6 +321,7 @@ def room_panel_context(db: SessionDep, station: Station) -> dict[str, Any]:
         "earlier": earlier,
         "reply_hidden": sealed and said is not None and said.kind == "reply",
         "age": (utcnow() - presence.updated_at).total_seconds() if presence is not None else None,
+        "alone": False,  # within the whole console (the room-panel route serves it alone)
     }
 
 
@@ -342,7 +343,7 @@ def _said_since(
 def room_panel(request: Request, db: SessionDep, user: ExperimenterUser, name: str) -> Response:
     """The console's room panel alone (refreshed when the room client reports)."""
     context = room_panel_context(db, stations.get_station(db, name))
-    return render(request, "_room_panel.html", {"room_panel": context})
+    return render(request, "_room_panel.html", {"room_panel": context | {"alone": True}})
 
 
 @router.get("/stations/{name}")

@@ -58,6 +58,10 @@ def test_a_report_is_stored_and_the_console_shows_it(lab: Lab) -> None:
     assert 'class="participant" transform="translate(3.000 2.000) rotate(270.0)"' in panel.text
     console = lab.experimenter.get(f"/stations/{lab.station}")
     assert 'id="room-panel"' in console.text and "facing 270°" in console.text
+    # Within the console the panel fetches itself once it is in the page (the console's refresh
+    # may predate the room's last report); alone it does not, or it would fetch itself forever.
+    assert 'hx-trigger="load, sse:room' in console.text
+    assert 'hx-trigger="sse:room' in panel.text and "load," not in panel.text
 
 
 def test_the_socket_takes_reports_and_answers_each(lab: Lab) -> None:
