@@ -176,7 +176,8 @@ def wide_table(dataset: StudyDataset) -> pd.DataFrame:
     uniq, starts = np.unique(combo[order], return_index=True)
     raw = scored["value"].to_numpy(dtype=object)
     scored_values = scored["scored"].to_numpy(dtype=float)
-    for code, member in zip(uniq, np.split(order, starts[1:]), strict=True):
+    members = np.split(order, starts[1:]) if len(order) else []  # no answers yet: no groups
+    for code, member in zip(uniq, members, strict=True):
         key, sess = str(keys[code // 10_000]), int(code % 10_000)
         cells[("raw", key, sess)] = _column(n, row[member], raw[member])
         cells[("reversed", key, sess)] = _column(n, row[member], scored_values[member])

@@ -91,6 +91,19 @@ def test_wide_table_keeps_columns_for_missing_sessions(dataset: StudyDataset) ->
     assert wide.set_index("participant").loc[dropped, "trust_1_s4"].isna().all()
 
 
+def test_every_table_of_a_study_with_no_answers_yet(dataset: StudyDataset, tmp_path: Path) -> None:
+    """Participants enrolled, nobody has answered yet (the first day of a study): every export
+    is written, with a row per participant and every declared column empty (a 500 before)."""
+    empty = dataclasses.replace(dataset, responses=dataset.responses.iloc[:0])
+    wide = wide_table(empty)
+    assert list(wide["participant"]) == list(dataset.participants["participant"])
+    assert list(wide.columns) == list(wide_table(dataset).columns)
+    assert wide["trust_1_s1"].isna().all()
+    assert long_table(empty).empty
+    written = write_all_exports(empty, tmp_path / "bundle")
+    assert set(written) == set(EXPORT_FORMATS) and all(p.stat().st_size for p in written.values())
+
+
 def test_codes_arriving_as_text_and_free_text() -> None:
     post = InstrumentSpec(
         "post",
