@@ -19,7 +19,10 @@ Upgrade, for the blinded studies already in the database:
   guessable as before; the PI guide says how to report that.
 
 Studies that are not blinded get none. Downgrade drops the column (the old code derives the labels
-from the protocol again).
+from the protocol again), and so is refused while any study holds a draw that differs from the
+protocol's labels: the draw exists nowhere else, and the older code would show that study's groups
+under the other labels (a running study's participants would swap groups in the experimenters'
+view, an unblinded study's record of "was Group B while blinded" would turn false).
 """
 
 from __future__ import annotations
@@ -32,6 +35,8 @@ import sqlalchemy as sa
 from alembic import op
 from sqlalchemy.dialects import postgresql
 
+from app.errors import Conflict
+
 revision: str = "0012"
 down_revision: str | None = "0011"
 branch_labels: str | Sequence[str] | None = None
@@ -42,6 +47,7 @@ JSON = sa.JSON().with_variant(postgresql.JSONB(), "postgresql")
 study = sa.table(
     "study",
     sa.column("id", sa.Integer()),
+    sa.column("name", sa.String()),
     sa.column("protocol", JSON),
     sa.column("neutral_labels", JSON),
 )
@@ -77,6 +83,16 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
+    rows = op.get_bind().execute(sa.select(study.c.name, study.c.protocol, study.c.neutral_labels))
+    drawn = sorted(
+        name for name, protocol, labels in rows if labels and labels != _protocol_labels(protocol)
+    )
+    if drawn:
+        raise Conflict(
+            f"downgrading below 0012 would lose the neutral labels drawn for {', '.join(drawn)}: "
+            "the older code shows their groups under the protocol's labels instead, so their "
+            "participants would swap groups; restore a backup made before the upgrade instead"
+        )
     # In place (SQLite ≥ 3.35 drops a plain column itself), as 0007 does: a batch copy of
     # ``study`` would trip the participants' foreign keys.
     op.drop_column("study", "neutral_labels")

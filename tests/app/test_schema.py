@@ -12,6 +12,7 @@ from sqlalchemy.exc import DBAPIError
 
 from app import schema
 from app.db import Database
+from app.errors import Conflict
 from app.protocol import default_protocol
 from app.services import audit
 from app.services.audit import Actor
@@ -252,6 +253,19 @@ def test_0012_gives_each_blinded_study_its_labels(blank_database_url: str) -> No
         {"C1": "Group B", "C2": "Group A"},
     )
     assert labels["open"] is None
+    with database.engine.begin() as connection:  # a draw the protocol's labels would contradict
+        swapped = {"C1": "Group B", "C2": "Group A"}
+        connection.execute(
+            study.update().where(study.c.name == "empty"), {"neutral_labels": swapped}
+        )
+    with pytest.raises(Conflict, match="would lose the neutral labels drawn for empty"):
+        schema.downgrade(database, "0011")
+    assert schema.current_revision(database) == "0012"
+    with database.engine.connect() as connection:
+        kept = connection.execute(select(study.c.neutral_labels).where(study.c.name == "empty"))
+        assert kept.scalar_one() == swapped
+    with database.engine.begin() as connection:  # as the protocol shows them: nothing is lost
+        connection.execute(study.delete().where(study.c.name == "empty"))
     schema.downgrade(database, "0011")
     assert "neutral_labels" not in {
         c["name"] for c in inspect(database.engine).get_columns("study")
