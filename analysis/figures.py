@@ -61,8 +61,10 @@ _BASE_LAYOUT: dict[str, Any] = {
     "font": {"family": "system-ui, -apple-system, Segoe UI, Roboto, sans-serif", "size": 13},
     "paper_bgcolor": "white",
     "plot_bgcolor": "white",
-    "margin": {"l": 60, "r": 20, "t": 60, "b": 50},
-    "legend": {"orientation": "h", "y": -0.18, "x": 0},
+    "margin": {"l": 60, "r": 20, "t": 60, "b": 80},
+    # The legend sits at the foot of the whole figure (y measured on the container, not the plot
+    # area): placed as a fraction of the plot area it ran into the x-axis title on short charts.
+    "legend": {"orientation": "h", "x": 0, "yref": "container", "y": 0, "yanchor": "bottom"},
     # Plotly hides the legend of a one-trace chart: a study with one condition enrolled so far
     # would show a line nobody can name.
     "showlegend": True,
@@ -558,7 +560,6 @@ def adaptation_payload_from_curves(
         **_BASE_LAYOUT,
         "title": {"text": title or "Adaptation: probability of the preferred question"},
         "yaxis": _axis("p(preferred question)", range=[0, 1], anchor="x"),
-        "legend": {**_BASE_LAYOUT["legend"], "y": -0.3},
         "margin": {**_BASE_LAYOUT["margin"], "b": 90},
         "annotations": [],
         "hovermode": "closest",

@@ -10,6 +10,7 @@ from playwright.sync_api import Browser, Page, expect
 
 from app.db import Database
 from app.tables import Role
+from bench.seed import seed_study
 from tests.conftest import PASSWORD, make_user
 from tests.servers import ServerProcess
 
@@ -73,4 +74,42 @@ def test_charts_fit_their_cards(
     _settled(page, 2)
     assert _overflows(page) == []
     page.screenshot(path=str(artifacts / f"dashboard-toggled-{width}.png"), full_page=True)
+    context.close()
+
+
+def _legends_on_axis_titles(page: Page) -> list[str]:
+    """Each chart whose legend is not wholly below its x-axis titles: beside a title it runs
+    into it as soon as the labels are longer (a blinded study's "Group A", "Group B")."""
+    return page.evaluate(
+        """() => Array.from(document.querySelectorAll('.card .js-plotly-plot')).flatMap((plot) => {
+             const legend = plot.querySelector('.legend');
+             if (!legend) return [];
+             const l = legend.getBoundingClientRect();
+             return Array.from(plot.querySelectorAll('.xtitle')).flatMap((title) => {
+               const t = title.getBoundingClientRect();
+               return l.top >= t.bottom ? [] : [`${plot.parentElement.dataset.testid || plot.id}`];
+             });
+           })"""
+    )
+
+
+@pytest.mark.e2e
+def test_legends_stay_clear_of_the_axis_titles(
+    browser: Browser, live_server: ServerProcess, database: Database, artifacts: Path
+) -> None:
+    """Issue 35 review: the legend, placed as a fraction of the plot area, ran into the x-axis
+    title ("Group BSession") on the dashboard's short charts."""
+    seed_study(database, name="legends", participants=6, seed=2)
+    make_user(database, "operator", Role.ANALYST)
+    context = browser.new_context(viewport={"width": 1280, "height": 900})
+    page = context.new_page()
+    page.goto(f"{live_server.url}/login?next=/studies/legends/dashboard")
+    page.get_by_label("Username").fill("operator")
+    page.get_by_label("Password").fill(PASSWORD)
+    page.get_by_role("button", name="Sign in").click()
+    expect(page.locator("#dashboard-status")).to_contain_text("answers learned")
+    _settled(page, 3)
+    expect(page.locator(".card .js-plotly-plot .legend")).to_have_count(3)
+    page.screenshot(path=str(artifacts / "dashboard-legends.png"), full_page=True)
+    assert _legends_on_axis_titles(page) == []
     context.close()
