@@ -409,8 +409,8 @@ def fit_mixed_model(
         A formula the data cannot fill, or a confidence outside (0, 1).
     CannotComputeError
         Too few observations or subjects, a constant response, collinear fixed effects, or a
-        model that reproduces every value exactly (no residual variation: REML has no optimum,
-        and any F would be an artefact of rounding).
+        model that reproduces every value to rounding error (no residual variation: REML has no
+        optimum, and any F would be an artefact of rounding).
 
     Notes
     -----
@@ -455,7 +455,7 @@ def fit_mixed_model(
     if _fits_exactly(model):
         raise CannotComputeError(
             f"the mixed model {display}",
-            "its fixed and random effects reproduce every value exactly (no residual "
+            "its fixed and random effects reproduce every value to rounding error (no residual "
             "variation), so its variances and tests are undefined",
         )
     fitted, optimizer, messages = _fit_statsmodels(model)

@@ -82,6 +82,12 @@ class NameRule:
     rule: str
     """The rule in words, shown when a value breaks it."""
 
+    @property
+    def sentence(self) -> str:
+        """The rule as a sentence for a form, beside its field ("Use 2-64 …."): the same words the
+        error uses, so a page never states a rule the server does not apply."""
+        return f"{self.rule[0].upper()}{self.rule[1:]}."
+
     def matches(self, value: str) -> bool:
         """Whether the whole value follows the rule (a trailing newline does not)."""
         return self.pattern.fullmatch(value) is not None

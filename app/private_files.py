@@ -38,8 +38,8 @@ def refuse_link(path: Path) -> None:
     """Raise :class:`InvalidInput` if ``path`` is a symbolic link (dangling or not)."""
     if path.is_symlink():
         raise InvalidInput(
-            f"{path} is a symbolic link; give the path of a new file (trustlab does not write "
-            "secrets through links)"
+            f"{path} is a symbolic link; give the path of a new file (trustlab never writes "
+            "through a link: it could point anywhere)"
         )
 
 

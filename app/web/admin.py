@@ -78,8 +78,7 @@ def create_user(
 def _new_study_form(error: str, name: str, title: str) -> dict[str, str]:
     """The New study form's values, with the name rule in the server's own words (the browser's
     "match the requested format" does not say what the format is)."""
-    rule = STUDY_NAME.rule[0].upper() + STUDY_NAME.rule[1:]
-    return {"error": error, "name": name, "title": title, "name_rule": f"{rule}."}
+    return {"error": error, "name": name, "title": title, "name_rule": STUDY_NAME.sentence}
 
 
 @router.get("/studies/new")

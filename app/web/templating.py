@@ -18,6 +18,7 @@ from fastapi.responses import HTMLResponse, RedirectResponse
 from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
 
 from app.deps import CSRF_FIELD, CSRF_HEADER, cookie_is_secure
+from app.inputs import STATION_NAME
 from app.security import sign, unsign
 from app.settings import REPO_ROOT
 from app.web.assets import asset
@@ -47,6 +48,7 @@ def _when(value: datetime | None) -> str:
 
 environment.filters["when"] = _when
 environment.globals["asset"] = asset
+environment.globals["station_name_rule"] = STATION_NAME.sentence
 
 
 def is_htmx(request: Request) -> bool:

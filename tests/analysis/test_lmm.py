@@ -298,7 +298,9 @@ def _noiseless(per_session_change: bool) -> pd.DataFrame:
 
 
 def test_data_without_residual_variation_are_refused_in_one_line() -> None:
-    with pytest.raises(CannotComputeError, match="reproduce every value exactly") as caught:
+    with pytest.raises(
+        CannotComputeError, match="reproduce every value to rounding error"
+    ) as caught:
         linear_mixed_models(_noiseless(per_session_change=False), **KW)
     assert "\n" not in str(caught.value)
     assert str(caught.value).startswith("the mixed model y ~ group * time + (1 | subject)")
@@ -308,7 +310,7 @@ def test_only_the_slope_model_is_refused_when_it_alone_leaves_no_residual() -> N
     result = linear_mixed_models(_noiseless(per_session_change=True), **KW)
     assert result.intercept.converged and result.intercept.variance["sd"].iloc[-1] > 0.01
     assert result.slope is not None and not result.slope.converged
-    assert "reproduce every value exactly (no residual variation)" in result.slope.problem
+    assert "reproduce every value to rounding error (no residual variation)" in result.slope.problem
     assert result.slope.tests.empty and result.comparison is None
     assert result.preferred is result.intercept
     assert comparison_sentence(result) == (

@@ -135,6 +135,6 @@ def test_data_without_residual_variation_are_refused_in_one_line(
     assert "Traceback" not in result.stderr and "converged" not in result.stdout
     assert result.stderr.strip().splitlines()[-1] == (
         "error: the mixed model trust ~ condition * session + (1 | participant) cannot be "
-        "computed because its fixed and random effects reproduce every value exactly (no "
+        "computed because its fixed and random effects reproduce every value to rounding error (no "
         "residual variation), so its variances and tests are undefined"
     )
