@@ -510,19 +510,23 @@ def fit_mixed_model(
 def _fits_exactly(model: Any) -> bool:
     """Whether ``y`` lies in the span of the fixed effects and every subject's random effects:
     then the residual variance is zero, REML has no optimum (the likelihood grows without
-    bound) and any F or df would be an artefact of rounding."""
-    groups = np.asarray(model.groups)
-    codes = np.unique(groups, return_inverse=True)[1]
+    bound) and any F or df would be an artefact of rounding.
+
+    Each subject's random-effect columns touch only that subject's rows, so they are projected
+    out subject by subject (Frisch–Waugh) before ``y`` is regressed on the fixed effects: the
+    same residual as one least-squares fit on ``[X, Z_1 … Z_m]``, without a design with a
+    column block per subject (that cost seconds at a thousand participants)."""
+    y = np.asarray(model.endog, float).copy()
+    x = np.asarray(model.exog, float).copy()
     z = np.asarray(model.exog_re, float)
-    per_subject = np.zeros((len(groups), z.shape[1] * (codes.max() + 1)))
-    per_subject[
-        np.arange(len(groups))[:, None], codes[:, None] * z.shape[1] + np.arange(z.shape[1])
-    ] = z
-    design = np.hstack([np.asarray(model.exog, float), per_subject])
-    y = np.asarray(model.endog, float)
-    fitted = design @ np.linalg.lstsq(design, y, rcond=None)[0]
-    total = float(np.sum((y - y.mean()) ** 2))
-    return float(np.sum((y - fitted) ** 2)) <= _NO_RESIDUAL * total
+    for rows in model.row_indices.values():
+        projector = z[rows] @ np.linalg.pinv(z[rows])
+        y[rows] -= projector @ y[rows]
+        x[rows] -= projector @ x[rows]
+    residual = y - x @ np.linalg.lstsq(x, y, rcond=None)[0]
+    endog = np.asarray(model.endog, float)
+    total = float(np.sum((endog - endog.mean()) ** 2))
+    return float(residual @ residual) <= _NO_RESIDUAL * total
 
 
 def _empty_fit(
