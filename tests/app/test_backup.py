@@ -67,7 +67,7 @@ def test_a_symbolic_link_at_the_path_is_refused(
     assert code == 2
     assert stderr == (
         f"error: {link} is a symbolic link; give the path of a new file "
-        "(trustlab does not write secrets through links)\n"
+        "(trustlab never writes through a link: it could point anywhere)\n"
     )
     assert link.is_symlink() and os.readlink(link) == str(target)
     if points_at == "a file":

@@ -26,9 +26,16 @@ def _colours_of(traces: list[dict[str, Any]], name: str) -> set[str]:
 
 
 def test_c2_keeps_its_colour_with_only_c2_enrolled(lab: Lab) -> None:
-    codes = [lab.enrol_and_assign() for _ in range(2)]  # one per condition (blocks of 2)
-    listed = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants").json()
-    c2 = next(p["code"] for p in listed if p["condition"] == "C2" and p["code"] in codes)
+    # Enrol until C2 comes up: the blocks hold 2 or 4 (drawn), so the first two can both be C1,
+    # but a C2 comes within the first three.
+    c2 = ""
+    for _ in range(3):
+        code = lab.enrol_and_assign()
+        listed = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants").json()
+        if any(p["code"] == code and p["condition"] == "C2" for p in listed):
+            c2 = code
+            break
+    assert c2, "no C2 among the first three allocations"
     lab.experimenter.put(
         f"/api/v1/stations/{lab.station}/participant", json={"study": lab.study, "code": c2}
     )
