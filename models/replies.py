@@ -23,6 +23,8 @@ import itertools
 import math
 from collections.abc import Sequence
 
+import numpy as np
+
 BASES: tuple[str, str, str] = ("chosen", "updated", "heard")
 """The probabilities a protocol can choose its reply level by (see the module docstring)."""
 
@@ -116,10 +118,15 @@ def exp3_belief(p_asked: float, *, gamma: float, n_arms: int) -> float:
     believes the uniform 1 / K). Without removing the floor, a C1 robot at the shipped γ = .5
     could never be more than .625 sure of a yes, however many it had heard.
     """
+    return float(exp3_beliefs(np.asarray(p_asked, np.float64), gamma=gamma, n_arms=n_arms))
+
+
+def exp3_beliefs(p_asked: np.ndarray, *, gamma: float, n_arms: int) -> np.ndarray:
+    """:func:`exp3_belief` for an array of asked probabilities (simulations)."""
     if gamma >= 1.0:
-        return 1.0 / n_arms
-    share = (float(p_asked) - gamma / n_arms) / (1.0 - gamma)
-    return min(max(share, 0.0), 1.0)  # rounding aside, p ≥ γ / K and share ≤ 1
+        return np.full_like(p_asked, 1.0 / n_arms)
+    share = (p_asked - gamma / n_arms) / (1.0 - gamma)
+    return np.clip(share, 0.0, 1.0)  # rounding aside, p ≥ γ / K and share ≤ 1
 
 
 def heard_probability(belief: float, *, said_yes: bool, slip: float) -> float:
@@ -131,9 +138,14 @@ def heard_probability(belief: float, *, said_yes: bool, slip: float) -> float:
     of what the participant means (the protocol's feedback model's mean). Then
     ``P(yes) = slip + (1 − 2 · slip) · belief`` and ``P(no) = 1 − P(yes)``.
     """
-    p_yes = slip + (1.0 - 2.0 * slip) * float(belief)
-    p_yes = min(max(p_yes, 0.0), 1.0)
-    return p_yes if said_yes else 1.0 - p_yes
+    beliefs = np.asarray(belief, np.float64)
+    return float(heard_probabilities(beliefs, np.asarray(said_yes), slip=slip))
+
+
+def heard_probabilities(belief: np.ndarray, said_yes: np.ndarray, *, slip: float) -> np.ndarray:
+    """:func:`heard_probability` for arrays of beliefs and answers (simulations)."""
+    p_yes = np.clip(slip + (1.0 - 2.0 * slip) * belief, 0.0, 1.0)
+    return np.where(said_yes, p_yes, 1.0 - p_yes)
 
 
 def reply_probability(
