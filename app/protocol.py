@@ -181,10 +181,19 @@ class ScheduleSpec(_Strict):
 
 
 class ReplyLevel(_Strict):
-    """A confidence level and what the robot says at it."""
+    """A confidence level and what the robot says at it: ``text`` after either answer, or a
+    line per answer (``yes``, ``no``); a per-answer line takes the place of ``text`` for it."""
 
     name: Key
-    text: Text
+    text: Text | None = None
+    yes: Text | None = Field(default=None, description="The line after a yes (else `text`).")
+    no: Text | None = Field(default=None, description="The line after a no (else `text`).")
+
+    def line(self, said_yes: bool) -> str:
+        """What the robot says at this level after the answer it heard."""
+        line = (self.yes if said_yes else self.no) or self.text
+        assert line is not None  # check_protocol refuses a level without a line for an answer
+        return line
 
 
 def _default_levels() -> list[ReplyLevel]:
@@ -196,16 +205,22 @@ def _default_levels() -> list[ReplyLevel]:
     ]
 
 
+ReplyBasis = Literal["chosen", "updated", "heard"]
+"""What the reply level is computed from (models/replies.py; docs/engine.md, replies)."""
+
+
 class RepliesSpec(_Strict):
-    """The robot's reply by the asked question's probability p: the first level whose threshold
-    p is below, else the last (defaults: p < .5 low, < .65 medium-low, < .8 medium, else high)."""
+    """The robot's reply by a probability p: the first level whose threshold p is below, else
+    the last (defaults: p < .5 low, < .65 medium-low, < .8 medium, else high)."""
 
     thresholds: list[float] = Field(default_factory=lambda: [0.5, 0.65, 0.8], min_length=1)
     levels: list[ReplyLevel] = Field(default_factory=_default_levels)
-    basis: Literal["chosen", "updated"] = Field(
+    basis: ReplyBasis = Field(
         default="chosen",
-        description="p is the probability the question was asked with ('chosen'), or its "
-        "probability after learning from the answer ('updated').",
+        description="p is the probability the question was asked with ('chosen', the paper's "
+        "rule and the replication setting), its probability after learning from the answer "
+        "('updated'), or the probability the robot gave to the answer it heard ('heard': the "
+        "shipped protocol's, so a line never contradicts the answer).",
     )
 
 
@@ -429,7 +444,24 @@ def _check_replies(replies: RepliesSpec) -> list[Problem]:
             )
         )
     problems += _unique([level.name for level in replies.levels], "replies.levels", "level")
+    for index, level in enumerate(replies.levels):
+        problems += _check_reply_lines(level, f"replies.levels[{index}]")
     return problems
+
+
+def _check_reply_lines(level: ReplyLevel, path: str) -> list[Problem]:
+    """A level needs a line for each answer, and no line that can never be said."""
+    if level.text is not None and level.yes is not None and level.no is not None:
+        return [Problem(f"{path}.text", "never said: `yes` and `no` give both answers' lines")]
+    return [
+        Problem(
+            f"{path}.{answer}",
+            f"level {level.name!r} has no line for a {answer!r} answer: give `{answer}`, "
+            "or `text` for both answers",
+        )
+        for answer, line in (("yes", level.yes), ("no", level.no))
+        if line is None and level.text is None
+    ]
 
 
 def _check_feedback(feedback: FeedbackSettings) -> list[Problem]:

@@ -21,6 +21,8 @@ from app.protocol import LearnerKind, default_protocol, parse_protocol
 from app.randomisation import entry_at
 from app.services import stations, studies
 from app.services.audit import Actor
+from app.services.learners import LearnerSpec
+from app.services.replies import choose_reply
 from app.tables import (
     Allocation,
     Answer,
@@ -35,7 +37,6 @@ from app.tables import (
     utcnow,
 )
 from models.learners.exp3 import Exp3
-from models.replies import confidence_level
 
 SYSTEM = Actor.system("bench")
 
@@ -219,7 +220,14 @@ def seed_study(
                             "actor": "bench",
                         }
                     )
-                    level = confidence_level(before[action], protocol.replies.thresholds)
+                    reply = choose_reply(
+                        protocol,
+                        LearnerSpec("exp3", len(before), {"gamma": learner.gamma}, None),
+                        before=before,
+                        action=action,
+                        after=after,
+                        said_yes=said,
+                    )
                     rows[Answer].append(
                         {
                             "prompt_id": ids["prompt"],
@@ -228,10 +236,10 @@ def seed_study(
                             "reward": 1.0 if said else 0.0,
                             "probabilities_after": after,
                             "p_preferred": after[preferred],
-                            "probability": before[action],
-                            "confidence_level": level,
-                            "confidence": protocol.replies.levels[level].name,
-                            "reply": protocol.replies.levels[level].text,
+                            "probability": reply.probability,
+                            "confidence_level": reply.level,
+                            "confidence": reply.name,
+                            "reply": reply.text,
                             "learner_version": learner.updates,
                             "idempotency_key": secrets.token_hex(8),
                             "answered_at": at,

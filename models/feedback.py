@@ -178,6 +178,12 @@ class FeedbackModel:
         return np.asarray(self.slip_weights, dtype=np.float64)
 
     @property
+    def mean_slip(self) -> float:
+        """The expected slip rate under the prior: the share of answers a participant drawn from
+        this model says the opposite of what they mean (the robot's replies predict with it)."""
+        return float(self.slip_values @ self.slip_prior)
+
+    @property
     def has_slips_or_changes(self) -> bool:
         """Whether the plain Bayes reference (no slips, one preference) would be wrong for it."""
         return bool(np.any(self.slip_values > 0)) or self.hazard > 0

@@ -1,9 +1,20 @@
-"""The robot's reply to an answer, chosen by how confident the learner was in the question it asked.
+"""The robot's reply to an answer, chosen by a probability the protocol names (its *basis*).
 
-After each answer the robot says one of a few sentences. Which one depends on the probability ``p``
-the learner gave the question it just asked: a learner that was confident the participant would say
-yes sounds pleased ("Awesome, I knew you would say so."), a hesitant one sounds sceptical. The
-protocol fixes three thresholds that split [0, 1] into four levels; a study may change them.
+After each answer the robot says one of a few sentences. The protocol fixes thresholds that split
+[0, 1] into levels (by default four) and one line per level, or one per level and answer. Which
+probability picks the level is the protocol's ``replies.basis``:
+
+``chosen``
+    the probability the learner asked the question with: the seed paper's rule and the
+    replication setting. It ignores the answer, so after a "no" to a question the robot was sure
+    of it says "Awesome, I knew you would say so.".
+``updated``
+    the question's probability after learning from the answer.
+``heard``
+    the probability the robot gave to the answer it heard (:func:`heard_probability`): for a yes
+    its predicted probability that this participant says yes to this question, for a no the
+    complement. The level then says how expected the answer was, so a line for an expected
+    answer ("I knew you would say so") never follows an answer the robot found unlikely.
 """
 
 from __future__ import annotations
@@ -11,6 +22,11 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+
+import numpy as np
+
+BASES: tuple[str, str, str] = ("chosen", "updated", "heard")
+"""The probabilities a protocol can choose its reply level by (see the module docstring)."""
 
 DEFAULT_THRESHOLDS: tuple[float, float, float] = (0.5, 0.65, 0.8)
 """Protocol defaults: p < .5 low, p < .65 medium-low, p < .8 medium, p ≥ .8 high."""
@@ -91,3 +107,62 @@ def reply_text(
             f"but {len(replies)} reply texts were given"
         )
     return replies[confidence_level(p, thresholds)]
+
+
+def exp3_belief(p_asked: float, *, gamma: float, n_arms: int) -> float:
+    """Exp3's belief that the asked question is the one the participant says yes to.
+
+    Exp3 asks with ``p = (1 − γ) · w / Σw + γ / K``: the uniform floor ``γ / K`` is exploration it
+    adds on purpose, not something it believes about the participant, so its belief is the
+    exponential-weights share ``w / Σw = (p − γ / K) / (1 − γ)`` (with γ = 1 it never learns and
+    believes the uniform 1 / K). Without removing the floor, a C1 robot at the shipped γ = .5
+    could never be more than .625 sure of a yes, however many it had heard.
+    """
+    return float(exp3_beliefs(np.asarray(p_asked, np.float64), gamma=gamma, n_arms=n_arms))
+
+
+def exp3_beliefs(p_asked: np.ndarray, *, gamma: float, n_arms: int) -> np.ndarray:
+    """:func:`exp3_belief` for an array of asked probabilities (simulations)."""
+    if gamma >= 1.0:
+        return np.full_like(p_asked, 1.0 / n_arms)
+    share = (p_asked - gamma / n_arms) / (1.0 - gamma)
+    return np.clip(share, 0.0, 1.0)  # rounding aside, p ≥ γ / K and share ≤ 1
+
+
+def heard_probability(belief: float, *, said_yes: bool, slip: float) -> float:
+    """The probability the robot gave to the answer it heard.
+
+    ``belief`` is the learner's probability that the asked question is the one the participant
+    wants (the posterior for a Bayesian learner, the policy's probability for C2, the weights'
+    share for Exp3: :func:`exp3_belief`); ``slip`` the share of answers that say the opposite
+    of what the participant means (the protocol's feedback model's mean). Then
+    ``P(yes) = slip + (1 − 2 · slip) · belief`` and ``P(no) = 1 − P(yes)``.
+    """
+    beliefs = np.asarray(belief, np.float64)
+    return float(heard_probabilities(beliefs, np.asarray(said_yes), slip=slip))
+
+
+def heard_probabilities(belief: np.ndarray, said_yes: np.ndarray, *, slip: float) -> np.ndarray:
+    """:func:`heard_probability` for arrays of beliefs and answers (simulations)."""
+    p_yes = np.clip(slip + (1.0 - 2.0 * slip) * belief, 0.0, 1.0)
+    return np.where(said_yes, p_yes, 1.0 - p_yes)
+
+
+def reply_probability(
+    basis: str, *, asked: float, updated: float, belief: float, said_yes: bool, slip: float
+) -> float:
+    """The probability that sets the reply's level under ``basis`` (one of :data:`BASES`):
+    ``asked`` for "chosen", ``updated`` for "updated", :func:`heard_probability` for "heard".
+
+    Raises
+    ------
+    ValueError
+        For an unknown basis.
+    """
+    if basis == "chosen":
+        return float(asked)
+    if basis == "updated":
+        return float(updated)
+    if basis == "heard":
+        return heard_probability(belief, said_yes=said_yes, slip=slip)
+    raise ValueError(f"unknown reply basis {basis!r}: use one of {', '.join(BASES)}")

@@ -40,7 +40,7 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import Protocol
-from app.services import blinding, learner_cache, learners, questionnaires, step_store
+from app.services import blinding, learner_cache, learners, questionnaires, replies, step_store
 from app.services.audit import Actor
 from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
 from app.services.step_store import (
@@ -57,7 +57,6 @@ from app.services.studies import protocol_by_id
 from app.sql import Cursor
 from app.tables import Answer, ParticipantStatus, Prompt, RunStatus, SessionStatus
 from models.learners.base import Learner
-from models.replies import confidence_level
 
 FAMILIARISATION = 0
 
@@ -446,12 +445,15 @@ def _learner_row(ctx: Context, category: str) -> LearnerRow:
     return row
 
 
+def _spec(row: LearnerRow) -> learners.LearnerSpec:
+    return learners.LearnerSpec(row.kind, row.n_arms, dict(row.config), row.checkpoint_sha256)
+
+
 def _live_learner(ctx: Context, row: LearnerRow) -> Learner:
     """The learner at the row's version: the process's live copy, or rebuilt from its state."""
 
     def rebuild() -> Learner:
-        spec = learners.LearnerSpec(row.kind, row.n_arms, dict(row.config), row.checkpoint_sha256)
-        learner = learners.build(spec)
+        learner = learners.build(_spec(row))
         learner.load_state_dict(step_store.learner_state(ctx.cursor, learner_id=row.id))
         return learner
 
@@ -606,11 +608,6 @@ def _replay(
     return AnswerResult(existing, step, True, run_done, session_done, expected, ctx.learners_shown)
 
 
-def _reply_probability(ctx: Context, step: Step, after: list[float]) -> float:
-    basis = ctx.protocol.replies.basis
-    return float(step.probabilities[step.action] if basis == "chosen" else after[step.action])
-
-
 def _step_context(db: Session, station_name: str, step_id: int, seat: Seat | None) -> Context:
     """The context of an answer: ``ctx.run`` is the step's run, read with the participant's
     timeline locked (PostgreSQL)."""
@@ -675,9 +672,14 @@ def record_answer(
         version = row.version + 1
     else:
         after = list(step.probabilities)
-    probability = _reply_probability(ctx, step, after)
-    level = confidence_level(probability, ctx.protocol.replies.thresholds)
-    reply = ctx.protocol.replies.levels[level]
+    reply = replies.choose_reply(
+        ctx.protocol,
+        _spec(row),
+        before=step.probabilities,
+        action=step.action,
+        after=after,
+        said_yes=answer,
+    )
     stored = step_store.NewAnswer(
         prompt_id=step.id,
         participant_id=ctx.participant.id,
@@ -685,8 +687,8 @@ def record_answer(
         reward=reward,
         probabilities_after=after,
         p_preferred=_preferred(ctx, step.category, after),
-        probability=probability,
-        confidence_level=level,
+        probability=reply.probability,
+        confidence_level=reply.level,
         confidence=reply.name,
         reply=reply.text,
         learner_version=version,
@@ -747,9 +749,9 @@ def record_answer(
         answer,
         key,
         reply.text,
-        level,
+        reply.level,
         reply.name,
-        probability,
+        reply.probability,
         after,
     )
     return AnswerResult(result, step, False, run_done, session_done, expected, ctx.learners_shown)

@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
 from app.randomisation import entry_at
-from app.services import learners
+from app.services import learners, replies
 from app.services.runtime import FAMILIARISATION, first_session_number, runs_in, session_label
 from app.services.studies import get_study, protocol_of
 from app.tables import (
@@ -271,6 +271,7 @@ def _states_close(replayed: dict[str, Any], stored: dict[str, Any]) -> bool:
 def _check_steps(data: _Study, report: VerifyReport) -> None:
     protocol = data.protocol
     categories = {c.name: c for c in protocol.categories}
+    specs = {(row.participant_id, row.category): learners.spec_of(row) for row in data.learners}
     for prompt in data.prompts:
         report.steps += 1
         code = data.code(prompt.participant_id)
@@ -315,10 +316,37 @@ def _check_steps(data: _Study, report: VerifyReport) -> None:
                 )
             )
         level = confidence_level(answer.probability, protocol.replies.thresholds)
-        if level != answer.confidence_level or answer.reply != protocol.replies.levels[level].text:
+        line = protocol.replies.levels[level].line(answer.answer)
+        if level != answer.confidence_level or answer.reply != line:
             report.findings.append(
                 Finding("step", code, f"step {prompt.id}: reply does not follow the thresholds")
             )
+        spec = specs.get((prompt.participant_id, prompt.category))
+        if spec is not None and not _reply_follows_basis(protocol, spec, prompt, answer):
+            report.findings.append(
+                Finding(
+                    "step",
+                    code,
+                    f"step {prompt.id}: reply probability does not follow replies.basis "
+                    f"{protocol.replies.basis!r}",
+                )
+            )
+
+
+def _reply_follows_basis(
+    protocol: Protocol, spec: learners.LearnerSpec, prompt: Prompt, answer: Answer
+) -> bool:
+    """Whether the stored reply probability is the one the protocol's basis gives for the
+    stored probabilities and answer (the same floats, so the same bits)."""
+    expected = replies.choose_reply(
+        protocol,
+        spec,
+        before=prompt.probabilities,
+        action=prompt.action,
+        after=answer.probabilities_after,
+        said_yes=answer.answer,
+    )
+    return _close(expected.probability, answer.probability)
 
 
 def _check_timeline(data: _Study, report: VerifyReport) -> None:

@@ -9,6 +9,7 @@ from app.db import Database
 from app.services import studies, study_data
 from app.tables import Role
 from bench.seed import seed_study
+from models.replies import exp3_belief, heard_probability
 from tests.conftest import UserClientFactory
 
 
@@ -97,12 +98,15 @@ def test_the_step_log_carries_the_reply_the_participant_heard(
     steps = dataset.steps
     assert {"reply_probability", "reply_level"} <= set(steps.columns)
     assert dataset.protocol["reply_levels"] == ["low", "medium_low", "medium", "high"]
-    # The server chose each reply by the asked question's probability (the protocol's basis).
-    asked = [
-        before[action]
-        for before, action in zip(steps["probs_before"], steps["action"], strict=True)
+    # Each reply's level came from the probability C1's Exp3 gave the answer it heard (the
+    # shipped protocol's basis): its weights' share of the asked question, through the slips.
+    heard = [
+        heard_probability(exp3_belief(before[action], gamma=0.5, n_arms=4), said_yes=yes, slip=0.05)
+        for before, action, yes in zip(
+            steps["probs_before"], steps["action"], steps["answer"], strict=True
+        )
     ]
-    assert steps["reply_probability"].to_numpy() == pytest.approx(asked)
+    assert steps["reply_probability"].to_numpy() == pytest.approx(heard)
     measures = session_adaptation(
         steps, dataset.protocol["preferred_arms"], reply_levels=dataset.protocol["reply_levels"]
     )

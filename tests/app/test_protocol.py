@@ -27,6 +27,7 @@ def test_default_protocol_is_the_seed_papers() -> None:
     assert protocol.schedule.familiarisation_run
     assert protocol.replies.thresholds == [0.5, 0.65, 0.8]
     assert protocol.replies.levels[-1].text == "Awesome, I knew you would say so."
+    assert protocol.replies.basis == "heard"  # never a line that contradicts the answer
     assert protocol.allocation.block_sizes == [2, 4]
     keys = {i.key: [item.key for item in i.items] for i in protocol.questionnaires.instruments}
     assert keys["tipi"] == [f"tipi_{n}" for n in range(1, 11)]
@@ -132,6 +133,27 @@ def _problems(text: str) -> str:
             "hazard = 0.02\nslip = 0.05",
             "lab.toml: learners.feedback.slip: give either slip or a slip prior, not both",
         ),
+        (
+            'basis = "heard"',
+            'basis = "confident"',
+            "lab.toml: replies.basis: Input should be 'chosen', 'updated' or 'heard'",
+        ),
+        (
+            '    { name = "high", text = "Awesome, I knew you would say so." },\n',
+            "",
+            "lab.toml: replies.levels: 3 thresholds need 4 levels, found 3",
+        ),
+        (
+            '{ name = "high", text = "Awesome, I knew you would say so." }',
+            '{ name = "high", yes = "Awesome, I knew you would say so." }',
+            "lab.toml: replies.levels[3].no: level 'high' has no line for a 'no' answer: give "
+            "`no`, or `text` for both answers",
+        ),
+        (
+            '{ name = "low", text = "I do not believe it but fine." }',
+            '{ name = "low", text = "Fine.", yes = "Really?", no = "Really not?" }',
+            "lab.toml: replies.levels[0].text: never said: `yes` and `no` give both answers' lines",
+        ),
     ],
 )
 def test_bad_protocol_names_file_key_path_and_reason(old: str, new: str, expected: str) -> None:
@@ -178,6 +200,50 @@ def test_every_mistake_of_a_file_is_listed() -> None:
         "lab.toml: schedule.sessions: Input should be greater than or equal to 1",
         "lab.toml: allocation.block_sizes[1]: block size 3 is not a positive multiple of the 2 "
         "conditions",
+    ]
+
+
+def test_every_reply_table_problem_is_listed_with_the_others() -> None:
+    text = protocol_text(
+        **{
+            '{ name = "low", text = "I do not believe it but fine." }': '{ name = "low" }',
+            '{ name = "high", text = "Awesome, I knew you would say so." }': (
+                '{ name = "high", no = "I thought you would say no." }'
+            ),
+            "sessions = 4": "sessions = 0",
+        }
+    )
+    assert _problems(text).splitlines() == [
+        "lab.toml: schedule.sessions: Input should be greater than or equal to 1",
+        "lab.toml: replies.levels[0].yes: level 'low' has no line for a 'yes' answer: give "
+        "`yes`, or `text` for both answers",
+        "lab.toml: replies.levels[0].no: level 'low' has no line for a 'no' answer: give "
+        "`no`, or `text` for both answers",
+        "lab.toml: replies.levels[3].yes: level 'high' has no line for a 'yes' answer: give "
+        "`yes`, or `text` for both answers",
+    ]
+
+
+def test_a_reply_level_can_give_a_line_per_answer() -> None:
+    text = protocol_text(
+        **{
+            '{ name = "high", text = "Awesome, I knew you would say so." }': (
+                '{ name = "high", yes = "Awesome, I knew you would say so.", '
+                'no = "I thought you would say no." }'
+            ),
+            '{ name = "low", text = "I do not believe it but fine." }': (
+                '{ name = "low", text = "I do not believe it but fine.", no = "Really? Fine." }'
+            ),
+        }
+    )
+    levels = parse_protocol(text).protocol.replies.levels
+    assert [levels[3].line(True), levels[3].line(False)] == [
+        "Awesome, I knew you would say so.",
+        "I thought you would say no.",
+    ]
+    assert [levels[0].line(True), levels[0].line(False)] == [
+        "I do not believe it but fine.",
+        "Really? Fine.",
     ]
 
 

@@ -19,6 +19,7 @@ from app.tables import (
     Prompt,
     StudySession,
 )
+from models.replies import exp3_belief, heard_probability
 from tests.conftest import Lab
 
 
@@ -78,7 +79,11 @@ def test_familiarisation_logs_but_never_adapts(lab: Lab) -> None:
     assert step["adapts"] is True
     reply = lab.answer(step["step_id"], "yes")
     assert reply["probabilities"] != step["probabilities"]
-    assert reply["probability"] == step["probabilities"][step["action"]]
+    # The shipped basis: the probability C1's Exp3 gave the yes it heard, through the slips.
+    belief = exp3_belief(step["probabilities"][step["action"]], gamma=0.5, n_arms=4)
+    assert reply["probability"] == pytest.approx(
+        heard_probability(belief, said_yes=True, slip=0.05)
+    )
 
 
 def test_order_is_enforced_with_what_is_expected(lab: Lab) -> None:

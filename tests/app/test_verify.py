@@ -9,9 +9,9 @@ import pytest
 from sqlalchemy import select, update
 
 from app.protocol import parse_protocol
-from app.services import learners, studies, verify
+from app.services import learners, replies, studies, verify
 from app.services.audit import Actor
-from app.tables import LearnerState, Run, RunStatus, StudySession
+from app.tables import LearnerState, Prompt, Run, RunStatus, StudySession
 from models.checkpoints import PRETRAINED_DIR, REPLICATION_DIR, load_checkpoint
 from tests.conftest import Lab, protocol_text
 
@@ -46,6 +46,24 @@ def test_findings_name_the_familiarisation_run_not_session_0(lab: Lab) -> None:
         ("timeline", "session 1 run 3 is running out of turn"),
     ]
     assert not any("session 0" in detail for _, detail in findings)
+
+
+def test_a_reply_probability_off_the_protocols_basis_is_found(
+    lab: Lab, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The shipped basis is "heard": replies a faulty server chose by the asked question's
+    probability (the "chosen" rule) are found, even where their level happens to agree."""
+    lab.enrol_and_assign()
+    lab.start_session()
+    with monkeypatch.context() as patched:
+        patched.setattr(replies, "reply_probability", lambda basis, **given: given["asked"])
+        lab.run_session()
+    with lab.database.read_session() as db:
+        steps = sorted(db.scalars(select(Prompt.id)))
+    assert _findings(lab) == [
+        ("step", f"step {step}: reply probability does not follow replies.basis 'heard'")
+        for step in steps
+    ]
 
 
 def _shift(values: list[float], by: float) -> list[float]:
