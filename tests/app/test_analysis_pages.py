@@ -92,7 +92,17 @@ def test_a_young_study_says_what_cannot_be_computed(
     assert "Nothing to analyse yet" in page.text
 
 
-@pytest.mark.parametrize("export", list(EXPORT_FORMATS))
+_READ_ON_BOTH = ("long-csv", "steps-csv")
+"""Every format reads the study through the same loader; PostgreSQL is checked on these two
+(the answers and the step log), the costly formats (report, mixed models) on SQLite only."""
+
+
+@pytest.mark.parametrize(
+    ("engine_name", "export"),
+    [("sqlite", export) for export in EXPORT_FORMATS]
+    + [pytest.param("postgresql", export, marks=pytest.mark.postgres) for export in _READ_ON_BOTH],
+    indirect=["engine_name"],
+)
 def test_every_download(
     seeded: str, user_client: UserClientFactory, database: Database, export: str
 ) -> None:
@@ -146,6 +156,7 @@ def test_unknown_download_and_roles(seeded: str, user_client: UserClientFactory)
     )
 
 
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # files: test_every_download
 def test_export_command(seeded: str, database_url: str, tmp_path: Path) -> None:
     runner = CliRunner()
     env = {"TRUSTLAB_DATABASE_URL": database_url}

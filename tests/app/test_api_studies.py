@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
@@ -39,8 +40,12 @@ def test_openapi_documents_the_robot_routes_bodies(client: TestClient) -> None:
     assert body_schema(f"{station}/runs", "post", "201").endswith("/StationStateOut")
 
 
-def test_healthz_reports_the_database(client: TestClient, settings: Settings) -> None:
+def test_healthz_reports_the_database(client: TestClient) -> None:
     assert client.get("/healthz").json() == {"status": "ok", "database": "ok"}
+
+
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # the URL below is the point
+def test_healthz_reports_an_unreachable_database(settings: Settings) -> None:
     broken = settings.model_copy(
         update={"database_url": "postgresql+psycopg://nobody@127.0.0.1:1/none"}
     )
