@@ -46,7 +46,7 @@ import inspect
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from datetime import timedelta
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, Literal, TypeVar
 
 from fastapi import APIRouter, Depends, Request, Response
 from sqlalchemy import event
@@ -70,28 +70,34 @@ CSRF_HEADER = "X-CSRF-Token"
 CSRF_FIELD = "csrf_token"
 
 
-def cookie_is_secure(request: Request, settings: Settings) -> bool:
-    """Whether a cookie set in answer to ``request`` gets the Secure flag: as configured, else
-    when the request came over HTTPS (the connection's scheme, or X-Forwarded-Proto from a
-    trusted proxy: the proxy-headers middleware has already put it into the URL). One rule for
-    every cookie, so no credential travels in clear where the login cookie would not."""
-    if settings.cookie_secure is not None:
-        return settings.cookie_secure
-    return request.url.scheme == "https"
+def set_private_cookie(
+    response: Response,
+    request: Request,
+    name: str,
+    value: str,
+    *,
+    max_age: int,
+    samesite: Literal["lax", "strict"] = "lax",
+) -> None:
+    """Set a cookie scripts cannot read (HttpOnly), Secure as configured, else when the request
+    came over HTTPS (the connection's scheme, or X-Forwarded-Proto from a trusted proxy: the
+    proxy-headers middleware has already put it into the URL). Every cookie trustlab sets goes
+    through here, so none travels in clear where the login cookie would not."""
+    settings: Settings = request.app.state.settings
+    secure = settings.cookie_secure
+    if secure is None:
+        secure = request.url.scheme == "https"
+    response.set_cookie(
+        name, value, httponly=True, samesite=samesite, secure=secure, max_age=max_age
+    )
 
 
 def set_session_cookie(
     response: Response, request: Request, settings: Settings, token: str
 ) -> None:
     """Give the browser its login cookie: HttpOnly, SameSite=Lax, Secure over HTTPS."""
-    response.set_cookie(
-        SESSION_COOKIE,
-        token,
-        httponly=True,
-        samesite="lax",
-        secure=cookie_is_secure(request, settings),
-        max_age=int(settings.session_hours * 3600),
-    )
+    max_age = int(settings.session_hours * 3600)
+    set_private_cookie(response, request, SESSION_COOKIE, token, max_age=max_age)
 
 
 async def get_settings(request: Request) -> Settings:

@@ -24,7 +24,7 @@ from app.deps import (
     OneHopRouter,
     SessionDep,
     SettingsDep,
-    cookie_is_secure,
+    set_private_cookie,
     set_session_cookie,
 )
 from app.errors import TooManyAttempts
@@ -62,9 +62,8 @@ def _login_page(
         },
         status_code=status_code,
     )
-    secure = cookie_is_secure(request, request.app.state.settings)
-    response.set_cookie(
-        LOGIN_NONCE_COOKIE, nonce, httponly=True, samesite="strict", secure=secure, max_age=3600
+    set_private_cookie(
+        response, request, LOGIN_NONCE_COOKIE, nonce, max_age=3600, samesite="strict"
     )
     return response
 

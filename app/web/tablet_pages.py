@@ -16,7 +16,7 @@ from fastapi import Form, Request
 from fastapi.responses import RedirectResponse, Response
 from starlette.concurrency import run_in_threadpool
 
-from app.deps import FormFields, OneHopRouter, SessionDep, SettingsDep, cookie_is_secure
+from app.deps import FormFields, OneHopRouter, SessionDep, SettingsDep, set_private_cookie
 from app.errors import Conflict, NotAuthenticated, PermissionDenied, TrustlabError
 from app.inputs import SessionNumber
 from app.protocol import InstrumentSpec
@@ -42,33 +42,26 @@ def _no_store(response: Response) -> Response:
     return response
 
 
-def _open_link(request: Request, settings: SettingsDep, token: str, db: SessionDep) -> Response:
+def _open_link(request: Request, token: str, db: SessionDep) -> Response:
     try:
         resolve(db, token)
     except (NotAuthenticated, Conflict) as exc:
         raise NotAuthenticated(exc.message) from exc
     response = RedirectResponse("/tablet", status_code=303)
-    response.set_cookie(
-        TABLET_COOKIE,
-        token,
-        httponly=True,
-        samesite="lax",
-        secure=cookie_is_secure(request, settings),
-        max_age=7 * 86400,
-    )
+    set_private_cookie(response, request, TABLET_COOKIE, token, max_age=7 * 86400)
     return response
 
 
 @router.get("/t/{token}")
-def personal_link(request: Request, settings: SettingsDep, token: str, db: SessionDep) -> Response:
+def personal_link(request: Request, token: str, db: SessionDep) -> Response:
     """A participant's personal link (from the QR code): remember it on this tablet."""
-    return _open_link(request, settings, token, db)
+    return _open_link(request, token, db)
 
 
 @router.get("/k/{token}")
-def kiosk_link(request: Request, settings: SettingsDep, token: str, db: SessionDep) -> Response:
+def kiosk_link(request: Request, token: str, db: SessionDep) -> Response:
     """A station's kiosk link: this tablet shows whoever is assigned to the station."""
-    return _open_link(request, settings, token, db)
+    return _open_link(request, token, db)
 
 
 def _context(request: Request, tablet: Tablet, settings: SettingsDep) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from fastapi import Request
 from fastapi.responses import HTMLResponse, RedirectResponse
 from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
 
-from app.deps import CSRF_FIELD, CSRF_HEADER, cookie_is_secure
+from app.deps import CSRF_FIELD, CSRF_HEADER, set_private_cookie
 from app.inputs import STATION_NAME
 from app.security import sign, unsign
 from app.settings import REPO_ROOT
@@ -96,10 +96,7 @@ def redirect_with_notice(request: Request, url: str, notice: str) -> RedirectRes
     """A See-Other redirect that shows ``notice`` once on the next page (a signed cookie)."""
     response = RedirectResponse(url, status_code=303)
     signed = sign(request.app.state.settings.secret, _cookie_safe(notice[:300]))
-    secure = cookie_is_secure(request, request.app.state.settings)
-    response.set_cookie(
-        NOTICE_COOKIE, signed, max_age=60, httponly=True, samesite="lax", secure=secure
-    )
+    set_private_cookie(response, request, NOTICE_COOKIE, signed, max_age=60)
     return response
 
 
