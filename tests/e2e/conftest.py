@@ -10,10 +10,11 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, Playwright, expect, sync_playwright
+from playwright.sync_api import Browser, Page, Playwright, expect, sync_playwright
 
 from app.db import Database
 from app.settings import REPO_ROOT
+from tests.conftest import PASSWORD
 from tests.servers import ServerProcess
 
 CHROMIUM = "/usr/bin/chromium"
@@ -72,3 +73,14 @@ def artifacts(request: pytest.FixtureRequest) -> Path:
     folder = ARTIFACTS / request.node.name.replace("/", "_").replace("[", "-").rstrip("]")
     folder.mkdir(parents=True, exist_ok=True)
     return folder
+
+
+def sign_in_page(
+    page: Page, server: ServerProcess, next_url: str, username: str = "operator"
+) -> None:
+    """Sign ``username`` in through the real form and wait until ``next_url`` is shown."""
+    page.goto(f"{server.url}/login?next={next_url}")
+    page.get_by_label("Username").fill(username)
+    page.get_by_label("Password").fill(PASSWORD)
+    page.get_by_role("button", name="Sign in").click()
+    expect(page).to_have_url(f"{server.url}{next_url}")

@@ -11,7 +11,8 @@ from playwright.sync_api import Browser, Page, expect
 from app.db import Database
 from app.tables import Role
 from bench.seed import seed_study
-from tests.conftest import PASSWORD, make_user
+from tests.conftest import make_user
+from tests.e2e.conftest import sign_in_page
 from tests.servers import ServerProcess
 
 
@@ -52,10 +53,7 @@ def test_charts_fit_their_cards(
     make_user(database, "operator", Role.ANALYST)
     context = browser.new_context(viewport={"width": width, "height": height})
     page = context.new_page()
-    page.goto(f"{live_server.url}/login?next=/studies/{exp3_study}/dashboard")
-    page.get_by_label("Username").fill("operator")
-    page.get_by_label("Password").fill(PASSWORD)
-    page.get_by_role("button", name="Sign in").click()
+    sign_in_page(page, live_server, f"/studies/{exp3_study}/dashboard")
     expect(page.locator("#dashboard-status")).to_contain_text("answers learned")
     _settled(page, 3)  # two measures and the adaptation curves
     assert _overflows(page) == []
@@ -103,10 +101,7 @@ def test_legends_stay_clear_of_the_axis_titles(
     make_user(database, "operator", Role.ANALYST)
     context = browser.new_context(viewport={"width": 1280, "height": 900})
     page = context.new_page()
-    page.goto(f"{live_server.url}/login?next=/studies/legends/dashboard")
-    page.get_by_label("Username").fill("operator")
-    page.get_by_label("Password").fill(PASSWORD)
-    page.get_by_role("button", name="Sign in").click()
+    sign_in_page(page, live_server, "/studies/legends/dashboard")
     expect(page.locator("#dashboard-status")).to_contain_text("answers learned")
     _settled(page, 3)
     expect(page.locator(".card .js-plotly-plot .legend")).to_have_count(3)

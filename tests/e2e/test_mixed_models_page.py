@@ -11,7 +11,8 @@ from playwright.sync_api import Browser, expect
 from app.db import Database
 from app.tables import Role
 from bench.seed import seed_study
-from tests.conftest import PASSWORD, make_user
+from tests.conftest import make_user
+from tests.e2e.conftest import sign_in_page
 from tests.servers import ServerProcess
 
 
@@ -23,10 +24,7 @@ def test_the_section_loads_draws_and_switches_measure(
     make_user(database, "pi", Role.ANALYST)
     context = browser.new_context(viewport={"width": 1366, "height": 900})
     page = context.new_page()
-    page.goto(f"{live_server.url}/login?next=/studies/mixedpage/analysis")
-    page.get_by_label("Username").fill("pi")
-    page.get_by_label("Password").fill(PASSWORD)
-    page.get_by_role("button", name="Sign in").click()
+    sign_in_page(page, live_server, "/studies/mixedpage/analysis", username="pi")
     section = page.locator("#mixed-models")
     expect(section.get_by_role("heading", name="Linear mixed model")).to_be_visible()
     expect(section.locator("h2")).to_contain_text("(trust_1)")

@@ -7,22 +7,15 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, Page, expect
+from playwright.sync_api import Browser, expect
 
 from app.db import Database
 from app.tables import Role
-from tests.conftest import PASSWORD, Lab, make_user
+from tests.conftest import Lab, make_user
+from tests.e2e.conftest import sign_in_page
 from tests.servers import ServerProcess
 
 SIZES = ((1366, 900), (768, 1024))
-
-
-def _sign_in(page: Page, server: ServerProcess, next_url: str) -> None:
-    page.goto(f"{server.url}/login?next={next_url}")
-    page.get_by_label("Username").fill("operator")
-    page.get_by_label("Password").fill(PASSWORD)
-    page.get_by_role("button", name="Sign in").click()
-    expect(page).to_have_url(f"{server.url}{next_url}")
 
 
 @pytest.mark.e2e
@@ -40,7 +33,7 @@ def test_refusals_are_shown_next_to_their_control(
     taken = lab.enrol_and_assign("P777")
     context = browser.new_context(viewport={"width": width, "height": height})
     page = context.new_page()
-    _sign_in(page, live_server, f"/studies/{lab.study}")
+    sign_in_page(page, live_server, f"/studies/{lab.study}")
 
     # Enrolling a code that is taken (409): the message beside the form, the page unchanged.
     form = page.locator(f'form[action="/studies/{lab.study}/participants"]')
@@ -87,7 +80,7 @@ def test_an_unknown_code_and_a_dead_server_are_explained(
     make_user(database, "operator", Role.ADMIN)
     context = browser.new_context(viewport={"width": 1366, "height": 900})
     page = context.new_page()
-    _sign_in(page, live_server, "/stations/lab-1")
+    sign_in_page(page, live_server, "/stations/lab-1")
     seat = page.locator('form[action="/stations/lab-1/assign"]')
     seat.get_by_label("Participant").fill("NOPE1")
     seat.get_by_role("button", name="Seat here").click()
@@ -113,7 +106,7 @@ def test_back_after_signing_out_shows_the_sign_in_page(
     make_user(database, "operator", Role.ADMIN)
     context = browser.new_context(viewport={"width": 1366, "height": 900})
     page = context.new_page()
-    _sign_in(page, live_server, f"/studies/{exp3_study}")
+    sign_in_page(page, live_server, f"/studies/{exp3_study}")
     response = page.request.get(f"{live_server.url}/studies/{exp3_study}")
     assert response.headers["cache-control"] == "no-store"
     page.get_by_role("button", name="Sign out").click()
