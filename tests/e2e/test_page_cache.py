@@ -10,7 +10,7 @@ from playwright.sync_api import Browser, Page
 from app.db import Database
 from app.tables import Role
 from tests.conftest import make_user
-from tests.e2e.test_refusals import _sign_in
+from tests.e2e.conftest import sign_in_page
 from tests.servers import ServerProcess
 
 STATIC_ENTRIES = """() => performance.getEntriesByType("resource")
@@ -34,7 +34,7 @@ def test_a_second_visit_fetches_no_static_file(
     make_user(database, "operator", Role.ADMIN)
     context = browser.new_context(viewport={"width": 1366, "height": 900})
     page = context.new_page()
-    _sign_in(page, live_server, f"/studies/{exp3_study}")
+    sign_in_page(page, live_server, f"/studies/{exp3_study}")
 
     first = _open_dashboard(page, live_server, exp3_study)
     paths = {str(entry["path"]) for entry in first}

@@ -17,7 +17,8 @@ from app.services import studies
 from app.services.audit import Actor
 from app.tables import Participant, ParticipantStatus, Role
 from tests.conftest import EXP3_ONLY, Lab, make_user, protocol_text
-from tests.e2e.test_refusals import SIZES, _sign_in
+from tests.e2e.conftest import sign_in_page
+from tests.e2e.test_refusals import SIZES
 from tests.servers import ServerProcess
 
 
@@ -68,7 +69,7 @@ def test_the_staff_pages_fit_and_read(
     context = browser.new_context(viewport={"width": width, "height": height})
     page = context.new_page()
 
-    _sign_in(page, live_server, f"/studies/{lab.study}")
+    sign_in_page(page, live_server, f"/studies/{lab.study}")
     expect(page.get_by_role("link", name="Withdraw…").first).to_be_visible()
     page.screenshot(path=str(artifacts / f"overview-{width}.png"), full_page=True)
     assert _overflow(page, "#participant-rows") == []
@@ -130,7 +131,7 @@ def test_a_blinded_study_shows_what_is_sealed_without_empty_or_dead_controls(
     make_user(database, "operator", Role.ADMIN)
     context = browser.new_context(viewport={"width": 1366, "height": 900})
     page = context.new_page()
-    _sign_in(page, live_server, "/studies/blind/dashboard")
+    sign_in_page(page, live_server, "/studies/blind/dashboard")
     expect(page.locator("#dashboard")).to_have_attribute("data-drawn", re.compile(r"[1-9]"))
     expect(page.locator("#adaptation-hidden")).to_contain_text("this study is blinded")
     expect(page.get_by_test_id("adaptation")).to_be_hidden()
