@@ -98,12 +98,29 @@ class SurpriseGates:
     raises its estimate of how often this participant slips, so all the evidence counts for less.
     ``yes``/``no`` are the rewards of the two answers (to measure the surprise), ``step`` is
     ``v`` and ``retention`` is ``w``.
+
+    With a *memory* (checkpoints trained since issue 36), the gates also see ``m``, the sum of the
+    surprises of the answers before this one, kept in the learner's state::
+
+        α_t(u, m) = α_t · exp(v_t u + v'_t m)        ρ_t(u, m) = σ(logit ρ_t + w_t u + w'_t m)
+
+    One surprise alone cannot tell a slip from a change of mind; the filter tells them apart by
+    every contradiction so far (a participant who has contradicted it before probably slips, so
+    a new "yes" counts for less). ``memory_step`` is ``v'`` and ``memory_retention`` ``w'``;
+    None: no memory, exactly the gates before it.
     """
 
     yes: float
     no: float
     step: np.ndarray
     retention: np.ndarray
+    memory_step: np.ndarray | None = None
+    memory_retention: np.ndarray | None = None
+
+    @property
+    def remembers(self) -> bool:
+        """Whether the gates see the surprises before the current answer."""
+        return self.memory_step is not None
 
     def of(self, p_asked: np.ndarray | float, reward: np.ndarray | float) -> np.ndarray:
         """The surprise of ``reward`` for a question the policy asked with ``p_asked``."""
@@ -183,21 +200,46 @@ class Checkpoint:
         return float(self.retention[min(answer_index, self.retention.shape[0] - 1)])
 
     def step_and_retention(
-        self, answer_index: int, p_asked: np.ndarray | float, reward: np.ndarray | float
+        self,
+        answer_index: int,
+        p_asked: np.ndarray | float,
+        reward: np.ndarray | float,
+        memory: np.ndarray | float = 0.0,
     ) -> tuple[np.ndarray | float, np.ndarray | float]:
         """The step size and forgetting ρ for answer ``answer_index`` (0-based) with this reward
-        to a question asked with probability ``p_asked`` (arrays: one per batch row)."""
+        to a question asked with probability ``p_asked``, after earlier surprises summing to
+        ``memory`` (arrays: one per batch row; ``memory`` matters only to gates that remember)."""
         index = min(answer_index, self.horizon - 1)
         step: np.ndarray | float = float(self.step_sizes[index])
         rho: np.ndarray | float = self.retention_after(answer_index)
-        if self.gates is None:
+        gates = self.gates
+        if gates is None:
             return step, rho
-        u = self.gates.of(p_asked, reward)
-        step = step * np.exp(self.gates.step[index] * u)
+        u = gates.of(p_asked, reward)
+        step_exponent = gates.step[index] * u
+        retention_shift = gates.retention[index] * u
+        if gates.memory_step is not None and gates.memory_retention is not None:
+            step_exponent = step_exponent + gates.memory_step[index] * memory
+            retention_shift = retention_shift + gates.memory_retention[index] * memory
+        step = step * np.exp(step_exponent)
         with np.errstate(divide="ignore"):
             logit = np.log(rho) - np.log1p(-rho)
-        rho = 1.0 / (1.0 + np.exp(-(logit + self.gates.retention[index] * u)))
+        rho = 1.0 / (1.0 + np.exp(-(logit + retention_shift)))
         return step, rho
+
+    def memory_after(
+        self, memory: np.ndarray | float, p_asked: np.ndarray | float, reward: np.ndarray | float
+    ) -> np.ndarray | float:
+        """The surprise memory after this answer: ``memory`` plus its surprise for gates that
+        remember, else unchanged (0: such learners keep none)."""
+        if self.gates is None or not self.gates.remembers:
+            return memory
+        return memory + self.gates.of(p_asked, reward)
+
+    @property
+    def remembers(self) -> bool:
+        """Whether learners on this checkpoint keep a surprise memory in their state."""
+        return self.gates is not None and self.gates.remembers
 
     @property
     def hidden(self) -> int:
@@ -267,6 +309,9 @@ def write_checkpoint(
             "step": np.asarray(gates.step, dtype=np.float64).tolist(),
             "retention": np.asarray(gates.retention, dtype=np.float64).tolist(),
         }
+        if gates.memory_step is not None and gates.memory_retention is not None:
+            weights["surprise"]["memory_step"] = np.asarray(gates.memory_step).tolist()
+            weights["surprise"]["memory_retention"] = np.asarray(gates.memory_retention).tolist()
     data = _dump(weights)
     (directory / WEIGHTS_FILE).write_bytes(data)
     (directory / HASH_FILE).write_text(f"{_digest(data)}  {WEIGHTS_FILE}\n")
@@ -432,11 +477,16 @@ def _gates(value: Any, horizon: int, where: Path, forgets: bool) -> SurpriseGate
     yes, no = value.get("yes"), value.get("no")
     if not all(isinstance(v, int | float) and math.isfinite(v) for v in (yes, no)) or yes == no:
         raise ValueError(f"checkpoint {where}: 'surprise' needs two different rewards yes and no")
+    memory = [name for name in ("memory_step", "memory_retention") if name in value]
+    if len(memory) == 1:
+        raise ValueError(f"checkpoint {where}: 'surprise' needs memory_step and memory_retention")
     return SurpriseGates(
         yes=float(yes),  # type: ignore[arg-type]
         no=float(no),  # type: ignore[arg-type]
         step=_array(value, "step", (horizon,), where),
         retention=_array(value, "retention", (horizon,), where),
+        memory_step=_array(value, "memory_step", (horizon,), where) if memory else None,
+        memory_retention=_array(value, "memory_retention", (horizon,), where) if memory else None,
     )
 
 

@@ -96,6 +96,8 @@ def online_rollout(
     baseline = baselines(p, args)
     retention_logit = p.get("retention_logit")
     gated = "surprise_step" in p
+    remembers = "memory_step" in p
+    memory = torch.zeros(batch.preferred.shape[0], dtype=DTYPE)
     offset = None
     if args.anchor:  # log prior − f_θ₀(x): the start is the prior, whatever θ₀ is
         log_prior = torch.as_tensor(np.log(args.tasks.prior), dtype=DTYPE)
@@ -134,12 +136,18 @@ def online_rollout(
             u = (reward - (model.no + p_asked * (model.yes - model.no))).abs()
             u = u / abs(model.yes - model.no)
             log_step = log_step + p["surprise_step"][t] * u
+            if remembers:
+                log_step = log_step + p["memory_step"][t] * memory
         net = apply_step(net, obs, s, log_step.exp(), damping, offset)
         if retention_logit is not None:
             z = retention_logit[t]
             if gated:
                 z = z + p["surprise_retention"][t] * u
+            if remembers:
+                z = z + p["memory_retention"][t] * memory
             net = retain(net, initial, torch.sigmoid(z))
+        if remembers:
+            memory = memory + u
     return Rollout(log_probs, torch.stack(taken, dim=1))
 
 

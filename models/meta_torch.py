@@ -125,6 +125,8 @@ def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
             shapes["retention_logit"] = (args.horizon,)
         if args.surprise_gates:
             shapes.update({"surprise_step": (args.horizon,), "surprise_retention": (args.horizon,)})
+        if args.surprise_memory:
+            shapes.update({"memory_step": (args.horizon,), "memory_retention": (args.horizon,)})
     return Layout(shapes)
 
 
@@ -146,7 +148,8 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
         if "retention_logit" in layout.shapes:
             rho = initial_retention(args)
             values["retention_logit"] = np.full(args.horizon, math.log(rho / (1.0 - rho)))
-        for name in ("surprise_step", "surprise_retention"):  # start as if there were no gates
+        # Start as if there were no gates.
+        for name in ("surprise_step", "surprise_retention", "memory_step", "memory_retention"):
             if name in layout.shapes:
                 values[name] = np.zeros(args.horizon)
     return layout.flatten(values)

@@ -132,6 +132,8 @@ def _gates(values: dict[str, np.ndarray], args: PretrainArgs) -> SurpriseGates |
         no=model.no,
         step=values["surprise_step"],
         retention=values["surprise_retention"],
+        memory_step=values.get("memory_step"),
+        memory_retention=values.get("memory_retention"),
     )
 
 

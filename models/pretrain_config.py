@@ -114,6 +114,11 @@ class PretrainArgs:
     """``online``, with ``forgetting``: let each answer's surprise scale its step and the
     forgetting after it (:class:`models.checkpoints.SurpriseGates`); the command line turns it on
     with forgetting."""
+    surprise_memory: bool = False
+    """``online``, with ``surprise_gates``: let the gates also see the sum of the surprises before
+    each answer (:class:`models.checkpoints.SurpriseGates`), so a participant who contradicted
+    the policy before gets evidence weighed like a slipper's; the command line turns it on with
+    the gates (issue 36)."""
     bounded_baseline: bool = False
     """``online``, yes/no answers: keep every reward baseline strictly between the rewards of no
     and yes (meta-learned through a logistic), so a yes can never lower the asked question's
@@ -194,6 +199,8 @@ class PretrainArgs:
             raise ValueError("a bounded baseline needs a yes/no feedback model")
         if args.surprise_gates and not args.forgetting:
             raise ValueError("surprise gates scale the forgetting step: they need forgetting")
+        if args.surprise_memory and not args.surprise_gates:
+            raise ValueError("a surprise memory is part of the surprise gates: it needs them")
         if args.population is not None and (
             not isinstance(args.population.get("sha256"), str) or args.preferred_prior is None
         ):

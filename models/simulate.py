@@ -116,6 +116,7 @@ class BatchMetaPolicy:
         # One anchor per participant when each has its own start (random ones: uniform).
         self.offset = checkpoint.offset_for(self.initial, random_init=params is not None)
         self.answers = 0
+        self.memory: np.ndarray | float = 0.0
 
     def probabilities(self) -> np.ndarray:
         """π for every participant (a single row while all still share the start)."""
@@ -132,7 +133,8 @@ class BatchMetaPolicy:
                 np.asarray(actions)[:, None],
                 axis=1,
             )[:, 0]
-        step, retention = c.step_and_retention(self.answers, p_asked, rewards)
+        step, retention = c.step_and_retention(self.answers, p_asked, rewards, self.memory)
+        self.memory = c.memory_after(self.memory, p_asked, rewards)
         if self.params["b2"].ndim == 1:
             self.params = {
                 k: np.broadcast_to(v, (len(actions), *v.shape)) for k, v in self.params.items()

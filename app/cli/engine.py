@@ -412,6 +412,14 @@ def pretrain_command(
             "with forgetting).",
         ),
     ] = None,
+    surprise_memory: Annotated[
+        bool | None,
+        typer.Option(
+            "--surprise-memory/--no-surprise-memory",
+            help="online: let the gates also see the surprises before each answer (default: on "
+            "with the gates).",
+        ),
+    ] = None,
     population: Annotated[
         Path | None,
         typer.Option(
@@ -429,7 +437,7 @@ def pretrain_command(
     root = out
     try:
         training = training_feedback(
-            mode, protocol, paper_feedback, anchor, forgetting, surprise_gates
+            mode, protocol, paper_feedback, anchor, forgetting, surprise_gates, surprise_memory
         )
         fitted = (
             {}
@@ -510,14 +518,15 @@ def training_feedback(
     anchor: bool | None,
     forgetting: bool | None,
     gates: bool | None,
+    memory: bool | None = None,
 ) -> dict[str, Any]:
     """The ``PretrainArgs`` fields for the feedback model a run trains for.
 
     The paper's Gaussian model (``--paper-feedback``, paper mode, or a protocol declaring it)
     trains as every checkpoint before issue 19 did: plain rewards, calibrated selection. Any
     other model trains anchored at the prior, with a forgetting step when participants may slip
-    or change their minds (and surprise gates on it), selected by the log score (docs/engine.md,
-    "C2 for real participants"). Explicit flags override these defaults.
+    or change their minds (and surprise gates on it, with their memory), selected by the log
+    score (docs/engine.md, "C2 for real participants"). Explicit flags override these defaults.
     """
     from app.protocol import default_protocol, load_protocol_file
     from app.services.learners import feedback_model
@@ -529,6 +538,7 @@ def training_feedback(
             "anchor": bool(anchor),
             "forgetting": bool(forgetting),
             "surprise_gates": bool(gates),
+            "surprise_memory": bool(memory),
         }
     loaded = default_protocol() if protocol is None else load_protocol_file(protocol)
     model = feedback_model(loaded.protocol)
@@ -538,6 +548,7 @@ def training_feedback(
             "anchor": bool(anchor),
             "forgetting": bool(forgetting),
             "surprise_gates": bool(gates),
+            "surprise_memory": bool(memory),
         }
     forgets = model.has_slips_or_changes if forgetting is None else forgetting
     return {
@@ -545,6 +556,7 @@ def training_feedback(
         "anchor": True if anchor is None else anchor,
         "forgetting": forgets,
         "surprise_gates": forgets if gates is None else gates,
+        "surprise_memory": (forgets if gates is None else gates) if memory is None else memory,
         "bounded_baseline": model.kind == "binary",
         "selection": "log_score",
     }

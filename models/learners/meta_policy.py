@@ -84,6 +84,21 @@ def plain_state(state: dict[str, Any]) -> dict[str, Any]:
     return {**{k: v for k, v in state.items() if k != "version"}, "params": plain}
 
 
+def _surprise_memory(state: dict[str, Any], checkpoint: Checkpoint) -> float:
+    """The state's surprise memory: required (a finite number ≥ 0) for a checkpoint whose gates
+    remember, refused for any other, so a state cannot silently drop or invent it."""
+    if not checkpoint.remembers:
+        if "surprise_memory" in state:
+            raise ValueError("meta state has a surprise memory its checkpoint does not keep")
+        return 0.0
+    value = state.get("surprise_memory")
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError("meta state must record its surprise memory (a number)")
+    if not (np.isfinite(value) and value >= 0):
+        raise ValueError(f"meta state's surprise memory must be finite and ≥ 0, got {value!r}")
+    return float(value)
+
+
 class MetaPolicyLearner:
     """One participant's copy of a meta-learned policy.
 
@@ -114,6 +129,7 @@ class MetaPolicyLearner:
         self._set_initial({name: np.array(start[name], dtype=np.float64) for name in start})
         self._params: Params = dict(self._initial)
         self._answers = 0
+        self._memory = 0.0
 
     def _set_initial(self, initial: Params) -> None:
         self._initial = initial
@@ -159,6 +175,7 @@ class MetaPolicyLearner:
         """Forget every answer: back to the starting weights."""
         self._params = dict(self._initial)
         self._answers = 0
+        self._memory = 0.0
 
     def step_size(self, answer_index: int) -> float:
         """The step size of the update after answer number ``answer_index`` (0-based), before
@@ -197,7 +214,10 @@ class MetaPolicyLearner:
         r = check_reward(reward)
         # Only surprise gates need the asked question's probability: no extra forward pass else.
         p_asked = self.probabilities()[a] if self.checkpoint.gates is not None else 1.0
-        step, retention = self.checkpoint.step_and_retention(self._answers, p_asked, r)
+        step, retention = self.checkpoint.step_and_retention(
+            self._answers, p_asked, r, self._memory
+        )
+        memory = float(self.checkpoint.memory_after(self._memory, p_asked, r))
         if self.learning_rate is not None:
             step = self.learning_rate
         new = update_params(
@@ -217,6 +237,7 @@ class MetaPolicyLearner:
             raise ValueError(f"update with reward {r!r} made the policy's weights non-finite")
         self._params = new
         self._answers += 1
+        self._memory = memory
 
     def state_dict(self) -> dict[str, Any]:
         """The learner's weights and answer count as JSON, tied to the checkpoint's hash.
@@ -237,6 +258,8 @@ class MetaPolicyLearner:
         }
         if self._random:
             state["initial"] = {name: _encode(self._initial[name]) for name in PARAM_NAMES}
+        if self.checkpoint.remembers:  # absent for other checkpoints: their states are unchanged
+            state["surprise_memory"] = self._memory
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -289,10 +312,18 @@ class MetaPolicyLearner:
                     raise ValueError(f"meta state: {name} must be {shape} finite numbers")
         if answers < 0:
             raise ValueError(f"meta state has a negative answer count {answers}")
+        memory = _surprise_memory(state, self.checkpoint)
         self._params = params
         self._answers = answers
+        self._memory = memory
         self._random = random
         self._set_initial(initial)  # after _random: a random start is anchored at uniform
+
+    @property
+    def surprise_memory(self) -> float:
+        """The sum of the surprises of the answers so far (0 unless the checkpoint's gates
+        remember, :class:`models.checkpoints.SurpriseGates`)."""
+        return self._memory
 
     def __repr__(self) -> str:
         return (

@@ -332,3 +332,20 @@ def test_pretrain_for_a_protocol_file_and_its_refusals(cli: typer.Typer, tmp_pat
     assert bad.exit_code == EXIT_BAD_INPUT
     assert bad.stderr.startswith("error: ") and "learners.feedback.hazard" in bad.stderr
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_pretrain_defaults_give_the_gates_their_memory() -> None:
+    """The shipped protocol's model trains with forgetting, gates and their memory (issue 36);
+    each can be turned off, and a memory without gates is refused when the run is resolved."""
+    from app.cli.engine import training_feedback
+    from models.pretrain_config import PretrainArgs
+
+    shipped = training_feedback("online", None, False, None, None, None)
+    assert shipped["forgetting"] and shipped["surprise_gates"] and shipped["surprise_memory"]
+    assert not training_feedback("online", None, False, None, None, None, False)["surprise_memory"]
+    no_gates = training_feedback("online", None, False, None, None, False)
+    assert not no_gates["surprise_gates"] and not no_gates["surprise_memory"]
+    assert not training_feedback("online", None, True, None, None, None)["surprise_memory"]
+    lone = training_feedback("online", None, False, None, None, False, True)
+    with pytest.raises(ValueError, match="needs them"):
+        PretrainArgs(**lone).resolved()

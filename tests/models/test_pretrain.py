@@ -96,21 +96,23 @@ ROBUST: dict[str, Any] = {
 
 
 @pytest.mark.parametrize(
-    ("rule", "robust"),
+    ("rule", "robust", "memory"),
     [
-        ("natural_expected", False),
-        ("natural", False),
-        ("gradient", False),
-        ("natural_expected", True),
-        ("gradient", True),
+        ("natural_expected", False, False),
+        ("natural", False, False),
+        ("gradient", False, False),
+        ("natural_expected", True, False),
+        ("gradient", True, False),
+        ("natural_expected", True, True),
     ],
 )
-def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool) -> None:
+def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool, memory: bool) -> None:
     """The differentiable inner loop and the deployed numpy learner (built from the checkpoint
     training would write) take the same 4 steps on 6 tasks: with the paper's Gaussian rewards,
-    and with yes/no answers that slip, a preference that changes, the anchor, forgetting and the
-    surprise gates."""
-    args, rng, obs, layout, theta = _setup("online", online_rule=rule, **(ROBUST if robust else {}))
+    and with yes/no answers that slip, a preference that changes, the anchor, forgetting, the
+    surprise gates and their memory of earlier surprises."""
+    options = {**ROBUST, "surprise_memory": memory} if robust else {}
+    args, rng, obs, layout, theta = _setup("online", online_rule=rule, **options)
     batch = sample_online_batch(args, rng)
     if robust:  # the draws exercise what they should
         assert bool(batch.slipped.any()) and bool((batch.preferred != batch.preferred[:, :1]).any())
@@ -118,11 +120,14 @@ def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool) -> None
         values = layout.unflatten(theta)
         values["surprise_step"].copy_(torch.linspace(-0.5, 0.5, args.horizon))
         values["surprise_retention"].copy_(torch.linspace(-1.0, 1.0, args.horizon))
+        if memory:
+            values["memory_step"].copy_(torch.linspace(0.4, -0.6, args.horizon))
+            values["memory_retention"].copy_(torch.linspace(-0.8, 0.3, args.horizon))
     with torch.no_grad():
         rollout = online_rollout(theta, layout, obs, args, batch)
     checkpoint = as_checkpoint(theta, layout, args)
     assert (checkpoint.prior is not None) == robust and (checkpoint.retention is not None) == robust
-    assert (checkpoint.gates is not None) == robust
+    assert (checkpoint.gates is not None) == robust and checkpoint.remembers == memory
     for task in range(args.tasks_per_batch or 0):
         learner = MetaPolicyLearner(checkpoint)
         np.testing.assert_allclose(

@@ -284,3 +284,104 @@ def test_a_state_carries_its_start_and_a_bad_one_is_refused() -> None:
     broken._initial["b2"][0] = np.nan  # a corrupted stored start
     with pytest.raises(ValueError, match="finite numbers"):
         MetaPolicyLearner(checkpoint).load_state_dict(broken.state_dict())
+
+
+def _remembering(checkpoint: Checkpoint) -> Checkpoint:
+    """``checkpoint`` with gates that also see the surprises so far (issue 36), coefficients
+    away from zero so that forgetting them would show."""
+    assert checkpoint.gates is not None
+    horizon = checkpoint.horizon
+    gates = dataclasses.replace(
+        checkpoint.gates,
+        memory_step=np.linspace(-0.6, 0.2, horizon),
+        memory_retention=np.linspace(-1.5, 0.5, horizon),
+    )
+    return dataclasses.replace(checkpoint, gates=gates)
+
+
+def test_a_surprise_memory_is_kept_in_the_state_and_changes_later_steps() -> None:
+    checkpoint = _remembering(load_checkpoint(SHIPPED[0]))
+    assert checkpoint.remembers and not load_checkpoint(SHIPPED[0]).remembers
+    learner = MetaPolicyLearner(checkpoint)
+    answers = [(0, 1.0), (0, 0.0), (1, 1.0), (0, 1.0)]
+    expected = 0.0
+    for action, reward in answers:
+        p_asked = learner.probabilities()[action]
+        expected += float(surprise(p_asked, reward, 1.0, 0.0))
+        learner.update(action, reward)
+    assert learner.surprise_memory == pytest.approx(expected, rel=1e-15) and expected > 1.0
+    state = learner.state_dict()
+    assert state["surprise_memory"] == learner.surprise_memory
+    restored = MetaPolicyLearner(checkpoint)
+    restored.load_state_dict(json.loads(json.dumps(state)))
+    assert restored.state_dict() == state
+    for twin in (learner, restored):
+        twin.update(2, 1.0)
+    assert restored.probabilities().tobytes() == learner.probabilities().tobytes()
+    forgetful = MetaPolicyLearner(checkpoint)  # the same answers with the memory zeroed
+    forgetful.load_state_dict({**state, "surprise_memory": 0.0})
+    forgetful.update(2, 1.0)
+    assert not np.allclose(forgetful.probabilities(), learner.probabilities())
+    learner.reset()
+    assert learner.surprise_memory == 0.0
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"surprise_memory": None}, "must record its surprise memory"),
+        ({"surprise_memory": -0.5}, "finite and ≥ 0"),
+        ({"surprise_memory": True}, "must record its surprise memory"),
+    ],
+)
+def test_a_state_without_its_surprise_memory_is_refused(
+    change: dict[str, object], message: str
+) -> None:
+    checkpoint = _remembering(load_checkpoint(SHIPPED[0]))
+    state = MetaPolicyLearner(checkpoint).state_dict()
+    if change["surprise_memory"] is None:
+        del state["surprise_memory"]
+    else:
+        state.update(change)
+    with pytest.raises(ValueError, match=message):
+        MetaPolicyLearner(checkpoint).load_state_dict(state)
+    plain = load_checkpoint(SHIPPED[0])  # a memory its checkpoint does not keep
+    invented = {**MetaPolicyLearner(plain).state_dict(), "surprise_memory": 0.0}
+    with pytest.raises(ValueError, match="does not keep"):
+        MetaPolicyLearner(plain).load_state_dict(invented)
+
+
+def test_the_batch_learner_remembers_surprises_as_one_learner_does() -> None:
+    checkpoint = _remembering(load_checkpoint(SHIPPED[0]))
+    rng = np.random.default_rng(5)
+    actions = rng.integers(0, 4, size=(6, 3))
+    rewards = rng.integers(0, 2, size=(6, 3)).astype(float)
+    batch = BatchMetaPolicy(checkpoint)
+    for t in range(6):
+        batch.update(actions[t], rewards[t])
+    for row in range(3):
+        learner = MetaPolicyLearner(checkpoint)
+        for t in range(6):
+            learner.update(int(actions[t, row]), float(rewards[t, row]))
+        np.testing.assert_allclose(batch.probabilities()[row], learner.probabilities(), rtol=1e-12)
+        assert np.asarray(batch.memory)[row] == pytest.approx(learner.surprise_memory, rel=1e-12)
+
+
+def test_a_checkpoint_with_half_a_memory_is_refused(tmp_path: Path) -> None:
+    source = load_checkpoint(SHIPPED[0])
+    path = tmp_path / source.path.name
+    weights = json.loads((source.path / WEIGHTS_FILE).read_text())
+    weights["surprise"]["memory_step"] = [0.0] * source.horizon
+    data = json.dumps(weights).encode()
+    path.mkdir()
+    (path / WEIGHTS_FILE).write_bytes(data)
+    (path / HASH_FILE).write_text(f"{hashlib.sha256(data).hexdigest()}  {WEIGHTS_FILE}\n")
+    for name in ("config.json", "metrics.json"):
+        (path / name).write_text((source.path / name).read_text())
+    with pytest.raises(ValueError, match="memory_step and memory_retention"):
+        load_checkpoint(path)
+    weights["surprise"]["memory_retention"] = [0.0] * source.horizon
+    data = json.dumps(weights).encode()
+    (path / WEIGHTS_FILE).write_bytes(data)
+    (path / HASH_FILE).write_text(f"{hashlib.sha256(data).hexdigest()}  {WEIGHTS_FILE}\n")
+    assert load_checkpoint(path).remembers
