@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
+from models.learners.belief import BatchBelief
 from models.learners.mlp_policy import PARAM_NAMES
 from models.meta_torch import DTYPE, Layout, apply_step, baselines, policy_logits, retain
 from models.pretrain_config import PretrainArgs
@@ -42,10 +43,12 @@ class OnlineBatch:
 
 @dataclass
 class Rollout:
-    """The log-probability tables after 0..T answers and the actions taken."""
+    """The log-probability tables after 0..T answers, the actions taken and the rewards their
+    answers gave (empty for a rollout built by hand)."""
 
     log_probs: list[torch.Tensor]  # T + 1 tensors (B, K)
     actions: torch.Tensor  # (B, T) long
+    rewards: torch.Tensor = field(default_factory=lambda: torch.empty(0, dtype=DTYPE))  # (B, T)
 
 
 def sample_online_batch(args: PretrainArgs, rng: np.random.Generator) -> OnlineBatch:
@@ -106,7 +109,7 @@ def online_rollout(
     sigma = math.sqrt(model.variance) if model.kind == "gaussian" else 0.0
     n_arms = args.arms
     arange = torch.arange(n_arms)
-    log_probs, taken = [], []
+    log_probs, taken, rewards = [], [], []
     for t in range(args.horizon + 1):
         logp = torch.log_softmax(policy_logits(net, obs, offset), dim=-1)
         if logp.dim() == 1:
@@ -125,6 +128,7 @@ def online_rollout(
         reward = torch.where(says_yes, model.yes, model.no).to(DTYPE)
         if sigma:
             reward = reward + sigma * batch.noise[:, t]
+        rewards.append(reward)
         onehot = (a.unsqueeze(-1) == arange).to(DTYPE)
         pi = logp.exp()
         p_asked = (pi * onehot).sum(-1)
@@ -148,13 +152,43 @@ def online_rollout(
             net = retain(net, initial, torch.sigmoid(z))
         if remembers:
             memory = memory + u
-    return Rollout(log_probs, torch.stack(taken, dim=1))
+    return Rollout(log_probs, torch.stack(taken, dim=1), torch.stack(rewards, dim=1).detach())
+
+
+def filter_beliefs(rollout: Rollout, args: PretrainArgs) -> torch.Tensor:
+    """(B, T, K): after answers 1..t + 1 of each task, the exact filter's belief about which
+    question is preferred at the next answer (:class:`models.learners.belief.BatchBelief`, for
+    the model the tasks answer by) — what the reference reports and C2 approximates.
+
+    The filter needs only the history, so the same actions and rewards give the same beliefs at
+    every candidate meta-parameter: computed once per meta-batch, they are constants.
+    """
+    actions = rollout.actions.numpy()
+    rewards = rollout.rewards.numpy()
+    n, horizon = actions.shape
+    belief = BatchBelief(n, args.arms, args.feedback_model, args.tasks.prior)
+    beliefs = np.empty((n, horizon, args.arms))
+    for t in range(horizon):
+        belief.update(actions[:, t], rewards[:, t])
+        beliefs[:, t] = belief.probabilities()
+    return torch.as_tensor(beliefs, dtype=DTYPE)
 
 
 def objective_terms(
-    rollout: Rollout, batch: OnlineBatch, objective: str, wrong_penalty: float = 0.0
+    rollout: Rollout,
+    batch: OnlineBatch,
+    objective: str,
+    wrong_penalty: float = 0.0,
+    beliefs: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """(B, T) per-answer objective; column t depends on the actions before it only.
+
+    ``filter``: ``Σ_i b_t(i) log π_t(i)`` after answers 1..T, with ``b_t`` the exact filter's
+    belief about the next answer's preference (``beliefs``, :func:`filter_beliefs`). Its
+    expectation is the log score of the preference at the next answer (the conditional
+    expectation given the history: Rao–Blackwell), so it has the log score's optimum — the
+    filter itself, where the function class allows — without the noise of scoring against one
+    sampled preference; maximising it minimises the mean KL from the filter to the policy.
 
     ``log_score``: log π(preferred) after answers 1..T, plus ``wrong_penalty ·
     log(1 − max_{a ≠ preferred} π(a))`` when the penalty is positive: a proper score alone is
@@ -162,6 +196,11 @@ def objective_terms(
     participants; the extra term charges confident wrong beliefs more than slow right ones.
     ``reward``: the expected reward of answers 1..T, ``Σ_a π_{t−1}(a) μ_a``.
     """
+    if objective == "filter":
+        if beliefs is None:
+            raise ValueError("the filter objective needs the filter's beliefs")
+        tables = rollout.log_probs[1:]
+        return torch.stack([(beliefs[:, t] * lp).sum(-1) for t, lp in enumerate(tables)], dim=1)
     # The question preferred at answer t, which table t (before it) and t + 1 (after it) judge.
     index = batch.preferred.unsqueeze(-1)
     if objective == "log_score":
@@ -189,6 +228,7 @@ def online_surrogate(
     advantages: torch.Tensor,
     objective: str,
     wrong_penalty: float = 0.0,
+    beliefs: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Mean per-answer objective plus the score-function term of the sampled actions.
 
@@ -196,7 +236,7 @@ def online_surrogate(
     answers after ``s``: its gradient at the old parameters is the unbiased meta-gradient (the
     path through the updates *and* through which questions got asked).
     """
-    f = objective_terms(rollout, batch, objective, wrong_penalty)
+    f = objective_terms(rollout, batch, objective, wrong_penalty, beliefs)
     actions = old.actions.unsqueeze(-1)
     score = torch.stack(
         [
@@ -354,10 +394,13 @@ def online_surrogate_and_kl(
     old: Rollout,
     advantages: torch.Tensor,
     theta: torch.Tensor,
+    beliefs: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Online surrogate and KL at ``theta`` on the old trajectories (for :func:`trpo_step`)."""
     new = online_rollout(theta, layout, obs, args, batch, actions=old.actions)
-    value = online_surrogate(new, batch, old, advantages, args.objective, args.wrong_penalty)
+    value = online_surrogate(
+        new, batch, old, advantages, args.objective, args.wrong_penalty, beliefs
+    )
     return value, mean_kl(new.log_probs, old.log_probs)
 
 

@@ -42,7 +42,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -52,6 +52,8 @@ import torch
 
 from models.checkpoints import Checkpoint, SurpriseGates, observation_for, write_checkpoint
 from models.inner_loops import (
+    OnlineBatch,
+    filter_beliefs,
     objective_terms,
     online_advantages,
     online_rollout,
@@ -181,7 +183,28 @@ def evaluate(
     return summary
 
 
+def _validation_batch(args: PretrainArgs, seed: int) -> OnlineBatch:
+    """``validation_participants`` tasks with their draws, the same for every snapshot."""
+    sized = replace(args, tasks_per_batch=args.validation_participants)
+    return sample_online_batch(sized, np.random.default_rng(seed))
+
+
+def filter_score(
+    theta: torch.Tensor, layout: Layout, obs: torch.Tensor, args: PretrainArgs, batch: OnlineBatch
+) -> float:
+    """Mean of the ``filter`` objective on fixed validation draws: how close the deployed
+    learner's beliefs come to the exact filter's (the higher, the closer; the filter's own
+    negative entropy is the ceiling). With the same draws for every snapshot and the filter's
+    belief in place of one sampled preference, snapshots are compared with little noise."""
+    with torch.no_grad():
+        rollout = online_rollout(theta, layout, obs, args, batch)
+        beliefs = filter_beliefs(rollout, args)
+        return float(objective_terms(rollout, batch, "filter", beliefs=beliefs).mean())
+
+
 def _is_better(candidate: dict[str, Any], best: dict[str, Any] | None, args: PretrainArgs) -> bool:
+    if args.selection == "filter":
+        return best is None or candidate["filter_score"] > best["filter_score"]
     if args.selection == "log_score":
         return best is None or candidate["log_score"] > best["log_score"]
     limit = args.wrong_limit
@@ -311,16 +334,20 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
     snapshots: list[Snapshot] = []
     running = math.nan
     validation_seed = args.seed + 10_000
+    validation_batch: OnlineBatch | None = None
     for iteration in range(1, args.meta_batches + 1):
         if args.mode == "online":
             batch = sample_online_batch(args, rng)
             with torch.no_grad():
                 old = online_rollout(theta, layout, obs, args, batch)
-                f_old = objective_terms(old, batch, args.objective, args.wrong_penalty)
+                beliefs = filter_beliefs(old, args) if args.objective == "filter" else None
+                f_old = objective_terms(old, batch, args.objective, args.wrong_penalty, beliefs)
                 advantages = online_advantages(f_old)
             objective = float(f_old.mean())
 
-            surrogate = partial(online_surrogate_and_kl, layout, obs, args, batch, old, advantages)
+            surrogate = partial(
+                online_surrogate_and_kl, layout, obs, args, batch, old, advantages, beliefs=beliefs
+            )
         else:
             paper_batch = sample_paper_batch(args, rng)
             with torch.no_grad():
@@ -346,6 +373,9 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
         ):
             figures = evaluate(theta, layout, args, args.validation_participants, validation_seed)
             figures["iteration"] = iteration
+            if args.selection == "filter":
+                validation_batch = validation_batch or _validation_batch(args, validation_seed)
+                figures["filter_score"] = filter_score(theta, layout, obs, args, validation_batch)
             result.validations.append(
                 {
                     key: figures[key]
@@ -355,7 +385,9 @@ def train(args: PretrainArgs, progress: Callable[[int, float], None] | None = No
                         "wrong_95",
                         "mean_p_correct",
                         "log_score",
+                        "filter_score",
                     )
+                    if key in figures
                 }
             )
             if calibrating:

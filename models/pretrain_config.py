@@ -24,6 +24,11 @@ accept of confidently wrong replies, less three standard errors of a 1 % rate me
 20,000 calibration participants (3 · √(.01 · .99 / 20000) ≈ .0021, so .0079), rounded down, so
 the true rate stays below 1 %."""
 
+OBJECTIVES = ("log_score", "reward", "filter")
+"""``online`` meta-objectives (:func:`models.inner_loops.objective_terms`)."""
+SELECTIONS = ("answers", "log_score", "filter")
+"""How validation picks the snapshot (:attr:`PretrainArgs.selection`)."""
+
 
 def default_meta_batches(mode: str, online_rule: str) -> int:
     """Outer steps when none are given: the paper's 200 in ``paper`` mode; in ``online`` mode 60
@@ -47,7 +52,9 @@ class PretrainArgs:
     seed: int = 0
     """Seeds every random draw (initialisation, tasks, actions, rewards, validation)."""
     objective: str = "log_score"
-    """``online`` only: ``log_score`` (log π(preferred) after each answer) or ``reward``."""
+    """``online`` only: ``log_score`` (log π(preferred) after each answer), ``filter`` (the same
+    score taken in expectation under the exact filter's belief about the next answer's
+    preference: the same optimum with far less noise, issue 36) or ``reward``."""
     wrong_penalty: float = 0.0
     """``online``, ``log_score`` only: weight of ``log(1 − max wrong π)`` in the objective."""
     online_rule: str = "natural_expected"
@@ -128,7 +135,9 @@ class PretrainArgs:
     within the wrong-belief limit, then calibrated (the paper's Gaussian model); ``log_score``:
     the best mean log π(preferred) on the training participants, uncalibrated — with slips and
     changes of mind even the exact filter is sometimes confidently wrong, so a wrong-belief
-    limit would only slow the learner; the proper score makes it approximate the filter."""
+    limit would only slow the learner; the proper score makes it approximate the filter;
+    ``filter``: the best ``filter`` objective on fixed validation draws (the log score without
+    the noise of one sampled preference per answer, so snapshots are told apart reliably)."""
     population: dict[str, Any] | None = None
     """The population the run trains for (``trustlab pretrain --population``): its file's
     ``sha256``, its ``source`` and the category's fitted figures, so the checkpoint records
@@ -138,8 +147,10 @@ class PretrainArgs:
         """A copy with the mode-dependent defaults filled in, after checking every value."""
         if self.mode not in ("online", "paper"):
             raise ValueError(f"mode must be 'online' or 'paper', not {self.mode!r}")
-        if self.objective not in ("log_score", "reward"):
-            raise ValueError(f"objective must be 'log_score' or 'reward', not {self.objective!r}")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(
+                f"objective must be one of {', '.join(OBJECTIVES)}, not {self.objective!r}"
+            )
         if self.online_rule not in UPDATE_RULES:
             raise ValueError(
                 f"online_rule must be one of {', '.join(UPDATE_RULES)}, not {self.online_rule!r}"
@@ -187,8 +198,14 @@ class PretrainArgs:
             )
         if args.cg_damping < 0:
             raise ValueError("cg_damping must not be negative")
-        if args.selection not in ("answers", "log_score"):
-            raise ValueError(f"selection must be 'answers' or 'log_score', not {args.selection!r}")
+        if args.selection not in SELECTIONS:
+            raise ValueError(
+                f"selection must be one of {', '.join(SELECTIONS)}, not {args.selection!r}"
+            )
+        if "filter" in (args.objective, args.selection) and not online:
+            raise ValueError("the filter objective and selection are for online mode")
+        if args.objective == "filter" and args.wrong_penalty > 0:
+            raise ValueError("a wrong-belief penalty is part of the log_score objective only")
         model = args.feedback_model  # raises ValueError for a malformed model
         if not online and (args.feedback is not None or args.anchor or args.forgetting):
             raise ValueError(

@@ -488,3 +488,62 @@ def test_selection_falls_back_to_the_best_penalised_validation(
         assert "candidates" not in result.calibration
     else:
         assert result.calibration == {}
+
+
+def test_the_filter_objective_scores_the_policy_against_the_exact_filter() -> None:
+    """The beliefs are the forward filter's on each task's own answers (the rewards the rollout
+    recorded are the answers its participants gave), the objective is Σ b log π, and its
+    meta-gradient is exact (finite differences): the filter's beliefs are constants."""
+    from models.inner_loops import filter_beliefs
+    from models.learners.belief import BeliefLearner
+
+    args, rng, obs, layout, theta = _setup(
+        "online", **{**ROBUST, "objective": "filter", "selection": "filter"}
+    )
+    batch = sample_online_batch(args, rng)
+    with torch.no_grad():
+        old = online_rollout(theta, layout, obs, args, batch)
+    beliefs = filter_beliefs(old, args)
+    assert beliefs.shape == (args.tasks_per_batch, args.horizon, args.arms)
+    for task in range(args.tasks_per_batch or 0):
+        reference = BeliefLearner(args.arms, args.feedback_model, args.tasks.prior)
+        for t in range(args.horizon):
+            action = int(old.actions[task, t])
+            said_yes = (action == int(batch.preferred[task, t])) != bool(batch.slipped[task, t])
+            assert float(old.rewards[task, t]) == float(said_yes)
+            reference.update(action, float(said_yes))
+            np.testing.assert_allclose(beliefs[task, t].numpy(), reference.probabilities())
+    terms = objective_terms(old, batch, "filter", beliefs=beliefs)
+    by_hand = (beliefs[:, 1] * old.log_probs[2]).sum(-1)
+    np.testing.assert_allclose(terms[:, 1].numpy(), by_hand.numpy(), rtol=1e-14)
+    with pytest.raises(ValueError, match="needs the filter's beliefs"):
+        objective_terms(old, batch, "filter")
+    advantages = online_advantages(terms)
+
+    def surrogate(th: torch.Tensor) -> torch.Tensor:
+        new = online_rollout(th, layout, obs, args, batch, actions=old.actions)
+        return online_surrogate(new, batch, old, advantages, "filter", beliefs=beliefs)
+
+    auto, fd = _directional_check(surrogate, theta, 0)
+    assert auto == pytest.approx(fd, rel=1e-6, abs=1e-9)
+
+
+def test_filter_selection_records_its_score_and_keeps_the_best() -> None:
+    args = PretrainArgs(
+        mode="online",
+        arms=3,
+        horizon=3,
+        meta_batches=2,
+        **{**TINY, **ROBUST, "objective": "filter", "selection": "filter", "validate_every": 1},
+    ).resolved()
+    result = train(args)
+    scores = [v["filter_score"] for v in result.validations]
+    assert len(scores) == 2 and all(s < 0 for s in scores)
+    best = max(result.validations, key=lambda v: v["filter_score"])
+    assert result.selected_iteration == best["iteration"]
+    for bad, message in (
+        ({"mode": "paper", "objective": "filter"}, "online mode"),
+        ({**ROBUST, "objective": "filter", "wrong_penalty": 0.5}, "log_score objective only"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            PretrainArgs(**bad).resolved()  # type: ignore[arg-type]
