@@ -27,6 +27,8 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
 from app.room import RoomSpec, check_room, default_room
+from models.feedback import FeedbackModel
+from models.learners import exact
 
 Key = Annotated[str, StringConstraints(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 """Identifiers used as column names in exports: lower snake case, starting with a letter."""
@@ -58,10 +60,13 @@ class LearnerKind(StrEnum):
 
     EXP3 = "exp3"
     META = "meta"
+    BAYES = "bayes"
+    """The exact filter for ``[learners.feedback]`` (models/learners/exact.py, issue 36)."""
 
 
 class ConditionSpec(_Strict):
-    """One arm of the trial, e.g. C1 (Exp3) or C2 (meta-learned policy)."""
+    """One arm of the trial, e.g. C1 (Exp3), C2 (meta-learned policy) or a third that runs the
+    exact filter for the declared participants (``bayes``)."""
 
     id: ConditionId
     label: Text
@@ -489,6 +494,61 @@ def _check_feedback(feedback: FeedbackSettings) -> list[Problem]:
     return problems
 
 
+def feedback_model(protocol: Protocol) -> FeedbackModel:
+    """The protocol's ``[learners.feedback]`` as the engine's model (with its reward map).
+
+    Raises
+    ------
+    ValueError
+        If the table or the reward map cannot make a model (:func:`check_protocol` reports why).
+    """
+    settings = protocol.learners.feedback
+    if settings.slip_values is not None and settings.slip_weights is not None:
+        slips, weights = tuple(settings.slip_values), tuple(settings.slip_weights)
+    else:
+        slips, weights = (settings.slip,), (1.0,)
+    return FeedbackModel(
+        kind=settings.kind,
+        slips=slips,
+        slip_weights=weights,
+        hazard=settings.hazard,
+        yes=protocol.reward.yes,
+        no=protocol.reward.no,
+        variance=settings.variance,
+    )
+
+
+_FEEDBACK_KEYS = {"slips": "learners.feedback", "variance": "learners.feedback.variance"}
+"""Where in the protocol each attribute of the feedback model is declared."""
+
+
+def _check_exact_filter(protocol: Protocol) -> list[Problem]:
+    """A ``bayes`` condition runs the exact filter for the declared feedback model, with the
+    reward map's rewards as the answers it hears: refuse a model it cannot learn from every
+    answer under (models.learners.exact.unsupported), or rewards that do not tell a yes from a
+    no. Reported once, at the first such condition."""
+    index = next(
+        (i for i, c in enumerate(protocol.conditions) if c.learner is LearnerKind.BAYES), None
+    )
+    if index is None:
+        return []
+    who = f'conditions[{index}].learner = "bayes"'
+    reward = protocol.reward
+    if reward.yes == reward.no:
+        return [
+            Problem(
+                "reward",
+                f"{who}: the exact filter tells a yes from a no by its reward, but yes and no "
+                f"both give {reward.yes:g}",
+            )
+        ]
+    try:
+        model = feedback_model(protocol)
+    except ValueError:  # a slip prior _check_feedback refuses, or non-finite rewards
+        return []
+    return [Problem(_FEEDBACK_KEYS[key], f"{who}: {why}") for key, why in exact.unsupported(model)]
+
+
 def _check_allocation(protocol: Protocol) -> list[Problem]:
     allocation = protocol.allocation
     n = len(protocol.conditions)
@@ -599,6 +659,7 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
         problems.append(Problem("reward", "rewards must be finite numbers"))
     problems += _check_replies(protocol.replies)
     problems += _check_feedback(protocol.learners.feedback)
+    problems += _check_exact_filter(protocol)
     if protocol.learners.population is not None and protocol.learners.meta.checkpoint != "shipped":
         problems.append(
             Problem(

@@ -10,9 +10,10 @@ A protocol with ``[study] blinded = true`` hides two things from staff:
   conditions (the first would be C1). The assignment is shown only once the study is unblinded
   (recorded in the audit entry ``study.unblinded`` and on the study page);
 - **the learners**: their probabilities, the confidence level behind each reply and the history
-  of replies. C1's Exp3 starts at exactly 1/K for every question and C2's policy does not, so any
-  of these would show an experimenter the condition at the first prompt. While the study is
-  *sealed* (blinded and not yet unblinded) nobody on the staff sees them, whatever their role.
+  of replies. C1's Exp3 (like a ``bayes`` condition's exact filter at its uniform prior) starts at
+  exactly 1/K for every question and C2's policy does not, so any of these would show an
+  experimenter the condition at the first prompt. While the study is *sealed* (blinded and not
+  yet unblinded) nobody on the staff sees them, whatever their role.
 
 The robot still receives everything it needs (its own routes and WebSocket are not staff
 responses), and the command line, run by whoever holds the server and its database, is not

@@ -1,7 +1,8 @@
 """Between the study protocol and the adaptation engine: building, storing and restoring learners.
 
 Each participant gets one learner per category at enrolment: Exp3 for an ``exp3`` condition, the
-pre-trained meta-policy for a ``meta`` condition (the checkpoint's SHA-256 is recorded). The row
+pre-trained meta-policy for a ``meta`` condition (the checkpoint's SHA-256 is recorded), the exact
+filter for the protocol's feedback model for a ``bayes`` condition (:func:`bayes_config`). The row
 keeps the initial state, the current state and a version that increments with every update, so
 ``trustlab verify`` can replay the step log from the initial state and compare bit for bit.
 
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from app.errors import Conflict
-from app.protocol import CategorySpec, LearnerKind, Protocol
+from app.protocol import CategorySpec, LearnerKind, Protocol, feedback_model
 from app.services import populations
 from app.tables import LearnerState
 from models.checkpoints import (
@@ -36,6 +37,7 @@ from models.checkpoints import (
 from models.feedback import FeedbackModel
 from models.learners import meta_policy
 from models.learners.base import Learner
+from models.learners.exact import exact_learner
 from models.learners.exp3 import Exp3
 from models.learners.meta_policy import MetaPolicyLearner
 
@@ -81,24 +83,6 @@ def _checkpoint_path(
     )
 
 
-def feedback_model(protocol: Protocol) -> FeedbackModel:
-    """The protocol's ``[learners.feedback]`` as the engine's model (with its reward map)."""
-    settings = protocol.learners.feedback
-    if settings.slip_values is not None and settings.slip_weights is not None:
-        slips, weights = tuple(settings.slip_values), tuple(settings.slip_weights)
-    else:
-        slips, weights = (settings.slip,), (1.0,)
-    return FeedbackModel(
-        kind=settings.kind,
-        slips=slips,
-        slip_weights=weights,
-        hazard=settings.hazard,
-        yes=protocol.reward.yes,
-        no=protocol.reward.no,
-        variance=settings.variance,
-    )
-
-
 def accepted_mismatch(protocol: Protocol, checkpoint: Checkpoint) -> FeedbackModel | None:
     """None when the checkpoint was meta-trained for the protocol's feedback model; the model
     it was trained for when the protocol accepts the mismatch (the learner's config records
@@ -123,6 +107,8 @@ def learner_spec(
     n_arms = len(category.questions)
     if kind is LearnerKind.EXP3:
         return LearnerSpec("exp3", n_arms, {"gamma": protocol.learners.exp3.gamma}, None)
+    if kind is LearnerKind.BAYES:
+        return LearnerSpec("bayes", n_arms, bayes_config(protocol, category), None)
     path = _checkpoint_path(protocol, category, checkpoint_dir)
     checkpoint = checkpoint_at(path, n_arms)
     config: dict[str, Any] = {"checkpoint": str(path)}
@@ -136,6 +122,22 @@ def learner_spec(
     if protocol.learners.meta.learning_rate is not None:
         config["learning_rate"] = protocol.learners.meta.learning_rate
     return LearnerSpec("meta", n_arms, config, checkpoint.sha256)
+
+
+def bayes_config(protocol: Protocol, category: CategorySpec) -> dict[str, Any]:
+    """What a ``bayes`` learner is built from, recorded whole so that replay never depends on
+    the protocol or a file: the feedback model (with the reward map) and, when the protocol
+    names a population, the prior over the preferred question C2 was meta-trained on (the
+    population's training prior, :meth:`analysis.population.Population.training_prior`: the
+    predictive prior for a new participant given the earlier ones) with the population's hash.
+    Without one the prior is uniform, as C2's shipped checkpoints were trained on."""
+    config: dict[str, Any] = {"feedback": feedback_model(protocol).to_json()}
+    population = populations.population_of(protocol)
+    if population is not None:
+        questions = list(category.questions)
+        prior = population.training_prior(category.name, len(questions), questions)
+        config |= {"prior": list(prior), "population_sha256": population.sha256}
+    return config
 
 
 @dataclass(frozen=True)
@@ -238,6 +240,9 @@ def build(spec: LearnerSpec) -> Learner:
         return MetaPolicyLearner.from_checkpoint(
             recorded_checkpoint(spec), learning_rate=spec.config.get("learning_rate")
         )
+    if spec.kind == "bayes":
+        feedback = FeedbackModel.from_json(spec.config["feedback"])
+        return exact_learner(spec.n_arms, feedback, spec.config.get("prior"))
     raise ValueError(f"unknown learner kind {spec.kind!r}")
 
 

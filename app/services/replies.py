@@ -29,7 +29,14 @@ def asked_belief(spec: LearnerSpec, before: Sequence[float], action: int) -> flo
     """The learner's belief, before the answer, that the asked question is the one the
     participant says yes to: the probability it asked with, except Exp3's exploration floor
     (models.replies.exp3_belief). For C2's policy the probability is what meta-training shaped
-    towards the preferred question; for a posterior-sampling learner it is the posterior."""
+    towards the preferred question; for a posterior-sampling learner (a ``bayes`` condition's
+    exact filter) it is the posterior that the asked question is the preferred one.
+
+    The "heard" basis turns this belief into the probability of a yes with the declared mean
+    slip rate, for every learner alike. For the exact filter with a slip prior, its own
+    predictive probability of a yes would weigh the slip rates by their posterior instead; it is
+    not used, because a reply must be recomputable from the step log (``trustlab verify``),
+    which records the probabilities but not the filter's belief about the slip rate."""
     asked = float(before[action])
     if spec.kind == "exp3":
         return exp3_belief(asked, gamma=float(spec.config["gamma"]), n_arms=spec.n_arms)

@@ -8,8 +8,9 @@ After rewards ``r_1..r_t`` on questions ``a_1..a_t``, the posterior that questio
 and the learner acts by posterior sampling (ask question i with probability P(i | data)), so its
 ``probabilities()`` are the posterior itself. No policy can do much better on this distribution,
 which makes it the yardstick for C2 (issue 3: C2 within 1.25 × its answers-to-95 %). It knows the
-true reward model; a real participant's answers are not Gaussian, so it is a reference, not a
-condition.
+true reward model. A ``bayes`` condition of a protocol that declares the paper's model runs it
+(models/learners/exact.py); for real yes/no answers the exact filter is the forward filter of
+models/learners/belief.py.
 """
 
 from __future__ import annotations

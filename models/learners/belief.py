@@ -11,8 +11,10 @@ switch_matrix`). After rewards r_1..r_t the filter holds::
 likelihood of the reward under every (j, i) and then applying the switch. Its probabilities are
 the marginal over j, and it acts by posterior sampling, as :class:`models.learners.bayes.
 BayesLearner` does. With no slips and no hazard it is that learner, exactly. It knows the true
-feedback model: the yardstick, not a condition. An answer impossible under the model (possible
-only without slips) is ignored, since no posterior exists after it.
+feedback model: the yardstick for C2, and what a ``bayes`` condition runs for every model but the
+paper's (models/learners/exact.py). An answer impossible under the model (possible only without
+slips) is ignored, since no posterior exists after it; a ``bayes`` condition with such a model is
+refused (:func:`models.learners.exact.unsupported`).
 """
 
 from __future__ import annotations

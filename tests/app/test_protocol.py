@@ -87,7 +87,7 @@ def _problems(text: str) -> str:
         (
             'learner = "meta"',
             'learner = "ucb"',
-            "lab.toml: conditions[1].learner: Input should be 'exp3' or 'meta'",
+            "lab.toml: conditions[1].learner: Input should be 'exp3', 'meta' or 'bayes'",
         ),
         ('id = "C2"', 'id = "C1"', "lab.toml: conditions[1]: duplicate condition id 'C1'"),
         (
