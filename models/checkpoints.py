@@ -99,8 +99,9 @@ class SurpriseGates:
     ``yes``/``no`` are the rewards of the two answers (to measure the surprise), ``step`` is
     ``v`` and ``retention`` is ``w``.
 
-    With a *memory* (checkpoints trained since issue 36), the gates also see ``m``, the sum of the
-    surprises of the answers before this one, kept in the learner's state::
+    With a *memory* (checkpoints trained since issue 36), the gates also see ``m``, the surprises
+    of the answers before this one, each forgotten as the policy was since
+    (:meth:`Checkpoint.memory_after`), kept in the learner's state::
 
         α_t(u, m) = α_t · exp(v_t u + v'_t m)        ρ_t(u, m) = σ(logit ρ_t + w_t u + w'_t m)
 
@@ -228,13 +229,19 @@ class Checkpoint:
         return step, rho
 
     def memory_after(
-        self, memory: np.ndarray | float, p_asked: np.ndarray | float, reward: np.ndarray | float
+        self,
+        memory: np.ndarray | float,
+        p_asked: np.ndarray | float,
+        reward: np.ndarray | float,
+        retention: np.ndarray | float,
     ) -> np.ndarray | float:
-        """The surprise memory after this answer: ``memory`` plus its surprise for gates that
-        remember, else unchanged (0: such learners keep none)."""
+        """The surprise memory after this answer, ``ρ (memory + u)``, for gates that remember
+        (else unchanged: 0, such learners keep none). It is forgotten as the policy is, by the
+        answer's own ρ: a surprise the learner answered by forgetting (a change of mind) leaves
+        little trace, one it answered by holding on (a slip) stays."""
         if self.gates is None or not self.gates.remembers:
             return memory
-        return memory + self.gates.of(p_asked, reward)
+        return retention * (memory + self.gates.of(p_asked, reward))
 
     @property
     def remembers(self) -> bool:

@@ -149,9 +149,10 @@ def online_rollout(
                 z = z + p["surprise_retention"][t] * u
             if remembers:
                 z = z + p["memory_retention"][t] * memory
-            net = retain(net, initial, torch.sigmoid(z))
-        if remembers:
-            memory = memory + u
+            rho = torch.sigmoid(z)
+            net = retain(net, initial, rho)
+            if remembers:  # models.checkpoints.Checkpoint.memory_after
+                memory = rho * (memory + u)
     return Rollout(log_probs, torch.stack(taken, dim=1), torch.stack(rewards, dim=1).detach())
 
 

@@ -134,7 +134,7 @@ class BatchMetaPolicy:
                 axis=1,
             )[:, 0]
         step, retention = c.step_and_retention(self.answers, p_asked, rewards, self.memory)
-        self.memory = c.memory_after(self.memory, p_asked, rewards)
+        self.memory = c.memory_after(self.memory, p_asked, rewards, retention)
         if self.params["b2"].ndim == 1:
             self.params = {
                 k: np.broadcast_to(v, (len(actions), *v.shape)) for k, v in self.params.items()

@@ -329,8 +329,13 @@ def pretrain_command(
     arms: Annotated[int, typer.Option("--arms", help="Number of questions K.")] = 4,
     seed: Annotated[int, typer.Option("--seed", help="Random seed (same seed, same file).")] = 0,
     objective: Annotated[
-        str, typer.Option("--objective", help="online: log_score (default) or reward.")
-    ] = "log_score",
+        str | None,
+        typer.Option(
+            "--objective",
+            help="online: filter (default for yes/no models), log_score (default for the "
+            "paper's Gaussian model) or reward.",
+        ),
+    ] = None,
     meta_batches: Annotated[
         int | None,
         typer.Option(
@@ -439,6 +444,8 @@ def pretrain_command(
         training = training_feedback(
             mode, protocol, paper_feedback, anchor, forgetting, surprise_gates, surprise_memory
         )
+        if objective is not None:
+            training["objective"] = objective
         fitted = (
             {}
             if population is None
@@ -452,7 +459,6 @@ def pretrain_command(
                 arms=fitted[name][2] if fitted else arms,
                 mode=mode,
                 seed=seed,
-                objective=objective,
                 meta_batches=meta_batches,
                 tasks_per_batch=tasks_per_batch,
                 horizon=horizon,
@@ -525,8 +531,9 @@ def training_feedback(
     The paper's Gaussian model (``--paper-feedback``, paper mode, or a protocol declaring it)
     trains as every checkpoint before issue 19 did: plain rewards, calibrated selection. Any
     other model trains anchored at the prior, with a forgetting step when participants may slip
-    or change their minds (and surprise gates on it, with their memory), selected by the log
-    score (docs/engine.md, "C2 for real participants"). Explicit flags override these defaults.
+    or change their minds (and surprise gates on it, with their memory), scored and selected
+    against the exact filter for the model (``objective`` and ``selection`` ``filter``;
+    docs/engine.md, "C2 for real participants"). Explicit flags override these defaults.
     """
     from app.protocol import default_protocol, load_protocol_file
     from app.services.learners import feedback_model
@@ -558,7 +565,8 @@ def training_feedback(
         "surprise_gates": forgets if gates is None else gates,
         "surprise_memory": (forgets if gates is None else gates) if memory is None else memory,
         "bounded_baseline": model.kind == "binary",
-        "selection": "log_score",
+        "objective": "filter",
+        "selection": "filter",
     }
 
 

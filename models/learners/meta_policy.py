@@ -217,7 +217,7 @@ class MetaPolicyLearner:
         step, retention = self.checkpoint.step_and_retention(
             self._answers, p_asked, r, self._memory
         )
-        memory = float(self.checkpoint.memory_after(self._memory, p_asked, r))
+        memory = float(self.checkpoint.memory_after(self._memory, p_asked, r, retention))
         if self.learning_rate is not None:
             step = self.learning_rate
         new = update_params(

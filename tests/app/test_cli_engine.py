@@ -287,8 +287,9 @@ def test_pretrain_warns_when_calibration_cannot_reach_its_limit(
 
 
 def test_pretrain_trains_for_the_protocols_feedback_model(cli: typer.Typer, tmp_path: Path) -> None:
-    """By default the shipped protocol's model: anchored, with forgetting, chosen by log score;
-    ``--paper-feedback`` trains as the replication set was trained."""
+    """By default the shipped protocol's model: anchored, with forgetting and remembering gates,
+    scored and chosen against the exact filter; ``--paper-feedback`` trains as the replication
+    set was trained."""
     tiny = ("--category", "generic", "--arms", "3", "--meta-batches", "1", "--horizon", "3")
     tiny += ("--tasks-per-batch", "4", "--validate-every", "1", "--json")
     run(cli, "pretrain", *tiny, "--out", str(tmp_path / "robust"))
@@ -296,9 +297,10 @@ def test_pretrain_trains_for_the_protocols_feedback_model(cli: typer.Typer, tmp_
     model = trained_feedback(robust)
     assert model.kind == "binary" and model.hazard == 0.02 and max(model.slips) == 0.1
     assert robust.config["anchor"] and robust.config["forgetting"]
-    assert robust.config["selection"] == "log_score" and robust.config["bounded_baseline"]
+    assert robust.config["selection"] == "filter" and robust.config["bounded_baseline"]
+    assert robust.config["objective"] == "filter" and robust.remembers
     assert robust.prior is not None and robust.retention is not None
-    assert robust.retention.shape == (3,) and "log_score" in robust.metrics["validations"][0]
+    assert robust.retention.shape == (3,) and "filter_score" in robust.metrics["validations"][0]
     run(cli, "pretrain", *tiny, "--out", str(tmp_path / "paper"), "--paper-feedback")
     paper = load_checkpoint(tmp_path / "paper" / "generic-k3", expected_arms=3)
     assert trained_feedback(paper).same_as(FeedbackModel.paper(0.1))
@@ -342,6 +344,7 @@ def test_pretrain_defaults_give_the_gates_their_memory() -> None:
 
     shipped = training_feedback("online", None, False, None, None, None)
     assert shipped["forgetting"] and shipped["surprise_gates"] and shipped["surprise_memory"]
+    assert shipped["objective"] == shipped["selection"] == "filter"
     assert not training_feedback("online", None, False, None, None, None, False)["surprise_memory"]
     no_gates = training_feedback("online", None, False, None, None, False)
     assert not no_gates["surprise_gates"] and not no_gates["surprise_memory"]

@@ -307,9 +307,10 @@ def test_a_surprise_memory_is_kept_in_the_state_and_changes_later_steps() -> Non
     expected = 0.0
     for action, reward in answers:
         p_asked = learner.probabilities()[action]
-        expected += float(surprise(p_asked, reward, 1.0, 0.0))
+        rho = checkpoint.step_and_retention(learner.answers, p_asked, reward, expected)[1]
+        expected = float(rho) * (expected + float(surprise(p_asked, reward, 1.0, 0.0)))
         learner.update(action, reward)
-    assert learner.surprise_memory == pytest.approx(expected, rel=1e-15) and expected > 1.0
+    assert learner.surprise_memory == pytest.approx(expected, rel=1e-15) and expected > 0.3
     state = learner.state_dict()
     assert state["surprise_memory"] == learner.surprise_memory
     restored = MetaPolicyLearner(checkpoint)
