@@ -77,6 +77,9 @@ def test_participants_come_from_the_population_the_lab_declares(
     drawn = out["population"]["participants"]
     assert drawn["drawn_from"] == "fitted" and drawn["declared_by"] is None
     assert drawn["sha256"] == fitted.sha256 and out["population"]["c2_trained_for_fitted"]
+    assert (
+        drawn["prior_from"] == "shares" and drawn["prior"] == fitted.categories["conation"]["prior"]
+    )
     summary = out["population"]["summary"]
     assert f"drawn from the fitted population {population_file}" in summary
     assert "the one C2 was trained for" in summary and summary.endswith("optimistic")
@@ -114,9 +117,13 @@ def test_participants_come_from_the_population_the_lab_declares(
     assert (drawn["drawn_from"], drawn["declared_by"]) == ("declared", "--true-population")
     assert drawn["file"] == str(held_out) and drawn["sha256"] == read_population(held_out).sha256
     assert (drawn["slip"], drawn["hazard"]) == (0.05, 0.02)
+    # A new participant's predictive prior given the file's 40: the shares smoothed.
+    smoothed = (np.asarray([0.1, 0.7, 0.1, 0.1]) * 40 + 1) / 44
+    assert drawn["prior_from"] == "smoothed shares"
+    np.testing.assert_allclose(drawn["prior"], smoothed)
     assert truth["population"]["fitted"]["sha256"] == fitted.sha256
     assert f"drawn from the declared true population {held_out}" in truth["population"]["summary"]
-    expected = float(np.asarray([0.1, 0.7, 0.1, 0.1]) @ anchor)
+    expected = float(smoothed @ anchor)
     assert _first(truth, "meta") == pytest.approx(expected, abs=0.03)
     assert _first(truth, "meta") < _first(out, "meta") - 0.2
 
