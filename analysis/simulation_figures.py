@@ -118,7 +118,7 @@ def adaptation_speed_figure(
 ) -> go.Figure:
     """(a) Mean p(preferred question) after 0..T answers, one line per learner, 95 % marked;
     with the simulation's ``result``, the reference is labelled by its model and the subtitle
-    says how the participants answered."""
+    says how the participants answered (and which population they were drawn from)."""
     figure = go.Figure()
     reference = reference_label(result)
     for learner, group in curves.groupby("learner", sort=False):
@@ -137,6 +137,9 @@ def adaptation_speed_figure(
     title = f"Adaptation speed: belief in the preferred question (K = {arms})"
     if isinstance(participants, str) and participants:
         title += f"<br><sup>participants: {participants}</sup>"
+    drawn = _drawn_from(result)
+    if drawn:
+        title += f"<br><sup>{drawn}</sup>"
     figure.update_layout(
         **_LAYOUT,
         title=title,
@@ -144,6 +147,14 @@ def adaptation_speed_figure(
         yaxis={"title": "mean p(preferred question)", "range": [0, 1.02], "gridcolor": "#eeeeee"},
     )
     return figure
+
+
+def _drawn_from(result: Mapping[str, Any] | None) -> str:
+    """Which population the participants were drawn from, when a population was named: the
+    fitted one C2 was trained for (optimistic) or the one the lab declared true."""
+    population = None if result is None else result.get("population")
+    summary = population.get("summary") if isinstance(population, Mapping) else None
+    return summary if isinstance(summary, str) else ""
 
 
 def iterations_by_arms_figure(

@@ -4,6 +4,7 @@ Run from the repository root (eight trainings, two at a time, 3–5 minutes each
 
     .venv/bin/python bench/population.py                      # 10,000 participants, seed 2026
     .venv/bin/python bench/population.py --checkpoints DIR    # keep (and reuse) the trainings
+    .venv/bin/python bench/population.py --held-out 8         # issue 36's held-out check
 
 For each held-out population (K = 4, 12 answers): a pilot study of N participants is simulated
 (questions asked at random, as an Exp3 pilot nearly does), its steps fitted with
@@ -24,6 +25,16 @@ population, answers to .95 for:
 pilots per N (right and wrong), the pilot filter with the fitted shares as they are (maximum
 likelihood) and smoothed as C2 is trained (one pseudo-participant per question).
 
+``--held-out S`` instead runs issue 36's held-out check in miniature, over S pilots: a pilot of
+2 × 24 participants of .7/.1/.1/.1 with slips is split in halves, C2 trained for the first half's
+fitted population, and C2, C1 (Exp3), the shipped uniform C2 and the exact reference evaluated on
+participants drawn as ``trustlab simulate adaptation`` draws them: from that fitted population
+(``--population`` alone, what the command did before issue 36), from the held-out half's fitted
+population (``--true-population``: its smoothed shares), from the held-out half's raw shares,
+and from the truth. It prints C2's answers to .95, its gains over C1 and over the uniform C2 and
+what each draw overstates C2's gain by against the truth: means over the pilots with their
+standard deviation. ``--meta-batches`` shortens the trainings (the held-out check in miniature).
+
 Populations: .7/.1/.1/.1 with slips (the shipped protocol's 0–10 % and hazard .02) for pilots of
 N = 6, 12, 24, 48, and without slips (N = 24); .4/.2/.2/.2 and uniform with slips (N = 24); and a
 wrong pilot (skewed .7 to question 1, the real population to question 0). One pilot is drawn per
@@ -39,6 +50,7 @@ import os
 import platform
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -50,8 +62,13 @@ sys.path.insert(0, str(_ROOT))
 
 import numpy as np  # noqa: E402
 
-from analysis.population import Population  # noqa: E402
+from analysis.population import Population, read_population, write_population  # noqa: E402
 from app.cli.engine import training_feedback  # noqa: E402
+from app.cli.simulated_population import (  # noqa: E402
+    Declared,
+    PopulationDraw,
+    population_participants,
+)
 from app.services.population_fit import fit_population, sequences_from_steps  # noqa: E402
 from bench.analysis import cpu_model  # noqa: E402
 from bench.population_fit import simulated_steps  # noqa: E402
@@ -230,6 +247,184 @@ def pilot_limits(draws: int, participants: int, seed: int) -> list[str]:
     return lines
 
 
+HALF = 24
+"""Participants in each half of the held-out check's pilot."""
+DRAWS = {
+    "fitted": "fitted (--population alone)",
+    "held-out": "held-out (--true-population)",
+    "held-out shares": "held-out, unsmoothed shares",
+    "truth": "truth",
+}
+"""Where the held-out check draws participants from: the fitting half's population as
+``--population`` alone draws it (its shares), the held-out half's as ``--true-population`` draws
+it (its smoothed shares), the held-out half's raw shares (what ``--true-population`` would draw
+without smoothing), and the true population."""
+
+
+def held_out_populations(pilot: int, seed: int) -> tuple[Population, Population]:
+    """One pilot of 2 × :data:`HALF` participants of .7/.1/.1/.1 with slips, each half fitted as
+    ``trustlab population fit`` fits it: the half C2 is trained for, and the held-out half."""
+    steps = simulated_steps(2 * HALF, seed, SKEWED, shipped_model(), categories=(GENERIC,))
+    halves = []
+    for name, rows in (
+        ("fitting", steps.participant < HALF),
+        ("held-out", steps.participant >= HALF),
+    ):
+        source = {"steps": f"bench held-out check, pilot {pilot}: {name} half"}
+        halves.append(
+            fit_population(steps[rows], source, arms={GENERIC: 4}, replicates=20, seed=seed)
+        )
+    return halves[0], halves[1]
+
+
+def _draws(
+    fitted: Path, held_out: Path, c2: Checkpoint
+) -> dict[str, tuple[TaskDistribution, Scenario]]:
+    """The participants of each of :data:`DRAWS`, the first two exactly as the command draws
+    them (app/cli/simulated_population.py), checked to be the population C2 was trained for."""
+
+    def draw(true_path: Path | None) -> PopulationDraw:
+        return population_participants(
+            fitted,
+            true_path=true_path,
+            declared=Declared(),
+            category=GENERIC,
+            arms=4,
+            change_after=None,
+        ).for_checkpoint(c2)
+
+    optimistic, declared = draw(None), draw(held_out)
+    assert optimistic.optimistic and not declared.optimistic
+    shares = TaskDistribution(4, read_population(held_out).prior(GENERIC, 4))
+    return {
+        "fitted": (optimistic.tasks, optimistic.scenario),
+        "held-out": (declared.tasks, declared.scenario),
+        "held-out shares": (shares, declared.scenario),
+        "truth": (TaskDistribution(4, SKEWED), Scenario(feedback=shipped_model())),
+    }
+
+
+def held_out_row(
+    c2: Checkpoint,
+    uniform: Checkpoint,
+    fitted: Path,
+    held_out: Path,
+    participants: int,
+    seed: int,
+) -> dict[str, dict[str, float]]:
+    """Answers to .95 of C2, C1, the uniform C2 and the reference on each of :data:`DRAWS`."""
+    common: dict[str, Any] = {"participants": participants, "iterations": 12, "seed": seed}
+    common["gamma"] = DEFAULT_EXP3_GAMMA
+    row = {}
+    for name, (tasks, scenario) in _draws(fitted, held_out, c2).items():
+        own = simulate_adaptation(
+            tasks, checkpoint=c2, learners=("exp3", "meta", "bayes"), scenario=scenario, **common
+        )
+        base = simulate_adaptation(
+            tasks, checkpoint=uniform, learners=("meta",), scenario=scenario, **common
+        )
+        figures = {key: own["learners"][key]["iterations_to_95"] for key in ("exp3", "bayes")}
+        figures["c2"] = own["learners"]["meta"]["iterations_to_95"]
+        figures["uniform"] = base["learners"]["meta"]["iterations_to_95"]
+        row[name] = figures
+    return row
+
+
+def _spread(values: list[float], sign: str = "") -> str:
+    """Mean ± standard deviation (n − 1) of ``values``."""
+    array = np.asarray(values)
+    sd = float(array.std(ddof=1)) if array.size > 1 else float("nan")
+    return f"{array.mean():{sign}.3f} ± {sd:.3f}"
+
+
+MEASURES: dict[str, Callable[[dict[str, float]], float]] = {
+    "C2 answers": lambda d: d["c2"],
+    "gain over C1": lambda d: d["exp3"] - d["c2"],
+    "gain over uniform C2": lambda d: d["uniform"] - d["c2"],
+    "gap to reference": lambda d: d["c2"] - d["bayes"],
+}
+"""What the held-out check reports per draw (answers to .95; C1 is Exp3, the reference the exact
+filter that knows the draw's population)."""
+
+
+def held_out_summary(rows: list[dict[str, dict[str, float]]]) -> list[str]:
+    """Per draw, means over the pilots (± their standard deviation) of each of
+    :data:`MEASURES` and of C2's gain over C1 minus the same on the truth: what drawing from
+    that population overstates."""
+    lines = [
+        f"{'mean ± SD over ' + str(len(rows)) + ' pilots':<30}"
+        + "".join(f"{name:>22}" for name in MEASURES)
+        + f"{'gain overstated':>20}"
+    ]
+    gain = MEASURES["gain over C1"]
+    for name, label in DRAWS.items():
+        cells = [
+            _spread([measure(row[name]) for row in rows], "" if key == "C2 answers" else "+")
+            for key, measure in MEASURES.items()
+        ]
+        over = _spread([gain(row[name]) - gain(row["truth"]) for row in rows], "+")
+        lines.append(f"{label:<30}" + "".join(f"{c:>22}" for c in cells) + f"{over:>20}")
+    fitted = [gain(row["fitted"]) - gain(row["held-out"]) for row in rows]
+    lines.append(
+        "drawing from the fitted population, not the held-out one, overstates C2's gain over C1 "
+        f"by {_spread(fitted, '+')} answers"
+    )
+    return lines
+
+
+def held_out_check(
+    pilots: int,
+    participants: int,
+    seed: int,
+    checkpoints: Path,
+    overrides: dict[str, Any],
+    workers: int,
+) -> list[str]:
+    """Issue 36's held-out check over ``pilots`` pilots: train (or reuse) C2 for each fitting
+    half, evaluate it on each draw, and summarise."""
+    directory = checkpoints / "held-out"
+    directory.mkdir(parents=True, exist_ok=True)
+    jobs, pairs = [], []
+    for pilot in range(pilots):
+        fitted, held_out = held_out_populations(pilot, seed + 100 + pilot)
+        paths = (directory / f"pilot{pilot}.fitted.json", directory / f"pilot{pilot}.held-out.json")
+        write_population(paths[0], fitted)
+        write_population(paths[1], held_out)
+        args = train_args(fitted, seed + 100 + pilot, overrides)
+        target = directory / f"pilot{pilot}"
+        if not _reusable(target, fitted, args):
+            jobs.append((args, target))
+        pairs.append((target, *paths))
+    start = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for path, seconds in pool.map(_train, jobs):
+            print(f"# trained {path} in {seconds:.0f} s", flush=True)
+    print(
+        f"# held-out check: {len(jobs)} trainings in {time.perf_counter() - start:.0f} s "
+        f"({pilots - len(jobs)} reused from {directory})"
+    )
+    uniform = load_checkpoint(shipped_checkpoint(4, directory=shipped_set(shipped_model())), 4)
+    lines = [
+        f"{'pilot':<6} {'fitted prior':<20} {'held-out prior':<20} "
+        + " ".join(f"{'C2 ' + name:>18}" for name in DRAWS)
+    ]
+    rows = []
+    for pilot, (target, fitted_path, held_path) in enumerate(pairs):
+        row = held_out_row(
+            load_checkpoint(target, 4), uniform, fitted_path, held_path, participants, seed
+        )
+        rows.append(row)
+        priors = [
+            "/".join(f"{v:.2f}" for v in read_population(path).prior(GENERIC, 4))
+            for path in (fitted_path, held_path)
+        ]
+        lines.append(
+            f"{pilot:<6} {priors[0]:<20} {priors[1]:<20} "
+            + " ".join(f"{row[name]['c2']:>18.3f}" for name in DRAWS)
+        )
+    return lines + held_out_summary(rows)
+
+
 def _check(label: str, ok: bool, figure: str) -> str:
     return f"  {'met   ' if ok else 'MISSED'} {label}: {figure}"
 
@@ -287,6 +482,9 @@ def main() -> None:
     parser.add_argument("--case", action="append", default=None, help="Only these rows (names).")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--pilot-draws", type=int, default=0, help="Pilot-limited table.")
+    parser.add_argument(
+        "--held-out", type=int, default=0, help="Only issue 36's held-out check, over S pilots."
+    )
     parser.add_argument("--meta-batches", type=int, default=None, help="Smoke runs only.")
     parser.add_argument("--tasks-per-batch", type=int, default=None, help="Smoke runs only.")
     args = parser.parse_args()
@@ -302,6 +500,12 @@ def main() -> None:
         f"nproc={os.cpu_count()}, CPU: {cpu_model()}; {args.participants} participants per row, "
         f"12 answers, seed {args.seed}; C2 trained for {shipped_model().describe()}"
     )
+    if args.held_out:
+        lines = held_out_check(
+            args.held_out, args.participants, args.seed, args.checkpoints, overrides, args.workers
+        )
+        print("\n".join(lines))
+        return
     fits = {c.name: pilot_population(c, args.seed + i) for i, c in enumerate(cases)}
     jobs, targets_by_case = [], {}
     for i, case in enumerate(cases):

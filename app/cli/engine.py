@@ -8,6 +8,10 @@ exactly one JSON object (issue 3)::
                            "reached_95": …, "wrong_95": …},
                   "meta": {…}, "random_init": {…}, "bayes": {…}}}
 
+With ``--population`` it also carries ``population``: the fitted population C2 was trained for,
+which population the participants were drawn from (``participants.drawn_from``: ``fitted`` or
+``declared``) and that in one line (``summary``); app/cli/simulated_population.py.
+
 With ``--out DIR`` it also writes the CSVs and the HTML page of the paper's figures (a) and (b);
 (b) runs meta, random_init and bayes for every K with a shipped generic checkpoint.
 
@@ -25,6 +29,7 @@ from typing import Annotated, Any
 
 import typer
 
+from app.cli.simulated_population import Declared, caution, population_participants
 from models.checkpoints import (
     GENERIC,
     PRETRAINED_DIR,
@@ -99,34 +104,6 @@ def _scenario(
     return Scenario(feedback=model, change_after=change_after, acceptable=acceptable)
 
 
-def _population_participants(
-    path: Path, category: str | None, arms: int, change_after: int | None
-) -> tuple[str, TaskDistribution, Scenario]:
-    """Participants drawn from a fitted population: the category's fitted prior over the
-    preferred question, answering yes/no with its fitted slip rate and hazard (and the category,
-    which also picks the checkpoint)."""
-    from analysis.population import read_population
-
-    fitted_population = read_population(path)
-    names = list(fitted_population.categories)
-    if category is None:
-        if len(names) != 1:
-            raise ValueError(
-                f"--population has categories {', '.join(names)}: name one (--category)"
-            )
-        category = names[0]
-    prior = fitted_population.prior(category, arms)
-    fitted = fitted_population.categories[category]
-    model = FeedbackModel(
-        kind="binary", slips=(float(fitted["slip"]),), hazard=float(fitted["hazard"])
-    )
-    return (
-        category,
-        TaskDistribution(arms, prior),
-        Scenario(feedback=model, change_after=change_after),
-    )
-
-
 def _checkpoint_set(mode: str, directory: Path | None, scenario: Scenario) -> Path:
     """``--checkpoint-dir``, else the shipped set trained for how the participants answer (the
     replication set for the paper's Gaussian participants, the default set for yes/no ones)."""
@@ -184,11 +161,21 @@ def simulate_adaptation_command(
         ),
     ] = None,
     slip: Annotated[
-        float, typer.Option("--slip", help="Share of answers that say the opposite (0 ≤ P < .5).")
-    ] = 0.0,
+        float | None,
+        typer.Option(
+            "--slip",
+            help="Share of answers that say the opposite (0 ≤ P < .5; unset: 0, or the fitted "
+            "one with --population).",
+        ),
+    ] = None,
     hazard: Annotated[
-        float, typer.Option("--hazard", help="Chance per answer that the preference changes.")
-    ] = 0.0,
+        float | None,
+        typer.Option(
+            "--hazard",
+            help="Chance per answer that the preference changes (unset: 0, or the fitted one "
+            "with --population).",
+        ),
+    ] = None,
     change_after: Annotated[
         int | None,
         typer.Option("--change-after", help="A new preferred question after answer N."),
@@ -201,30 +188,52 @@ def simulate_adaptation_command(
         Path | None,
         typer.Option(
             "--population",
-            help="Draw participants from this fitted population (its --category's prior, slip "
-            "rate and hazard).",
+            help="The fitted population C2 was trained for (trustlab population fit): "
+            "participants are drawn from it (optimistic) unless --true-population or "
+            "--preferred-prior declares the true one.",
+        ),
+    ] = None,
+    true_population: Annotated[
+        Path | None,
+        typer.Option(
+            "--true-population",
+            help="With --population: draw the participants from this population file instead "
+            "(e.g. fitted on held-out participants), the one the lab believes true.",
         ),
     ] = None,
 ) -> None:
     """Simulate participants answering Exp3, the meta-policy, its random init and the exact
-    reference (Bayes; a forward filter when participants slip or change their minds)."""
+    reference (Bayes; a forward filter when participants slip or change their minds). With
+    --population, from the fitted population C2 was trained for (optimistic) unless
+    --true-population or --preferred-prior declares the true one; the output says which."""
     if participants < 1 or iterations < 1:
         raise _fail("--participants and --iterations must be at least 1")
+    prior = _prior(preferred_prior, arms)
+    drawn = None
     try:
         if population is None:
-            scenario = _scenario(feedback, slip, hazard, change_after, acceptable)
-            tasks = TaskDistribution(arms, _prior(preferred_prior, arms))
-        else:
-            if feedback or slip or hazard or preferred_prior or acceptable != 1:
+            if true_population is not None:
                 raise ValueError(
-                    "--population gives the prior, slip rate and hazard: leave --feedback, "
-                    "--slip, --hazard, --preferred-prior and --acceptable unset"
+                    "--true-population is the truth beside the fitted population C2 was trained "
+                    "for: name that one with --population FILE"
                 )
-            category, tasks, scenario = _population_participants(
-                population, category, arms, change_after
+            scenario = _scenario(feedback, slip or 0.0, hazard or 0.0, change_after, acceptable)
+            tasks = TaskDistribution(arms, prior)
+        else:
+            declared = Declared(prior, slip, hazard, feedback, acceptable)
+            drawn = population_participants(
+                population,
+                true_path=true_population,
+                declared=declared,
+                category=category,
+                arms=arms,
+                change_after=change_after,
             )
+            category, tasks, scenario = drawn.category, drawn.tasks, drawn.scenario
         root = _checkpoint_set(mode, checkpoint_dir, scenario)
         ckpt = _checkpoint(arms, category, mode, checkpoint, root)
+        if drawn is not None:
+            drawn = drawn.for_checkpoint(ckpt)
         result = simulate_adaptation(
             tasks,
             participants=participants,
@@ -239,6 +248,11 @@ def simulate_adaptation_command(
             sweep = _sweep(participants, iterations, seed, mode, root, scenario)
     except ValueError as error:
         raise _fail(str(error)) from None
+    if drawn is not None:
+        result["population"] = drawn.record
+        warning = caution(drawn)
+        if warning is not None:
+            typer.echo(f"warning: {warning}", err=True)
     if out is not None:
         from analysis.simulation_figures import write_outputs
 
@@ -289,8 +303,11 @@ def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
         f"{result['participants']} simulated participants, K = {result['arms']}, "
         f"{result['iterations']} answers; meta = {checkpoint.path} ({checkpoint.sha256[:12]})",
         f"participants: {result['participants_answer']}; reference (bayes): {result['reference']}",
-        "",
     ]
+    population = result.get("population")
+    if population is not None:
+        lines += [population["summary"], population["c2"]]
+    lines.append("")
     changed = any("recovered" in s for s in result["learners"].values())
     header = (
         f"{'learner':<12} {'answers to 95%':>14} {'reached 95%':>12} {'wrong 95%':>10} "

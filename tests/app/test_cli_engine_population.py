@@ -122,7 +122,7 @@ def test_simulate_participants_drawn_from_a_population(
     cognition = one_json(run(cli, *common, "--category", "cognition", "--arms", "3"))
     assert cognition["arms"] == 3
     for extra, message in (
-        (["--category", "conation", "--slip", "0.1"], "leave --feedback"),
+        (["--category", "conation", "--slip", "0.1"], "only with --preferred-prior"),
         ([], "name one (--category)"),
         (["--category", "conation", "--arms", "3"], "the questions differ"),
     ):
