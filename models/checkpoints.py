@@ -87,6 +87,11 @@ def observation_for(category: str, dim: int = OBSERVATION_DIM) -> np.ndarray:
     return np.random.default_rng(seed).standard_normal(dim)
 
 
+MEMORY_TRACES = 2
+"""What a remembering learner keeps of earlier surprises (:class:`SurpriseGates`): their sum as
+forgotten since, and the last one."""
+
+
 @dataclass(frozen=True)
 class SurpriseGates:
     """How an answer's surprise (:func:`models.learners.mlp_policy.surprise`) changes the step it
@@ -99,16 +104,20 @@ class SurpriseGates:
     ``yes``/``no`` are the rewards of the two answers (to measure the surprise), ``step`` is
     ``v`` and ``retention`` is ``w``.
 
-    With a *memory* (checkpoints trained since issue 36), the gates also see ``m``, the surprises
-    of the answers before this one, each forgotten as the policy was since
-    (:meth:`Checkpoint.memory_after`), kept in the learner's state::
+    With a *memory* (checkpoints trained since issue 36), the gates also see two traces of the
+    answers before this one, kept in the learner's state (:meth:`Checkpoint.memory_after`):
+    ``m``, their surprises, each forgotten since as the policy was, and ``e``, the surprise of
+    the answer just before::
 
-        α_t(u, m) = α_t · exp(v_t u + v'_t m)        ρ_t(u, m) = σ(logit ρ_t + w_t u + w'_t m)
+        α_t(u, m, e) = α_t · exp(v_t u + v'_t · (m, e))
+        ρ_t(u, m, e) = σ(logit ρ_t + w_t u + w'_t · (m, e))
 
     One surprise alone cannot tell a slip from a change of mind; the filter tells them apart by
-    every contradiction so far (a participant who has contradicted it before probably slips, so
-    a new "yes" counts for less). ``memory_step`` is ``v'`` and ``memory_retention`` ``w'``;
-    None: no memory, exactly the gates before it.
+    the contradictions so far. A participant who contradicted it now and then probably slips, so
+    a new answer counts for less (``m``); two contradictions in a row more likely mean the
+    preference changed, so the old belief should go (``e``). ``memory_step`` is ``v'`` and
+    ``memory_retention`` ``w'``, one pair per answer (shape ``(horizon, 2)``); None: no memory,
+    exactly the gates before it.
     """
 
     yes: float
@@ -205,11 +214,12 @@ class Checkpoint:
         answer_index: int,
         p_asked: np.ndarray | float,
         reward: np.ndarray | float,
-        memory: np.ndarray | float = 0.0,
+        memory: np.ndarray | None = None,
     ) -> tuple[np.ndarray | float, np.ndarray | float]:
         """The step size and forgetting ρ for answer ``answer_index`` (0-based) with this reward
-        to a question asked with probability ``p_asked``, after earlier surprises summing to
-        ``memory`` (arrays: one per batch row; ``memory`` matters only to gates that remember)."""
+        to a question asked with probability ``p_asked``, with the surprise ``memory`` of the
+        answers before (``(2,)``, or ``(n, 2)`` with arrays of one per batch row; only gates that
+        remember read it)."""
         index = min(answer_index, self.horizon - 1)
         step: np.ndarray | float = float(self.step_sizes[index])
         rho: np.ndarray | float = self.retention_after(answer_index)
@@ -220,8 +230,9 @@ class Checkpoint:
         step_exponent = gates.step[index] * u
         retention_shift = gates.retention[index] * u
         if gates.memory_step is not None and gates.memory_retention is not None:
-            step_exponent = step_exponent + gates.memory_step[index] * memory
-            retention_shift = retention_shift + gates.memory_retention[index] * memory
+            traces = np.zeros(MEMORY_TRACES) if memory is None else np.asarray(memory, np.float64)
+            step_exponent = step_exponent + traces @ gates.memory_step[index]
+            retention_shift = retention_shift + traces @ gates.memory_retention[index]
         step = step * np.exp(step_exponent)
         with np.errstate(divide="ignore"):
             logit = np.log(rho) - np.log1p(-rho)
@@ -230,18 +241,21 @@ class Checkpoint:
 
     def memory_after(
         self,
-        memory: np.ndarray | float,
+        memory: np.ndarray,
         p_asked: np.ndarray | float,
         reward: np.ndarray | float,
         retention: np.ndarray | float,
-    ) -> np.ndarray | float:
-        """The surprise memory after this answer, ``ρ (memory + u)``, for gates that remember
-        (else unchanged: 0, such learners keep none). It is forgotten as the policy is, by the
-        answer's own ρ: a surprise the learner answered by forgetting (a change of mind) leaves
-        little trace, one it answered by holding on (a slip) stays."""
+    ) -> np.ndarray:
+        """The surprise memory after this answer, for gates that remember (else ``memory``
+        unchanged): ``(ρ (m + u), u)``. The first trace is forgotten as the policy is, by the
+        answer's own ρ, so a surprise the learner answered by forgetting (a change of mind)
+        leaves little trace and one it answered by holding on (a slip) stays; the second is this
+        answer's surprise, for the next answer to see."""
         if self.gates is None or not self.gates.remembers:
             return memory
-        return retention * (memory + self.gates.of(p_asked, reward))
+        u = self.gates.of(p_asked, reward)
+        decayed = np.asarray(retention) * (np.asarray(memory)[..., 0] + u)
+        return np.stack(np.broadcast_arrays(decayed, u), axis=-1)
 
     @property
     def remembers(self) -> bool:
@@ -487,13 +501,14 @@ def _gates(value: Any, horizon: int, where: Path, forgets: bool) -> SurpriseGate
     memory = [name for name in ("memory_step", "memory_retention") if name in value]
     if len(memory) == 1:
         raise ValueError(f"checkpoint {where}: 'surprise' needs memory_step and memory_retention")
+    shape = (horizon, MEMORY_TRACES)
     return SurpriseGates(
         yes=float(yes),  # type: ignore[arg-type]
         no=float(no),  # type: ignore[arg-type]
         step=_array(value, "step", (horizon,), where),
         retention=_array(value, "retention", (horizon,), where),
-        memory_step=_array(value, "memory_step", (horizon,), where) if memory else None,
-        memory_retention=_array(value, "memory_retention", (horizon,), where) if memory else None,
+        memory_step=_array(value, "memory_step", shape, where) if memory else None,
+        memory_retention=_array(value, "memory_retention", shape, where) if memory else None,
     )
 
 

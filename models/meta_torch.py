@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from models.checkpoints import MEMORY_TRACES
 from models.learners.mlp_policy import init_params, param_shapes
 from models.pretrain_config import PretrainArgs
 
@@ -126,7 +127,8 @@ def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
         if args.surprise_gates:
             shapes.update({"surprise_step": (args.horizon,), "surprise_retention": (args.horizon,)})
         if args.surprise_memory:
-            shapes.update({"memory_step": (args.horizon,), "memory_retention": (args.horizon,)})
+            traces = (args.horizon, MEMORY_TRACES)
+            shapes.update({"memory_step": traces, "memory_retention": traces})
     return Layout(shapes)
 
 
@@ -151,7 +153,7 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
         # Start as if there were no gates.
         for name in ("surprise_step", "surprise_retention", "memory_step", "memory_retention"):
             if name in layout.shapes:
-                values[name] = np.zeros(args.horizon)
+                values[name] = np.zeros(layout.shapes[name])
     return layout.flatten(values)
 
 
