@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -32,13 +32,16 @@ class OnlineBatch:
 
     ``preferred[:, t]`` is the question preferred when answer t + 1 is given (it changes along
     the way when the feedback model has a hazard); ``slipped[:, t]`` whether that answer says the
-    opposite of what the participant means.
+    opposite of what the participant means. ``weights`` are each task's likelihood ratio between
+    the model and the draws when changes of mind were oversampled (else ones), so that weighted
+    means estimate the model's own expectations.
     """
 
     preferred: torch.Tensor  # (B, T) long
     uniforms: torch.Tensor  # (B, T)
     noise: torch.Tensor  # (B, T)
     slipped: torch.Tensor  # (B, T) bool
+    weights: torch.Tensor | None = None  # (B,)
 
 
 @dataclass
@@ -64,18 +67,28 @@ def sample_online_batch(args: PretrainArgs, rng: np.random.Generator) -> OnlineB
     noise = rng.standard_normal((b, t))
     preferred = np.repeat(first[:, None], t, axis=1)
     slipped = np.zeros((b, t), dtype=bool)
+    weights = None
     if args.feedback is not None:
         model = args.feedback_model
         slipped = rng.random((b, t)) < model.sample_slips(rng, b)[:, None]
+        hazard = min(0.5, model.hazard * args.change_oversampling)
+        drawn = replace(model, hazard=hazard)
         for step in range(1, t):
-            preferred[:, step] = model.change_preference(
+            preferred[:, step] = drawn.change_preference(
                 rng, preferred[:, step - 1], args.tasks.prior
             )
+        if hazard != model.hazard:
+            changes = (preferred[:, 1:] != preferred[:, :-1]).sum(axis=1)
+            ratio = changes * math.log(model.hazard / hazard) + (t - 1 - changes) * math.log(
+                (1.0 - model.hazard) / (1.0 - hazard)
+            )
+            weights = torch.as_tensor(np.exp(ratio), dtype=DTYPE)
     return OnlineBatch(
         torch.as_tensor(preferred, dtype=torch.long),
         torch.as_tensor(uniforms, dtype=DTYPE),
         torch.as_tensor(noise, dtype=DTYPE),
         torch.as_tensor(slipped),
+        weights,
     )
 
 
@@ -249,6 +262,8 @@ def online_surrogate(
         dim=1,
     )
     per_task = f.sum(1) + ((score.exp() - 1.0) * advantages).sum(1)
+    if batch.weights is not None:  # importance weights of oversampled changes of mind
+        per_task = per_task * batch.weights
     return per_task.mean() / f.shape[1]
 
 

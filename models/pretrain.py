@@ -185,7 +185,7 @@ def evaluate(
 
 def _validation_batch(args: PretrainArgs, seed: int) -> OnlineBatch:
     """``validation_participants`` tasks with their draws, the same for every snapshot."""
-    sized = replace(args, tasks_per_batch=args.validation_participants)
+    sized = replace(args, tasks_per_batch=args.validation_participants, change_oversampling=1.0)
     return sample_online_batch(sized, np.random.default_rng(seed))
 
 

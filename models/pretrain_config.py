@@ -121,6 +121,11 @@ class PretrainArgs:
     """``online``, with ``forgetting``: let each answer's surprise scale its step and the
     forgetting after it (:class:`models.checkpoints.SurpriseGates`); the command line turns it on
     with forgetting."""
+    change_oversampling: float = 1.0
+    """``online``, models with a hazard: draw the training tasks' changes of mind at this many
+    times the model's hazard (at most .5) and weight each task by its likelihood ratio, so the
+    meta-objective stays the model's own while C2 sees more changes to learn recovering from
+    (importance sampling; 1: draw by the model)."""
     surprise_memory: bool = False
     """``online``, with ``surprise_gates``: let the gates also see the sum of the surprises before
     each answer (:class:`models.checkpoints.SurpriseGates`), so a participant who contradicted
@@ -216,6 +221,10 @@ class PretrainArgs:
             raise ValueError("a bounded baseline needs a yes/no feedback model")
         if args.surprise_gates and not args.forgetting:
             raise ValueError("surprise gates scale the forgetting step: they need forgetting")
+        if not (math.isfinite(args.change_oversampling) and args.change_oversampling >= 1):
+            raise ValueError(
+                f"change_oversampling must be a number ≥ 1, got {args.change_oversampling!r}"
+            )
         if args.surprise_memory and not args.surprise_gates:
             raise ValueError("a surprise memory is part of the surprise gates: it needs them")
         if args.population is not None and (

@@ -549,3 +549,45 @@ def test_filter_selection_records_its_score_and_keeps_the_best() -> None:
     ):
         with pytest.raises(ValueError, match=message):
             PretrainArgs(**bad).resolved()  # type: ignore[arg-type]
+
+
+def test_oversampled_changes_of_mind_are_weighted_back_to_the_model() -> None:
+    """Drawn at 4 × the hazard, tasks change their minds more often, and each is weighted by
+    its likelihood ratio: the weights average to one and reweight the change counts back to
+    the model's (importance sampling keeps the meta-objective the model's own)."""
+    model = FeedbackModel(slips=(0.05,), hazard=0.05)
+    args = PretrainArgs(
+        mode="online",
+        arms=3,
+        horizon=6,
+        **{**TINY, "tasks_per_batch": 20_000, "feedback": model.to_json()},
+        change_oversampling=4.0,
+    ).resolved()
+    batch = sample_online_batch(args, np.random.default_rng(0))
+    assert batch.weights is not None
+    changes = (batch.preferred[:, 1:] != batch.preferred[:, :-1]).sum(1).double()
+    assert float(changes.mean()) == pytest.approx(5 * 0.2, rel=0.05)  # drawn at hazard .2
+    expected = (0.05 / 0.2) ** changes * (0.95 / 0.8) ** (5 - changes)
+    np.testing.assert_allclose(batch.weights.numpy(), expected.numpy(), rtol=1e-12)
+    assert float(batch.weights.mean()) == pytest.approx(1.0, abs=0.03)
+    reweighted = float((batch.weights * changes).mean())
+    assert reweighted == pytest.approx(5 * 0.05, rel=0.1)  # the model's own rate of changes
+    plain = replace(args, change_oversampling=1.0)
+    assert sample_online_batch(plain, np.random.default_rng(0)).weights is None
+    with pytest.raises(ValueError, match="change_oversampling"):
+        PretrainArgs(change_oversampling=0.5).resolved()
+
+
+def test_the_surrogate_weighs_each_task_by_its_importance_weight() -> None:
+    args, rng, obs, layout, theta = _setup("online", **ROBUST)
+    batch = sample_online_batch(args, rng)
+    with torch.no_grad():
+        old = online_rollout(theta, layout, obs, args, batch)
+        advantages = online_advantages(objective_terms(old, batch, "log_score"))
+        plain = online_surrogate(old, batch, old, advantages, "log_score")
+        weights = torch.zeros(args.tasks_per_batch or 0, dtype=DTYPE)
+        weights[0] = float(args.tasks_per_batch or 0)  # all the weight on the first task
+        first = online_surrogate(old, replace(batch, weights=weights), old, advantages, "log_score")
+    assert float(plain) != pytest.approx(float(first))
+    only = objective_terms(old, batch, "log_score")[0].mean()
+    assert float(first) == pytest.approx(float(only), rel=1e-12)
