@@ -87,11 +87,6 @@ def observation_for(category: str, dim: int = OBSERVATION_DIM) -> np.ndarray:
     return np.random.default_rng(seed).standard_normal(dim)
 
 
-MEMORY_TRACES = 2
-"""What a remembering learner keeps of earlier surprises (:class:`SurpriseGates`): their sum as
-forgotten since, and the last one."""
-
-
 @dataclass(frozen=True)
 class SurpriseGates:
     """How an answer's surprise (:func:`models.learners.mlp_policy.surprise`) changes the step it
@@ -104,20 +99,19 @@ class SurpriseGates:
     ``yes``/``no`` are the rewards of the two answers (to measure the surprise), ``step`` is
     ``v`` and ``retention`` is ``w``.
 
-    With a *memory* (checkpoints trained since issue 36), the gates also see two traces of the
-    answers before this one, kept in the learner's state (:meth:`Checkpoint.memory_after`):
-    ``m``, their surprises, each forgotten since as the policy was, and ``e``, the surprise of
-    the answer just before::
+    With a *memory* (checkpoints trained since issue 36), the step also sees ``m``, the
+    surprises of the answers before this one, each forgotten since as the policy was
+    (:meth:`Checkpoint.memory_after`), kept in the learner's state::
 
-        α_t(u, m, e) = α_t · exp(v_t u + v'_t · (m, e))
-        ρ_t(u, m, e) = σ(logit ρ_t + w_t u + w'_t · (m, e))
+        α_t(u, m) = α_t · exp(v_t u + v'_t m)
 
-    One surprise alone cannot tell a slip from a change of mind; the filter tells them apart by
-    the contradictions so far. A participant who contradicted it now and then probably slips, so
-    a new answer counts for less (``m``); two contradictions in a row more likely mean the
-    preference changed, so the old belief should go (``e``). ``memory_step`` is ``v'`` and
-    ``memory_retention`` ``w'``, one pair per answer (shape ``(horizon, 2)``); None: no memory,
-    exactly the gates before it.
+    One surprise alone cannot tell a slip from a change of mind; the filter weighs each answer
+    by its belief about this participant's slip rate, which every contradiction so far raises:
+    after a slip or two, a new answer counts for less. That belief sets how much evidence an
+    answer carries, not how fast a preference changes (the hazard), so the memory scales the
+    step only: scaling the forgetting too lowered how sure C2 could become after any surprise,
+    and with it how often it recovered from a change of mind (docs/engine.md, issue 36).
+    ``memory_step`` is ``v'``; None: no memory, exactly the gates before it.
     """
 
     yes: float
@@ -125,7 +119,6 @@ class SurpriseGates:
     step: np.ndarray
     retention: np.ndarray
     memory_step: np.ndarray | None = None
-    memory_retention: np.ndarray | None = None
 
     @property
     def remembers(self) -> bool:
@@ -214,12 +207,11 @@ class Checkpoint:
         answer_index: int,
         p_asked: np.ndarray | float,
         reward: np.ndarray | float,
-        memory: np.ndarray | None = None,
+        memory: np.ndarray | float = 0.0,
     ) -> tuple[np.ndarray | float, np.ndarray | float]:
         """The step size and forgetting ρ for answer ``answer_index`` (0-based) with this reward
         to a question asked with probability ``p_asked``, with the surprise ``memory`` of the
-        answers before (``(2,)``, or ``(n, 2)`` with arrays of one per batch row; only gates that
-        remember read it)."""
+        answers before (arrays: one per batch row; only gates that remember read it)."""
         index = min(answer_index, self.horizon - 1)
         step: np.ndarray | float = float(self.step_sizes[index])
         rho: np.ndarray | float = self.retention_after(answer_index)
@@ -229,10 +221,8 @@ class Checkpoint:
         u = gates.of(p_asked, reward)
         step_exponent = gates.step[index] * u
         retention_shift = gates.retention[index] * u
-        if gates.memory_step is not None and gates.memory_retention is not None:
-            traces = np.zeros(MEMORY_TRACES) if memory is None else np.asarray(memory, np.float64)
-            step_exponent = step_exponent + traces @ gates.memory_step[index]
-            retention_shift = retention_shift + traces @ gates.memory_retention[index]
+        if gates.memory_step is not None:
+            step_exponent = step_exponent + gates.memory_step[index] * memory
         step = step * np.exp(step_exponent)
         with np.errstate(divide="ignore"):
             logit = np.log(rho) - np.log1p(-rho)
@@ -241,21 +231,18 @@ class Checkpoint:
 
     def memory_after(
         self,
-        memory: np.ndarray,
+        memory: np.ndarray | float,
         p_asked: np.ndarray | float,
         reward: np.ndarray | float,
         retention: np.ndarray | float,
-    ) -> np.ndarray:
-        """The surprise memory after this answer, for gates that remember (else ``memory``
-        unchanged): ``(ρ (m + u), u)``. The first trace is forgotten as the policy is, by the
-        answer's own ρ, so a surprise the learner answered by forgetting (a change of mind)
-        leaves little trace and one it answered by holding on (a slip) stays; the second is this
-        answer's surprise, for the next answer to see."""
+    ) -> np.ndarray | float:
+        """The surprise memory after this answer, ``ρ (m + u)``, for gates that remember (else
+        ``memory`` unchanged: 0, such learners keep none). It is forgotten as the policy is, by
+        the answer's own ρ: a surprise the learner answered by forgetting (a change of mind)
+        leaves little trace, one it answered by holding on (a slip) stays."""
         if self.gates is None or not self.gates.remembers:
             return memory
-        u = self.gates.of(p_asked, reward)
-        decayed = np.asarray(retention) * (np.asarray(memory)[..., 0] + u)
-        return np.stack(np.broadcast_arrays(decayed, u), axis=-1)
+        return retention * (memory + self.gates.of(p_asked, reward))
 
     @property
     def remembers(self) -> bool:
@@ -330,9 +317,8 @@ def write_checkpoint(
             "step": np.asarray(gates.step, dtype=np.float64).tolist(),
             "retention": np.asarray(gates.retention, dtype=np.float64).tolist(),
         }
-        if gates.memory_step is not None and gates.memory_retention is not None:
+        if gates.memory_step is not None:
             weights["surprise"]["memory_step"] = np.asarray(gates.memory_step).tolist()
-            weights["surprise"]["memory_retention"] = np.asarray(gates.memory_retention).tolist()
     data = _dump(weights)
     (directory / WEIGHTS_FILE).write_bytes(data)
     (directory / HASH_FILE).write_text(f"{_digest(data)}  {WEIGHTS_FILE}\n")
@@ -498,17 +484,14 @@ def _gates(value: Any, horizon: int, where: Path, forgets: bool) -> SurpriseGate
     yes, no = value.get("yes"), value.get("no")
     if not all(isinstance(v, int | float) and math.isfinite(v) for v in (yes, no)) or yes == no:
         raise ValueError(f"checkpoint {where}: 'surprise' needs two different rewards yes and no")
-    memory = [name for name in ("memory_step", "memory_retention") if name in value]
-    if len(memory) == 1:
-        raise ValueError(f"checkpoint {where}: 'surprise' needs memory_step and memory_retention")
-    shape = (horizon, MEMORY_TRACES)
     return SurpriseGates(
         yes=float(yes),  # type: ignore[arg-type]
         no=float(no),  # type: ignore[arg-type]
         step=_array(value, "step", (horizon,), where),
         retention=_array(value, "retention", (horizon,), where),
-        memory_step=_array(value, "memory_step", shape, where) if memory else None,
-        memory_retention=_array(value, "memory_retention", shape, where) if memory else None,
+        memory_step=(
+            _array(value, "memory_step", (horizon,), where) if "memory_step" in value else None
+        ),
     )
 
 

@@ -113,7 +113,7 @@ def online_rollout(
     retention_logit = p.get("retention_logit")
     gated = "surprise_step" in p
     remembers = "memory_step" in p
-    memory = torch.zeros((batch.preferred.shape[0], 2), dtype=DTYPE)  # checkpoints.MEMORY_TRACES
+    memory = torch.zeros(batch.preferred.shape[0], dtype=DTYPE)
     offset = None
     if args.anchor:  # log prior − f_θ₀(x): the start is the prior, whatever θ₀ is
         log_prior = torch.as_tensor(np.log(args.tasks.prior), dtype=DTYPE)
@@ -154,18 +154,16 @@ def online_rollout(
             u = u / abs(model.yes - model.no)
             log_step = log_step + p["surprise_step"][t] * u
             if remembers:
-                log_step = log_step + memory @ p["memory_step"][t]
+                log_step = log_step + p["memory_step"][t] * memory
         net = apply_step(net, obs, s, log_step.exp(), damping, offset)
         if retention_logit is not None:
             z = retention_logit[t]
             if gated:
                 z = z + p["surprise_retention"][t] * u
-            if remembers:
-                z = z + memory @ p["memory_retention"][t]
             rho = torch.sigmoid(z)
             net = retain(net, initial, rho)
             if remembers:  # models.checkpoints.Checkpoint.memory_after
-                memory = torch.stack([rho * (memory[:, 0] + u), u], dim=1)
+                memory = rho * (memory + u)
     return Rollout(log_probs, torch.stack(taken, dim=1), torch.stack(rewards, dim=1).detach())
 
 

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from models.checkpoints import MEMORY_TRACES
 from models.learners.mlp_policy import init_params, param_shapes
 from models.pretrain_config import PretrainArgs
 
@@ -127,8 +126,7 @@ def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
         if args.surprise_gates:
             shapes.update({"surprise_step": (args.horizon,), "surprise_retention": (args.horizon,)})
         if args.surprise_memory:
-            traces = (args.horizon, MEMORY_TRACES)
-            shapes.update({"memory_step": traces, "memory_retention": traces})
+            shapes["memory_step"] = (args.horizon,)
     return Layout(shapes)
 
 
@@ -151,7 +149,7 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
             rho = initial_retention(args)
             values["retention_logit"] = np.full(args.horizon, math.log(rho / (1.0 - rho)))
         # Start as if there were no gates.
-        for name in ("surprise_step", "surprise_retention", "memory_step", "memory_retention"):
+        for name in ("surprise_step", "surprise_retention", "memory_step"):
             if name in layout.shapes:
                 values[name] = np.zeros(layout.shapes[name])
     return layout.flatten(values)

@@ -135,7 +135,6 @@ def _gates(values: dict[str, np.ndarray], args: PretrainArgs) -> SurpriseGates |
         step=values["surprise_step"],
         retention=values["surprise_retention"],
         memory_step=values.get("memory_step"),
-        memory_retention=values.get("memory_retention"),
     )
 
 

@@ -23,7 +23,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from models.checkpoints import MEMORY_TRACES, Checkpoint
+from models.checkpoints import Checkpoint
 from models.feedback import FeedbackModel, acceptable_sets, draw_other
 from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
@@ -116,7 +116,7 @@ class BatchMetaPolicy:
         # One anchor per participant when each has its own start (random ones: uniform).
         self.offset = checkpoint.offset_for(self.initial, random_init=params is not None)
         self.answers = 0
-        self.memory = np.zeros(MEMORY_TRACES)
+        self.memory: np.ndarray | float = 0.0
 
     def probabilities(self) -> np.ndarray:
         """π for every participant (a single row while all still share the start)."""

@@ -12,12 +12,13 @@ Numpy only: the web app builds one of these on every answer's request path.
 from __future__ import annotations
 
 import base64
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from models.checkpoints import MEMORY_TRACES, Checkpoint, load_checkpoint
+from models.checkpoints import Checkpoint, load_checkpoint
 from models.learners.base import (
     check_action,
     check_reward,
@@ -84,25 +85,19 @@ def plain_state(state: dict[str, Any]) -> dict[str, Any]:
     return {**{k: v for k, v in state.items() if k != "version"}, "params": plain}
 
 
-def _surprise_memory(state: dict[str, Any], checkpoint: Checkpoint) -> np.ndarray:
-    """The state's surprise memory: required (:data:`MEMORY_TRACES` finite numbers ≥ 0) for a
-    checkpoint whose gates remember, refused for any other, so a state cannot silently drop or
-    invent it."""
+def _surprise_memory(state: dict[str, Any], checkpoint: Checkpoint) -> float:
+    """The state's surprise memory: required (a finite number ≥ 0) for a checkpoint whose gates
+    remember, refused for any other, so a state cannot silently drop or invent it."""
     if not checkpoint.remembers:
         if "surprise_memory" in state:
             raise ValueError("meta state has a surprise memory its checkpoint does not keep")
-        return np.zeros(MEMORY_TRACES)
+        return 0.0
     value = state.get("surprise_memory")
-    if not (
-        isinstance(value, list)
-        and len(value) == MEMORY_TRACES
-        and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-    ):
-        raise ValueError(f"meta state must record its surprise memory ({MEMORY_TRACES} numbers)")
-    traces = np.asarray(value, dtype=np.float64)
-    if not (np.all(np.isfinite(traces)) and np.all(traces >= 0)):
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError("meta state must record its surprise memory (a number)")
+    if not (math.isfinite(value) and value >= 0):
         raise ValueError(f"meta state's surprise memory must be finite and ≥ 0, got {value!r}")
-    return traces
+    return float(value)
 
 
 class MetaPolicyLearner:
@@ -135,7 +130,7 @@ class MetaPolicyLearner:
         self._set_initial({name: np.array(start[name], dtype=np.float64) for name in start})
         self._params: Params = dict(self._initial)
         self._answers = 0
-        self._memory = np.zeros(MEMORY_TRACES)
+        self._memory = 0.0
 
     def _set_initial(self, initial: Params) -> None:
         self._initial = initial
@@ -181,7 +176,7 @@ class MetaPolicyLearner:
         """Forget every answer: back to the starting weights."""
         self._params = dict(self._initial)
         self._answers = 0
-        self._memory = np.zeros(MEMORY_TRACES)
+        self._memory = 0.0
 
     def step_size(self, answer_index: int) -> float:
         """The step size of the update after answer number ``answer_index`` (0-based), before
@@ -223,7 +218,7 @@ class MetaPolicyLearner:
         step, retention = self.checkpoint.step_and_retention(
             self._answers, p_asked, r, self._memory
         )
-        memory = self.checkpoint.memory_after(self._memory, p_asked, r, retention)
+        memory = float(self.checkpoint.memory_after(self._memory, p_asked, r, retention))
         if self.learning_rate is not None:
             step = self.learning_rate
         new = update_params(
@@ -265,7 +260,7 @@ class MetaPolicyLearner:
         if self._random:
             state["initial"] = {name: _encode(self._initial[name]) for name in PARAM_NAMES}
         if self.checkpoint.remembers:  # absent for other checkpoints: their states are unchanged
-            state["surprise_memory"] = [float(v) for v in self._memory]
+            state["surprise_memory"] = self._memory
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -326,10 +321,10 @@ class MetaPolicyLearner:
         self._set_initial(initial)  # after _random: a random start is anchored at uniform
 
     @property
-    def surprise_memory(self) -> np.ndarray:
-        """What the learner keeps of the surprises so far (zeros unless the checkpoint's gates
-        remember, :class:`models.checkpoints.SurpriseGates`): a copy."""
-        return self._memory.copy()
+    def surprise_memory(self) -> float:
+        """What the learner keeps of the surprises so far (0 unless the checkpoint's gates
+        remember, :class:`models.checkpoints.SurpriseGates`)."""
+        return self._memory
 
     def __repr__(self) -> str:
         return (

@@ -121,10 +121,7 @@ def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool, memory:
         values["surprise_step"].copy_(torch.linspace(-0.5, 0.5, args.horizon))
         values["surprise_retention"].copy_(torch.linspace(-1.0, 1.0, args.horizon))
         if memory:
-            values["memory_step"].copy_(torch.linspace(0.4, -0.6, 2 * args.horizon).view(-1, 2))
-            values["memory_retention"].copy_(
-                torch.linspace(-0.8, 0.3, 2 * args.horizon).view(-1, 2)
-            )
+            values["memory_step"].copy_(torch.linspace(0.4, -0.6, args.horizon))
     with torch.no_grad():
         rollout = online_rollout(theta, layout, obs, args, batch)
     checkpoint = as_checkpoint(theta, layout, args)

@@ -291,13 +291,7 @@ def _remembering(checkpoint: Checkpoint) -> Checkpoint:
     away from zero so that forgetting them would show."""
     assert checkpoint.gates is not None
     horizon = checkpoint.horizon
-    gates = dataclasses.replace(
-        checkpoint.gates,
-        memory_step=np.stack([np.linspace(-0.6, 0.2, horizon), np.linspace(0.3, -0.3, horizon)], 1),
-        memory_retention=np.stack(
-            [np.linspace(-1.5, 0.5, horizon), np.linspace(-2.0, -0.5, horizon)], 1
-        ),
-    )
+    gates = dataclasses.replace(checkpoint.gates, memory_step=np.linspace(-1.5, 0.5, horizon))
     return dataclasses.replace(checkpoint, gates=gates)
 
 
@@ -306,17 +300,15 @@ def test_a_surprise_memory_is_kept_in_the_state_and_changes_later_steps() -> Non
     assert checkpoint.remembers and not load_checkpoint(SHIPPED[0]).remembers
     learner = MetaPolicyLearner(checkpoint)
     answers = [(0, 1.0), (0, 0.0), (1, 1.0), (0, 1.0)]
-    expected = np.zeros(2)
+    expected = 0.0
     for action, reward in answers:
         p_asked = learner.probabilities()[action]
         rho = checkpoint.step_and_retention(learner.answers, p_asked, reward, expected)[1]
-        u = float(surprise(p_asked, reward, 1.0, 0.0))
-        expected = np.array([float(rho) * (expected[0] + u), u])  # decayed sum, last surprise
+        expected = float(rho) * (expected + float(surprise(p_asked, reward, 1.0, 0.0)))
         learner.update(action, reward)
-    np.testing.assert_allclose(learner.surprise_memory, expected, rtol=1e-15)
-    assert expected[0] > 0.1 and expected[1] > 0.0
+    assert learner.surprise_memory == pytest.approx(expected, rel=1e-15) and expected > 0.1
     state = learner.state_dict()
-    assert state["surprise_memory"] == learner.surprise_memory.tolist()
+    assert state["surprise_memory"] == learner.surprise_memory
     restored = MetaPolicyLearner(checkpoint)
     restored.load_state_dict(json.loads(json.dumps(state)))
     assert restored.state_dict() == state
@@ -324,22 +316,21 @@ def test_a_surprise_memory_is_kept_in_the_state_and_changes_later_steps() -> Non
         twin.update(2, 1.0)
     assert restored.probabilities().tobytes() == learner.probabilities().tobytes()
     forgetful = MetaPolicyLearner(checkpoint)  # the same answers with the memory zeroed
-    for zeroed in ([0.0, state["surprise_memory"][1]], [state["surprise_memory"][0], 0.0]):
-        forgetful.load_state_dict({**state, "surprise_memory": zeroed})  # each trace matters
-        forgetful.update(2, 1.0)
-        assert not np.allclose(forgetful.probabilities(), learner.probabilities())
+    forgetful.load_state_dict({**state, "surprise_memory": 0.0})
+    forgetful.update(2, 1.0)
+    assert not np.allclose(forgetful.probabilities(), learner.probabilities())
     learner.reset()
-    assert learner.surprise_memory.tolist() == [0.0, 0.0]
+    assert learner.surprise_memory == 0.0
 
 
 @pytest.mark.parametrize(
     ("change", "message"),
     [
         ({"surprise_memory": None}, "must record its surprise memory"),
-        ({"surprise_memory": [0.2, -0.5]}, "finite and ≥ 0"),
+        ({"surprise_memory": -0.5}, "finite and ≥ 0"),
+        ({"surprise_memory": float("inf")}, "finite and ≥ 0"),
+        ({"surprise_memory": True}, "must record its surprise memory"),
         ({"surprise_memory": [0.2]}, "must record its surprise memory"),
-        ({"surprise_memory": [True, 0.0]}, "must record its surprise memory"),
-        ({"surprise_memory": 0.5}, "must record its surprise memory"),
     ],
 )
 def test_a_state_without_its_surprise_memory_is_refused(
@@ -372,24 +363,28 @@ def test_the_batch_learner_remembers_surprises_as_one_learner_does() -> None:
         for t in range(6):
             learner.update(int(actions[t, row]), float(rewards[t, row]))
         np.testing.assert_allclose(batch.probabilities()[row], learner.probabilities(), rtol=1e-12)
-        np.testing.assert_allclose(batch.memory[row], learner.surprise_memory, rtol=1e-12)
+        assert np.asarray(batch.memory)[row] == pytest.approx(learner.surprise_memory, rel=1e-12)
 
 
-def test_a_checkpoint_with_half_a_memory_is_refused(tmp_path: Path) -> None:
+def test_a_checkpoint_with_a_bad_memory_is_refused(tmp_path: Path) -> None:
     source = load_checkpoint(SHIPPED[0])
     path = tmp_path / source.path.name
-    weights = json.loads((source.path / WEIGHTS_FILE).read_text())
-    weights["surprise"]["memory_step"] = [[0.0, 0.0]] * source.horizon
-    data = json.dumps(weights).encode()
     path.mkdir()
-    (path / WEIGHTS_FILE).write_bytes(data)
-    (path / HASH_FILE).write_text(f"{hashlib.sha256(data).hexdigest()}  {WEIGHTS_FILE}\n")
     for name in ("config.json", "metrics.json"):
         (path / name).write_text((source.path / name).read_text())
-    with pytest.raises(ValueError, match="memory_step and memory_retention"):
+    weights = json.loads((source.path / WEIGHTS_FILE).read_text())
+
+    def write(memory: object) -> None:
+        weights["surprise"]["memory_step"] = memory
+        data = json.dumps(weights).encode()
+        (path / WEIGHTS_FILE).write_bytes(data)
+        (path / HASH_FILE).write_text(f"{hashlib.sha256(data).hexdigest()}  {WEIGHTS_FILE}\n")
+
+    write([0.0] * (source.horizon - 1))
+    with pytest.raises(ValueError, match="'memory_step' has shape"):
         load_checkpoint(path)
-    weights["surprise"]["memory_retention"] = [[0.0, 0.0]] * source.horizon
-    data = json.dumps(weights).encode()
-    (path / WEIGHTS_FILE).write_bytes(data)
-    (path / HASH_FILE).write_text(f"{hashlib.sha256(data).hexdigest()}  {WEIGHTS_FILE}\n")
+    write([0.0] * (source.horizon - 1) + [float("nan")])
+    with pytest.raises(ValueError, match="NaN"):
+        load_checkpoint(path)
+    write([0.25] * source.horizon)
     assert load_checkpoint(path).remembers
