@@ -438,8 +438,8 @@ def pretrain_command(
         bool | None,
         typer.Option(
             "--surprise-memory/--no-surprise-memory",
-            help="online: let the gates also see the surprises before each answer (default: on "
-            "with the gates).",
+            help="online: let the gates' step also see the surprises before each answer "
+            '(default: off; docs/engine.md, "C2 calibrated under slips").',
         ),
     ] = None,
     population: Annotated[
@@ -548,8 +548,8 @@ def training_feedback(
     The paper's Gaussian model (``--paper-feedback``, paper mode, or a protocol declaring it)
     trains as every checkpoint before issue 19 did: plain rewards, calibrated selection. Any
     other model trains anchored at the prior, with a forgetting step when participants may slip
-    or change their minds (and surprise gates on it, with their memory), scored and selected
-    against the exact filter for the model (``objective`` and ``selection`` ``filter``;
+    or change their minds (and surprise gates on it; their memory only when asked), scored and
+    selected against the exact filter for the model (``objective`` and ``selection`` ``filter``;
     docs/engine.md, "C2 for real participants"). Explicit flags override these defaults.
     """
     from app.protocol import default_protocol, load_protocol_file
@@ -580,7 +580,7 @@ def training_feedback(
         "anchor": True if anchor is None else anchor,
         "forgetting": forgets,
         "surprise_gates": forgets if gates is None else gates,
-        "surprise_memory": (forgets if gates is None else gates) if memory is None else memory,
+        "surprise_memory": bool(memory),
         "bounded_baseline": model.kind == "binary",
         "objective": "filter",
         "selection": "filter",

@@ -287,7 +287,7 @@ def test_pretrain_warns_when_calibration_cannot_reach_its_limit(
 
 
 def test_pretrain_trains_for_the_protocols_feedback_model(cli: typer.Typer, tmp_path: Path) -> None:
-    """By default the shipped protocol's model: anchored, with forgetting and remembering gates,
+    """By default the shipped protocol's model: anchored, with forgetting and surprise gates,
     scored and chosen against the exact filter; ``--paper-feedback`` trains as the replication
     set was trained."""
     tiny = ("--category", "generic", "--arms", "3", "--meta-batches", "1", "--horizon", "3")
@@ -298,7 +298,7 @@ def test_pretrain_trains_for_the_protocols_feedback_model(cli: typer.Typer, tmp_
     assert model.kind == "binary" and model.hazard == 0.02 and max(model.slips) == 0.1
     assert robust.config["anchor"] and robust.config["forgetting"]
     assert robust.config["selection"] == "filter" and robust.config["bounded_baseline"]
-    assert robust.config["objective"] == "filter" and robust.remembers
+    assert robust.config["objective"] == "filter" and not robust.remembers
     assert robust.prior is not None and robust.retention is not None
     assert robust.retention.shape == (3,) and "filter_score" in robust.metrics["validations"][0]
     run(cli, "pretrain", *tiny, "--out", str(tmp_path / "paper"), "--paper-feedback")
@@ -337,15 +337,15 @@ def test_pretrain_for_a_protocol_file_and_its_refusals(cli: typer.Typer, tmp_pat
 
 
 def test_pretrain_defaults_give_the_gates_their_memory() -> None:
-    """The shipped protocol's model trains with forgetting, gates and their memory (issue 36);
-    each can be turned off, and a memory without gates is refused when the run is resolved."""
+    """The shipped protocol's model trains with forgetting and gates, scored against the
+    filter; the gates' memory (issue 36) only when asked, and never without the gates."""
     from app.cli.engine import training_feedback
     from models.pretrain_config import PretrainArgs
 
     shipped = training_feedback("online", None, False, None, None, None)
-    assert shipped["forgetting"] and shipped["surprise_gates"] and shipped["surprise_memory"]
+    assert shipped["forgetting"] and shipped["surprise_gates"] and not shipped["surprise_memory"]
     assert shipped["objective"] == shipped["selection"] == "filter"
-    assert not training_feedback("online", None, False, None, None, None, False)["surprise_memory"]
+    assert training_feedback("online", None, False, None, None, None, True)["surprise_memory"]
     no_gates = training_feedback("online", None, False, None, None, False)
     assert not no_gates["surprise_gates"] and not no_gates["surprise_memory"]
     assert not training_feedback("online", None, True, None, None, None)["surprise_memory"]
