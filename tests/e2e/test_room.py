@@ -19,8 +19,9 @@ from app.db import Database
 from app.protocol import default_protocol, parse_protocol
 from app.services import studies, verify
 from app.tables import Answer, Participant, Prompt
-from tests.conftest import PASSWORD, protocol_text
+from tests.conftest import protocol_text
 from tests.e2e import room_driver as drive
+from tests.e2e.conftest import sign_in_page
 from tests.servers import ServerProcess
 
 STUDY = "default"
@@ -39,8 +40,12 @@ class RoomServer:
     """One server and database for this module's tests: each test seats its own participant at
     a station of its own, so they do not meet (a server start is the dearest part of a setup)."""
 
-    url: str
+    server: ServerProcess
     database: Database
+
+    @property
+    def url(self) -> str:
+        return self.server.url
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +62,7 @@ def room_server(
         studies.create_study(db, name=SHORT_STUDY, loaded=short, actor=drive.SYSTEM)
     server = ServerProcess(url, folder / "var")
     server.start()
-    yield RoomServer(server.url, database)
+    yield RoomServer(server, database)
     server.stop()
     database.dispose()
 
@@ -297,10 +302,7 @@ def _console(
 ) -> Page:
     """The station's operator console, signed in as the lab's admin."""
     console = context_of(viewport=DESKTOP).new_page()
-    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
-    console.get_by_label("Username").fill(lab.admin)
-    console.get_by_label("Password").fill(PASSWORD)
-    console.get_by_role("button", name="Sign in").click()
+    sign_in_page(console, room_server.server, f"/stations/{lab.station}", username=lab.admin)
     expect(console.locator("#room-panel")).to_be_visible()
     return console
 
