@@ -16,6 +16,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import psycopg
 import pytest
@@ -188,9 +189,22 @@ def app(settings: Settings) -> FastAPI:
 
 @pytest.fixture
 def client(app: FastAPI) -> Iterator[TestClient]:
-    """An anonymous HTTP client."""
+    """An anonymous HTTP client; it runs the app's lifespan (the listener, the writer thread, the
+    activity flusher) for the whole test, on its event loop, which every ``client_of`` shares."""
     with TestClient(app) as test_client:
         yield test_client
+
+
+def client_of(served: TestClient, **options: Any) -> TestClient:
+    """Another client of the app ``served`` runs (its own cookies and headers): its requests go
+    through ``served``'s event loop, as a second browser's reach the one server process.
+
+    Each client used to start the app's lifespan anew on an event loop of its own: two to four
+    start-ups and shut-downs a test (0.1-0.2 s each on SQLite, about twice that on PostgreSQL,
+    where each also starts a listener), and no server runs so."""
+    other = TestClient(served.app, **options)
+    other.portal = served.portal
+    return other
 
 
 def make_user(database: Database, username: str, role: Role) -> None:
@@ -224,22 +238,20 @@ UserClientFactory = Callable[..., TestClient]
 
 
 @pytest.fixture
-def user_client(app: FastAPI, database: Database) -> Iterator[UserClientFactory]:
-    """A factory: ``user_client(role)`` gives a signed-in client with the CSRF header set."""
+def user_client(client: TestClient, database: Database) -> UserClientFactory:
+    """A factory: ``user_client(role)`` gives a signed-in client with the CSRF header set (a
+    ``client_of`` the test's app)."""
     clients: list[TestClient] = []
 
     def factory(role: Role, username: str | None = None) -> TestClient:
         name = username or f"{role.value}{len(clients)}"
         make_user(database, name, role)
-        new_client = TestClient(app)
-        new_client.__enter__()
+        new_client = client_of(client)
         clients.append(new_client)
         sign_in(new_client, name)
         return new_client
 
-    yield factory
-    for c in clients:
-        c.__exit__(None, None, None)
+    return factory
 
 
 @pytest.fixture
@@ -358,16 +370,20 @@ class Lab:
 
 @pytest.fixture
 def lab(
-    app: FastAPI, database: Database, exp3_study: str, user_client: UserClientFactory
-) -> Iterator[Lab]:
+    app: FastAPI,
+    client: TestClient,
+    database: Database,
+    exp3_study: str,
+    user_client: UserClientFactory,
+) -> Lab:
     """Station 'lab-1' with a device key, an experimenter client and a robot client."""
     admin = user_client(Role.ADMIN)
     assert admin.post("/api/v1/stations", json={"name": "lab-1"}).status_code == 201
     issued = admin.post("/api/v1/stations/lab-1/devices", json={"label": "pepper"})
     key = issued.json()["key"]
     experimenter = user_client(Role.EXPERIMENTER)
-    with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as robot:
-        yield Lab(app, database, exp3_study, "lab-1", key, experimenter, robot, {})
+    robot = client_of(client, headers={"Authorization": f"Bearer {key}"})
+    return Lab(app, database, exp3_study, "lab-1", key, experimenter, robot, {})
 
 
 PRE_STUDY_ANSWERS = {

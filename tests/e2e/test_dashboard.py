@@ -83,6 +83,10 @@ def test_experimenter_runs_a_session_and_watches_it_live(
     dashboard.goto(f"{live_server.url}/studies/{exp3_study}/dashboard")
     expect(dashboard.locator("#dashboard")).to_have_attribute("data-answers", "0")
 
+    # The console's tab in front again, as the operator would have it: a click waits until its
+    # button is stable over two drawn frames, and a tab behind another draws none (each click
+    # waited about 2 s for that, 30 s of the test's 38).
+    page.bring_to_front()
     page.get_by_role("button", name="Start the familiarisation run").click()
     for _ in range(3):
         _woz_step(page)
@@ -95,6 +99,7 @@ def test_experimenter_runs_a_session_and_watches_it_live(
     assert before != after, "the probability bars did not move"
     page.screenshot(path=str(artifacts / "05-console-after.png"), full_page=True)
     # The dashboard in the other tab redraws by itself (server-sent events), no reload.
+    dashboard.bring_to_front()
     expect(dashboard.locator("#dashboard")).to_have_attribute("data-answers", "3", timeout=5000)
     expect(dashboard.locator("#adaptation .main-svg").first).to_be_visible()
     dashboard.screenshot(path=str(artifacts / "06-dashboard.png"), full_page=True)

@@ -16,14 +16,21 @@ from playwright.sync_api import Browser, BrowserContext, Page, WebSocketRoute, e
 from sqlalchemy import func, select
 
 from app.db import Database
-from app.protocol import default_protocol
+from app.protocol import default_protocol, parse_protocol
 from app.services import studies, verify
 from app.tables import Answer, Participant, Prompt
-from tests.conftest import PASSWORD
+from tests.conftest import protocol_text
 from tests.e2e import room_driver as drive
+from tests.e2e.conftest import sign_in_page
 from tests.servers import ServerProcess
 
 STUDY = "default"
+SHORT_STUDY = "short"
+"""Sessions of two runs and no practice run: the walk through a session needs one run to walk
+out of and one to follow it, not the shipped protocol's practice run and three runs (the practice
+run is walked in the reload test)."""
+SHORT_PROTOCOL = {"runs_per_session = 3": "runs_per_session = 2"}
+SHORT_PROTOCOL |= {"familiarisation_run = true": "familiarisation_run = false"}
 SEATS = itertools.count(1)
 DESKTOP = {"width": 1366, "height": 768}
 
@@ -33,8 +40,12 @@ class RoomServer:
     """One server and database for this module's tests: each test seats its own participant at
     a station of its own, so they do not meet (a server start is the dearest part of a setup)."""
 
-    url: str
+    server: ServerProcess
     database: Database
+
+    @property
+    def url(self) -> str:
+        return self.server.url
 
 
 @pytest.fixture(scope="module")
@@ -47,20 +58,32 @@ def room_server(
     database = Database(url, sqlite_synchronous="NORMAL")
     with database.writing() as db:
         studies.create_study(db, name=STUDY, loaded=default_protocol(), actor=drive.SYSTEM)
+        short = parse_protocol(protocol_text(**SHORT_PROTOCOL))
+        studies.create_study(db, name=SHORT_STUDY, loaded=short, actor=drive.SYSTEM)
     server = ServerProcess(url, folder / "var")
     server.start()
-    yield RoomServer(server.url, database)
+    yield RoomServer(server, database)
     server.stop()
     database.dispose()
 
 
-@pytest.fixture
-def lab(room_server: RoomServer) -> drive.RoomLab:
-    """This test's participant, seated at a station of its own."""
+def _seat(room_server: RoomServer, study: str) -> drive.RoomLab:
     seat = next(SEATS)
     return drive.seat_participant(
-        room_server.database, room_server.url, STUDY, station=f"room-{seat}", code=f"R{seat:03d}"
+        room_server.database, room_server.url, study, station=f"room-{seat}", code=f"R{seat:03d}"
     )
+
+
+@pytest.fixture
+def lab(room_server: RoomServer) -> drive.RoomLab:
+    """This test's participant in the shipped study, seated at a station of its own."""
+    return _seat(room_server, STUDY)
+
+
+@pytest.fixture
+def short_lab(room_server: RoomServer) -> drive.RoomLab:
+    """This test's participant in the study of two-run sessions, seated at a station of its own."""
+    return _seat(room_server, SHORT_STUDY)
 
 
 @pytest.fixture
@@ -113,27 +136,22 @@ def _verified(database: Database, study: str) -> None:
 
 
 @pytest.mark.e2e
-def test_a_participant_walks_the_practice_run_and_a_session(
+def test_a_participant_walks_through_a_session(
     room_server: RoomServer,
-    lab: drive.RoomLab,
+    short_lab: drive.RoomLab,
     context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
     database = room_server.database
+    lab = short_lab
     page = context_of(viewport=DESKTOP).new_page()
     drive.open_room(page, lab)
-    expect(page.locator("#notice")).to_contain_text("A practice run comes first")
+    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
     page.screenshot(path=str(artifacts / "01-waiting.png"))
 
-    lab.start_session()  # the familiarisation run
-    expect(page.locator("#run-label")).to_have_text("Practice run (not counted)")
+    lab.start_session()  # session 1: two runs, zones in orders the test chooses
+    expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 2")
     expect(page.locator("#notice")).to_be_hidden()
-    asked = drive.run_through(page, drive.PAPER_ORDER)
-    assert asked == ["conation", "affection", "cognition"]
-    expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
-
-    lab.start_session()  # session 1: three runs, zones in orders the test chooses
-    expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 3")
     drive.walk(page, drive.TO_CONATION)
     drive.wait_question(page, "conation")
     drive.face(page, 90)  # towards the robot, past the first wall's end
@@ -147,18 +165,17 @@ def test_a_participant_walks_the_practice_run_and_a_session(
         drive.walk(page, waypoints)
         drive.answer_by_rules(page, category, drive.wait_question(page, category))
     drive.walk_out(page)
-    expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 3")
+    expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 2")
     assert drive.run_through(page, drive.AFFECTION_FIRST) == ["affection", "conation", "cognition"]
-    drive.run_through(page, drive.PAPER_ORDER)
     expect(page.locator("#notice")).to_contain_text("Please use the tablet")  # the gate holds
     page.screenshot(path=str(artifacts / "04-session-done.png"))
 
     steps = _steps(database, lab.code)
-    assert len(steps) == 12  # 3 categories × (1 practice run + 3 runs)
+    assert len(steps) == 6  # 3 categories × 2 runs
     assert all(count == 1 for *_, count in steps), steps  # every answer stored once
     assert all(zone == category for _, category, zone, _, _ in steps)  # with the zone walked into
     assert {how for *_, how, _ in steps} == {"key", "button"}
-    _verified(database, STUDY)
+    _verified(database, SHORT_STUDY)
 
 
 def _answers_for(database: Database, code: str, category: str) -> list[Answer]:
@@ -243,6 +260,7 @@ def test_a_reload_mid_run_finishes_it_without_duplicates(
     steps = _steps(database, lab.code)
     assert [category for _, category, *_ in steps] == ["conation", "affection", "cognition"]
     assert all(count == 1 for *_, count in steps), steps
+    assert all(zone == category for _, category, zone, _, _ in steps)  # practice runs too
     _verified(database, STUDY)
 
 
@@ -284,10 +302,7 @@ def _console(
 ) -> Page:
     """The station's operator console, signed in as the lab's admin."""
     console = context_of(viewport=DESKTOP).new_page()
-    console.goto(f"{room_server.url}/login?next=/stations/{lab.station}")
-    console.get_by_label("Username").fill(lab.admin)
-    console.get_by_label("Password").fill(PASSWORD)
-    console.get_by_role("button", name="Sign in").click()
+    sign_in_page(console, room_server.server, f"/stations/{lab.station}", username=lab.admin)
     expect(console.locator("#room-panel")).to_be_visible()
     return console
 
@@ -325,6 +340,7 @@ def test_a_session_finished_from_the_console_shows_what_comes_next_also_after_a_
 ) -> None:
     page = context_of(viewport=DESKTOP).new_page()
     drive.open_room(page, lab)
+    expect(page.locator("#notice")).to_contain_text("A practice run comes first")
     lab.start_session()  # the practice run, every answer given by Wizard-of-Oz
     expect(page.locator("#run-label")).to_have_text("Practice run (not counted)")
     _wizard_run(page, lab, CATEGORIES)
