@@ -286,6 +286,8 @@ def protocol_text(**replacements: str) -> str:
 
 EXP3_ONLY = {'learner = "meta"': 'learner = "exp3"'}
 """Protocol replacement giving both conditions Exp3 (fast, torch-free runtime tests)."""
+BLINDED = {"blinded = false": "blinded = true"}
+"""Protocol replacement making the study blinded (conditions sealed until it is unblinded)."""
 
 
 @pytest.fixture
@@ -296,6 +298,21 @@ def exp3_study(database: Database) -> str:
             db, name="rt", loaded=parse_protocol(protocol_text(**EXP3_ONLY)), actor=Actor.system()
         )
     return "rt"
+
+
+def create_blinded_study(database: Database, name: str = "sealed", **replacements: str) -> str:
+    """A blinded study ``name`` whose conditions both use Exp3 (``replacements``: further
+    changes to the shipped protocol's text); returns its name."""
+    loaded = parse_protocol(protocol_text(**EXP3_ONLY, **BLINDED, **replacements))
+    with database.writing() as db:
+        studies.create_study(db, name=name, loaded=loaded, actor=Actor.system())
+    return name
+
+
+@pytest.fixture
+def sealed_study(database: Database) -> str:
+    """A blinded study named 'sealed' whose conditions both use Exp3."""
+    return create_blinded_study(database)
 
 
 @dataclass

@@ -23,9 +23,15 @@ from app.services import studies
 from app.services.audit import Actor
 from app.tables import Answer, AuditEvent, Prompt, Role, StudyStatus
 from app.web.streams import event_stream
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import (
+    BLINDED,
+    EXP3_ONLY,
+    Lab,
+    UserClientFactory,
+    create_blinded_study,
+    protocol_text,
+)
 
-BLINDED = {"blinded = false": "blinded = true"}
 LEARNER_KEYS = frozenset({"probabilities", "probability", "confidence", "confidence_level"})
 LEVELS = ("low", "medium_low", "medium", "high")
 REPLIES = (
@@ -41,13 +47,7 @@ def blind(app: FastAPI, database: Database, user_client: UserClientFactory) -> I
     """A blinded study 'blind' (Exp3 in both conditions: fast) with one participant seated at
     'lab-b' in session 1: several answers learned and a prompt open, so that the learners'
     probabilities are no longer uniform and the console has a last step and bars to show."""
-    with database.writing() as db:
-        studies.create_study(
-            db,
-            name="blind",
-            loaded=parse_protocol(protocol_text(**EXP3_ONLY, **BLINDED)),
-            actor=Actor.system(),
-        )
+    create_blinded_study(database, "blind")
     admin = user_client(Role.ADMIN)
     assert admin.post("/api/v1/stations", json={"name": "lab-b"}).status_code == 201
     key = admin.post("/api/v1/stations/lab-b/devices", json={"label": "pepper"}).json()["key"]

@@ -33,7 +33,7 @@ from app.tables import (
 )
 from bench.seed import seed_study
 from tests.app import dashboard_reference
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, create_blinded_study, protocol_text
 
 EXPERIMENTER = Actor(ActorKind.USER, "exp", Role.EXPERIMENTER)
 ANALYST = Actor(ActorKind.USER, "ana", Role.ANALYST)
@@ -154,25 +154,18 @@ def test_an_empty_study_gives_empty_figures(database: Database) -> None:
 
 
 SWAPPED_LABELS = {
-    "blinded = false": "blinded = true",
     'neutral_label = "Group A"': 'neutral_label = "Group swap"',
     'neutral_label = "Group B"': 'neutral_label = "Group A"',
     'neutral_label = "Group swap"': 'neutral_label = "Group B"',
 }
-"""A blinded protocol whose neutral labels run against the conditions' order (C1 is Group B), so
-neither the ids nor their order may show through."""
+"""Neutral labels against the conditions' order (C1 is Group B) for a blinded study, so neither
+the ids nor their order may show through."""
 
 
 @pytest.fixture
 def blind_lab(app: FastAPI, database: Database, user_client: UserClientFactory) -> Iterator[Lab]:
     """A blinded study 'blind' with one participant of each condition through session 1."""
-    with database.writing() as db:
-        studies.create_study(
-            db,
-            name="blind",
-            loaded=parse_protocol(protocol_text(**EXP3_ONLY, **SWAPPED_LABELS)),
-            actor=Actor.system(),
-        )
+    create_blinded_study(database, "blind", **SWAPPED_LABELS)
     admin = user_client(Role.ADMIN)
     assert admin.post("/api/v1/stations", json={"name": "lab-b"}).status_code == 201
     key = admin.post("/api/v1/stations/lab-b/devices", json={"label": "pepper"}).json()["key"]
