@@ -84,6 +84,9 @@ def main() -> None:
     parser.add_argument("--clients", type=int, default=10, help="robots loading a server")
     parser.add_argument("--pairs", type=int, default=8, help="phases per version")
     parser.add_argument("--seconds", type=float, default=4.0, help="length of a phase")
+    parser.add_argument(
+        "--warmup", type=float, default=2.0, help="uncounted load on each server first (s)"
+    )
     parser.add_argument("--exp3-only", action="store_true", help="both conditions Exp3")
     parser.add_argument("--postgres", help="maintenance URL; compares on PostgreSQL instead")
     parser.add_argument("--workers", type=int, default=1, help="uvicorn workers per server")
@@ -103,7 +106,7 @@ def main() -> None:
                 )
                 servers[name].start()
             for name in versions:  # warm-up, not counted
-                uvloop.run(phase(servers[name].url, keys[name], 2.0))
+                uvloop.run(phase(servers[name].url, keys[name], args.warmup))
             for name in schedule(args.pairs):
                 results[name].append(uvloop.run(phase(servers[name].url, keys[name], args.seconds)))
         finally:

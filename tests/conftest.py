@@ -104,7 +104,11 @@ def _fresh_postgres(template: str | None, *, migrate: bool = False) -> Iterator[
 
 
 def _wipe_postgres(url: str) -> None:
-    """Empty every table (the append-only guards paused for this one statement)."""
+    """Empty every table and restart every sequence (the append-only guards and the foreign
+    keys' triggers paused for this one transaction).
+
+    DELETE, not TRUNCATE: a test leaves a few rows, and TRUNCATE's new files for each of the
+    tables took 0.45 s a test where DELETE takes 0.05 s (a test on PostgreSQL in three)."""
     conninfo = make_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
     with psycopg.connect(conninfo, autocommit=True) as conn:
         tables = [
@@ -114,6 +118,12 @@ def _wipe_postgres(url: str) -> None:
                 "AND tablename <> 'alembic_version'"
             )
         ]
+        sequences = [
+            row[0]
+            for row in conn.execute(
+                "SELECT sequencename FROM pg_sequences WHERE schemaname = 'public'"
+            )
+        ]
         # Close what earlier tests may have left connected, so nothing holds a lock.
         conn.execute(
             "SELECT pg_terminate_backend(pid) FROM pg_stat_activity "
@@ -121,9 +131,10 @@ def _wipe_postgres(url: str) -> None:
         )
         with conn.transaction():
             conn.execute("SET LOCAL session_replication_role = replica")
-            if tables:
-                names = ", ".join(f'"{t}"' for t in tables)
-                conn.execute(f"TRUNCATE {names} RESTART IDENTITY CASCADE")  # type: ignore[arg-type]
+            for table in tables:
+                conn.execute(f'DELETE FROM "{table}"')  # type: ignore[arg-type]
+            for sequence in sequences:
+                conn.execute(f'ALTER SEQUENCE "{sequence}" RESTART')  # type: ignore[arg-type]
 
 
 ENGINES = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
@@ -275,6 +286,8 @@ def protocol_text(**replacements: str) -> str:
 
 EXP3_ONLY = {'learner = "meta"': 'learner = "exp3"'}
 """Protocol replacement giving both conditions Exp3 (fast, torch-free runtime tests)."""
+BLINDED = {"blinded = false": "blinded = true"}
+"""Protocol replacement making the study blinded (conditions sealed until it is unblinded)."""
 
 
 @pytest.fixture
@@ -285,6 +298,21 @@ def exp3_study(database: Database) -> str:
             db, name="rt", loaded=parse_protocol(protocol_text(**EXP3_ONLY)), actor=Actor.system()
         )
     return "rt"
+
+
+def create_blinded_study(database: Database, name: str = "sealed", **replacements: str) -> str:
+    """A blinded study ``name`` whose conditions both use Exp3 (``replacements``: further
+    changes to the shipped protocol's text); returns its name."""
+    loaded = parse_protocol(protocol_text(**EXP3_ONLY, **BLINDED, **replacements))
+    with database.writing() as db:
+        studies.create_study(db, name=name, loaded=loaded, actor=Actor.system())
+    return name
+
+
+@pytest.fixture
+def sealed_study(database: Database) -> str:
+    """A blinded study named 'sealed' whose conditions both use Exp3."""
+    return create_blinded_study(database)
 
 
 @dataclass

@@ -21,12 +21,11 @@ from analysis.exports import EXPORT_FORMATS
 from analysis.scoring import TIPI_SCALES, nars_scales
 from app.cli import cli
 from app.db import Database
-from app.protocol import default_protocol, parse_protocol
-from app.services import studies, study_data
-from app.services.audit import Actor
+from app.protocol import default_protocol
+from app.services import study_data
 from app.tables import AuditEvent, Role, Study
 from bench.seed import seed_study
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import Lab, UserClientFactory, create_blinded_study
 
 
 @pytest.fixture
@@ -273,11 +272,7 @@ def test_a_sealed_studys_export_says_it_is_for_unblinded_use(
 ) -> None:
     """Issue 35 item 13: the command line is not blinded, but it says so, and the audit log
     records that a blinded study's data left for unblinded use."""
-    blinded = protocol_text(**EXP3_ONLY, **{"blinded = false": "blinded = true"})
-    with database.writing() as db:
-        studies.create_study(
-            db, name="sealed", loaded=parse_protocol(blinded), actor=Actor.system()
-        )
+    create_blinded_study(database, "sealed")
     seed_study(database, name="open", participants=2, seed=5)
     sealed = _export(database_url, "sealed", "long-csv", tmp_path / "sealed.csv", "--json")
     assert sealed.exit_code == 0, sealed.output

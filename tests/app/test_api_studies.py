@@ -12,7 +12,7 @@ from app.protocol import default_protocol
 from app.services import studies
 from app.settings import Settings
 from app.tables import Participant, Role
-from tests.conftest import UserClientFactory, protocol_text
+from tests.conftest import BLINDED, UserClientFactory, protocol_text
 
 
 def test_openapi_document_and_local_docs(client: TestClient) -> None:
@@ -135,7 +135,7 @@ def test_blinded_study_hides_conditions_from_experimenters(
     user_client: UserClientFactory, database: Database
 ) -> None:
     admin = user_client(Role.ADMIN)
-    blinded = protocol_text(**{"blinded = false": "blinded = true"})
+    blinded = protocol_text(**BLINDED)
     admin.post("/api/v1/studies", json={"name": "blind", "protocol_toml": blinded})
     experimenter = user_client(Role.EXPERIMENTER)
     analyst = user_client(Role.ANALYST)

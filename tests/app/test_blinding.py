@@ -7,7 +7,6 @@ from __future__ import annotations
 import asyncio
 import json
 import re
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -23,9 +22,16 @@ from app.services import studies
 from app.services.audit import Actor
 from app.tables import Answer, AuditEvent, Prompt, Role, StudyStatus
 from app.web.streams import event_stream
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import (
+    BLINDED,
+    EXP3_ONLY,
+    Lab,
+    UserClientFactory,
+    client_of,
+    create_blinded_study,
+    protocol_text,
+)
 
-BLINDED = {"blinded = false": "blinded = true"}
 LEARNER_KEYS = frozenset({"probabilities", "probability", "confidence", "confidence_level"})
 LEVELS = ("low", "medium_low", "medium", "high")
 REPLIES = (
@@ -37,31 +43,27 @@ REPLIES = (
 
 
 @pytest.fixture
-def blind(app: FastAPI, database: Database, user_client: UserClientFactory) -> Iterator[Lab]:
+def blind(
+    app: FastAPI, client: TestClient, database: Database, user_client: UserClientFactory
+) -> Lab:
     """A blinded study 'blind' (Exp3 in both conditions: fast) with one participant seated at
     'lab-b' in session 1: several answers learned and a prompt open, so that the learners'
     probabilities are no longer uniform and the console has a last step and bars to show."""
-    with database.writing() as db:
-        studies.create_study(
-            db,
-            name="blind",
-            loaded=parse_protocol(protocol_text(**EXP3_ONLY, **BLINDED)),
-            actor=Actor.system(),
-        )
+    create_blinded_study(database, "blind")
     admin = user_client(Role.ADMIN)
     assert admin.post("/api/v1/stations", json={"name": "lab-b"}).status_code == 201
     key = admin.post("/api/v1/stations/lab-b/devices", json={"label": "pepper"}).json()["key"]
-    with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as robot:
-        lab = Lab(app, database, "blind", "lab-b", key, user_client(Role.EXPERIMENTER), robot, {})
-        lab.enrol_and_assign("P001")
-        lab.start_session()  # the familiarisation run
-        lab.run_session()
-        lab.start_session()
-        for category in ("conation", "affection"):
-            step = lab.prompt(category)
-            lab.answer(step["step_id"], "yes")
-        lab.prompt("cognition")  # open: the console waits for its answer
-        yield lab
+    robot = client_of(client, headers={"Authorization": f"Bearer {key}"})
+    lab = Lab(app, database, "blind", "lab-b", key, user_client(Role.EXPERIMENTER), robot, {})
+    lab.enrol_and_assign("P001")
+    lab.start_session()  # the familiarisation run
+    lab.run_session()
+    lab.start_session()
+    for category in ("conation", "affection"):
+        step = lab.prompt(category)
+        lab.answer(step["step_id"], "yes")
+    lab.prompt("cognition")  # open: the console waits for its answer
+    return lab
 
 
 def _stored_probabilities(database: Database) -> set[float]:

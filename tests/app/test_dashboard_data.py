@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -33,7 +32,14 @@ from app.tables import (
 )
 from bench.seed import seed_study
 from tests.app import dashboard_reference
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import (
+    EXP3_ONLY,
+    Lab,
+    UserClientFactory,
+    client_of,
+    create_blinded_study,
+    protocol_text,
+)
 
 EXPERIMENTER = Actor(ActorKind.USER, "exp", Role.EXPERIMENTER)
 ANALYST = Actor(ActorKind.USER, "ana", Role.ANALYST)
@@ -154,42 +160,37 @@ def test_an_empty_study_gives_empty_figures(database: Database) -> None:
 
 
 SWAPPED_LABELS = {
-    "blinded = false": "blinded = true",
     'neutral_label = "Group A"': 'neutral_label = "Group swap"',
     'neutral_label = "Group B"': 'neutral_label = "Group A"',
     'neutral_label = "Group swap"': 'neutral_label = "Group B"',
 }
-"""A blinded protocol whose neutral labels run against the conditions' order (C1 is Group B), so
-neither the ids nor their order may show through."""
+"""Neutral labels against the conditions' order (C1 is Group B) for a blinded study, so neither
+the ids nor their order may show through."""
 
 
 @pytest.fixture
-def blind_lab(app: FastAPI, database: Database, user_client: UserClientFactory) -> Iterator[Lab]:
+def blind_lab(
+    app: FastAPI, client: TestClient, database: Database, user_client: UserClientFactory
+) -> Lab:
     """A blinded study 'blind' with one participant of each condition through session 1."""
-    with database.writing() as db:
-        studies.create_study(
-            db,
-            name="blind",
-            loaded=parse_protocol(protocol_text(**EXP3_ONLY, **SWAPPED_LABELS)),
-            actor=Actor.system(),
-        )
+    create_blinded_study(database, "blind", **SWAPPED_LABELS)
     admin = user_client(Role.ADMIN)
     assert admin.post("/api/v1/stations", json={"name": "lab-b"}).status_code == 201
     key = admin.post("/api/v1/stations/lab-b/devices", json={"label": "pepper"}).json()["key"]
     analyst = user_client(Role.ANALYST)
-    with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as robot:
-        lab = Lab(app, database, "blind", "lab-b", key, user_client(Role.EXPERIMENTER), robot, {})
-        seen: set[str] = set()
-        while seen != {"C1", "C2"}:
-            code = lab.enrol_and_assign()
-            lab.start_session()  # the familiarisation run
-            lab.run_session()
-            lab.start_session()
-            lab.run_session(preferred=1)
-            lab.fill_pending_questionnaires()
-            participants = analyst.get("/api/v1/studies/blind/participants").json()
-            seen |= {p["condition"] for p in participants if p["code"] == code}
-        yield lab
+    robot = client_of(client, headers={"Authorization": f"Bearer {key}"})
+    lab = Lab(app, database, "blind", "lab-b", key, user_client(Role.EXPERIMENTER), robot, {})
+    seen: set[str] = set()
+    while seen != {"C1", "C2"}:
+        code = lab.enrol_and_assign()
+        lab.start_session()  # the familiarisation run
+        lab.run_session()
+        lab.start_session()
+        lab.run_session(preferred=1)
+        lab.fill_pending_questionnaires()
+        participants = analyst.get("/api/v1/studies/blind/participants").json()
+        seen |= {p["condition"] for p in participants if p["code"] == code}
+    return lab
 
 
 def _records(data: dict[str, Any]) -> list[list[dict[str, Any]]]:

@@ -12,7 +12,7 @@ from sqlalchemy import select, update
 
 from app.db import Database
 from app.tables import Device, Participant, Prompt, Response, Role, StudySession, utcnow
-from tests.conftest import CSRF_INPUT, TRUST_ANSWERS, Lab, UserClientFactory
+from tests.conftest import CSRF_INPUT, TRUST_ANSWERS, Lab, UserClientFactory, create_blinded_study
 
 PAGES = [
     # (path, roles that may open it)
@@ -130,20 +130,7 @@ def test_dashboard_data_aggregates_and_blinds(
 def test_blinded_dashboard_shows_neutral_labels_to_experimenters(
     database: Database, user_client: UserClientFactory
 ) -> None:
-    from app.protocol import parse_protocol
-    from app.services import studies
-    from app.services.audit import Actor
-    from tests.conftest import EXP3_ONLY, protocol_text
-
-    with database.writing() as db:
-        studies.create_study(
-            db,
-            name="blind",
-            loaded=parse_protocol(
-                protocol_text(**EXP3_ONLY, **{"blinded = false": "blinded = true"})
-            ),
-            actor=Actor.system(),
-        )
+    create_blinded_study(database, "blind")
     experimenter = user_client(Role.EXPERIMENTER)
     analyst = user_client(Role.ANALYST)
     for _ in range(2):

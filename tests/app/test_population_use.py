@@ -24,7 +24,7 @@ from app.tables import AuditEvent, LearnerState, Role, StudyStatus
 from models.checkpoints import checkpoint_name, observation_for, write_checkpoint
 from models.learners.mlp_policy import init_params
 from tests.analysis.test_population_file import _steps
-from tests.conftest import UserClientFactory, protocol_text
+from tests.conftest import BLINDED, UserClientFactory, protocol_text
 
 DEFAULT = default_protocol().protocol
 CATEGORIES = tuple((c.name, len(c.questions)) for c in DEFAULT.categories)
@@ -190,7 +190,7 @@ def test_the_dashboard_shows_where_the_meta_policy_starts(
     file, checkpoints, population = world
     _create(database, "main", _protocol(file, checkpoints))
     _create(database, "plain", protocol_text())
-    _create(database, "sealed", protocol_text(**{"blinded = false": "blinded = true"}))
+    _create(database, "sealed", protocol_text(**BLINDED))
     staff = user_client(Role.EXPERIMENTER)
     page = staff.get("/studies/main/dashboard").text
     assert "Adaptation engine: where the meta-policy starts" in page

@@ -3,18 +3,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
-from app.protocol import parse_protocol
-from app.services import studies
-from app.services.audit import Actor
 from app.tables import Role, RoomPresence
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import Lab, UserClientFactory, client_of
 
 HERE = {"x": 1.9, "z": 4.8, "heading": 370.0, "zone": "conation"}
 
@@ -105,20 +100,21 @@ def test_a_station_without_a_study_says_so(lab: Lab) -> None:
 
 
 @pytest.fixture
-def sealed_lab(app: FastAPI, lab: Lab, user_client: UserClientFactory) -> Iterator[Lab]:
+def sealed_lab(
+    app: FastAPI,
+    client: TestClient,
+    lab: Lab,
+    sealed_study: str,
+    user_client: UserClientFactory,
+) -> Lab:
     """Station 'lab-s' running a blinded study, with a participant seated."""
-    with lab.database.writing() as db:
-        blinded = protocol_text(**EXP3_ONLY, **{"blinded = false": "blinded = true"})
-        studies.create_study(
-            db, name="sealed", loaded=parse_protocol(blinded), actor=Actor.system()
-        )
     owner = user_client(Role.ADMIN)
     assert owner.post("/api/v1/stations", json={"name": "lab-s"}).status_code == 201
     key = owner.post("/api/v1/stations/lab-s/devices", json={"label": "room"}).json()["key"]
-    with TestClient(app, headers={"Authorization": f"Bearer {key}"}) as robot:
-        sealed = Lab(app, lab.database, "sealed", "lab-s", key, lab.experimenter, robot, {})
-        sealed.enrol_and_assign("S001")
-        yield sealed
+    robot = client_of(client, headers={"Authorization": f"Bearer {key}"})
+    sealed = Lab(app, lab.database, sealed_study, "lab-s", key, lab.experimenter, robot, {})
+    sealed.enrol_and_assign("S001")
+    return sealed
 
 
 def test_a_sealed_study_hides_the_reply_but_not_the_question(sealed_lab: Lab) -> None:

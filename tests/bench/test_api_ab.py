@@ -60,6 +60,8 @@ def test_a_short_comparison_runs_end_to_end() -> None:
             "1",
             "--seconds",
             "0.5",
+            "--warmup",
+            "0.2",
             "--exp3-only",
             "--json",
         ],

@@ -12,11 +12,8 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 
 from app.db import Database
-from app.protocol import parse_protocol
-from app.services import studies
-from app.services.audit import Actor
 from app.tables import Participant, ParticipantStatus, Role
-from tests.conftest import EXP3_ONLY, Lab, make_user, protocol_text
+from tests.conftest import Lab, create_blinded_study, make_user
 from tests.e2e.conftest import sign_in_page
 from tests.e2e.test_refusals import SIZES
 from tests.servers import ServerProcess
@@ -119,15 +116,7 @@ def test_a_blinded_study_shows_what_is_sealed_without_empty_or_dead_controls(
 ) -> None:
     """Issue 35: the dashboard's adaptation chart is not an empty box while the learners are
     sealed, and the sealed downloads are visibly disabled, with the reason and no link."""
-    with database.writing() as db:
-        studies.create_study(
-            db,
-            name="blind",
-            loaded=parse_protocol(
-                protocol_text(**EXP3_ONLY, **{"blinded = false": "blinded = true"})
-            ),
-            actor=Actor.system(),
-        )
+    create_blinded_study(database, "blind")
     make_user(database, "operator", Role.ADMIN)
     context = browser.new_context(viewport={"width": 1366, "height": 900})
     page = context.new_page()
