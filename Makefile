@@ -10,7 +10,7 @@ VENDOR := static/vendor
 install: $(STAMP)
 
 # Everything pinned: Python packages from the lock files, front-end libraries from package-lock.json.
-$(STAMP): requirements.lock requirements-dev.lock pyproject.toml package.json package-lock.json
+$(STAMP): requirements.lock requirements-robots.lock requirements-dev.lock pyproject.toml package.json package-lock.json
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -r requirements-dev.lock
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-deps -e .
