@@ -152,6 +152,8 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/api/v1/station"): DEVICES,
     ("GET", "/api/v1/station/room"): DEVICES,
     ("PUT", "/api/v1/station/presence"): DEVICES,
+    ("GET", "/api/v1/station/speech"): DEVICES,
+    ("PUT", "/api/v1/station/notice"): DEVICES,
     ("POST", "/api/v1/station/prompts"): DEVICES,
     ("POST", "/api/v1/station/runs"): DEVICES,
     ("POST", "/api/v1/station/steps/{step_id}/answer"): OWN_DEVICE,

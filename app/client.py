@@ -40,6 +40,7 @@ from app.api.runtime_schemas import (
     DeviceOut,
     IssuedDeviceOut,
     PromptOut,
+    SpeechOut,
     StaffStationStateOut,
     StationStateOut,
 )
@@ -166,6 +167,10 @@ class RobotClient:
         """The station's participant, session, run, open prompts and what to do next."""
         return await self._http.parse(StationStateOut, "GET", "/api/v1/station")
 
+    async def speech(self) -> SpeechOut:
+        """The ``[speech]`` settings of the study the station runs (409 when it runs none)."""
+        return await self._http.parse(SpeechOut, "GET", "/api/v1/station/speech")
+
     async def prompt(self, category: str) -> PromptOut:
         """The question to ask for ``category`` (the open one again if already prompted)."""
         return await self._http.parse(
@@ -182,6 +187,12 @@ class RobotClient:
             "POST",
             f"/api/v1/station/steps/{step_id}/answer",
             json_body={"answer": answer, "idempotency_key": key},
+        )
+
+    async def notice(self, text: str | None, *, attention: bool = False) -> None:
+        """Show a line on the station's operator console (None clears it)."""
+        await self._http.request(
+            "PUT", "/api/v1/station/notice", json_body={"text": text, "attention": attention}
         )
 
     async def start_run(self) -> StationStateOut:

@@ -26,6 +26,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
+from app.robots.vocabulary import DEFAULT_MIN_CONFIDENCE, DEFAULT_NO, DEFAULT_YES, normalise
 from app.room import RoomSpec, check_room, default_room
 from models.feedback import FeedbackModel
 from models.learners import exact
@@ -229,6 +230,51 @@ class RepliesSpec(_Strict):
     )
 
 
+Phrase = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=60)]
+
+
+class SpeechSpec(_Strict):
+    """How a robot that hears (``trustlab bridge``) takes spoken answers (docs/robots.md).
+
+    The recogniser listens for these phrases only; what it hears counts when it is one of them
+    with at least ``min_confidence``, else the robot says ``reprompt`` and listens again, up to
+    ``attempts`` times, and then asks the operator console for a Wizard-of-Oz answer."""
+
+    yes: list[Phrase] = Field(
+        default_factory=lambda: list(DEFAULT_YES),
+        min_length=1,
+        max_length=30,
+        description="Phrases that mean yes.",
+    )
+    no: list[Phrase] = Field(
+        default_factory=lambda: list(DEFAULT_NO),
+        min_length=1,
+        max_length=30,
+        description="Phrases that mean no.",
+    )
+    min_confidence: float = Field(
+        default=DEFAULT_MIN_CONFIDENCE,
+        ge=0.0,
+        le=1.0,
+        description="The recogniser's confidence an answer needs to count.",
+    )
+    attempts: int = Field(
+        default=3, ge=1, le=10, description="Times the robot listens before asking for help."
+    )
+    listen_seconds: float = Field(
+        default=8.0, gt=0.0, le=60.0, description="How long each listening lasts."
+    )
+    reprompt: Text = Field(
+        default="Sorry, I did not catch that. Please answer yes or no.",
+        description="Said after silence or an unclear answer, before listening again.",
+    )
+    gestures: dict[Key, Text] = Field(
+        default_factory=dict,
+        description="A gesture per reply level name, made with the reply (robot-specific names; "
+        "none by default).",
+    )
+
+
 class RewardSpec(_Strict):
     """How a participant's answer becomes the learner's reward (clipped into [0, 1] by Exp3)."""
 
@@ -338,6 +384,7 @@ class Protocol(_Strict):
     schedule: ScheduleSpec = Field(default_factory=ScheduleSpec)
     replies: RepliesSpec = Field(default_factory=RepliesSpec)
     reward: RewardSpec = Field(default_factory=RewardSpec)
+    speech: SpeechSpec = Field(default_factory=SpeechSpec)
     learners: LearnerSettings = Field(default_factory=LearnerSettings)
     allocation: AllocationSpec = Field(default_factory=AllocationSpec)
     questionnaires: QuestionnairesSpec
@@ -549,6 +596,28 @@ def _check_exact_filter(protocol: Protocol) -> list[Problem]:
     return [Problem(_FEEDBACK_KEYS[key], f"{who}: {why}") for key, why in exact.unsupported(model)]
 
 
+def _check_speech(protocol: Protocol) -> list[Problem]:
+    """A phrase must mean one answer only, and a gesture must belong to a reply level."""
+    speech, problems = protocol.speech, []
+    yes = {normalise(phrase) for phrase in speech.yes}
+    for side, phrases in (("yes", speech.yes), ("no", speech.no)):
+        for index, phrase in enumerate(phrases):
+            if not normalise(phrase):
+                problems.append(Problem(f"speech.{side}[{index}]", "a phrase needs letters"))
+            elif side == "no" and normalise(phrase) in yes:
+                problems.append(Problem(f"speech.no[{index}]", f"{phrase!r} is a yes phrase too"))
+    levels = [level.name for level in protocol.replies.levels]
+    for name in speech.gestures:
+        if name not in levels:
+            problems.append(
+                Problem(
+                    f"speech.gestures.{name}",
+                    f"no reply level {name!r}; levels: {', '.join(levels)}",
+                )
+            )
+    return problems
+
+
 def _check_allocation(protocol: Protocol) -> list[Problem]:
     allocation = protocol.allocation
     n = len(protocol.conditions)
@@ -668,6 +737,7 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
                 "learners.meta.checkpoint unset",
             )
         )
+    problems += _check_speech(protocol)
     problems += _check_allocation(protocol)
     problems += _check_instruments(protocol.questionnaires)
     if protocol.room is not None:

@@ -25,6 +25,7 @@ from sqlalchemy import (
     Text,
     TypeDecorator,
     UniqueConstraint,
+    false,
     text,
 )
 from sqlalchemy.dialects.postgresql import JSONB
@@ -319,6 +320,11 @@ class Device(Base):
     last_seen_at: Mapped[datetime | None]
     connected_at: Mapped[datetime | None]
     disconnected_at: Mapped[datetime | None]
+    # What the client last told the operator console (a robot bridge: "lost the robot,
+    # reconnecting", "needs a Wizard-of-Oz answer"); ``notice_attention`` asks the operator to act.
+    notice: Mapped[str | None] = mapped_column(String(300))
+    notice_attention: Mapped[bool] = mapped_column(default=False, server_default=false())
+    notice_at: Mapped[datetime | None]
 
     station: Mapped[Station] = relationship(lazy="joined", innerjoin=True)
 

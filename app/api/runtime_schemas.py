@@ -8,10 +8,11 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from fastapi import Path
-from pydantic import BaseModel, Field, model_validator
+from pydantic import BaseModel, Field, StringConstraints, model_validator
 
 from app.api.schemas import RequestBody
 from app.inputs import RowId
+from app.protocol import SpeechSpec
 from app.room import RoomSpec
 
 StepIdPath = Annotated[RowId, Path(description="The step's id.")]
@@ -103,6 +104,22 @@ class PresenceRequest(RequestBody):
     )
     utterance: Utterance | None = Field(
         default=None, description="A line said since the last update (null: nothing new)."
+    )
+
+
+NoticeText = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=300)]
+
+
+class NoticeRequest(RequestBody):
+    """A line for the station's operator console from this client (docs/robots.md)."""
+
+    text: (
+        Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=300)]
+        | None
+    ) = Field(description="What the operator should know (null clears the notice).")
+    attention: bool = Field(
+        default=False,
+        description="Whether the operator must act (e.g. give a Wizard-of-Oz answer).",
     )
 
 
@@ -250,6 +267,13 @@ class RoomOut(BaseModel):
     categories: list[RoomCategory] = Field(description="In protocol order.")
     rules: list[str] = Field(description="The rules shown to participants.")
     layout: RoomSpec = Field(description="The floor plan, in metres (docs/escape-room.md).")
+
+
+class SpeechOut(SpeechSpec):
+    """The ``[speech]`` settings of the study a station runs: what a robot that hears listens
+    for, when an answer counts, and how often it asks again (docs/robots.md)."""
+
+    study: str = Field(description="The study's short name.")
 
 
 class DeviceOut(BaseModel):

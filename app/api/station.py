@@ -9,10 +9,12 @@ from app.api.device_work import DeviceKey, ModelResponse, as_device, device_acto
 from app.api.runtime_schemas import (
     AnswerOut,
     AnswerRequest,
+    NoticeRequest,
     PresenceRequest,
     PromptOut,
     PromptRequest,
     RoomOut,
+    SpeechOut,
     StationStateOut,
     StepIdPath,
 )
@@ -41,6 +43,19 @@ async def get_room(request: Request, key: DeviceKey) -> ModelResponse:
         key,
         write=False,
         op=lambda db, device: station_ops.room(db, station=device.seat),
+    )
+    return ModelResponse(out)
+
+
+@router.get("/speech", response_model=SpeechOut)
+async def get_speech(request: Request, key: DeviceKey) -> ModelResponse:
+    """What a robot that hears listens for and when an answer counts: the ``[speech]`` settings
+    of the study this station runs (the seated participant's, else the one its console chose)."""
+    out = await as_device(
+        request.app,
+        key,
+        write=False,
+        op=lambda db, device: station_ops.speech(db, station=device.seat),
     )
     return ModelResponse(out)
 
@@ -112,6 +127,22 @@ async def put_presence(body: PresenceRequest, request: Request, key: DeviceKey) 
         key,
         write=True,
         op=lambda db, device: station_ops.presence(
+            db, station=device.seat, device_id=device.device_id, body=body
+        ),
+    )
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+@router.put("/notice", status_code=status.HTTP_204_NO_CONTENT)
+async def put_notice(body: NoticeRequest, request: Request, key: DeviceKey) -> Response:
+    """Tell the station's operator console something this client cannot resolve itself (a robot
+    bridge: it lost the robot, or an answer stayed unclear and needs a Wizard-of-Oz answer);
+    ``text: null`` clears it. The console shows it beside the device at once."""
+    await as_device(
+        request.app,
+        key,
+        write=True,
+        op=lambda db, device: station_ops.notice(
             db, station=device.seat, device_id=device.device_id, body=body
         ),
     )

@@ -10,6 +10,7 @@ from app.api.runtime_schemas import (
     AnswerRequest,
     DeviceOut,
     ExpectedOut,
+    NoticeRequest,
     PresenceRequest,
     PromptOut,
     PromptRequest,
@@ -17,13 +18,14 @@ from app.api.runtime_schemas import (
     RoomOut,
     RunOut,
     SessionOut,
+    SpeechOut,
     StaffAnswerOut,
     StaffPromptOut,
     StaffStationStateOut,
     StationStateOut,
 )
 from app.errors import Conflict
-from app.services import room_presence, runtime
+from app.services import room_presence, runtime, stations
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.services.studies import protocol_of
@@ -44,8 +46,8 @@ def state(db: Session, *, station: StationRef) -> StationStateOut:
     return state_out(runtime.station_view(db, station_name=name, seat=loaded))
 
 
-def room(db: Session, *, station: Seat) -> RoomOut:
-    """The room of the seated participant's study, or else of the study the station runs."""
+def _study_run_by(db: Session, station: Seat) -> Study:
+    """The seated participant's study, or else the study the station runs (409 when none)."""
     study_id = station.participant.study_id if station.participant else None
     if study_id is None:
         own = db.get(Station, station.station_id)
@@ -56,6 +58,12 @@ def room(db: Session, *, station: Seat) -> RoomOut:
             f"station {station.station_name!r} runs no study yet: an experimenter seats a "
             "participant (or chooses the station's study) on its console first"
         )
+    return study
+
+
+def room(db: Session, *, station: Seat) -> RoomOut:
+    """The room of the seated participant's study, or else of the study the station runs."""
+    study = _study_run_by(db, station)
     protocol = protocol_of(study)
     return RoomOut(
         study=study.name,
@@ -64,6 +72,12 @@ def room(db: Session, *, station: Seat) -> RoomOut:
         rules=list(protocol.study.rules),
         layout=protocol.room_layout(),
     )
+
+
+def speech(db: Session, *, station: Seat) -> SpeechOut:
+    """How a robot that hears takes answers in the study the station runs (same rule as room)."""
+    study = _study_run_by(db, station)
+    return SpeechOut(study=study.name, **protocol_of(study).speech.model_dump())
 
 
 def presence(db: Session, *, station: Seat, device_id: int, body: PresenceRequest) -> None:
@@ -79,6 +93,11 @@ def presence(db: Session, *, station: Seat, device_id: int, body: PresenceReques
         zone=body.zone,
         said=room_presence.Said(said.kind, said.text) if said is not None else None,
     )
+
+
+def notice(db: Session, *, station: Seat, device_id: int, body: NoticeRequest) -> None:
+    """Show this device's line on the station's console (or clear it)."""
+    stations.set_notice(db, device_id=device_id, text=body.text, attention=body.attention)
 
 
 def _prompt(

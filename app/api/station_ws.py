@@ -348,6 +348,8 @@ class _Connection:
                         await self.close_revoked()
                         return
                     continue  # another key of the station: nothing the robot needs to know
+                if event.type in stations.CONSOLE_ONLY:
+                    continue
                 try:
                     state = await self.state()
                 except NotAuthenticated:

@@ -15,9 +15,13 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
 from app import events
+from app.services.stations import station_topic_of
 from app.tables import RoomPresence, utcnow
 
 PRESENCE_CHANGED = "room_presence"
+ZONE_ENTERED = "zone_entered"
+"""Pushed to the station's robots when the participant steps into a trigger zone: a robot bridge
+whose trigger is the room's presence asks that zone's category then."""
 
 
 def room_topic_of(station_id: int) -> str:
@@ -46,7 +50,10 @@ def record(
 ) -> None:
     """Store the participant's place (and a new line said, if any) as the station's presence;
     commits. One statement whichever engine: an insert that updates the row already there, so
-    two clients of one station racing never meet a duplicate key."""
+    two clients of one station racing never meet a duplicate key. Stepping into a zone (from
+    none or another) is also pushed to the station's robots, once: standing in it is not."""
+    previous = db.get(RoomPresence, station_id)
+    entered = zone is not None and zone != (previous.zone if previous is not None else None)
     now = utcnow()
     values: dict[str, object] = {
         "station_id": station_id,
@@ -64,6 +71,8 @@ def record(
     changed = {name: statement.excluded[name] for name in values if name != "station_id"}
     db.execute(statement.on_conflict_do_update(index_elements=["station_id"], set_=changed))
     events.publish(db, topics=[room_topic_of(station_id)], type=PRESENCE_CHANGED)
+    if entered:
+        events.publish(db, topics=[station_topic_of(station_id)], type=ZONE_ENTERED, zone=zone)
     db.commit()
 
 

@@ -8,6 +8,7 @@ creation; only their SHA-256 is stored, so a leaked database does not leak worki
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
@@ -33,6 +34,11 @@ from app.tables import (
 
 KEY_PREFIX = "tlk_"
 DEVICE_REVOKED = "device_revoked"
+DEVICE_CONNECTION = "device_connection"
+DEVICE_NOTICE = "device_notice"
+CONSOLE_ONLY = frozenset({DEVICE_CONNECTION, DEVICE_NOTICE})
+"""Events on a station's topic for its operator console only: robots are not woken by them."""
+NOTICE_MAX_LENGTH = 300
 """The station event announcing a revoked key (data: ``device_id``): every worker closes that
 device's open WebSocket at once (app.api.station_ws)."""
 KEY_MAX_LENGTH = 200
@@ -333,6 +339,27 @@ def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
 
 
 def mark_connection(db: Session, *, device_id: int, connected: bool) -> None:
-    """Record that a device's WebSocket opened or closed (the caller commits)."""
+    """Record that a device's WebSocket opened or closed, so that its station's console shows it
+    at once (the caller commits)."""
     column = Device.connected_at if connected else Device.disconnected_at
-    db.execute(update(Device).where(Device.id == device_id).values({column: utcnow()}))
+    _update_device(db, device_id, DEVICE_CONNECTION, {column: utcnow()})
+
+
+def set_notice(db: Session, *, device_id: int, text: str | None, attention: bool) -> None:
+    """Show ``text`` from this device on its station's console (None clears it); ``attention``
+    asks the operator to act. Commits."""
+    values = {
+        Device.notice: text,
+        Device.notice_attention: attention and text is not None,
+        Device.notice_at: utcnow() if text is not None else None,
+    }
+    _update_device(db, device_id, DEVICE_NOTICE, values)
+    db.commit()
+
+
+def _update_device(db: Session, device_id: int, event: str, values: dict[Any, Any]) -> None:
+    station_id = db.execute(
+        update(Device).where(Device.id == device_id).values(values).returning(Device.station_id)
+    ).scalar_one_or_none()
+    if station_id is not None:
+        events.publish(db, topics=[station_topic_of(station_id)], type=event, device_id=device_id)

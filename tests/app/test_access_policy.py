@@ -271,6 +271,8 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/api/v1/station"): get("/api/v1/station"),
     ("GET", "/api/v1/station/room"): get("/api/v1/station/room"),
     ("PUT", "/api/v1/station/presence"): send("PUT", "/api/v1/station/presence", json={}),
+    ("GET", "/api/v1/station/speech"): get("/api/v1/station/speech"),
+    ("PUT", "/api/v1/station/notice"): send("PUT", "/api/v1/station/notice", json={}),
     ("POST", "/api/v1/station/prompts"): send("POST", "/api/v1/station/prompts", json={}),
     ("POST", "/api/v1/station/runs"): send("POST", "/api/v1/station/runs"),
     ("POST", "/api/v1/station/steps/{step_id}/answer"): send(
