@@ -426,14 +426,26 @@ class StationSocket:
         return PromptOut.model_validate(await self.request("prompt", category=category))
 
     async def answer(
-        self, step_id: int, answer: Answer, *, idempotency_key: str | None = None
+        self,
+        step_id: int,
+        answer: Answer,
+        *,
+        idempotency_key: str | None = None,
+        heard: tuple[str | None, float | None] | None = None,
     ) -> AnswerOut:
-        """Record a yes/no answer exactly once (the key survives reconnections)."""
+        """Record a yes/no answer exactly once (the key survives reconnections). ``heard``, the
+        recogniser's words and confidence (either may be None), marks the answer as spoken."""
+        spoken: dict[str, Any] = {}
+        if heard is not None:
+            words, confidence = heard
+            spoken = {"modality": "speech", "transcript": words}
+            spoken["transcript_confidence"] = confidence
         data = await self.request(
             "answer",
             step_id=step_id,
             answer=answer,
             idempotency_key=idempotency_key or uuid.uuid4().hex,
+            **spoken,
         )
         return AnswerOut.model_validate(data)
 

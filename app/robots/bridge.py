@@ -1,0 +1,438 @@
+"""The loop that joins a robot to a station: the robot asks, listens, and says the reply.
+
+A bridge is a robot client like any other (the station WebSocket, first-message auth, idempotency
+keys), so the server needs nothing special for it. What it adds is the robot's side:
+
+- a question is asked when the trigger says so: the participant stepping into a zone (the room's
+  presence), the robot's own cue, or only the operator console's "ask now" (a Wizard-of-Oz prompt,
+  which every trigger also follows);
+- the robot says the question, listens for the study's yes/no phrases, and asks again on silence
+  or anything unclear, up to the study's limit; then the console is asked for a Wizard-of-Oz
+  answer, and the robot says the reply to whichever answer is recorded;
+- an answer is sent with the recogniser's words and confidence, under one idempotency key however
+  often it is retried, and the reply is said only once the server has recorded it: an answer the
+  participant heard acknowledged is never lost, and none is sent twice;
+- losing the robot or the server is told to the console (or shown there as the device
+  disconnected), and the bridge reconnects and asks the open question again.
+
+Work is done one item at a time (a robot does one thing at a time); the robot's blocking calls run
+in worker threads, each bounded by the robot adapter.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import random
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any, TypeVar
+
+from app.api.runtime_schemas import PromptOut, SpeechOut
+from app.client import (
+    ApiError,
+    DeviceKeyRefused,
+    RobotClient,
+    StationSocket,
+    backoff_delays,
+)
+from app.robots.robot import Heard, Robot, RobotError, RobotLost, RobotUnreachable
+from app.robots.vocabulary import Vocabulary
+
+T = TypeVar("T")
+
+CONFLICT = 409
+TRANSCRIPT_MAX = 200
+
+
+class Trigger(StrEnum):
+    """What makes the robot ask a category's question (the console's "ask now" always does)."""
+
+    PRESENCE = "presence"
+    """The room client reports the participant stepping into that category's zone."""
+    ROBOT = "robot"
+    """The robot's own cue: a touch, a user in view, a ROS message."""
+    CONSOLE = "console"
+    """Only the operator console's Wizard-of-Oz prompts."""
+
+
+TRIGGER_WAITS = {
+    Trigger.PRESENCE: "the participant to step into a zone of the room",
+    Trigger.ROBOT: "the robot's own cue",
+    Trigger.CONSOLE: 'the operator console\'s "ask now"',
+}
+
+
+class BridgeRefused(Exception):
+    """The bridge cannot start: one line saying why (a refused key, the wrong station, a server
+    or robot out of reach). Nothing has been sent to the study."""
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """Where the bridge connects and what triggers questions."""
+
+    url: str
+    station: str
+    key: str
+    trigger: Trigger = Trigger.PRESENCE
+    retry_delay: float = 0.5
+    max_retry_delay: float = 10.0
+    cue_poll_seconds: float = 1.0
+    request_timeout: float = 15.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "trigger", Trigger(self.trigger))  # "robot" as Trigger.ROBOT
+
+
+@dataclass(frozen=True)
+class _Ask:
+    """Prompt this category (the trigger fired), then handle the step."""
+
+    category: str | None
+    why: str
+
+
+@dataclass(frozen=True)
+class _Handle:
+    """Ask an open step's question (a console's prompt, or one left open by a restart)."""
+
+    step_id: int
+
+
+@dataclass
+class _Answered:
+    """What the bridge knows of steps answered while it listened (Wizard-of-Oz answers)."""
+
+    replies: dict[int, tuple[str, str | None]] = field(default_factory=dict)
+    changed: asyncio.Condition = field(default_factory=asyncio.Condition)
+
+
+def clean_transcript(heard: Heard | None) -> tuple[str | None, float | None]:
+    """The recogniser's words and confidence as the server stores them: printable, at most 200
+    characters, a confidence in [0, 1]; None for what cannot be stored (a recogniser may return
+    anything)."""
+    if heard is None:
+        return None, None
+    printable = "".join(ch if ch.isprintable() else " " for ch in str(heard.words))
+    words = " ".join(printable.split())[:TRANSCRIPT_MAX] or None
+    try:
+        confidence: float | None = float(heard.confidence)
+    except (TypeError, ValueError):
+        confidence = None
+    if confidence is not None and not math.isfinite(confidence):
+        confidence = None
+    if confidence is not None:
+        confidence = min(1.0, max(0.0, confidence))
+    return words, confidence
+
+
+def describe_heard(heard: Heard | None) -> str:
+    """How the bridge's log names what was heard."""
+    words, confidence = clean_transcript(heard)
+    if words is None:
+        return "silence"
+    return f"“{words}” ({confidence:.2f})" if confidence is not None else f"“{words}”"
+
+
+class Bridge:
+    """One robot at one station, until :meth:`stop` (or Ctrl-C)."""
+
+    def __init__(
+        self, robot: Robot, settings: BridgeSettings, *, say: Callable[[str], None] = print
+    ) -> None:
+        self.robot = robot
+        self.settings = settings
+        self._log = say
+        self._socket = StationSocket(
+            settings.url,
+            settings.key,
+            request_timeout=settings.request_timeout,
+            retry_delay=settings.retry_delay,
+            max_retry_delay=settings.max_retry_delay,
+        )
+        self._client = RobotClient(settings.url, settings.key, timeout=settings.request_timeout)
+        self._work: asyncio.Queue[_Ask | _Handle] = asyncio.Queue()
+        self._asked: set[int] = set()
+        self._answered = _Answered()
+        self._stopping = asyncio.Event()
+        self._rng = random.Random()
+
+    # -- start and stop ---------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Join the station and reach the robot, or raise :class:`BridgeRefused` (one line)."""
+        url = self.settings.url
+        try:
+            await self._socket.open()
+        except DeviceKeyRefused as refused:
+            raise BridgeRefused(f"the server at {url} refused the key: {refused.reason}") from None
+        except ApiError as exc:
+            raise BridgeRefused(f"the server at {url} refused the bridge: {exc.detail}") from None
+        except (OSError, TimeoutError, ConnectionError) as exc:
+            raise BridgeRefused(
+                f"cannot reach the trustlab server at {url}: {exc or type(exc).__name__}"
+            ) from None
+        except Exception as exc:  # a URL that is not a trustlab server (wrong path, not HTTP)
+            raise BridgeRefused(f"cannot join the station at {url}: {exc}") from None
+        state = self._socket.state or {}
+        if state.get("station") != self.settings.station:
+            await self.close()
+            raise BridgeRefused(
+                f"the key belongs to station {state.get('station')!r}, not "
+                f"{self.settings.station!r}: use that station's key"
+            )
+        try:
+            await asyncio.to_thread(self.robot.connect)
+        except RobotError as exc:
+            await self.close()
+            raise BridgeRefused(str(exc)) from None
+        await self._notice(None)
+        self._log(
+            f"Bridge: {self.robot.description} joined station {self.settings.station} at {url}; "
+            f"waiting for {TRIGGER_WAITS[self.settings.trigger]}. Ctrl-C stops it."
+        )
+
+    async def run(self) -> None:
+        """Serve until :meth:`stop`: events, the robot's cues and the work they bring."""
+        self._queue_open_prompts(self._socket.state)
+        tasks = [
+            asyncio.create_task(self._follow_events()),
+            asyncio.create_task(self._do_work()),
+        ]
+        if self.settings.trigger is Trigger.ROBOT:
+            tasks.append(asyncio.create_task(self._follow_cues()))
+        stopping = asyncio.create_task(self._stopping.wait())
+        try:
+            done, _ = await asyncio.wait([*tasks, stopping], return_when=asyncio.FIRST_COMPLETED)
+            for task in done:
+                if task is not stopping:
+                    task.result()  # a refused key ends the bridge with its reason
+        finally:
+            for task in [*tasks, stopping]:
+                task.cancel()
+            for task in tasks:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return."""
+        self._stopping.set()
+
+    async def close(self) -> None:
+        """Leave the station and release the robot."""
+        with contextlib.suppress(Exception):
+            await self._socket.close()
+        with contextlib.suppress(Exception):
+            await self._client.aclose()
+        with contextlib.suppress(Exception):
+            await asyncio.to_thread(self.robot.close)
+
+    # -- what makes the robot ask -------------------------------------------------------------
+
+    def _queue_open_prompts(self, state: dict[str, Any] | None) -> None:
+        for prompt in (state or {}).get("open_prompts", []):
+            self._work.put_nowait(_Handle(int(prompt["step_id"])))
+
+    async def _follow_events(self) -> None:
+        while True:
+            event = await self._socket.next_event()
+            kind, data = event.get("type"), event.get("data") or {}
+            if kind == "reconnected":
+                self._log("Bridge: back in touch with the server.")
+                self._queue_open_prompts(event.get("state"))
+                continue
+            name = event.get("event")
+            if name == "prompt_opened":
+                self._work.put_nowait(_Handle(int(data["step_id"])))
+            elif name == "answer_recorded":
+                async with self._answered.changed:
+                    self._answered.replies[int(data["step_id"])] = (
+                        str(data.get("reply", "")),
+                        data.get("confidence"),
+                    )
+                    self._answered.changed.notify_all()
+            elif name == "zone_entered" and self.settings.trigger is Trigger.PRESENCE:
+                zone = str(data.get("zone"))
+                self._work.put_nowait(_Ask(zone, f"the participant stepped into zone {zone}"))
+            async with self._answered.changed:
+                self._answered.changed.notify_all()  # the state moved on: waiters look again
+
+    async def _follow_cues(self) -> None:
+        while True:
+            try:
+                cue = await asyncio.to_thread(self.robot.wait_cue, self.settings.cue_poll_seconds)
+            except RobotLost as lost:
+                await self._reconnect_robot(lost)
+                continue
+            if cue is not None:
+                self._work.put_nowait(_Ask(cue.category, cue.source or "the robot's cue"))
+
+    # -- the work -----------------------------------------------------------------------------
+
+    async def _do_work(self) -> None:
+        while True:
+            item = await self._work.get()
+            try:
+                prompt = await self._prompt_for(item)
+                if prompt is not None:
+                    await self._ask(prompt)
+            except RobotLost as lost:
+                await self._reconnect_robot(lost)
+                self._queue_open_prompts(await self._fresh_state())
+            except DeviceKeyRefused:
+                raise
+            except ApiError as exc:
+                self._log(f"Bridge: the server refused: {exc.detail}")
+            except (ConnectionError, TimeoutError, OSError) as exc:
+                self._log(f"Bridge: lost the server ({exc or type(exc).__name__}); reconnecting.")
+
+    async def _prompt_for(self, item: _Ask | _Handle) -> PromptOut | None:
+        """The open step to ask, or None when there is nothing (left) to ask."""
+        if isinstance(item, _Handle):
+            if item.step_id in self._asked:
+                return None
+            state = await self._fresh_state()
+            for open_prompt in state.get("open_prompts", []):
+                if int(open_prompt["step_id"]) == item.step_id:
+                    return PromptOut.model_validate(open_prompt)
+            return None
+        category = item.category
+        if category is None:
+            expected = (await self._fresh_state()).get("expected", {})
+            if expected.get("action") not in ("prompt", "answer") or not expected.get("categories"):
+                self._log(f"Bridge: {item.why}, but the station expects no question now.")
+                return None
+            category = str(expected["categories"][0])
+        self._log(f"Bridge: {item.why}: asking for {category}.")
+        prompt = await self._socket.prompt(category)
+        return None if prompt.step_id in self._asked else prompt
+
+    async def _fresh_state(self) -> dict[str, Any]:
+        return (await self._socket.current_state()).model_dump(mode="json")
+
+    async def _ask(self, prompt: PromptOut) -> None:
+        """Say the question, listen until an answer counts, send it, say the reply."""
+        self._asked.add(prompt.step_id)
+        speech = await self._client.speech()
+        vocabulary = Vocabulary.of(speech.yes, speech.no, speech.min_confidence)
+        await self._robot(self.robot.say, prompt.question, None)
+        self._log(f"Robot asks (step {prompt.step_id}): {prompt.question}")
+        heard: Heard | None = None
+        for attempt in range(1, speech.attempts + 1):
+            if await self._say_recorded_reply(prompt.step_id, speech):
+                return
+            heard = await self._robot(self.robot.listen, vocabulary.phrases, speech.listen_seconds)
+            answer = vocabulary.classify(heard)
+            self._log(f"Robot heard: {describe_heard(heard)} -> {answer or 'unclear'}")
+            if await self._say_recorded_reply(prompt.step_id, speech):
+                return  # answered on the console meanwhile: that answer stands
+            if answer is not None:
+                await self._send(prompt, answer, heard, speech)
+                return
+            if attempt < speech.attempts:
+                await self._robot(self.robot.say, speech.reprompt, None)
+        await self._ask_the_wizard(prompt, heard, speech)
+
+    async def _send(
+        self, prompt: PromptOut, answer: str, heard: Heard | None, speech: SpeechOut
+    ) -> None:
+        """Send the answer under one key until the server has it, then say the reply."""
+        key = uuid.uuid4().hex
+        delays = backoff_delays(self.settings.retry_delay, self.settings.max_retry_delay, self._rng)
+        while True:
+            try:
+                out = await self._socket.answer(
+                    prompt.step_id,
+                    "yes" if answer == "yes" else "no",
+                    idempotency_key=key,
+                    heard=clean_transcript(heard),
+                )
+                break
+            except ApiError as exc:
+                if exc.status == CONFLICT and await self._say_recorded_reply(
+                    prompt.step_id, speech, wait=True
+                ):
+                    return  # someone else's answer was recorded first: say its reply
+                raise
+            except (ConnectionError, TimeoutError, OSError) as exc:
+                self._log(f"Bridge: lost the server ({exc or type(exc).__name__}); retrying.")
+                await asyncio.sleep(next(delays))
+        await self._robot(self.robot.say, out.reply, speech.gestures.get(out.confidence))
+        self._log(f"Robot replies ({out.confidence}): {out.reply}")
+
+    async def _say_recorded_reply(
+        self, step_id: int, speech: SpeechOut, *, wait: bool = False
+    ) -> bool:
+        """If this step has been answered by someone else (the console), say that reply."""
+        async with self._answered.changed:
+            if wait and step_id not in self._answered.replies:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(
+                        self._answered.changed.wait_for(lambda: step_id in self._answered.replies),
+                        self.settings.request_timeout,
+                    )
+            recorded = self._answered.replies.get(step_id)
+        if recorded is None:
+            return False
+        reply, level = recorded
+        await self._robot(self.robot.say, reply, speech.gestures.get(level or ""))
+        self._log(f"Robot replies to the console's answer: {reply}")
+        return True
+
+    async def _ask_the_wizard(
+        self, prompt: PromptOut, heard: Heard | None, speech: SpeechOut
+    ) -> None:
+        """Tell the console the answer stayed unclear; say the reply once it gives one."""
+        participant = (self._socket.state or {}).get("participant") or "the participant"
+        line = (
+            f"{participant}'s answer to “{prompt.question}” stayed unclear after "
+            f"{speech.attempts} tries (last heard: {describe_heard(heard)}): give a "
+            "Wizard-of-Oz answer on this console"
+        )
+        await self._notice(line[:300], attention=True)
+        self._log(f"Bridge: {line}.")
+
+        def settled() -> bool:
+            if prompt.step_id in self._answered.replies:
+                return True
+            open_steps = {p["step_id"] for p in (self._socket.state or {}).get("open_prompts", [])}
+            return prompt.step_id not in open_steps  # ended early, withdrawn, seat freed
+
+        async with self._answered.changed:
+            await self._answered.changed.wait_for(settled)
+        await self._notice(None)
+        await self._say_recorded_reply(prompt.step_id, speech)
+
+    # -- the robot and the console ------------------------------------------------------------
+
+    async def _robot(self, method: Callable[..., T], *args: Any) -> T:
+        return await asyncio.to_thread(method, *args)
+
+    async def _reconnect_robot(self, lost: RobotLost) -> None:
+        """Tell the console, then reconnect to the robot until it answers again."""
+        self._log(f"Bridge: lost {self.robot.description} ({lost}); reconnecting.")
+        await self._notice(f"lost the robot ({lost}); reconnecting", attention=True)
+        delays = backoff_delays(self.settings.retry_delay, self.settings.max_retry_delay, self._rng)
+        while True:
+            await asyncio.sleep(next(delays))
+            with contextlib.suppress(Exception):
+                await asyncio.to_thread(self.robot.close)
+            try:
+                await asyncio.to_thread(self.robot.connect)
+            except (RobotLost, RobotUnreachable):
+                continue
+            break
+        self._asked.clear()  # the open question was cut off: ask it again
+        await self._notice(None)
+        self._log(f"Bridge: {self.robot.description} is back.")
+
+    async def _notice(self, text: str | None, *, attention: bool = False) -> None:
+        """A line on the console; the bridge goes on if the server cannot take it."""
+        try:
+            await self._client.notice(text, attention=attention)
+        except (ApiError, OSError, ConnectionError, TimeoutError) as exc:
+            self._log(f"Bridge: could not update the console ({exc})")

@@ -1,0 +1,67 @@
+"""An in-process robot for the bridge loop's own tests: the same scripted participant as the
+stand-ins (tests/robots/standins/script.py), without a vendor protocol in between. The vendor
+adapters are tested end to end against their stand-ins in test_bridges_end_to_end.py."""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Sequence
+
+from app.robots.robot import Cue, Heard, RobotLost, RobotUnreachable
+from tests.robots.standins.script import Drop, Script, Silence, Words
+
+
+class FakeRobot:
+    """A robot that says into ``script.said`` and hears ``script``'s replies; a :class:`Drop`
+    loses it until the bridge connects again (``refuse_connects`` refuses that many)."""
+
+    description = "the fake robot"
+
+    def __init__(self, script: Script, *, refuse_connects: int = 0) -> None:
+        self.script = script
+        self.connects = 0
+        self.refuse_connects = refuse_connects
+        self.cues: queue.Queue[Cue] = queue.Queue()
+        self._connected = False
+        self._lock = threading.Lock()
+
+    def connect(self) -> None:
+        with self._lock:
+            if self.refuse_connects > 0:
+                self.refuse_connects -= 1
+                raise RobotUnreachable("the fake robot refused the connection")
+            self.connects += 1
+            self._connected = True
+
+    def _check(self) -> None:
+        with self._lock:
+            if not self._connected:
+                raise RobotLost("the fake robot is not connected")
+
+    def say(self, text: str, gesture: str | None = None) -> None:
+        self._check()
+        self.script.record_said(text, gesture)
+
+    def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
+        self._check()
+        self.script.record_vocabulary(list(phrases))
+        reply = self.script.next_reply()
+        if isinstance(reply, Drop):
+            with self._lock:
+                self._connected = False
+            raise RobotLost("the fake robot dropped the connection")
+        if isinstance(reply, Silence):
+            return None
+        assert isinstance(reply, Words)
+        return Heard(reply.words, reply.confidence)
+
+    def wait_cue(self, seconds: float) -> Cue | None:
+        try:
+            return self.cues.get(timeout=seconds)
+        except queue.Empty:
+            return None
+
+    def close(self) -> None:
+        with self._lock:
+            self._connected = False

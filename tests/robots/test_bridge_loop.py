@@ -1,0 +1,234 @@
+"""The bridge loop with an in-process robot against the test's app served on loopback: what the
+robot says and in what order, what is stored (once, with transcript and confidence), the
+console's notices, each trigger, losing the robot, and the refusals at start."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+from sqlalchemy import select
+
+from app.robots.bridge import BridgeRefused, Trigger
+from app.robots.robot import Cue
+from app.services import verify
+from app.tables import Answer, Device, Prompt
+from tests.conftest import Lab
+from tests.robots.fake_robot import FakeRobot
+from tests.robots.harness import BOUND, RunningBridge, served
+from tests.robots.standins.script import Drop, Said, Script, Silence, Words
+
+SQLITE_ONLY = pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
+pytestmark = pytest.mark.timeout(120)
+
+REPROMPT = "Sorry, I did not catch that. Please answer yes or no."
+
+
+@pytest.fixture
+def url(lab: Lab) -> Iterator[str]:
+    with served(lab.app) as address:
+        yield address
+
+
+@pytest.fixture
+def seated(lab: Lab) -> Lab:
+    """P001 seated at lab-1 with session 1 started."""
+    lab.enrol_and_assign("P001")
+    lab.start_session()
+    return lab
+
+
+def _ask_now(lab: Lab, category: str = "conation") -> dict[str, Any]:
+    """The console's "ask now" (a Wizard-of-Oz prompt)."""
+    response = lab.experimenter.post(
+        f"/api/v1/stations/{lab.station}/prompts", json={"category": category}
+    )
+    assert response.status_code in (200, 201), response.text
+    return dict(response.json())
+
+
+def _answers(lab: Lab) -> list[Answer]:
+    with lab.database.read_session() as db:
+        return list(db.scalars(select(Answer).order_by(Answer.id)))
+
+
+def _wait_answers(lab: Lab, script: Script, count: int, lines: int) -> list[Answer]:
+    """Wait until the robot said ``lines`` lines, then read the stored answers."""
+    script.wait_said(lines, BOUND)
+    return _answers(lab)
+
+
+def _wait_for(condition: Callable[[], bool]) -> None:
+    """Poll a database condition the bridge's thread brings about (bounded, not timed)."""
+    for _ in range(int(BOUND / 0.02)):
+        if condition():
+            return
+        threading.Event().wait(0.02)
+    raise AssertionError("the bridge never got there")
+
+
+def _verify_clean(lab: Lab) -> None:
+    with lab.database.read_session() as db:
+        report = verify.verify_study(db, study_name=lab.study)
+    assert report.ok, report.findings
+
+
+@SQLITE_ONLY
+def test_ask_now_is_said_heard_stored_once_and_replied(seated: Lab, url: str) -> None:
+    script = Script()
+    script.add(Words("Yeah!", 0.83))
+    with RunningBridge(FakeRobot(script), url, seated.station, seated.key):
+        step = _ask_now(seated)
+        said = script.wait_said(2, BOUND)
+    assert said[0] == Said(step["question"])
+    [answer] = _answers(seated)
+    assert (answer.prompt_id, answer.answer, answer.modality) == (step["step_id"], True, "speech")
+    assert (answer.transcript, answer.transcript_confidence) == ("Yeah!", 0.83)
+    assert said[1].text == answer.reply and said[1].gesture is None
+    assert script.vocabularies == [["yes", "yeah", "yep", "sure", "no", "nope", "no way"]]
+    _verify_clean(seated)
+
+
+def _notice(lab: Lab) -> tuple[str | None, bool]:
+    with lab.database.read_session() as db:
+        device = db.scalar(select(Device))
+        assert device is not None
+        return device.notice, device.notice_attention
+
+
+@SQLITE_ONLY
+def test_silence_and_unclear_words_are_asked_again(seated: Lab, url: str) -> None:
+    script = Script()
+    script.add(Silence(), Words("\x00\ufffd garbage \x1b[2J", 0.99), Words("maybe", 0.9), "no way")
+    speech = seated.robot.get("/api/v1/station/speech").json()
+    assert speech["attempts"] == 3
+    with RunningBridge(FakeRobot(script), url, seated.station, seated.key, trigger=Trigger.CONSOLE):
+        _ask_now(seated)
+        script.wait_said(3, BOUND)
+        # three tries: silence, garbage, "maybe" -> the console is asked for an answer
+        _wait_for(lambda: _notice(seated)[0] is not None)
+        notice, attention = _notice(seated)
+        assert attention and notice is not None
+        assert "stayed unclear after 3 tries (last heard: “maybe” (0.90))" in notice
+        assert _answers(seated) == []
+        step_id = seated.robot.get("/api/v1/station").json()["open_prompts"][0]["step_id"]
+        woz = seated.experimenter.post(
+            f"/api/v1/stations/{seated.station}/steps/{step_id}/answer",
+            json={"answer": "no", "idempotency_key": "woz-1"},
+        )
+        assert woz.status_code == 200, woz.text
+        said = script.wait_said(4, BOUND)
+        _wait_for(lambda: _notice(seated)[0] is None)
+    assert [line.text for line in said[1:]] == [REPROMPT, REPROMPT, woz.json()["reply"]]
+    [answer] = _answers(seated)
+    assert (answer.answer, answer.modality, answer.transcript) == (False, None, None)
+    assert _notice(seated) == (None, False)
+    assert len(script.said) == 4 and len(script.vocabularies) == 3
+    assert list(script.replies) == [Words("no way")]  # never listened a fourth time
+
+
+@SQLITE_ONLY
+def test_stepping_into_a_zone_asks_its_category(seated: Lab, url: str) -> None:
+    script = Script()
+    script.add("yes")
+    with RunningBridge(FakeRobot(script), url, seated.station, seated.key, trigger="presence") as b:
+        where = {"x": 1.0, "z": 1.0, "heading": 0.0, "zone": "affection"}
+        assert seated.robot.put("/api/v1/station/presence", json=where).status_code == 204
+        said = script.wait_said(2, BOUND)
+    [answer] = _answers(seated)
+    with seated.database.read_session() as db:
+        category = db.scalar(select(Prompt.category).where(Prompt.id == answer.prompt_id))
+    assert category == "affection" and said[1].text == answer.reply
+    assert any("stepped into zone affection: asking for affection" in line for line in b.lines)
+
+
+@SQLITE_ONLY
+def test_the_robot_s_cue_asks_the_expected_category(seated: Lab, url: str) -> None:
+    script = Script()
+    script.add("sure", "nope")
+    robot = FakeRobot(script)
+    with RunningBridge(robot, url, seated.station, seated.key, trigger=Trigger.ROBOT):
+        expected = seated.robot.get("/api/v1/station").json()["expected"]["categories"]
+        robot.cues.put(Cue(source="head touched"))
+        script.wait_said(2, BOUND)
+        robot.cues.put(Cue(category=expected[-1], source="ROS topic"))
+        script.wait_said(4, BOUND)
+    answers = _answers(seated)
+    with seated.database.read_session() as db:
+        categories = [db.get(Prompt, a.prompt_id).category for a in answers]  # type: ignore[union-attr]
+    assert categories == [expected[0], expected[-1]]
+    assert [a.answer for a in answers] == [True, False]
+
+
+def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: str) -> None:
+    script = Script()
+    script.add(Drop(), "yep")
+    robot = FakeRobot(script)
+    with RunningBridge(robot, url, seated.station, seated.key) as bridge:
+        step = _ask_now(seated)
+        said = script.wait_said(3, BOUND)
+    assert [line.text for line in said[:2]] == [step["question"], step["question"]]
+    [answer] = _answers(seated)
+    assert (answer.prompt_id, answer.transcript) == (step["step_id"], "yep")
+    assert said[2].text == answer.reply
+    assert robot.connects == 2
+    assert any(
+        "lost the fake robot (the fake robot dropped the connection)" in line
+        for line in bridge.lines
+    )
+    assert _notice(seated) == (None, False)
+    _verify_clean(seated)
+
+
+def test_a_bridge_killed_mid_answer_and_restarted_answers_once(seated: Lab, url: str) -> None:
+    first = Script()
+    first.add(Silence())
+    with RunningBridge(FakeRobot(first), url, seated.station, seated.key):
+        step = _ask_now(seated)
+        first.wait_said(2, BOUND)  # the question and a reprompt: killed while listening again
+    assert _answers(seated) == []
+    second = Script()
+    second.add("no")
+    with RunningBridge(FakeRobot(second), url, seated.station, seated.key):
+        said = second.wait_said(2, BOUND)  # the open question is asked again at start
+    assert said[0].text == step["question"]
+    [answer] = _answers(seated)
+    assert (answer.prompt_id, answer.answer, said[1].text) == (step["step_id"], False, answer.reply)
+    _verify_clean(seated)
+
+
+@SQLITE_ONLY
+def test_refusals_at_start_are_one_line_and_send_nothing(lab: Lab, url: str) -> None:
+    cases = [
+        (
+            url,
+            "lab-2",
+            lab.key,
+            FakeRobot(Script()),
+            "the key belongs to station 'lab-1', not 'lab-2'",
+        ),
+        (url, lab.station, "tlk_not-a-key", FakeRobot(Script()), "refused the key"),
+        (
+            "http://127.0.0.1:9",
+            lab.station,
+            lab.key,
+            FakeRobot(Script()),
+            "cannot reach the trustlab server at http://127.0.0.1:9",
+        ),
+        (
+            url,
+            lab.station,
+            lab.key,
+            FakeRobot(Script(), refuse_connects=1),
+            "the fake robot refused the connection",
+        ),
+    ]
+    for address, station, key, robot, reason in cases:
+        with pytest.raises(BridgeRefused) as refused:
+            RunningBridge(robot, address, station, key).__enter__()
+        message = str(refused.value)
+        assert reason in message and "\n" not in message
+    with lab.database.read_session() as db:
+        assert db.scalar(select(Prompt)) is None
