@@ -12,6 +12,7 @@ from app.cli import (
     accounts,
     admin,
     analysis,
+    bridge,
     engine,
     exports,
     mixed,
@@ -33,6 +34,7 @@ admin.register(cli)
 accounts.register(cli)
 runtime.register(cli)
 robot.register(cli)
+bridge.register(cli)
 analysis.register(cli)
 mixed.register(cli)
 exports.register(cli)
