@@ -147,10 +147,10 @@ class FurhatRobot:
             stopper.cancel()
             stopper.join()
         message = (status.message or "").strip()
-        if status.success is False or message == "FAILED":
-            log.warning("%s could not listen: %s", self.description, message or "no reason given")
+        if message in NOTHING_HEARD and message != "FAILED":
             return None
-        if message in NOTHING_HEARD:
+        if message == "FAILED" or status.success is False:
+            log.warning("%s could not listen: %s", self.description, message)
             return None
         return Heard(message, RECOGNISED_CONFIDENCE)
 
@@ -159,8 +159,13 @@ class FurhatRobot:
         space: a user id in ``GET /furhat/users`` that was not there at the previous look (since
         connecting). None when nobody entered, or when the robot is closed meanwhile."""
         deadline = time.monotonic() + seconds
-        while not self._closed.is_set():
-            users = self._user_ids(self._connected())
+        while True:
+            api = self._api  # read before the check: close() sets the event, then drops the client
+            if self._closed.is_set():
+                return None
+            if api is None:
+                raise RobotLost(f"{self.description} is not connected")
+            users = self._user_ids(api)
             entered = users - self._users_seen
             self._users_seen = users
             if entered:
@@ -169,7 +174,6 @@ class FurhatRobot:
             if remaining <= 0:
                 return None
             self._closed.wait(min(self.options.poll_seconds, remaining))
-        return None
 
     def close(self) -> None:
         """Release the client's connections (idempotent); a :meth:`wait_cue` returns None."""

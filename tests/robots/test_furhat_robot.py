@@ -187,6 +187,9 @@ def test_a_robot_that_was_never_connected_is_lost() -> None:
     with pytest.raises(RobotLost) as error:
         robot.say("Hello?")
     assert_one_line(error, "not connected")
+    with pytest.raises(RobotLost) as error:
+        robot.wait_cue(30)
+    assert_one_line(error, "not connected")
 
 
 # Reaching the robot.
@@ -253,6 +256,14 @@ def test_users_already_there_are_no_cue_but_a_new_one_is() -> None:
             assert robot.wait_cue(30) == Cue(source="user entered")
         finally:
             robot.close()
+
+
+def test_a_robot_gone_while_waiting_for_a_cue_is_lost() -> None:
+    with connected(Script()) as (robot, stand_in):
+        stand_in.stop()
+        with pytest.raises(RobotLost) as error:
+            robot.wait_cue(30)
+        assert_one_line(error, robot.description, "while looking for users")
 
 
 def test_closing_ends_a_wait_for_a_cue() -> None:
