@@ -216,11 +216,14 @@ def _handler_for(robot: FurhatStandIn) -> type[http.server.BaseHTTPRequestHandle
                 self.connection.shutdown(socket.SHUT_RDWR)
                 return
             body = json.dumps(answer).encode()
-            self.send_response(200)
-            self.send_header("Content-Type", "application/json")
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
+            try:
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+            except (BrokenPipeError, ConnectionResetError):
+                self.close_connection = True  # the bridge went away mid-request (killed)
 
         def log_message(self, format: str, *args: Any) -> None:
             """Quiet: the tests read the script, not the access log."""
