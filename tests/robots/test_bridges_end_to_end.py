@@ -6,9 +6,8 @@ dropped robot connection, and ``trustlab verify``."""
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -20,6 +19,7 @@ from app.services.audit import Actor
 from app.tables import Answer
 from tests.conftest import EXP3_ONLY, Lab, protocol_text
 from tests.robots.harness import BOUND, RunningBridge, served
+from tests.robots.kinds import KINDS, Kind
 from tests.robots.standins.script import Drop, Script, Silence, Words
 
 pytestmark = [
@@ -29,32 +29,6 @@ pytestmark = [
 
 GESTURES = {"low": "Shake", "medium_low": "Thoughtful", "medium": "Nod", "high": "BigSmile"}
 REPROMPT = "Sorry, I did not catch that. Please answer yes or no."
-
-
-@dataclasses.dataclass(frozen=True)
-class Kind:
-    """A robot kind: its stand-in (a context manager given the script) and its adapter."""
-
-    name: str
-    stand_in: Callable[[Script], contextlib.AbstractContextManager[Any]]
-    robot: Callable[[Any], Any]
-    confidence: Callable[[float], float] = lambda given: given
-    """The confidence the bridge stores for a scripted one (Furhat reports none)."""
-
-
-def _furhat() -> Kind:
-    from app.robots.furhat import FurhatOptions, FurhatRobot
-    from tests.robots.standins.furhat import FurhatStandIn
-
-    return Kind(
-        "furhat",
-        FurhatStandIn,
-        lambda stand_in: FurhatRobot(FurhatOptions(host=stand_in.host, port=stand_in.port)),
-        confidence=lambda given: 1.0,
-    )
-
-
-KINDS = {"furhat": _furhat}
 
 
 @pytest.fixture(params=sorted(KINDS))

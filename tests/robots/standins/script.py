@@ -10,6 +10,7 @@ to say lands in :attr:`Script.said`, in order, so tests check the words spoken.
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -53,6 +54,10 @@ class Script:
     replies: deque[Reply] = field(default_factory=deque)
     said: list[Said] = field(default_factory=list)
     vocabularies: list[list[str]] = field(default_factory=list)
+    said_at: list[float] = field(default_factory=list)
+    """``time.perf_counter()`` of each line in :attr:`said` (bench/bridge.py's latencies)."""
+    heard_at: list[float] = field(default_factory=list)
+    """``time.perf_counter()`` of each :class:`Words` handed to the recogniser."""
     _changed: threading.Condition = field(default_factory=threading.Condition)
 
     def add(self, *replies: Reply | str) -> None:
@@ -63,11 +68,15 @@ class Script:
     def next_reply(self) -> Reply:
         """The participant's next reply (silence once the script is used up)."""
         with self._changed:
-            return self.replies.popleft() if self.replies else Silence()
+            reply = self.replies.popleft() if self.replies else Silence()
+            if isinstance(reply, Words):
+                self.heard_at.append(time.perf_counter())
+            return reply
 
     def record_said(self, text: str, gesture: str | None = None) -> None:
         with self._changed:
             self.said.append(Said(text, gesture))
+            self.said_at.append(time.perf_counter())
             self._changed.notify_all()
 
     def record_vocabulary(self, phrases: list[str]) -> None:
