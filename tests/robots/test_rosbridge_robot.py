@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import socket
 import threading
-from dataclasses import replace
 from collections.abc import Iterator
+from dataclasses import replace
+from typing import Any
 
 import pytest
 
@@ -23,7 +24,7 @@ pytestmark = pytest.mark.timeout(60)
 PHRASES = ["yes", "yeah", "no"]
 
 
-def robot_at(port: int, **options: object) -> RosbridgeRobot:
+def robot_at(port: int, **options: Any) -> RosbridgeRobot:
     return RosbridgeRobot(replace(RosbridgeOptions(host="127.0.0.1", port=port), **options))
 
 
