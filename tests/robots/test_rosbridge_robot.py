@@ -99,6 +99,17 @@ def test_listen_reports_what_the_recogniser_heard_and_none_on_silence(
     assert len({request["id"] for request in stand_in.listen_requests}) == 4
 
 
+def test_a_late_result_of_an_earlier_listen_is_not_taken_for_this_one(script: Script) -> None:
+    script.add("yes", Silence())
+    late = '{"id": 0, "words": "no", "confidence": 1}'
+    with RosbridgeStandIn(script, stale_heard=late) as stand_in:
+        robot = robot_at(stand_in.port, listen_grace=0.2)
+        robot.connect()
+        assert robot.listen(PHRASES, 30) == Heard("yes", 0.9)
+        assert robot.listen(PHRASES, 0.3) is None
+        robot.close()
+
+
 @pytest.mark.parametrize(
     ("data", "request_id", "heard"),
     [
@@ -236,6 +247,7 @@ def test_closing_wakes_a_thread_waiting_for_a_cue(robot: RosbridgeRobot) -> None
 
     assert not waiter.is_alive()
     assert [type(error) for error in errors] == [RobotLost]
+    assert "closed while waiting" in str(errors[0]) or "not connected" in str(errors[0])
 
 
 def test_connect_and_close_again_and_again_in_one_process(

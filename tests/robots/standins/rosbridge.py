@@ -15,8 +15,9 @@ gesture and listen topics and publishes on the said, heard and cue topics:
 
 ``missing_topics`` leaves topics out of ``/rosapi/topics`` (a robot whose node does not provide
 them); ``rosapi=False`` is a rosbridge started without its rosapi node; ``topic_types`` gives a
-topic another type; ``reports_said=False`` is a robot that never reports a line said. The server
-runs on its own thread with its own asyncio loop, on port 0.
+topic another type; ``reports_said=False`` is a robot that never reports a line said;
+``stale_heard`` is published on the heard topic before each answer to a listen request (a late
+result of an earlier one). The server runs on its own thread with its own asyncio loop, on port 0.
 """
 
 from __future__ import annotations
@@ -54,9 +55,11 @@ class RosbridgeStandIn:
         rosapi: bool = True,
         topic_types: dict[str, str] | None = None,
         reports_said: bool = True,
+        stale_heard: str | None = None,
     ) -> None:
         self.script = script
         self.reports_said = reports_said
+        self.stale_heard = stale_heard
         self.missing_topics = frozenset(missing_topics)
         self.rosapi = rosapi
         self.topic_types = dict.fromkeys(ROBOT_TOPICS, STRING) | (topic_types or {})
@@ -152,6 +155,8 @@ class RosbridgeStandIn:
             request = json.loads(data)
             self.listen_requests.append(request)
             self.script.record_vocabulary(request["phrases"])
+            if self.stale_heard is not None:
+                await self._publish(HEARD, self.stale_heard)
             reply = self.script.next_reply()
             if isinstance(reply, Words):
                 heard = {"id": request["id"], "words": reply.words, "confidence": reply.confidence}
