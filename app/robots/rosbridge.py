@@ -22,9 +22,14 @@ topic (default)           who       ``data`` of the String
 ========================  ========  ========================================================
 
 A robot that reports nothing on the heard topic is silence once ``seconds`` (plus
-``listen_grace`` for the result to travel) are over. At connect the adapter checks, through
-rosbridge's rosapi services, that the topics the robot must provide (said and heard; the cue topic
-when ``require_cue_topic``) exist and carry Strings; the topics it publishes itself it advertises.
+``listen_grace`` for the result to travel) are over. A cue that comes while the bridge is busy is
+kept for its next :meth:`~RosbridgeRobot.wait_cue` (only the latest one).
+
+At connect the adapter checks, through rosbridge's rosapi services, that the topics the robot must
+provide (said and heard; the cue topic when ``require_cue_topic``) exist and carry Strings; the
+topics it publishes itself it advertises, then and there: a ROS 2 subscriber can miss what a
+just-created publisher sends before discovery matched them, so the first line is never the first
+message of a new publisher.
 
 roslibpy runs Twisted's reactor on a thread of its own, and a reactor cannot be started again once
 stopped. So the adapter never stops it (never ``Ros.terminate``): closing only closes the WebSocket
@@ -198,13 +203,14 @@ class _Link:
         }
         if self.options.require_cue_topic:
             required[self.options.cue_topic] = "where the robot cues a question"
-        topics = self._rosapi("/rosapi/topics", "rosapi_msgs/srv/Topics", {})["topics"]
+        topics = self._rosapi("/rosapi/topics", "rosapi_msgs/srv/Topics", {}).get("topics", [])
         for name, role in required.items():
             if name not in topics:
                 raise _Refused(f"no topic {name} ({role}); is the robot's trustlab node running?")
-            kind = self._rosapi("/rosapi/topic_type", "rosapi_msgs/srv/TopicType", {"topic": name})
-            if kind["type"] and kind["type"] not in STRING_TYPES:
-                raise _Refused(f"topic {name} carries {kind['type']}, not {STRING}")
+            typed = self._rosapi("/rosapi/topic_type", "rosapi_msgs/srv/TopicType", {"topic": name})
+            kind = typed.get("type", "")
+            if kind and kind not in STRING_TYPES:
+                raise _Refused(f"topic {name} carries {kind}, not {STRING}")
 
     def _rosapi(self, name: str, kind: str, request: dict[str, str]) -> Any:
         roslibpy = self._roslibpy

@@ -165,6 +165,16 @@ def test_a_wrong_port_is_unreachable_in_one_line() -> None:
     assert_one_line(unreachable.value, "connection refused")
 
 
+def test_a_port_that_is_not_rosbridge_is_unreachable() -> None:
+    with socket.socket() as silent:  # accepts TCP (the kernel's backlog) but never answers
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        with pytest.raises(RobotUnreachable) as unreachable:
+            robot_at(silent.getsockname()[1], connect_timeout=0.3).connect()
+
+    assert_one_line(unreachable.value, "no rosbridge WebSocket within 0.3 s")
+
+
 def test_losing_rosbridge_for_good_makes_reconnecting_robot_lost(script: Script) -> None:
     with RosbridgeStandIn(script) as stand_in:
         robot = robot_at(stand_in.port)
