@@ -35,4 +35,17 @@ def furhat() -> Kind:
     )
 
 
-KINDS: dict[str, Callable[[], Kind]] = {"furhat": furhat}
+def rosbridge() -> Kind:
+    from app.robots.rosbridge import RosbridgeOptions, RosbridgeRobot
+    from tests.robots.standins.rosbridge import RosbridgeStandIn
+
+    return Kind(
+        "rosbridge",
+        RosbridgeStandIn,
+        lambda stand_in: RosbridgeRobot(
+            RosbridgeOptions(host="127.0.0.1", port=stand_in.port, listen_grace=0.3)
+        ),
+    )
+
+
+KINDS: dict[str, Callable[[], Kind]] = {"furhat": furhat, "rosbridge": rosbridge}

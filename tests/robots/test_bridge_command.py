@@ -21,6 +21,7 @@ from app.tables import Answer, Prompt
 from tests.conftest import Lab
 from tests.robots.harness import BOUND, served
 from tests.robots.standins.furhat import FurhatStandIn
+from tests.robots.standins.rosbridge import RosbridgeStandIn
 from tests.robots.standins.script import Script
 from tests.servers import free_port
 
@@ -94,6 +95,14 @@ def test_refusals_are_one_line_exit_1_and_send_nothing(lab: Lab, url: str) -> No
                 assert result.exit_code == 1
                 assert result.output.count("error:") == 1 and "Traceback" not in result.output
         assert robot.script.said == []
+    with RosbridgeStandIn(Script(), missing_topics=["/trustlab/heard"]) as ros:
+        arguments = ["bridge", "rosbridge", "--url", url, "--station", "lab-1", "--key", lab.key]
+        result = runner.invoke(cli, [*arguments, "--host", "127.0.0.1", "--port", str(ros.port)])
+    assert result.exit_code == 1, result.output
+    assert result.output.startswith("error: rosbridge at ws://127.0.0.1:") and "\n" not in (
+        result.output.strip()
+    )
+    assert "no topic /trustlab/heard (where the robot's recogniser reports)" in result.output
     assert (_count(lab, Prompt), _count(lab, Answer)) == (0, 0)
 
 

@@ -39,11 +39,12 @@ def kind(request: pytest.FixtureRequest) -> Kind:
 @pytest.fixture
 def gesturing(lab: Lab) -> Lab:
     """The lab with a study whose replies each come with a gesture; P001 seated, session 1."""
-    gestures = ", ".join(f'{level} = "{name}"' for level, name in GESTURES.items())
-    text = protocol_text(
-        **EXP3_ONLY,
-        **{"[reward]": f"[speech.gestures]\n{gestures.replace(', ', chr(10))}\n\n[reward]"},
-    )
+    gestures = "\n".join(f'{level} = "{name}"' for level, name in GESTURES.items())
+    speech = {
+        "listen_seconds = 8.0": "listen_seconds = 0.3",  # silence costs the listening time
+        "[reward]": f"[speech.gestures]\n{gestures}\n\n[reward]",
+    }
+    text = protocol_text(**EXP3_ONLY, **speech)
     with lab.database.writing() as db:
         studies.create_study(db, name="gestures", loaded=parse_protocol(text), actor=Actor.system())
     seated = dataclasses.replace(lab, study="gestures")
