@@ -259,7 +259,10 @@ class NaoqiRobot:
             return
         reason = _one_line(future.error(0))
         if any(marker in reason.lower() for marker in _NETWORK_FAILURES):
-            raise failure(f"cannot reach NAOqi at {url}: {reason}")
+            # A NAOqi 2.9 robot refuses plain tcp: its only port is the TLS one.
+            refused_plain = "refused" in reason.lower() and not self.options.secure
+            also = " (NAOqi 2.9 wants its password, over tcps)" if refused_plain else ""
+            raise failure(f"cannot reach NAOqi at {url}: {reason}{also}")
         if self.options.secure:
             hint = f"check NAOqi 2.9 credentials (user {self.options.user!r} and its password)"
         else:
@@ -311,12 +314,16 @@ class NaoqiRobot:
         self, event: str, handler: Callable[[object], None], failure: type[RobotError]
     ) -> None:
         subscriber = self._call("ALMemory", "subscriber", event, failure=failure)
+        cannot_follow = f"{self.description}: cannot follow the ALMemory event {event}"
         try:
-            subscriber.signal.connect(handler)
+            future = subscriber.signal.connect(handler, _async=True)
         except (AttributeError, RuntimeError) as error:
-            raise failure(
-                f"{self.description}: cannot follow the event {event}: {_one_line(error)}"
-            ) from None
+            raise failure(f"{cannot_follow}: {_one_line(error)}") from None
+        if not _finished(future, self.options.call_seconds):
+            future.cancel()
+            raise failure(f"{cannot_follow}: no answer in {self.options.call_seconds:g} s")
+        if future.hasError(0):
+            raise failure(f"{cannot_follow}: {_one_line(future.error(0))}")
         self._keep.append(subscriber)
 
     def close(self) -> None:

@@ -232,6 +232,7 @@ def test_wrong_port_is_unreachable_in_one_line_naming_the_address() -> None:
     message = str(unreachable.value)
     assert f"tcp://127.0.0.1:{port}" in message
     assert "refused" in message.lower()
+    assert "NAOqi 2.9 wants its password" in message
     assert "\n" not in message
 
 
