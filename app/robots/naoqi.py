@@ -395,7 +395,11 @@ class NaoqiRobot:
         seconds: float | None = None,
         failure: type[RobotError] = RobotLost,
     ) -> Any:
-        """``service.method(*args)`` on the robot, bounded; any failure as one line."""
+        """``service.method(*args)`` on the robot, bounded; any failure as one line.
+
+        A failed call leaves the connection lost (every later call and wait raises
+        :class:`RobotLost` until :meth:`connect`): a robot half way through closing may still
+        answer one call after refusing another, and the bridge should reconnect either way."""
         with self._changed:
             proxy, lost = self._services.get(service), self._lost
         if proxy is None or lost is not None:
@@ -404,13 +408,24 @@ class NaoqiRobot:
         try:
             future = getattr(proxy, method)(*args, _async=True)
         except (AttributeError, RuntimeError) as error:
-            raise failure(f"{self.description}: {service}.{method}: {_one_line(error)}") from None
-        if not _finished(future, bound):
-            future.cancel()
-            raise failure(f"{self.description}: {service}.{method} got no answer in {bound:g} s")
-        if future.hasError(0):
-            raise failure(f"{self.description}: {service}.{method}: {_one_line(future.error(0))}")
-        return future.value(0)
+            problem = _one_line(error)
+        else:
+            if not _finished(future, bound):
+                future.cancel()
+                problem = f"got no answer in {bound:g} s"
+            elif future.hasError(0):
+                problem = _one_line(future.error(0))
+            else:
+                return future.value(0)
+        self._give_up(f"{service}.{method}: {problem}")
+        raise failure(f"{self.description}: {service}.{method}: {problem}")
+
+    def _give_up(self, reason: str) -> None:
+        """Count the connection as lost (ends any wait on another thread)."""
+        with self._changed:
+            if self._lost is None:
+                self._lost = reason
+                self._changed.notify_all()
 
     def _on_disconnected(self, generation: int, reason: object) -> None:
         with self._changed:
