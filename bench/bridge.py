@@ -88,13 +88,15 @@ def _seat(database: Database, lab: drive.RoomLab, code: str) -> None:
     assert seated.status_code == 200, seated.text
 
 
-def _run_kind(name: str, lab: drive.RoomLab, database: Database, participants: int) -> list[float]:
+def _run_kind(
+    name: str, lab: drive.RoomLab, database: Database, participants: int, transcript: bool
+) -> list[float]:
     kind = KINDS[name]()
     samples: list[float] = []
     script = Script()
     with (
         kind.stand_in(script) as stand_in,
-        RunningBridge(kind.robot(stand_in), lab.url, lab.station, lab.key),
+        RunningBridge(kind.robot(stand_in), lab.url, lab.station, lab.key) as bridge,
     ):
         for number in range(participants):
             _seat(database, lab, f"{name[:2].upper()}{number:03d}")
@@ -102,6 +104,8 @@ def _run_kind(name: str, lab: drive.RoomLab, database: Database, participants: i
                 lab.start_session()
                 samples += _answer_everything(lab, script)
             print(f"  {name}: participant {number + 1}: {len(samples)} answers", file=sys.stderr)
+    if transcript:
+        print("\n".join(bridge.lines), file=sys.stderr)
     return samples
 
 
@@ -110,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kinds", default=",".join(KINDS), help="robot kinds, comma-separated")
     parser.add_argument("--participants", type=int, default=5, help="participants per kind")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
+        "--transcript", action="store_true", help="print what each bridge printed (stderr)"
+    )
     args = parser.parse_args(argv)
     kinds = [k for k in args.kinds.split(",") if k]
     unknown = [k for k in kinds if k not in KINDS]
@@ -128,7 +135,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             lab = drive.seat_participant(database, server.url, STUDY, code="WARMUP")
             for name in kinds:
-                results[name] = _summary(_run_kind(name, lab, database, args.participants))
+                results[name] = _summary(
+                    _run_kind(name, lab, database, args.participants, args.transcript)
+                )
         finally:
             server.stop()
             database.dispose()

@@ -101,6 +101,64 @@ def _settings(url: str, station: str, key: str, trigger: Trigger) -> BridgeSetti
     return BridgeSettings(url=url, station=station, key=key, trigger=trigger)
 
 
+@bridge.command("naoqi")
+def naoqi(
+    url: Url,
+    station: StationName,
+    key: Key,
+    trigger: TriggerOption = Trigger.PRESENCE,
+    host: Host = "127.0.0.1",
+    port: Annotated[
+        int | None,
+        typer.Option(
+            min=1, max=65535, help="NAOqi's port (default 9559, or 9503 with a password)."
+        ),
+    ] = None,
+    user: Annotated[str, typer.Option(help="NAOqi 2.9's user (with a password).")] = "nao",
+    password_stdin: Annotated[
+        bool,
+        typer.Option(
+            "--password-stdin",
+            help="Read NAOqi 2.9's password from standard input (connects over tcps).",
+        ),
+    ] = False,
+    language: Language = "English",
+    voice: Voice = None,
+    volume: Annotated[
+        float | None, typer.Option(min=0.0, max=1.0, help="Speech volume, 0-1.")
+    ] = None,
+    animated: Annotated[
+        bool,
+        typer.Option(
+            help="Play the protocol's gestures with ALAnimatedSpeech (--no-animated: plain "
+            "speech, for a robot without it)."
+        ),
+    ] = True,
+    cue_event: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="ALMemory touch event that cues a question (repeatable; default: the three "
+            "head sensors)."
+        ),
+    ] = None,
+) -> None:
+    """A Pepper or NAO, through NAOqi (qi)."""
+    adapter = _vendor("naoqi", "NAOqi")
+    password = sys.stdin.readline().rstrip("\r\n") or None if password_stdin else None
+    options = adapter.NaoqiOptions(
+        host=host,
+        port=port,
+        user=user,
+        password=password,
+        language=language,
+        voice=voice,
+        volume=volume,
+        animated=animated,
+        cue_events=tuple(cue_event) if cue_event else adapter.HEAD_SENSORS,
+    )
+    _run(adapter.NaoqiRobot(options), _settings(url, station, key, trigger))
+
+
 @bridge.command("furhat")
 def furhat(
     url: Url,

@@ -21,6 +21,10 @@ class Kind:
     robot: Callable[[Any], Robot]
     confidence: Callable[[float], float] = lambda given: given
     """The confidence the bridge stores for a scripted one (Furhat reports none)."""
+    gesture: Callable[[str], str] = lambda given: given
+    """How the stand-in records a protocol's gesture (NAOqi: as the line's annotations)."""
+    recover: Callable[[Any], None] = lambda stand_in: None
+    """Bring the robot back after a :class:`Drop` (NAOqi's stand-in closes its session)."""
 
 
 def furhat() -> Kind:
@@ -48,4 +52,17 @@ def rosbridge() -> Kind:
     )
 
 
-KINDS: dict[str, Callable[[], Kind]] = {"furhat": furhat, "rosbridge": rosbridge}
+def naoqi() -> Kind:
+    from app.robots.naoqi import NaoqiOptions, NaoqiRobot
+    from tests.robots.standins.naoqi import NaoqiStandIn
+
+    return Kind(
+        "naoqi",
+        NaoqiStandIn,
+        lambda stand_in: NaoqiRobot(NaoqiOptions(host=stand_in.host, port=stand_in.port)),
+        gesture=lambda tag: f"^startTag({tag}) ^waitTag({tag})",
+        recover=lambda stand_in: stand_in.start(),
+    )
+
+
+KINDS: dict[str, Callable[[], Kind]] = {"naoqi": naoqi, "furhat": furhat, "rosbridge": rosbridge}

@@ -103,6 +103,11 @@ def test_refusals_are_one_line_exit_1_and_send_nothing(lab: Lab, url: str) -> No
         result.output.strip()
     )
     assert "no topic /trustlab/heard (where the robot's recogniser reports)" in result.output
+    nobody = free_port()
+    arguments = ["bridge", "naoqi", "--url", url, "--station", "lab-1", "--key", lab.key]
+    result = runner.invoke(cli, [*arguments, "--port", str(nobody)])
+    assert result.exit_code == 1, result.output
+    assert result.output.startswith(f"error: cannot reach NAOqi at tcp://127.0.0.1:{nobody}")
     assert (_count(lab, Prompt), _count(lab, Answer)) == (0, 0)
 
 

@@ -7,7 +7,8 @@ dropped robot connection, and ``trustlab verify``."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -72,6 +73,14 @@ def _answers(lab: Lab) -> list[Answer]:
         return list(db.scalars(select(Answer).order_by(Answer.id)))
 
 
+def _wait_until(condition: Callable[[], bool]) -> None:
+    for _ in range(int(BOUND / 0.02)):
+        if condition():
+            return
+        threading.Event().wait(0.02)
+    raise AssertionError("never happened")
+
+
 def _verify_clean(lab: Lab) -> None:
     with lab.database.read_session() as db:
         report = verify.verify_study(db, study_name=lab.study)
@@ -106,9 +115,9 @@ def test_a_participant_answers_through_the_robot(kind: Kind, gesturing: Lab, url
         (first["question"], None),
         (REPROMPT, None),
         (REPROMPT, None),
-        (answers[0].reply, GESTURES[answers[0].confidence]),
+        (answers[0].reply, kind.gesture(GESTURES[answers[0].confidence])),
         (second["question"], None),
-        (answers[1].reply, GESTURES[answers[1].confidence]),
+        (answers[1].reply, kind.gesture(GESTURES[answers[1].confidence])),
     ]
     _verify_clean(gesturing)
 
@@ -121,6 +130,8 @@ def test_a_dropped_robot_connection_is_survived(kind: Kind, gesturing: Lab, url:
         RunningBridge(kind.robot(stand_in), url, gesturing.station, gesturing.key) as bridge,
     ):
         step = _ask_now(gesturing, "cognition")
+        _wait_until(lambda: any("reconnecting" in line for line in bridge.lines))
+        kind.recover(stand_in)
         said = script.wait_said(3, BOUND)
     [answer] = _answers(gesturing)
     assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
