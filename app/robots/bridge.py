@@ -335,6 +335,7 @@ class Bridge:
                 return
             if attempt < speech.attempts:
                 await self._robot(self.robot.say, speech.reprompt, None)
+                self._log(f"Robot asks again: {speech.reprompt}")
         await self._ask_the_wizard(prompt, heard, speech)
 
     async def _send(
