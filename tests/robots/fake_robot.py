@@ -23,6 +23,11 @@ class FakeRobot:
         self.connects = 0
         self.refuse_connects = refuse_connects
         self.cues: queue.Queue[Cue] = queue.Queue()
+        self.listening = threading.Event()
+        """Set while :meth:`listen` waits for :attr:`release` (when ``hold`` is set)."""
+        self.release = threading.Event()
+        self.hold = False
+        """Make each listen wait for :attr:`release` before it hears the next reply."""
         self._connected = False
         self._lock = threading.Lock()
 
@@ -46,6 +51,11 @@ class FakeRobot:
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         self._check()
         self.script.record_vocabulary(list(phrases))
+        if self.hold:
+            self.listening.set()
+            if not self.release.wait(60.0):
+                raise RobotLost("the fake robot was never released")
+            self.release.clear()
         reply = self.script.next_reply()
         if isinstance(reply, Drop):
             with self._lock:

@@ -24,10 +24,18 @@ the code works: every wait is on an event)."""
 
 
 @contextlib.contextmanager
-def served(app: FastAPI) -> Iterator[str]:
-    """Serve ``app`` (already started by the test's TestClient) on a free loopback port."""
-    port = free_port()
-    config = uvicorn.Config(app, host="127.0.0.1", port=port, lifespan="off", log_level="warning")
+def served(app: FastAPI, port: int | None = None) -> Iterator[str]:
+    """Serve ``app`` (already started by the test's TestClient) on ``port`` (default: a free
+    one) on loopback; leaving the block stops serving, as a server going away would."""
+    port = port or free_port()
+    config = uvicorn.Config(
+        app,
+        host="127.0.0.1",
+        port=port,
+        lifespan="off",
+        log_level="critical",
+        timeout_graceful_shutdown=0,  # open WebSockets are cut, as when a server goes away
+    )
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, name="uvicorn", daemon=True)
     thread.start()

@@ -19,6 +19,7 @@ from tests.conftest import Lab
 from tests.robots.fake_robot import FakeRobot
 from tests.robots.harness import BOUND, RunningBridge, served
 from tests.robots.standins.script import Drop, Said, Script, Silence, Words
+from tests.servers import free_port
 
 SQLITE_ONLY = pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
 pytestmark = pytest.mark.timeout(120)
@@ -232,3 +233,28 @@ def test_refusals_at_start_are_one_line_and_send_nothing(lab: Lab, url: str) -> 
         assert reason in message and "\n" not in message
     with lab.database.read_session() as db:
         assert db.scalar(select(Prompt)) is None
+
+
+@SQLITE_ONLY
+def test_an_answer_heard_while_the_server_is_away_is_recorded_once(seated: Lab) -> None:
+    script = Script()
+    script.add("yes")
+    robot = FakeRobot(script)
+    robot.hold = True
+    port = free_port()
+    with served(seated.app, port) as url:
+        bridge = RunningBridge(robot, url, seated.station, seated.key).__enter__()
+        step = _ask_now(seated)
+        assert robot.listening.wait(BOUND)
+    robot.release.set()  # the participant answers while the server is gone
+    try:
+        _wait_for(lambda: not script.replies)  # heard; the answer waits for the server
+        assert _answers(seated) == [] and len(script.said) == 1  # no reply before it is stored
+        with served(seated.app, port):
+            said = script.wait_said(2, BOUND)
+    finally:
+        bridge.stop()
+    [answer] = _answers(seated)
+    assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
+    assert said[1].text == answer.reply
+    _verify_clean(seated)
