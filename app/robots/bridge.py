@@ -40,7 +40,7 @@ from app.client import (
     backoff_delays,
 )
 from app.robots.robot import Heard, Robot, RobotError, RobotLost, RobotUnreachable
-from app.robots.vocabulary import Vocabulary
+from app.speech.vocabulary import Vocabulary
 
 T = TypeVar("T")
 

@@ -8,7 +8,7 @@ and answers a ``Status`` (``success``, ``message``) or a JSON list.
 What the Remote API cannot do, and what this adapter does instead:
 
 - ``listen`` takes no phrases (no grammar): Furhat's recogniser hears free speech and the bridge's
-  :class:`~app.robots.vocabulary.Vocabulary` keeps only the yes/no phrases.
+  :class:`~app.speech.vocabulary.Vocabulary` keeps only the yes/no phrases.
 - ``listen`` reports no confidence: a recognised utterance counts with
   :data:`RECOGNISED_CONFIDENCE`, see there.
 - ``listen`` takes no time limit (the robot stops on its own no-speech timeout): the adapter asks

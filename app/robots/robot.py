@@ -13,6 +13,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from app.speech.vocabulary import Heard
+
+__all__ = ["Cue", "Heard", "Robot", "RobotError", "RobotLost", "RobotUnreachable"]
+
 
 class RobotError(Exception):
     """A robot problem, as one line a lab can act on (``str(error)`` is that line)."""
@@ -25,14 +29,6 @@ class RobotUnreachable(RobotError):
 
 class RobotLost(RobotError):
     """The robot was reachable but stopped answering; the bridge reconnects."""
-
-
-@dataclass(frozen=True)
-class Heard:
-    """What the robot's recogniser reported: its words and its confidence (0-1)."""
-
-    words: str
-    confidence: float
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from app.robots.naoqi import (
     heard_from_event,
 )
 from app.robots.robot import Cue, Heard, RobotLost, RobotUnreachable
-from app.robots.vocabulary import Vocabulary
+from app.speech.vocabulary import Vocabulary
 from tests.robots.standins.naoqi import NaoqiStandIn
 from tests.robots.standins.script import Drop, Said, Script, Silence, Words
 

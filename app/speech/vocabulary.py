@@ -15,9 +15,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from app.robots.robot import Heard
-
 Answer = Literal["yes", "no"]
+
+
+@dataclass(frozen=True)
+class Heard:
+    """What a recogniser reported: its words and its confidence (0-1)."""
+
+    words: str
+    confidence: float
+
 
 DEFAULT_YES = ("yes", "yeah", "yep", "sure")
 DEFAULT_NO = ("no", "nope", "no way")
