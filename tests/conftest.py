@@ -13,7 +13,7 @@ import os
 import re
 import shutil
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -147,6 +147,37 @@ def engine_name(request: pytest.FixtureRequest) -> str:
     if name == "postgresql" and not POSTGRES_URL:
         pytest.skip(POSTGRES_SKIP_REASON)
     return name
+
+
+def sqlite_only(why: str) -> pytest.MarkDecorator:
+    """Run the test on SQLite only, because (``why``) the database has no say in what it checks:
+    the request is refused before any query, or only rendering or parsing is looked at.
+
+    A PostgreSQL variant costs a wiped database and a slower start each; it belongs wherever
+    SQL, transactions, locking, JSON columns, NOTIFY or concurrency matter."""
+    assert why, "say why the database has no say"
+    return pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
+
+
+def postgres_for_some(
+    argnames: str, values: Sequence[Any], *, ids: Sequence[str], postgres: Collection[str]
+) -> pytest.MarkDecorator:
+    """``parametrize(argnames, values)`` on SQLite for every value, on PostgreSQL only for the
+    values whose id is in ``postgres`` (the cases where the engine could answer differently;
+    the others are refused before any query)."""
+    assert set(postgres) <= set(ids), set(postgres) - set(ids)
+    names = ["engine_name", *(name.strip() for name in argnames.split(","))]
+    params = []
+    for value, id_ in zip(values, ids, strict=True):
+        args = tuple(value) if len(names) > 2 else (value,)
+        params.append(pytest.param("sqlite", *args, id=f"sqlite-{id_}"))
+        if id_ in postgres:
+            params.append(
+                pytest.param(
+                    "postgresql", *args, id=f"postgresql-{id_}", marks=pytest.mark.postgres
+                )
+            )
+    return pytest.mark.parametrize(names, params, indirect=["engine_name"])
 
 
 @pytest.fixture

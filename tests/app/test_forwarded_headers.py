@@ -20,7 +20,7 @@ from app.main import create_app
 from app.settings import Settings
 from app.tables import LoginAttempt, Role
 from app.tablet import TABLET_COOKIE
-from tests.conftest import PASSWORD, Lab, UserClientFactory, make_user
+from tests.conftest import PASSWORD, Lab, UserClientFactory, make_user, sqlite_only
 from tests.servers import ServerProcess
 
 SPOOFED = "203.0.113.9"
@@ -53,6 +53,7 @@ def test_trusted_proxies_are_addresses_or_networks(monkeypatch: pytest.MonkeyPat
         (("127.0.0.1", "10.0.0.0/8"), f"198.51.100.1, {SPOOFED}, 10.2.3.4", SPOOFED),
     ],
 )
+@sqlite_only("which address counts is decided from the headers; storing it is tested elsewhere")
 def test_the_throttle_counts_the_forwarded_address_only_from_trusted_proxies(
     settings: Settings,
     database: Database,
@@ -72,6 +73,7 @@ def test_the_throttle_counts_the_forwarded_address_only_from_trusted_proxies(
 
 
 @pytest.mark.parametrize(("trusted", "secure"), [((), False), (("127.0.0.1",), True)])
+@sqlite_only("headers, not storage")
 def test_the_forwarded_scheme_counts_only_from_trusted_proxies(
     settings: Settings, database: Database, trusted: tuple[str, ...], secure: bool
 ) -> None:
