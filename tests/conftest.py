@@ -13,7 +13,7 @@ import os
 import re
 import shutil
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,6 +149,37 @@ def engine_name(request: pytest.FixtureRequest) -> str:
     return name
 
 
+def sqlite_only(why: str) -> pytest.MarkDecorator:
+    """Run the test on SQLite only, because (``why``) the database has no say in what it checks:
+    the request is refused before any query, or only rendering or parsing is looked at.
+
+    A PostgreSQL variant costs a wiped database and a slower start each; it belongs wherever
+    SQL, transactions, locking, JSON columns, NOTIFY or concurrency matter."""
+    assert why, "say why the database has no say"
+    return pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
+
+
+def postgres_for_some(
+    argnames: str, values: Sequence[Any], *, ids: Sequence[str], postgres: Collection[str]
+) -> pytest.MarkDecorator:
+    """``parametrize(argnames, values)`` on SQLite for every value, on PostgreSQL only for the
+    values whose id is in ``postgres`` (the cases where the engine could answer differently;
+    the others are refused before any query)."""
+    assert set(postgres) <= set(ids), set(postgres) - set(ids)
+    names = ["engine_name", *(name.strip() for name in argnames.split(","))]
+    params = []
+    for value, id_ in zip(values, ids, strict=True):
+        args = tuple(value) if len(names) > 2 else (value,)
+        params.append(pytest.param("sqlite", *args, id=f"sqlite-{id_}"))
+        if id_ in postgres:
+            params.append(
+                pytest.param(
+                    "postgresql", *args, id=f"postgresql-{id_}", marks=pytest.mark.postgres
+                )
+            )
+    return pytest.mark.parametrize(names, params, indirect=["engine_name"])
+
+
 @pytest.fixture
 def database_url(engine_name: str, request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
     """The URL of a fresh database, migrated to head."""
@@ -245,6 +276,20 @@ def sign_in(client: TestClient, username: str, password: str = PASSWORD) -> str:
     return csrf.group(1)
 
 
+def sign_in_api(client: TestClient, username: str, password: str = PASSWORD) -> str:
+    """Sign ``client`` in through the JSON API (``POST /api/v1/session``); returns the login's
+    CSRF token, also set as the client's X-CSRF-Token header.
+
+    For tests where signing in is a step, not the subject: the form's three requests (the login
+    page, the post, the page it leads to, two of them rendered) made every signed-in client of
+    every test dearer. The form itself is tested through ``sign_in``."""
+    response = client.post("/api/v1/session", json={"username": username, "password": password})
+    assert response.status_code == 200, response.text
+    csrf: str = response.json()["csrf_token"]
+    client.headers["X-CSRF-Token"] = csrf
+    return csrf
+
+
 UserClientFactory = Callable[..., TestClient]
 
 
@@ -259,7 +304,7 @@ def user_client(client: TestClient, database: Database) -> UserClientFactory:
         make_user(database, name, role)
         new_client = client_of(client)
         clients.append(new_client)
-        sign_in(new_client, name)
+        sign_in_api(new_client, name)
         return new_client
 
     return factory

@@ -12,6 +12,14 @@ from pathlib import Path
 
 import httpx
 
+from tests.preloaded import ForkedServer, Preloaded
+
+FRESH_PROGRAMS = {
+    "uvicorn": [sys.executable, "-m", "uvicorn"],
+    "trustlab": [sys.executable, "-c", "from app.cli import main; main()"],
+}
+"""How each program starts from nothing, when not forked from the preloader."""
+
 
 def free_port() -> int:
     """A TCP port nobody listens on right now."""
@@ -22,7 +30,11 @@ def free_port() -> int:
 
 class ServerProcess:
     """``uvicorn app.main:create_app`` (or another ``factory``) on a free port, startable, killable
-    and restartable."""
+    and restartable.
+
+    Forked from this test process's preloader (tests.preloaded), which has imported the app
+    already, unless ``source`` names another tree to serve (its modules are not the preloaded
+    ones) or ``preload=False``: then ``python -m uvicorn`` starts from nothing."""
 
     def __init__(
         self,
@@ -33,6 +45,7 @@ class ServerProcess:
         extra_env: dict[str, str] | None = None,
         factory: str = "app.main:create_app",
         source: Path | None = None,
+        preload: bool = True,
     ) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -54,14 +67,12 @@ class ServerProcess:
         if source is not None:
             given = self.env.get("PYTHONPATH")
             self.env["PYTHONPATH"] = str(source) + (os.pathsep + given if given else "")
-        self.process: subprocess.Popen[bytes] | None = None
+        self.preload = preload and source is None
+        self.process: subprocess.Popen[bytes] | ForkedServer | None = None
 
-    def start(self, timeout: float = 60.0) -> None:
-        """Start and wait until /healthz answers 200."""
-        command = [
-            sys.executable,
-            "-m",
-            "uvicorn",
+    def command_line(self) -> tuple[str, list[str]]:
+        """The program (``uvicorn`` or ``trustlab``) and its arguments."""
+        arguments = [
             self.factory,
             "--factory",
             "--host",
@@ -72,11 +83,26 @@ class ServerProcess:
             "warning",
         ]
         if self.workers > 1:
-            command += ["--workers", str(self.workers)]
-        log = self.log_path.open("ab")
-        self.process = subprocess.Popen(
-            command, env=self.env, stdout=log, stderr=log, start_new_session=True, cwd=self.source
-        )
+            arguments += ["--workers", str(self.workers)]
+        return "uvicorn", arguments
+
+    def start(self, timeout: float = 60.0) -> None:
+        """Start and wait until /healthz answers 200."""
+        program, arguments = self.command_line()
+        if self.preload:
+            self.process = Preloaded.shared().fork(
+                program, arguments, env=self.env, cwd=os.getcwd(), log=self.log_path
+            )
+        else:
+            with self.log_path.open("ab") as log:
+                self.process = subprocess.Popen(
+                    [*FRESH_PROGRAMS[program], *arguments],
+                    env=self.env,
+                    stdout=log,
+                    stderr=log,
+                    start_new_session=True,
+                    cwd=self.source,
+                )
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:

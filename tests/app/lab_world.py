@@ -15,7 +15,7 @@ from app.services import enrolment, runtime, stations, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Role
 from app.tablet import TABLET_COOKIE
-from tests.conftest import give_pre_study, make_user, sign_in
+from tests.conftest import give_pre_study, make_user, sign_in_api
 
 SYSTEM = Actor.system("policy")
 
@@ -87,5 +87,5 @@ def client_for(world: World, principal: Principal) -> TestClient:
         station = "lab-1" if principal is Principal.DEVICE_OWN else "lab-2"
         client.headers["Authorization"] = f"Bearer {world.keys[station]}"
     elif principal in (Principal.EXPERIMENTER, Principal.ANALYST, Principal.ADMIN):
-        sign_in(client, principal.value)
+        sign_in_api(client, principal.value)
     return client

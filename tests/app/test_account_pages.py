@@ -13,7 +13,7 @@ from sqlalchemy import select
 from app.db import Database
 from app.services import login_throttle
 from app.tables import AuditEvent, Role
-from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in
+from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in_api
 
 NEW_PASSWORD = "a brand new passphrase"
 
@@ -181,7 +181,7 @@ def test_everyone_changes_their_own_password(
 ) -> None:
     ada = user_client(Role.ANALYST, "ada")
     elsewhere = TestClient(app)
-    sign_in(elsewhere, "ada")
+    sign_in_api(elsewhere, "ada")
     page = ada.get("/account")
     assert page.status_code == 200 and 'action="/account/password"' in page.text
     assert 'href="/account"' in page.text  # linked from every page's header

@@ -12,9 +12,10 @@ from app.protocol import default_protocol
 from app.services import studies
 from app.settings import Settings
 from app.tables import Participant, Role
-from tests.conftest import BLINDED, UserClientFactory, protocol_text
+from tests.conftest import BLINDED, UserClientFactory, protocol_text, sqlite_only
 
 
+@sqlite_only("the OpenAPI document comes from the routes")
 def test_openapi_document_and_local_docs(client: TestClient) -> None:
     document = client.get("/api/v1/openapi.json").json()
     assert "/api/v1/studies/{name}/participants" in document["paths"]
@@ -23,6 +24,7 @@ def test_openapi_document_and_local_docs(client: TestClient) -> None:
     assert "cdn" not in docs.text.lower()
 
 
+@sqlite_only("the OpenAPI document comes from the routes")
 def test_openapi_documents_the_robot_routes_bodies(client: TestClient) -> None:
     """The robot routes answer with pre-serialised JSON (app.api.device_work.ModelResponse), so
     their bodies are documented by the routes' declared response models, not by inference."""

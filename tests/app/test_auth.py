@@ -15,7 +15,7 @@ from app.db import Database
 from app.services import accounts, users
 from app.services.audit import Actor
 from app.tables import AttemptOutcome, AuditEvent, LoginAttempt, LoginSession, Role, utcnow
-from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in
+from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in, sqlite_only
 
 
 def _login_form_token(client: TestClient) -> str:
@@ -24,6 +24,7 @@ def _login_form_token(client: TestClient) -> str:
     return match.group(1)
 
 
+@sqlite_only("no session cookie: refused before any query")
 def test_pages_and_api_require_sign_in(client: TestClient) -> None:
     page = client.get("/", follow_redirects=False)
     assert page.status_code == 303

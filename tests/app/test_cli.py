@@ -19,7 +19,7 @@ from app.cli import cli
 from app.db import Database
 from app.services import users
 from app.settings import REPO_ROOT, Settings
-from tests.conftest import protocol_text
+from tests.conftest import protocol_text, sqlite_only
 
 runner = CliRunner()
 
@@ -162,6 +162,7 @@ def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) ->
     assert sum(by["withdrawn"] for by in listed["enrolment"].values()) == 1
 
 
+@sqlite_only("the protocol file is refused before any query")
 def test_bad_protocol_file_is_one_line_per_problem(database_url: str, tmp_path: Path) -> None:
     protocol = tmp_path / "bad.toml"
     bad = {"runs_per_session = 3": "runs_per_session = 'three'", "[2, 4]": "[2, 3]"}

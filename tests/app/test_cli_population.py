@@ -11,9 +11,10 @@ from app.services.audit import Actor
 from app.tables import StudyStatus
 from tests.analysis.test_population_file import _steps
 from tests.app.test_cli import run
-from tests.conftest import Lab
+from tests.conftest import Lab, sqlite_only
 
 
+@sqlite_only("fitted from a CSV file; the stored study's fit runs on both")
 def test_fit_from_a_steps_csv_writes_a_verified_file(database_url: str, tmp_path: Path) -> None:
     csv = tmp_path / "adaptation_steps.csv"
     _steps(30).to_csv(csv, index=False)

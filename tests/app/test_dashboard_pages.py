@@ -6,13 +6,19 @@ from __future__ import annotations
 import re
 from datetime import timedelta
 
-import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select, update
 
 from app.db import Database
 from app.tables import Device, Participant, Prompt, Response, Role, StudySession, utcnow
-from tests.conftest import CSRF_INPUT, TRUST_ANSWERS, Lab, UserClientFactory, create_blinded_study
+from tests.conftest import (
+    CSRF_INPUT,
+    TRUST_ANSWERS,
+    Lab,
+    UserClientFactory,
+    create_blinded_study,
+    postgres_for_some,
+)
 
 PAGES = [
     # (path, roles that may open it)
@@ -28,7 +34,12 @@ PAGES = [
 ]
 
 
-@pytest.mark.parametrize("role", ["anonymous", "analyst", "experimenter", "admin"])
+@postgres_for_some(
+    "role",
+    ["anonymous", "analyst", "experimenter", "admin"],
+    ids=["anonymous", "analyst", "experimenter", "admin"],
+    postgres={"admin"},  # renders every page; who may see what is decided before any query
+)
 def test_who_may_open_each_page(
     lab: Lab, app: object, user_client: UserClientFactory, role: str
 ) -> None:

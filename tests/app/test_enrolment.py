@@ -21,7 +21,7 @@ from app.randomisation import entry_at
 from app.services import audit, enrolment, studies
 from app.services.audit import Actor
 from app.tables import Allocation, AuditEvent, Participant, Role, StudyStatus
-from tests.conftest import Lab, UserClientFactory, protocol_text
+from tests.conftest import Lab, UserClientFactory, protocol_text, sqlite_only
 
 ACTOR = Actor.command_line()
 
@@ -126,6 +126,7 @@ def test_no_page_export_or_log_places_an_allocation_before_the_study_closes(
 
 
 @pytest.mark.parametrize("code", ["", " ", "x" * 33, "a b", "-lead", "P1;drop"])
+@sqlite_only("a malformed code is refused before any query")
 def test_malformed_codes_are_refused(database: Database, study_name: str, code: str) -> None:
     with pytest.raises(InvalidInput, match="participant code"):
         _enrol(database, study_name, code=code)

@@ -5,9 +5,6 @@ address the sign-in throttle counts."""
 from __future__ import annotations
 
 import shutil
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -23,7 +20,7 @@ from app.main import create_app
 from app.settings import Settings
 from app.tables import LoginAttempt, Role
 from app.tablet import TABLET_COOKIE
-from tests.conftest import PASSWORD, Lab, UserClientFactory, make_user
+from tests.conftest import PASSWORD, Lab, UserClientFactory, make_user, sqlite_only
 from tests.servers import ServerProcess
 
 SPOOFED = "203.0.113.9"
@@ -56,6 +53,7 @@ def test_trusted_proxies_are_addresses_or_networks(monkeypatch: pytest.MonkeyPat
         (("127.0.0.1", "10.0.0.0/8"), f"198.51.100.1, {SPOOFED}, 10.2.3.4", SPOOFED),
     ],
 )
+@sqlite_only("which address counts is decided from the headers; storing it is tested elsewhere")
 def test_the_throttle_counts_the_forwarded_address_only_from_trusted_proxies(
     settings: Settings,
     database: Database,
@@ -75,6 +73,7 @@ def test_the_throttle_counts_the_forwarded_address_only_from_trusted_proxies(
 
 
 @pytest.mark.parametrize(("trusted", "secure"), [((), False), (("127.0.0.1",), True)])
+@sqlite_only("headers, not storage")
 def test_the_forwarded_scheme_counts_only_from_trusted_proxies(
     settings: Settings, database: Database, trusted: tuple[str, ...], secure: bool
 ) -> None:
@@ -136,28 +135,8 @@ class TrustlabServe(ServerProcess):
     """``trustlab serve`` itself (ServerProcess runs uvicorn's own command line, whose defaults
     trust X-Forwarded-For from loopback)."""
 
-    def start(self, timeout: float = 60.0) -> None:
-        """Start and wait until /healthz answers 200."""
-        command = [sys.executable, "-c", "from app.cli import main; main()", "serve"]
-        log = self.log_path.open("ab")
-        self.process = subprocess.Popen(
-            [*command, "--host", "127.0.0.1", "--port", str(self.port)],
-            env=self.env,
-            stdout=log,
-            stderr=log,
-            start_new_session=True,
-        )
-        deadline = time.monotonic() + timeout  # a guard against a hang, not a timing assumption
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"server exited early: {self.log_path.read_text()[-2000:]}")
-            try:
-                if httpx.get(f"{self.url}/healthz", timeout=1.0).status_code == 200:
-                    return
-            except httpx.TransportError:
-                pass
-            time.sleep(0.1)
-        raise RuntimeError(f"server did not start: {self.log_path.read_text()[-2000:]}")
+    def command_line(self) -> tuple[str, list[str]]:
+        return "trustlab", ["serve", "--host", "127.0.0.1", "--port", str(self.port)]
 
 
 @contextmanager

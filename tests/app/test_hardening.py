@@ -14,9 +14,18 @@ from typer.testing import CliRunner
 from app.cli import cli
 from app.db import Database
 from app.tables import AuditEvent, Participant, Role, Study
-from tests.conftest import CSRF_INPUT, PASSWORD, TRUST_ANSWERS, Lab, UserClientFactory, make_user
+from tests.conftest import (
+    CSRF_INPUT,
+    PASSWORD,
+    TRUST_ANSWERS,
+    Lab,
+    UserClientFactory,
+    make_user,
+    sqlite_only,
+)
 
 
+@sqlite_only("the body limit answers before any route runs")
 def test_oversized_bodies_get_a_json_413(client: TestClient) -> None:
     declared = client.post(
         "/api/v1/session",
@@ -36,6 +45,7 @@ def test_oversized_bodies_get_a_json_413(client: TestClient) -> None:
     assert streamed.status_code == 413
 
 
+@sqlite_only("the body is refused by its schema, before any query")
 def test_malformed_wrong_typed_unknown_and_overlong_input_get_one_clear_422(
     user_client: UserClientFactory,
 ) -> None:

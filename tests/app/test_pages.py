@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from app.inputs import STUDY_NAME
 from app.protocol import default_protocol
 from app.tables import Role
-from tests.conftest import UserClientFactory, protocol_text
+from tests.conftest import UserClientFactory, protocol_text, sqlite_only
 
 
 def test_empty_state_says_what_to_do(user_client: UserClientFactory) -> None:
@@ -121,6 +121,7 @@ def test_unknown_pages_and_studies_render_html_errors(user_client: UserClientFac
     assert nowhere.status_code == 404 and "Not found" in nowhere.text
 
 
+@sqlite_only("headers, not storage")
 def test_security_headers(client: TestClient) -> None:
     headers = client.get("/login").headers
     policy = headers["content-security-policy"]

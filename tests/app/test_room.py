@@ -12,7 +12,7 @@ from sqlalchemy import select
 from app.protocol import ProtocolError, default_protocol, parse_protocol
 from app.room import check_room, default_room
 from app.tables import Answer, Prompt, Role
-from tests.conftest import Lab, UserClientFactory, protocol_text
+from tests.conftest import Lab, UserClientFactory, protocol_text, sqlite_only
 
 ZONES = """zones = [
     { category = "conation", x = 1.92, z = 5.0, radius = 0.7 },
@@ -97,6 +97,7 @@ def test_a_room_point_outside_the_maze_and_a_bad_number_are_refused() -> None:
         parse_protocol(protocol_text(**{"width = 8.0": "width = nan"}))
 
 
+@sqlite_only("the protocol is refused before anything is stored")
 def test_study_creation_refuses_a_bad_room(user_client: UserClientFactory) -> None:
     admin = user_client(Role.ADMIN)
     bad = protocol_text(**{ZONES: ZONES.replace('category = "cognition"', 'category = "x"')})
@@ -178,6 +179,7 @@ def test_zone_and_how_answered_are_stored_once(lab: Lab) -> None:
         ),
     ],
 )
+@sqlite_only("the answer's body is refused by its schema, before any query")
 def test_an_answer_with_a_bad_account_of_itself_is_refused(
     lab: Lab, body: dict[str, object], problem: str
 ) -> None:
@@ -194,6 +196,7 @@ def test_an_answer_with_a_bad_account_of_itself_is_refused(
         assert db.scalars(select(Answer)).all() == []
 
 
+@sqlite_only("the zone's name is refused by its schema, before any query")
 def test_a_bad_zone_name_is_refused(lab: Lab) -> None:
     lab.enrol_and_assign("P001")
     lab.start_session()

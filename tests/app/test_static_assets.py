@@ -13,7 +13,7 @@ from starlette.applications import Starlette
 
 from app.tables import Role
 from app.web.assets import IMMUTABLE, REVALIDATE, VersionedStaticFiles, asset, content_version
-from tests.conftest import Lab, UserClientFactory
+from tests.conftest import Lab, UserClientFactory, sqlite_only
 
 LINK = re.compile(r'(?:src|href)="(/static/[^"]+)"')
 ICON = re.compile(r'<link rel="icon" href="(/static/[^"]+)"')
@@ -66,6 +66,7 @@ def test_paths_outside_the_directory_have_no_version(served: tuple[Path, TestCli
         asset("js/no-such-script.js")
 
 
+@sqlite_only("files and links, not storage")
 def test_staff_pages_link_every_static_file_by_version(
     lab: Lab, user_client: UserClientFactory
 ) -> None:

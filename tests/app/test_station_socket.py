@@ -17,7 +17,7 @@ from app.security import token_digest
 from app.services.audit import Actor
 from app.services.stations import revoke_device
 from app.tables import Device, Role
-from tests.conftest import Lab, UserClientFactory
+from tests.conftest import Lab, UserClientFactory, postgres_for_some, sqlite_only
 
 SOCKET = "/api/v1/station/ws"
 
@@ -154,6 +154,7 @@ UNREADABLE_FRAMES: list[tuple[str, Any, str]] = [
 
 
 @pytest.mark.parametrize(("kind", "frame", "detail"), UNREADABLE_FRAMES, ids=lambda v: str(v)[:8])
+@sqlite_only("a frame that cannot be read is answered before any query")
 def test_an_unreadable_frame_is_answered_and_the_socket_stays_open(
     lab: Lab, kind: str, frame: Any, detail: str
 ) -> None:
@@ -171,8 +172,8 @@ def test_an_unreadable_frame_is_answered_and_the_socket_stays_open(
         assert _receive(ws, "result")["id"] == "after"
 
 
-@pytest.mark.parametrize(
-    ("json_step_id", "path_step_id"),
+@postgres_for_some(
+    "json_step_id, path_step_id",
     [
         ("true", "true"),
         ("8.0", "8.0"),
@@ -195,6 +196,7 @@ def test_an_unreadable_frame_is_answered_and_the_socket_stays_open(
         "2^63",
         "5000-digits",
     ],
+    postgres={"2^63"},  # past a bigint: were it let through, each engine would fail its own way
 )
 def test_a_step_id_rest_refuses_is_a_422_with_the_request_id(
     lab: Lab, json_step_id: str, path_step_id: str
@@ -220,6 +222,7 @@ def test_a_step_id_rest_refuses_is_a_422_with_the_request_id(
     assert lab.robot.get("/api/v1/station").json()["open_prompts"], "nothing was answered"
 
 
+@sqlite_only("an id that cannot be echoed is refused before any query")
 def test_an_id_that_cannot_be_echoed_is_dropped_not_fatal(lab: Lab) -> None:
     with lab.robot.websocket_connect(SOCKET) as ws:
         ws.receive_json()
@@ -230,8 +233,8 @@ def test_an_id_that_cannot_be_echoed_is_dropped_not_fatal(lab: Lab) -> None:
         assert _receive(ws, "error")["status"] == 422
 
 
-@pytest.mark.parametrize(
-    ("frame", "reason"),
+@postgres_for_some(
+    "frame, reason",
     [
         (b"\x00", "binary frames are not supported"),
         ("[" * 100_000, "nested too deeply"),
@@ -241,6 +244,7 @@ def test_an_id_that_cannot_be_echoed_is_dropped_not_fatal(lab: Lab) -> None:
         ('{"type": "auth", "key": "tlk_wrong"}', "unknown or revoked device key"),
     ],
     ids=["binary", "nested", "long-number", "not-auth", "not-object", "wrong-key"],
+    postgres={"long-number", "wrong-key"},  # the two that look a key up; the rest never get there
 )
 def test_a_bad_first_message_closes_with_4401_and_the_reason(
     app: FastAPI, lab: Lab, frame: Any, reason: str
