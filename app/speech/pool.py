@@ -69,6 +69,10 @@ def offline_recognizer(vocabulary: Vocabulary) -> RecognizerLike:
         raise RecognitionUnavailable(
             f"offline speech recognition is unavailable on this server: {exc}"
         ) from None
+    except ValueError as exc:  # e.g. a phrase the recogniser's dictionary cannot pronounce
+        raise RecognitionUnavailable(
+            f"the offline recogniser cannot take this study: {exc}"
+        ) from None
     return recognizer
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import io
+import shutil
+import subprocess
 import tempfile
 import uuid
 import wave
@@ -28,7 +30,9 @@ from app.protocol import ProtocolError, parse_protocol
 from app.services import studies
 from app.services.audit import Actor
 from app.speech.pool import RecognitionUnavailable, RecognizerPool
+from app.speech.synthesis import with_true_sizes
 from app.speech.vocabulary import Vocabulary
+from app.speech.wav import decode_wav
 from app.tables import Answer, AnswerAudio
 from tests.conftest import EXP3_ONLY, Lab, protocol_text
 
@@ -452,3 +456,40 @@ def test_an_answer_names_its_engine_only_when_spoken(lab: Lab) -> None:
     )
     assert spoken.status_code == 200, spoken.text
     assert [a.transcript_engine for a in _answers(lab)] == ["browser"]
+
+
+@pytest.fixture(scope="module")
+def spoken_yes() -> bytes:
+    """ "Yes" said by espeak-ng, as 16 kHz PCM with silence either side (a participant's answer)."""
+    if shutil.which("espeak-ng") is None:
+        pytest.skip("espeak-ng is not installed (apt-get install espeak-ng)")
+    said = subprocess.run(
+        ["espeak-ng", "-v", "en-us", "-s", "150", "--stdout"],
+        input=b"yes",
+        capture_output=True,
+        timeout=30,
+        check=True,
+    ).stdout
+    pause = bytes(int(0.5 * 16000) * 2)
+    return pause + decode_wav(with_true_sizes(said)) + pause + pause
+
+
+@pytest.mark.timeout(120)
+def test_the_offline_recogniser_hears_a_streamed_yes(lab: Lab, spoken_yes: bytes) -> None:
+    """The shipped recogniser behind the socket: a synthetic "yes" streamed in 100 ms frames is
+    heard at the end of speech and recorded with the engine's name."""
+    lab.enrol_and_assign()
+    lab.start_session()
+    step = _open_step(lab)
+    with lab.robot.websocket_connect(AUDIO) as ws:
+        _receive(ws, "hello")
+        ws.send_json({"type": "start", "id": 1, "step_id": step})
+        _receive(ws, "listening")
+        for at in range(0, len(spoken_yes), FRAME):
+            ws.send_bytes(spoken_yes[at : at + FRAME])
+        answered = _receive(ws, "answer")
+    assert answered["data"]["answer"] == "yes"
+    assert answered["heard"]["engine"].startswith("pocketsphinx")
+    (stored,) = _answers(lab)
+    assert (stored.answer, stored.modality, stored.transcript) == (True, "speech", "yes")
+    assert stored.transcript_engine == answered["heard"]["engine"]

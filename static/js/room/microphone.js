@@ -193,7 +193,9 @@ export class ServerListener {
         active.settle({ ...heard, answer: message.data.answer, recorded: message.data });
         break;
       case "unclear":
-        active.settle(heard.transcript ? { ...heard, answer: null, recorded: null } : null);
+        // Silence counts as nothing heard. Otherwise the room asks again without showing the
+        // words: an offline grammar's transcript is the phrase nearest to what was said, not it.
+        active.settle(heard.transcript ? { ...heard, transcript: "", answer: null, recorded: null } : null);
         break;
       case "error":
         if (message.status === 503) this.unavailable = true; // no recogniser: the buttons remain
