@@ -276,7 +276,7 @@ def test_more_audio_than_the_protocol_allows_is_cut_off(
     lab: Lab, recognizer: ScriptedRecognizer
 ) -> None:
     limited = _seated_in(
-        lab, "limited", **{"listen_seconds = 8.0": "listen_seconds = 8.0\nmax_answer_seconds = 0.5"}
+        lab, "limited", **{"max_answer_seconds = 15.0": "max_answer_seconds = 0.5"}
     )
     step = _open_step(limited)
     recognizer.script.append(Heard("yes", "yes", 0.9))
@@ -340,7 +340,7 @@ def test_without_an_offline_recogniser_the_room_is_told_in_one_line(lab: Lab) ->
 RECORDING_CONSENT = {
     "that you agree to take part.": "that you agree to take part. Your spoken answers are "
     "recorded as audio and stored under your code.",
-    "listen_seconds = 8.0": "listen_seconds = 8.0\nrecord_audio = true",
+    "record_audio = false": "record_audio = true",
 }
 
 
@@ -372,7 +372,7 @@ def test_a_recording_study_stores_each_answers_audio(
 
 
 def test_recording_without_a_consent_mention_is_refused() -> None:
-    text = protocol_text(**{"listen_seconds = 8.0": "listen_seconds = 8.0\nrecord_audio = true"})
+    text = protocol_text(**{"record_audio = false": "record_audio = true"})
     with pytest.raises(ProtocolError) as refused:
         parse_protocol(text, source="lab.toml")
     assert "speech.record_audio" in str(refused.value)

@@ -37,7 +37,7 @@ SHORT_PROTOCOL = {"runs_per_session = 3": "runs_per_session = 2"}
 SHORT_PROTOCOL |= {"familiarisation_run = true": "familiarisation_run = false"}
 CLOUD_STUDY = "cloud"
 """A study whose protocol allows the browser's own (cloud) recogniser."""
-CLOUD_PROTOCOL = {"listen_seconds = 8.0": "listen_seconds = 8.0\ncloud_recognizer = true"}
+CLOUD_PROTOCOL = {"cloud_recognizer = false": "cloud_recognizer = true"}
 SEATS = itertools.count(1)
 DESKTOP = {"width": 1366, "height": 768}
 
