@@ -515,6 +515,8 @@ function refuse(problem) {
   room.promptInFlight = null;
   room.resumed = false;
   closeQuestion();
+  if (room.listener.close) room.listener.close(); // its socket and the microphone too
+  room.listener = NOT_LISTENING;
   el("captions").hidden = true;
   el("run-label").textContent = "Escape room";
   el("run-label").classList.remove("practice");
@@ -577,6 +579,7 @@ async function loadSpeech() {
     return; // the network: the room listens with the defaults once it is back and reloaded
   }
   room.listener.stop();
+  if (room.listener.close) room.listener.close();
   const browser = new Listener(LISTEN && room.speech.cloud_recognizer);
   if (browser.available) {
     room.listener = browser;

@@ -76,6 +76,7 @@ export class ServerListener {
     this.ready = null; // a promise of the greeted socket
     this.active = null; // {id, settle, streaming, timer}
     this.nextId = 1;
+    this.calls = 0; // listen() calls and stops: a stale one gives up
     this.unavailable = false; // the server said it cannot recognise (503)
   }
 
@@ -89,9 +90,11 @@ export class ServerListener {
    * answer; ``answer`` is null for anything unclear (the room asks again). */
   async listen(stepId, { seconds = 8, idempotencyKey } = {}) {
     this.stop();
+    const call = ++this.calls;
     if (!this.available || !(await this.microphone.open())) return null;
     const socket = await this._connect();
-    if (!socket) return null;
+    // stopped (or listening again) while the permission prompt or the connection was pending
+    if (!socket || call !== this.calls) return null;
     return new Promise((resolve) => {
       const id = this.nextId++;
       const active = { id, streaming: false, timer: null, settle: null };
@@ -117,10 +120,19 @@ export class ServerListener {
 
   /** Stop listening; the server drops the audio unheard. */
   stop() {
+    this.calls += 1; // a listen still waiting for the microphone or the socket gives up
     const active = this.active;
     if (!active) return;
     active.settle(null);
     this._send({ type: "cancel", id: active.id });
+  }
+
+  /** Stop for good: the socket and the microphone are closed (the room was closed). */
+  close() {
+    this.stop();
+    this.enabled = false;
+    if (this.socket) this.socket.close(1000, "room closed");
+    this.microphone.close();
   }
 
   _chunk(buffer) {
