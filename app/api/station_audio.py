@@ -231,11 +231,22 @@ class _AudioConnection:
         elif isinstance(message, StopMessage):
             await self.stop(message)
         else:
-            self.listening = None
+            await self.drop()
             await self.send({"type": "cancelled", "id": message.id})
 
+    async def drop(self) -> None:
+        """Forget the answer being listened to, unheard: its audio goes with it.
+
+        The utterance is still finished (in a worker thread, its result unused), which gives its
+        decoders back to the recogniser's pool: a dropped one would cost the next answer a
+        model load."""
+        listening, self.listening = self.listening, None
+        if listening is not None:
+            with contextlib.suppress(Exception):
+                await run_in_threadpool(listening.utterance.finish)
+
     async def start(self, message: StartMessage) -> None:
-        self.listening = None  # a new start replaces whatever was being listened to
+        await self.drop()  # a new start replaces whatever was being listened to
 
         def look(db: Any, device: DeviceSeat) -> tuple[SpeechOut, list[int]]:
             speech = station_ops.speech(db, station=device.seat)
@@ -298,7 +309,7 @@ class _AudioConnection:
             return
         listening.received += len(pcm)
         if listening.received > listening.limit:
-            self.listening = None
+            await self.drop()
             self.quiet_until_next_message = True
             await self.send_error(
                 listening.request_id,
@@ -392,5 +403,8 @@ async def station_audio(websocket: WebSocket) -> None:
     if device is None:
         return
     connection = _AudioConnection(websocket, device)
-    with contextlib.suppress(WebSocketDisconnect):
-        await connection.serve()
+    try:
+        with contextlib.suppress(WebSocketDisconnect):
+            await connection.serve()
+    finally:
+        await connection.drop()

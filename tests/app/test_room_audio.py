@@ -63,6 +63,7 @@ class Heard:
 class ScriptedUtterance:
     script: list[Heard]
     loops_seen: list[bool]
+    finished: list[ScriptedUtterance]
     spoke: bool = False
     ended: bool = False
 
@@ -82,6 +83,7 @@ class ScriptedUtterance:
         return self.ended
 
     def finish(self) -> Heard:
+        self.finished.append(self)  # the real one gives its decoders back to the pool here
         return self.script.pop(0) if self.spoke else Heard(None, "", 0.0)
 
 
@@ -92,9 +94,10 @@ class ScriptedRecognizer:
     script: list[Heard] = field(default_factory=list)
     vocabularies: list[Vocabulary] = field(default_factory=list)
     loops_seen: list[bool] = field(default_factory=list)
+    finished: list[ScriptedUtterance] = field(default_factory=list)
 
     def utterance(self) -> ScriptedUtterance:
-        return ScriptedUtterance(self.script, self.loops_seen)
+        return ScriptedUtterance(self.script, self.loops_seen, self.finished)
 
 
 @pytest.fixture
@@ -279,7 +282,7 @@ def test_more_audio_than_the_protocol_allows_is_cut_off(
         lab, "limited", **{"max_answer_seconds = 15.0": "max_answer_seconds = 0.5"}
     )
     step = _open_step(limited)
-    recognizer.script.append(Heard("yes", "yes", 0.9))
+    recognizer.script += [Heard("no", "no", 0.9), Heard("yes", "yes", 0.9)]
     with limited.robot.websocket_connect(AUDIO) as ws:
         _receive(ws, "hello")
         ws.send_json({"type": "start", "id": 1, "step_id": step})
@@ -289,6 +292,7 @@ def test_more_audio_than_the_protocol_allows_is_cut_off(
         cut = _receive(ws, "error")
         assert (cut["id"], cut["status"]) == (1, 413)
         assert "cut off: more than 0.5 s of audio for one answer" in cut["detail"]
+        assert len(recognizer.finished) == 1  # dropped unheard, its decoders given back
         ws.send_bytes(SILENCE)  # the rest of what the client sent before it heard: dropped quietly
         ws.send_json({"type": "ping", "id": 2})
         assert _receive(ws, "pong")["id"] == 2
