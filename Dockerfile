@@ -17,7 +17,7 @@ RUN npm ci --ignore-scripts --no-audit --no-fund --loglevel=error \
 FROM python:3.11-slim
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_DISABLE_PIP_VERSION_CHECK=1
 RUN apt-get update \
- && apt-get install -y --no-install-recommends postgresql-client \
+ && apt-get install -y --no-install-recommends postgresql-client espeak-ng \
  && rm -rf /var/lib/apt/lists/* \
  && useradd --system --create-home --home-dir /srv/trustlab trustlab
 WORKDIR /srv/trustlab

@@ -88,6 +88,9 @@ class ProtocolSummary(TypedDict):
     reply_levels: NotRequired[list[str]]
     """Names of the robot's reply levels, least to most confident (the step log's
     ``reply_level`` indexes them)."""
+    record_audio: NotRequired[bool]
+    """Whether the participants' spoken answers were recorded as audio (``[speech]
+    record_audio``; the codebook lists the recordings)."""
     population: NotRequired[dict[str, Any]]
     """The population C2 was meta-trained for (issue 20): ``sha256``, ``source`` (in words),
     ``enrolling_reason`` and per category ``participants``, ``prior``, ``prior_ci``, ``slip``,

@@ -16,7 +16,7 @@ from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from app import collector
 from app.activity import ActivityRecorder
-from app.api import health, session, station, station_ws, stations, tablet
+from app.api import health, session, station, station_audio, station_ws, stations, tablet
 from app.api import studies as studies_api
 from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
@@ -25,6 +25,8 @@ from app.http import BodyLimit, SecurityHeaders, install_error_handlers
 from app.services import login_throttle
 from app.services.freshness import FreshnessCache
 from app.settings import Settings
+from app.speech.pool import RecognizerPool
+from app.speech.synthesis import Synthesiser
 from app.web import (
     accounts,
     admin,
@@ -117,6 +119,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.database = database
     app.state.activity = activity
+    app.state.synthesiser = Synthesiser()
+    app.state.recognizers = RecognizerPool()
     app.state.dashboard_data = FreshnessCache(
         max_age=DASHBOARD_DATA_MAX_AGE, min_interval=DASHBOARD_DATA_MIN_INTERVAL
     )
@@ -127,6 +131,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for resource in (
         station.router,
         station_ws.router,
+        station_audio.router,
         session.router,
         studies_api.router,
         stations.router,

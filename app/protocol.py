@@ -273,6 +273,23 @@ class SpeechSpec(_Strict):
         description="A gesture per reply level name, made with the reply (robot-specific names; "
         "none by default).",
     )
+    max_answer_seconds: float = Field(
+        default=15.0,
+        gt=0.0,
+        le=60.0,
+        description="The most audio the server takes for one answer (the browser room streams "
+        "its microphone); a client that sends more is cut off.",
+    )
+    cloud_recognizer: bool = Field(
+        default=False,
+        description="Whether the browser room may use the browser's own recogniser, which in "
+        "Chrome and Edge sends the voice to a cloud service; off: the trustlab server recognises.",
+    )
+    record_audio: bool = Field(
+        default=False,
+        description="Store the audio of each spoken answer with it (the consent text must say "
+        "so); off: audio is processed in memory only and never stored.",
+    )
 
 
 class RewardSpec(_Strict):
@@ -596,8 +613,21 @@ def _check_exact_filter(protocol: Protocol) -> list[Problem]:
     return [Problem(_FEEDBACK_KEYS[key], f"{who}: {why}") for key, why in exact.unsupported(model)]
 
 
+_RECORDING = re.compile(r"\brecord", re.IGNORECASE)
+_AUDIO = re.compile(r"\b(audio|voice|speech|sound)", re.IGNORECASE)
+
+
+def mentions_audio_recording(consent: str) -> bool:
+    """Whether a consent text says the participant's voice is recorded: a form of "record"
+    and of "audio", "voice", "speech" or "sound" in one sentence. A lab that records must say so
+    where participants agree; a word search cannot judge the wording, only that it is there."""
+    sentences = re.split(r"(?<=[.!?;:])\s+|\n\s*\n", consent)
+    return any(_RECORDING.search(s) and _AUDIO.search(s) for s in sentences)
+
+
 def _check_speech(protocol: Protocol) -> list[Problem]:
-    """A phrase must mean one answer only, and a gesture must belong to a reply level."""
+    """A phrase must mean one answer only, a gesture must belong to a reply level, and recording
+    audio needs the consent text to say so."""
     speech, problems = protocol.speech, []
     yes = {normalise(phrase) for phrase in speech.yes}
     for side, phrases in (("yes", speech.yes), ("no", speech.no)):
@@ -606,6 +636,14 @@ def _check_speech(protocol: Protocol) -> list[Problem]:
                 problems.append(Problem(f"speech.{side}[{index}]", "a phrase needs letters"))
             elif side == "no" and normalise(phrase) in yes:
                 problems.append(Problem(f"speech.no[{index}]", f"{phrase!r} is a yes phrase too"))
+    if speech.record_audio and not mentions_audio_recording(protocol.questionnaires.consent.text):
+        problems.append(
+            Problem(
+                "speech.record_audio",
+                "the consent text (questionnaires.consent.text) must tell participants that "
+                "their voice is recorded: mention the audio (or voice) recording",
+            )
+        )
     levels = [level.name for level in protocol.replies.levels]
     for name in speech.gestures:
         if name not in levels:

@@ -20,6 +20,7 @@ from sqlalchemy import (
     ForeignKey,
     Index,
     Integer,
+    LargeBinary,
     MetaData,
     String,
     Text,
@@ -478,6 +479,25 @@ class Answer(Base):
     transcript_confidence: Mapped[float | None] = mapped_column(
         doc="For speech: the recogniser's confidence in them (0-1)."
     )
+    transcript_engine: Mapped[str | None] = mapped_column(
+        String(60), doc="For speech: the recogniser that heard them (e.g. 'browser')."
+    )
+
+
+class AnswerAudio(Base):
+    """The participant's recorded voice for one spoken answer: only when the study's protocol
+    sets ``[speech] record_audio = true`` (its consent text must say so). Without it, audio is
+    processed in memory and no row is ever written here."""
+
+    __tablename__ = "answer_audio"
+
+    answer_id: Mapped[int] = mapped_column(ForeignKey("answer.id"), primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    wav: Mapped[bytes] = mapped_column(
+        LargeBinary, doc="The utterance the answer was recognised from: a 16 kHz mono WAV file."
+    )
+    seconds: Mapped[float] = mapped_column(doc="Its length.")
+    recorded_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
 class Response(Base):

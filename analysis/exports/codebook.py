@@ -231,9 +231,28 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
             _plain_entry("steps", f"p_{when}_{j}", f"Probability of arm {j} {text}", "numeric")
             for j in range(arms)
         ]
+    if dataset.protocol.get("record_audio"):
+        rows.append(_recordings_entry())
     out = pd.DataFrame(rows, columns=list(CODEBOOK_COLUMNS))
     out["session"] = out["session"].astype("Int64")
     return _with_csv_rule(out)
+
+
+def _recordings_entry() -> dict[str, Any]:
+    """The recorded voices of a study that records them (``[speech] record_audio``): not in the
+    exported files, but part of the study's data, so the codebook says where they are."""
+    entry = _plain_entry(
+        "recordings",
+        "wav",
+        "The participant's voice for each spoken answer: the utterance the answer was "
+        "recognised from (WAV, 16 kHz, mono, 16-bit)",
+        "binary",
+    )
+    entry["derivation"] = (
+        "Kept in the database table answer_audio, one row per recognised spoken answer "
+        "(answer_id, participant_id, wav, seconds, recorded_at); unclear attempts are not kept."
+    )
+    return entry
 
 
 def _with_csv_rule(book: pd.DataFrame) -> pd.DataFrame:

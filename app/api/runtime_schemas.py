@@ -64,13 +64,23 @@ class AnswerRequest(RequestBody):
         allow_inf_nan=False,
         description="With modality speech: the recogniser's confidence (0-1).",
     )
+    transcript_engine: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=60,
+        description="With modality speech: which recogniser heard it (e.g. 'pocketsphinx 5.0.3' "
+        "or 'browser').",
+    )
 
     @model_validator(mode="after")
     def _speech_only(self) -> AnswerRequest:
         """A transcript belongs to a spoken answer: anything else is a client's mistake."""
-        spoken = self.transcript is not None or self.transcript_confidence is not None
-        if spoken and self.modality != "speech":
-            raise ValueError("transcript and transcript_confidence come with modality 'speech'")
+        spoken = (self.transcript, self.transcript_confidence, self.transcript_engine)
+        if any(field is not None for field in spoken) and self.modality != "speech":
+            raise ValueError(
+                "transcript, transcript_confidence and transcript_engine come with modality "
+                "'speech'"
+            )
         return self
 
 

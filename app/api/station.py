@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, Response, status
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request, Response, status
+from starlette.concurrency import run_in_threadpool
 
 from app.api import station_ops
 from app.api.device_work import DeviceKey, ModelResponse, as_device, device_actor
@@ -18,6 +21,7 @@ from app.api.runtime_schemas import (
     StationStateOut,
     StepIdPath,
 )
+from app.speech.synthesis import Synthesiser
 
 router = APIRouter(prefix="/station", tags=["robot"])
 
@@ -58,6 +62,33 @@ async def get_speech(request: Request, key: DeviceKey) -> ModelResponse:
         op=lambda db, device: station_ops.speech(db, station=device.seat),
     )
     return ModelResponse(out)
+
+
+@router.get(
+    "/speech/audio",
+    response_class=Response,
+    responses={
+        200: {"content": {"audio/wav": {}}, "description": "The line spoken, as a WAV file."},
+        503: {"description": "The server cannot synthesise speech (espeak-ng is missing)."},
+    },
+)
+async def get_spoken_line(
+    request: Request,
+    key: DeviceKey,
+    text: Annotated[str, Query(min_length=1, max_length=2000, description="The line to say.")],
+) -> Response:
+    """A line of the study this station runs, spoken (for a room client whose browser has no
+    voices): its questions, replies, request to answer again and rules only; any other text is a
+    404. Synthesised on the server with espeak-ng, once per line."""
+    await as_device(
+        request.app,
+        key,
+        write=False,
+        op=lambda db, device: station_ops.check_spoken_line(db, station=device.seat, text=text),
+    )
+    synthesiser: Synthesiser = request.app.state.synthesiser
+    wav = await run_in_threadpool(synthesiser.wav, text)
+    return Response(wav, media_type="audio/wav")
 
 
 @router.post(

@@ -24,11 +24,12 @@ from app.api.runtime_schemas import (
     StaffStationStateOut,
     StationStateOut,
 )
-from app.errors import Conflict
-from app.services import room_presence, runtime, stations
+from app.errors import Conflict, NotFound
+from app.services import answer_audio, room_presence, runtime, stations
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.services.studies import protocol_of
+from app.speech.lines import spoken_lines
 from app.tables import Device, Station, Study
 
 StationRef = str | Seat
@@ -78,6 +79,17 @@ def speech(db: Session, *, station: Seat) -> SpeechOut:
     """How a robot that hears takes answers in the study the station runs (same rule as room)."""
     study = _study_run_by(db, station)
     return SpeechOut(study=study.name, **protocol_of(study).speech.model_dump())
+
+
+def check_spoken_line(db: Session, *, station: Seat, text: str) -> None:
+    """Refuse (404) a line the study the station runs never says (same rule as room): the server
+    synthesises its robot's lines, not any text a device sends."""
+    study = _study_run_by(db, station)
+    if text not in spoken_lines(protocol_of(study)):
+        raise NotFound(
+            f"not a line of study {study.name!r}: the server speaks only its questions, replies, "
+            "request to answer again and rules"
+        )
 
 
 def presence(db: Session, *, station: Seat, device_id: int, body: PresenceRequest) -> None:
@@ -152,7 +164,9 @@ def _answer(
         actor=actor,
         device_id=device_id,
         seat=loaded,
-        heard=runtime.HowAnswered(body.modality, body.transcript, body.transcript_confidence),
+        heard=runtime.HowAnswered(
+            body.modality, body.transcript, body.transcript_confidence, body.transcript_engine
+        ),
     )
     return result, answer_out(result, result.expected)
 
@@ -168,6 +182,24 @@ def answer(
 ) -> AnswerOut:
     """Record an answer exactly once and return the reply."""
     return _answer(db, station, step_id, body, actor, device_id)[1]
+
+
+def spoken_answer(
+    db: Session,
+    *,
+    station: Seat,
+    step_id: int,
+    body: AnswerRequest,
+    actor: Actor,
+    device_id: int,
+    recording: bytes | None,
+) -> AnswerOut:
+    """:func:`answer` for an answer the server recognised from the room's audio; ``recording``:
+    the utterance's audio, stored with the answer (only where the study records audio)."""
+    result, out = _answer(db, station, step_id, body, actor, device_id)
+    if recording is not None:
+        answer_audio.store(db, answer_id=result.answer.id, pcm=recording)
+    return out
 
 
 def wizard_answer(

@@ -119,7 +119,9 @@ _parse = TypeAdapter(ClientMessage)
 
 
 @dataclass(frozen=True)
-class _Device:
+class AuthenticatedDevice:
+    """A device whose key was accepted: its key, id and station."""
+
     key: str
     id: int
     station: str
@@ -172,10 +174,10 @@ async def receive_frame(websocket: WebSocket) -> str | None:
     return text if isinstance(text, str) else None
 
 
-def _authenticate(database: Database, key: str) -> _Device:
+def _authenticate(database: Database, key: str) -> AuthenticatedDevice:
     with database.read_session() as db:
         device = stations.authenticate_seat(db, key=key)
-        return _Device(
+        return AuthenticatedDevice(
             key=key,
             id=device.device_id,
             station=device.seat.station_name,
@@ -183,7 +185,7 @@ def _authenticate(database: Database, key: str) -> _Device:
         )
 
 
-def _describe(exc: ValidationError) -> str:
+def describe_invalid(exc: ValidationError) -> str:
     parts = []
     for error in exc.errors()[:5]:
         location = ".".join(str(p) for p in error.get("loc", ()))
@@ -193,7 +195,11 @@ def _describe(exc: ValidationError) -> str:
 
 class _Connection:
     def __init__(
-        self, websocket: WebSocket, database: Database, device: _Device, heartbeat: float
+        self,
+        websocket: WebSocket,
+        database: Database,
+        device: AuthenticatedDevice,
+        heartbeat: float,
     ) -> None:
         self.websocket = websocket
         self.database = database
@@ -244,7 +250,7 @@ class _Connection:
             await self.send_error(None, 400, exc.detail)
             return True
         except ValidationError as exc:
-            await self.send_error(request_id, 422, _describe(exc))
+            await self.send_error(request_id, 422, describe_invalid(exc))
             return True
         if isinstance(message, PingMessage):
             if message.type == "ping":
@@ -308,6 +314,7 @@ class _Connection:
                 modality=message.modality,
                 transcript=message.transcript,
                 transcript_confidence=message.transcript_confidence,
+                transcript_engine=message.transcript_engine,
             )
             step_id = message.step_id
 
@@ -417,11 +424,11 @@ async def _key_from_first_message(websocket: WebSocket, timeout: float) -> str:
     return key
 
 
-@router.websocket("/station/ws")
-async def station_socket(websocket: WebSocket) -> None:
-    """One robot client's connection to its station."""
+async def accept_device(websocket: WebSocket) -> AuthenticatedDevice | None:
+    """Accept a device's socket and authenticate it (the header, else an ``auth`` first
+    message); None when it was refused (closed with 4401 and the reason) or left first. The
+    station WebSocket and the room's audio socket authenticate alike."""
     database: Database = websocket.app.state.database
-    heartbeat: float = websocket.app.state.settings.websocket_heartbeat_seconds
     scheme, _, key = websocket.headers.get("authorization", "").partition(" ")
     key = key.strip() if scheme.lower() == "bearer" else ""
     await websocket.accept()
@@ -431,14 +438,24 @@ async def station_socket(websocket: WebSocket) -> None:
                 websocket, websocket.app.state.settings.websocket_auth_seconds
             )
         try:
-            device = await run_in_threadpool(_authenticate, database, key)
+            return await run_in_threadpool(_authenticate, database, key)
         except NotAuthenticated:
             raise Unauthenticated("unknown or revoked device key") from None
     except Unauthenticated as refused:
         await websocket.close(CLOSE_UNAUTHENTICATED, _close_reason(str(refused)))
-        return
+        return None
     except WebSocketDisconnect:
-        return  # the client left before authenticating
+        return None  # the client left before authenticating
+
+
+@router.websocket("/station/ws")
+async def station_socket(websocket: WebSocket) -> None:
+    """One robot client's connection to its station."""
+    database: Database = websocket.app.state.database
+    heartbeat: float = websocket.app.state.settings.websocket_heartbeat_seconds
+    device = await accept_device(websocket)
+    if device is None:
+        return
     connection = _Connection(websocket, database, device, heartbeat)
     await _mark(websocket, device.key, connected=True)
     try:

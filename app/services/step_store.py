@@ -442,6 +442,7 @@ class HowAnswered:
     modality: str | None = None
     transcript: str | None = None
     confidence: float | None = None
+    engine: str | None = None
 
 
 NOT_SAID = HowAnswered()
@@ -473,10 +474,10 @@ _INSERT_ANSWER = Statement(
     """INSERT INTO answer (prompt_id, participant_id, answer, reward, probabilities_after,
     p_preferred, probability, confidence_level, confidence, reply, learner_version,
     idempotency_key, answered_at, processing_ms, device_id, actor, modality, transcript,
-    transcript_confidence)
+    transcript_confidence, transcript_engine)
     VALUES (:prompt, :participant, :answer, :reward, :after, :p_preferred, :probability, :level,
     :confidence, :reply, :learner_version, :key, :now, :processing_ms, :device, :actor,
-    :modality, :transcript, :transcript_confidence)
+    :modality, :transcript, :transcript_confidence, :transcript_engine)
     RETURNING id"""
 )
 
@@ -506,6 +507,7 @@ def insert_answer(cursor: Cursor, answer: NewAnswer) -> int:
             "modality": answer.heard.modality,
             "transcript": answer.heard.transcript,
             "transcript_confidence": answer.heard.confidence,
+            "transcript_engine": answer.heard.engine,
         },
     )
 

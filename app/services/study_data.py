@@ -176,6 +176,8 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
         "version": study.protocol_sha256,
         "reply_levels": [level.name for level in protocol.replies.levels],
     }
+    if protocol.speech.record_audio:
+        summary["record_audio"] = True
     return summary
 
 

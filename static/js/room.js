@@ -9,6 +9,7 @@
 // place in the current run is kept in this tab.
 
 import { RoomScene, webglAvailable } from "./room/scene.js";
+import { ServerListener } from "./room/microphone.js";
 import { StationSocket } from "./room/socket.js";
 import { Listener, Voice } from "./room/speech.js";
 import {
@@ -33,10 +34,15 @@ const PRESENCE_INTERVAL_MS = 500; // the console's room panel: at most two repor
 const PRESENCE_KEEPALIVE_MS = 10000; // and at least one every ten seconds
 const DRAG_DEGREES = 0.25; // a mouse drag turns the participant this much per pixel
 const RETRY_REFUSED_MS = 3000; // a refused prompt is not asked again sooner (standing in its zone)
-const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no.";
+const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no."; // until [speech] is read
 const TO_THE_EXIT = "Now walk to the exit: the solid circle.";
 const el = (id) => document.getElementById(id);
 const options = new URLSearchParams(location.search);
+
+// ?listen=off: no voice answers. Off too with ?voice=off (unless ?listen=on): the recogniser
+// would hear the robot reading its own question ("…are you sure?") as the participant's answer.
+const LISTEN = (options.get("listen") ?? (options.get("voice") === "off" ? "off" : "on")) !== "off";
+const NOT_LISTENING = { available: false, listen: async () => null, stop() {} };
 
 const room = {
   key: localStorage.getItem(stores.key) || "",
@@ -58,10 +64,9 @@ const room = {
   exitHint: false,
   frames: 0,
   presence: { at: 0, x: NaN, z: NaN, heading: NaN, zone: undefined, said: null },
-  voice: new Voice(options.get("voice") !== "off"), // ?voice=off: a physical robot speaks
-  // ?listen=off: no voice answers. Off too with ?voice=off (unless ?listen=on): the recogniser
-  // would hear the robot reading its own question ("…are you sure?") as the participant's answer.
-  listener: new Listener((options.get("listen") ?? (options.get("voice") === "off" ? "off" : "on")) !== "off"),
+  voice: new Voice(options.get("voice") !== "off", serverLine), // ?voice=off: a physical robot speaks
+  listener: NOT_LISTENING, // the server's recogniser, or the browser's where the protocol allows it
+  speech: null, // the study's [speech] settings (GET /api/v1/station/speech)
   study: null, // the study whose room is drawn
   loading: false,
   everOnline: false,
@@ -285,8 +290,9 @@ async function askAloud(text) {
   await room.voice.say(text);
   let silences = 0;
   while (room.question === asked && !room.answering && room.listener.available && silences < 3) {
+    const listener = room.listener;
     el("listening").hidden = false;
-    const heard = await room.listener.listen();
+    const heard = await listener.listen(asked.step_id, { seconds: speechSettings().listen_seconds });
     el("listening").hidden = true;
     if (room.question !== asked || room.answering) return;
     if (heard === null) {
@@ -295,12 +301,17 @@ async function askAloud(text) {
     }
     silences = 0;
     if (heard.transcript) say("participant", heard.transcript, { speak: false });
+    if (heard.recorded) {
+      replied(heard.recorded); // the server heard a clear answer and recorded it
+      return;
+    }
     if (heard.answer) {
       answer(heard.answer, "speech", heard);
       return;
     }
-    say("robot", ASK_AGAIN, { speak: false });
-    await room.voice.say(ASK_AGAIN);
+    const again = speechSettings().reprompt;
+    say("robot", again, { speak: false });
+    await room.voice.say(again);
   }
 }
 
@@ -325,6 +336,7 @@ function answer(value, modality, heard) {
   if (modality === "speech" && heard) {
     pending.transcript = heard.transcript;
     pending.transcript_confidence = Math.max(0, Math.min(1, heard.confidence));
+    pending.transcript_engine = heard.engine || "browser";
   }
   localStorage.setItem(stores.answer, JSON.stringify(pending)); // before sending: a crash resends it
   if (modality !== "speech") say("participant", value === "yes" ? "Yes." : "No.", { speak: false });
@@ -337,10 +349,7 @@ function sendAnswer(pending) {
     .request("answer", pending)
     .then((reply) => {
       localStorage.removeItem(stores.answer);
-      closeQuestion();
-      const hint = reply.run_completed && !reply.session_completed ? TO_THE_EXIT : "";
-      say("reply", reply.reply, { speak: true, hint });
-      refreshState();
+      replied(reply);
     })
     .catch((error) => {
       localStorage.removeItem(stores.answer);
@@ -354,6 +363,16 @@ function sendAnswer(pending) {
       }
       refreshState();
     });
+}
+
+/** The robot's reply to an answer given here (sent by the room, or recognised and recorded by
+ * the server from the room's audio). */
+function replied(reply) {
+  room.answeredHere.add(reply.step_id); // its answer_recorded push is not replied to again
+  closeQuestion();
+  const hint = reply.run_completed && !reply.session_completed ? TO_THE_EXIT : "";
+  say("reply", reply.reply, { speak: true, hint });
+  refreshState();
 }
 
 function resumeStoredAnswer() {
@@ -496,6 +515,8 @@ function refuse(problem) {
   room.promptInFlight = null;
   room.resumed = false;
   closeQuestion();
+  if (room.listener.close) room.listener.close(); // its socket and the microphone too
+  room.listener = NOT_LISTENING;
   el("captions").hidden = true;
   el("run-label").textContent = "Escape room";
   el("run-label").classList.remove("practice");
@@ -539,6 +560,50 @@ async function loadRoom() {
   buildRoom(body);
 }
 
+function speechSettings() {
+  return room.speech || { listen_seconds: 8, reprompt: ASK_AGAIN, cloud_recognizer: false };
+}
+
+/** Read the study's [speech] settings and choose how the room listens: the trustlab server's
+ * offline recogniser, or the browser's own only where the protocol allows a cloud recogniser. */
+async function loadSpeech() {
+  const key = room.key;
+  try {
+    const response = await fetch("/api/v1/station/speech", {
+      headers: { Authorization: `Bearer ${key}` },
+      cache: "no-store",
+    });
+    if (!response.ok || room.key !== key) return;
+    room.speech = await response.json();
+  } catch {
+    return; // the network: the room listens with the defaults once it is back and reloaded
+  }
+  room.listener.stop();
+  if (room.listener.close) room.listener.close();
+  const browser = new Listener(LISTEN && room.speech.cloud_recognizer);
+  if (browser.available) {
+    room.listener = browser;
+  } else {
+    const scheme = location.protocol === "https:" ? "wss" : "ws";
+    const url = `${scheme}://${location.host}/api/v1/station/audio`;
+    room.listener = new ServerListener(url, () => room.key, LISTEN);
+  }
+}
+
+/** The server's recording of one of the study's lines, for a browser without voices: its WAV,
+ * "unavailable" when the server cannot synthesise (captions only), or null. */
+async function serverLine(text) {
+  try {
+    const response = await fetch(`/api/v1/station/speech/audio?text=${encodeURIComponent(text)}`, {
+      headers: { Authorization: `Bearer ${room.key}` },
+    });
+    if (response.status === 503) return "unavailable";
+    return response.ok ? await response.arrayBuffer() : null;
+  } catch {
+    return null;
+  }
+}
+
 /** Take the drawn room down (a key of another station drew that station's room). */
 function closeRoom() {
   if (room.scene) room.scene.dispose();
@@ -566,6 +631,7 @@ function buildRoom(description) {
   restorePose();
   if (!room.pose) room.pose = startPose(room.layout);
   room.scene.start(frame);
+  loadSpeech();
   offerHeadset();
   render();
 }
@@ -714,6 +780,11 @@ window.trustlabRoom = {
   },
   get ready() {
     return Boolean(room.scene && room.state && room.socket && room.socket.online);
+  },
+  /** How the room listens: "server", "browser", or null (not yet, or not at all). */
+  get listener() {
+    if (room.listener === NOT_LISTENING) return null;
+    return room.listener instanceof ServerListener ? "server" : "browser";
   },
 };
 

@@ -173,6 +173,17 @@ def test_codebook_covers_every_column(dataset: StudyDataset) -> None:
     assert reversed_column["value_labels"] == ""
 
 
+def test_the_codebook_lists_recorded_voices_only_where_they_were_recorded(
+    dataset: StudyDataset,
+) -> None:
+    assert "recordings" not in set(codebook_table(dataset).file)
+    recorded = dataclasses.replace(dataset, protocol={**dataset.protocol, "record_audio": True})
+    (row,) = codebook_table(recorded).query("file == 'recordings'").to_dict("records")
+    assert row["column"] == "wav" and "16 kHz" in row["label"]
+    assert "answer_audio" in row["derivation"]
+    assert set(codebook_json(recorded)["files"]) == {"wide", "long", "steps", "recordings"}
+
+
 def test_codebook_json(dataset: StudyDataset) -> None:
     data = codebook_json(dataset)
     json.dumps(data, allow_nan=False)

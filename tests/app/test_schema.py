@@ -271,3 +271,46 @@ def test_0012_gives_each_blinded_study_its_labels(blank_database_url: str) -> No
         c["name"] for c in inspect(database.engine).get_columns("study")
     }
     database.dispose()
+
+
+def test_0014_keeps_recorded_answers_from_a_downgrade(blank_database_url: str) -> None:
+    """0014 adds the recogniser's name (NULL for older answers) and the recordings' table; going
+    back below it would delete recordings, so it is refused while there are any."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0014")
+    _insert_without_foreign_keys(
+        database,
+        "INSERT INTO answer_audio (answer_id, participant_id, wav, seconds, recorded_at) "
+        "VALUES (1, 1, {blob}, 0.5, CURRENT_TIMESTAMP)",
+    )
+    with pytest.raises(Conflict, match="would delete 1 recorded answer"):
+        schema.downgrade(database, "0013")
+    assert schema.current_revision(database) == "0014"
+    with database.engine.begin() as connection:
+        connection.execute(text("DELETE FROM answer_audio"))
+    schema.downgrade(database, "0013")
+    tables = set(inspect(database.engine).get_table_names())
+    assert "answer_audio" not in tables
+    assert "transcript_engine" not in {
+        c["name"] for c in inspect(database.engine).get_columns("answer")
+    }
+    database.dispose()
+
+
+def _insert_without_foreign_keys(database: Database, statement: str) -> None:
+    """Run an INSERT without the rows its foreign keys name (``{blob}``: a small binary value);
+    on the driver's own connection, where SQLite's foreign keys can be switched off."""
+    raw = database.engine.raw_connection()
+    try:
+        cursor = raw.cursor()
+        if database.is_sqlite:
+            cursor.execute("PRAGMA foreign_keys = OFF")
+            cursor.execute(statement.format(blob="X'52494646'"))
+            cursor.execute("PRAGMA foreign_keys = ON")
+        else:
+            cursor.execute("SET session_replication_role = replica")
+            cursor.execute(statement.format(blob="'RIFF'::bytea"))
+            cursor.execute("SET session_replication_role = origin")
+        raw.commit()
+    finally:
+        raw.close()

@@ -6,22 +6,26 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
+import subprocess
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from playwright.sync_api import Browser, BrowserContext, Page, WebSocketRoute, expect
+from playwright.sync_api import Browser, BrowserContext, Page, Playwright, WebSocketRoute, expect
 from sqlalchemy import func, select
 
 from app.db import Database
 from app.protocol import default_protocol, parse_protocol
 from app.services import studies, verify
+from app.services.answer_audio import as_wav
+from app.speech.synthesis import with_true_sizes
+from app.speech.wav import decode_wav
 from app.tables import Answer, Participant, Prompt
 from tests.conftest import protocol_text
 from tests.e2e import room_driver as drive
-from tests.e2e.conftest import sign_in_page
+from tests.e2e.conftest import CHROMIUM, CHROMIUM_ARGS, sign_in_page
 from tests.servers import ServerProcess
 
 STUDY = "default"
@@ -31,6 +35,9 @@ out of and one to follow it, not the shipped protocol's practice run and three r
 run is walked in the reload test)."""
 SHORT_PROTOCOL = {"runs_per_session = 3": "runs_per_session = 2"}
 SHORT_PROTOCOL |= {"familiarisation_run = true": "familiarisation_run = false"}
+CLOUD_STUDY = "cloud"
+"""A study whose protocol allows the browser's own (cloud) recogniser."""
+CLOUD_PROTOCOL = {"cloud_recognizer = false": "cloud_recognizer = true"}
 SEATS = itertools.count(1)
 DESKTOP = {"width": 1366, "height": 768}
 
@@ -60,6 +67,8 @@ def room_server(
         studies.create_study(db, name=STUDY, loaded=default_protocol(), actor=drive.SYSTEM)
         short = parse_protocol(protocol_text(**SHORT_PROTOCOL))
         studies.create_study(db, name=SHORT_STUDY, loaded=short, actor=drive.SYSTEM)
+        cloud = parse_protocol(protocol_text(**CLOUD_PROTOCOL))
+        studies.create_study(db, name=CLOUD_STUDY, loaded=cloud, actor=drive.SYSTEM)
     server = ServerProcess(url, folder / "var")
     server.start()
     yield RoomServer(server, database)
@@ -431,10 +440,11 @@ window.speechSynthesis = { speak(u) { setTimeout(() => u.onend && u.onend(), 5);
 @pytest.mark.e2e
 def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     room_server: RoomServer,
-    lab: drive.RoomLab,
     context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
+    """The browser's own recogniser, in a study that allows a cloud recogniser."""
+    lab = _seat(room_server, CLOUD_STUDY)
     database = room_server.database
     console = _console(room_server, lab, context_of)
     expect(console.locator("#room-panel")).to_contain_text("No room client has reported yet")
@@ -443,6 +453,7 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     context.add_init_script(FAKE_SPEECH)
     page = context.new_page()
     drive.open_room(page, lab)
+    page.wait_for_function("() => window.trustlabRoom.listener === 'browser'")
     heard = page.evaluate(
         """async (phrases) => {
             const speech = await import('/static/js/room/speech.js');
@@ -465,6 +476,7 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
         "Yeah, sure.",
     )
     assert stored[0].transcript_confidence == pytest.approx(0.92)
+    assert stored[0].transcript_engine == "browser"
 
     # The console's room panel follows without a reload: zone, position and the last line.
     expect(console.locator("#room-panel .room-facts")).to_contain_text("Zoneconation")
@@ -548,3 +560,83 @@ def test_a_key_of_another_station_is_refused_and_forgotten(
     expect(page.get_by_label("Device key of station elsewhere")).to_be_visible()
     assert page.evaluate("() => localStorage.getItem('trustlab.room.key.elsewhere')") is None
     assert page.locator("#view canvas").count() == 0  # its room is not drawn here
+
+
+@pytest.fixture(scope="module")
+def spoken_yes(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A WAV of "yes" (espeak-ng) between pauses, for Chromium's fake microphone to loop."""
+    if shutil.which("espeak-ng") is None:
+        pytest.fail("espeak-ng is missing: install Debian's espeak-ng (.ci/run does)")
+    said = subprocess.run(
+        ["espeak-ng", "-v", "en-us", "-s", "150", "--stdout"],
+        input=b"yes",
+        capture_output=True,
+        timeout=30,
+        check=True,
+    ).stdout
+    pause = bytes(16000 * 2)  # 1 s
+    path = tmp_path_factory.mktemp("microphone") / "yes.wav"
+    path.write_bytes(as_wav(pause + decode_wav(with_true_sizes(said)) + pause))
+    return path
+
+
+@pytest.fixture(scope="module")
+def browser_with_microphone(playwright: Playwright, spoken_yes: Path) -> Iterator[Browser]:
+    """Chromium whose microphone says "yes" over and over, granted without a prompt."""
+    chromium = playwright.chromium.launch(
+        executable_path=CHROMIUM,
+        args=[
+            *CHROMIUM_ARGS,
+            "--use-fake-ui-for-media-stream",
+            "--use-fake-device-for-media-stream",
+            f"--use-file-for-fake-audio-capture={spoken_yes}",
+            "--autoplay-policy=no-user-gesture-required",
+        ],
+    )
+    yield chromium
+    chromium.close()
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(240)
+def test_a_spoken_yes_is_recognised_offline_on_the_server(
+    room_server: RoomServer, lab: drive.RoomLab, browser_with_microphone: Browser, artifacts: Path
+) -> None:
+    """No cloud recogniser allowed (the shipped protocol): the room streams its microphone to
+    the server, whose offline recogniser hears the yes; it is stored once, with modality speech,
+    and the room says the reply. Headless Chromium has no voices: the room plays the server's
+    synthesised question (the audio endpoint is asked for it)."""
+    context = browser_with_microphone.new_context(viewport=DESKTOP)
+    try:
+        page = context.new_page()
+        spoken_lines: list[str] = []
+        page.on(
+            "request",
+            lambda request: (
+                "/api/v1/station/speech/audio" in request.url and spoken_lines.append(request.url)
+            ),
+        )
+        drive.open_room(page, lab)
+        page.wait_for_function("() => window.trustlabRoom.listener === 'server'")
+        lab.start_session()
+        drive.walk(page, drive.TO_CONATION)
+        drive.wait_question(page, "conation")
+        expect(page.locator("#listening")).to_be_visible(timeout=60_000)
+        page.screenshot(path=str(artifacts / "01-listening.png"))
+        page.wait_for_function(
+            "() => !window.trustlabRoom.question && "
+            "document.getElementById('captions').dataset.kind === 'reply'",
+            timeout=120_000,
+        )
+        page.screenshot(path=str(artifacts / "02-replied.png"))
+        stored = _answers_for(room_server.database, lab.code, "conation")
+        assert len(stored) == 1
+        assert (stored[0].answer, stored[0].modality, stored[0].transcript) == (
+            True,
+            "speech",
+            "yes",
+        )
+        assert (stored[0].transcript_engine or "").startswith("pocketsphinx")
+        assert spoken_lines  # the question came from the server's voice
+    finally:
+        context.close()

@@ -1,6 +1,8 @@
-// The robot's voice and the participant's: speech synthesis for the robot's lines, speech
-// recognition for yes/no answers where the browser has them. Captions are always shown as well
-// (room.js), so a browser without either still runs the whole study.
+// The robot's voice and the participant's: speech synthesis for the robot's lines (the browser's
+// voices, else the trustlab server's), and the browser's own speech recognition for yes/no
+// answers, used only where the protocol allows a cloud recogniser ([speech] cloud_recognizer;
+// otherwise microphone.js streams to the server's offline recogniser). Captions are always shown
+// as well (room.js), so a browser without either still runs the whole study.
 //
 // A recognised answer counts only when it is a clear yes or a clear no: "yes", "yeah, sure" or
 // "no, not really" are; "yes… no", "I don't know", "maybe" and anything heard with low confidence
@@ -54,15 +56,42 @@ export function pickAnswer(alternatives, minConfidence = MIN_CONFIDENCE) {
 }
 
 /** The robot's voice: speaks a line and resolves when it has been said (or when it would have
- * been, where the browser cannot speak or never reports the end). */
+ * been, where nothing can speak it or the end is never reported). The browser's own voices speak
+ * where it has any; otherwise the trustlab server's synthesised audio of the line plays
+ * (``serverLine(text)`` resolves with its WAV as an ArrayBuffer, or null: then captions only). */
 export class Voice {
-  constructor(enabled = true) {
+  constructor(enabled = true, serverLine = null) {
+    this.enabled = enabled;
     this.synth = enabled && "speechSynthesis" in window ? window.speechSynthesis : null;
+    this.serverLine = enabled ? serverLine : null;
+    this.decoded = new Map(); // text → AudioBuffer: each line is fetched and decoded once
+    this.context = null;
+    this.playing = null;
+    this.serverSilent = false; // the server cannot synthesise (503): captions only from then on
+    if (this.synth && typeof this.synth.getVoices === "function") this.synth.getVoices(); // Chrome loads them lazily
+  }
+
+  /** Whether the browser has voices of its own (headless and minimal installs have none). */
+  get browserVoices() {
+    if (!this.synth) return false;
+    if (typeof this.synth.getVoices !== "function") return true;
+    return this.synth.getVoices().length > 0;
   }
 
   say(text) {
+    this.stop();
+    if (this.browserVoices) return this._sayInBrowser(text);
+    if (this.serverLine && !this.serverSilent) return this._sayFromServer(text);
+    return this._pause(text);
+  }
+
+  _pause(text) {
     const estimate = 600 + text.length * 70;
-    if (!this.synth) return new Promise((resolve) => setTimeout(resolve, Math.min(estimate, 1500)));
+    return new Promise((resolve) => setTimeout(resolve, Math.min(estimate, 1500)));
+  }
+
+  _sayInBrowser(text) {
+    const estimate = 600 + text.length * 70;
     return new Promise((resolve) => {
       let done = false;
       const finish = () => {
@@ -71,7 +100,6 @@ export class Voice {
           resolve();
         }
       };
-      this.synth.cancel();
       const utterance = new SpeechSynthesisUtterance(text);
       utterance.lang = document.documentElement.lang || "en";
       utterance.onend = finish;
@@ -81,8 +109,49 @@ export class Voice {
     });
   }
 
+  async _sayFromServer(text) {
+    let buffer = this.decoded.get(text);
+    try {
+      if (!this.context) this.context = new AudioContext();
+      if (this.context.state === "suspended") await this.context.resume().catch(() => {});
+      if (!buffer) {
+        const wav = await this.serverLine(text);
+        if (wav === "unavailable") this.serverSilent = true;
+        if (!(wav instanceof ArrayBuffer)) return this._pause(text);
+        buffer = await this.context.decodeAudioData(wav);
+        this.decoded.set(text, buffer);
+      }
+    } catch {
+      return this._pause(text);
+    }
+    return new Promise((resolve) => {
+      const source = this.context.createBufferSource();
+      source.buffer = buffer;
+      source.connect(this.context.destination);
+      const finish = () => {
+        if (this.playing && this.playing.source === source) this.playing = null;
+        resolve();
+      };
+      source.onended = finish;
+      this.playing = { source, finish };
+      // a context that never plays (no output device, a policy) must not hold the room up
+      setTimeout(finish, buffer.duration * 1000 + 2000);
+      source.start();
+    });
+  }
+
   stop() {
     if (this.synth) this.synth.cancel();
+    if (this.playing) {
+      const { source, finish } = this.playing;
+      this.playing = null;
+      try {
+        source.stop();
+      } catch {
+        // never started
+      }
+      finish();
+    }
   }
 }
 

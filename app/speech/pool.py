@@ -1,0 +1,94 @@
+"""The server's offline recognisers, one per study vocabulary, loaded on first use.
+
+A recogniser constrained to a protocol's yes/no phrases (app.speech.recognizer) takes a while to
+build (it loads an acoustic model and compiles a grammar), so the server keeps one per vocabulary
+and every station whose study shares the phrases shares it; each answer gets an utterance of its
+own. The recogniser module is imported only when a room first streams audio: a server whose rooms
+never listen does not pay for the model, and one without the engine installed says so in one line
+instead of failing to start.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from collections.abc import Callable
+from typing import Protocol
+
+from app.errors import TrustlabError
+from app.speech.vocabulary import Vocabulary
+
+RECOGNIZER_MODULE = "app.speech.recognizer"
+SAMPLE_RATE = 16000
+"""What every recogniser takes: 16 kHz mono 16-bit little-endian PCM (as the room streams)."""
+
+
+class RecognitionLike(Protocol):
+    """What a recogniser concluded about one utterance (app.speech.recognizer.Recognition)."""
+
+    @property
+    def answer(self) -> str | None: ...
+    @property
+    def transcript(self) -> str: ...
+    @property
+    def confidence(self) -> float: ...
+    @property
+    def engine(self) -> str: ...
+
+
+class UtteranceLike(Protocol):
+    """One answer's audio, fed as it arrives (app.speech.recognizer.Utterance)."""
+
+    def feed(self, pcm: bytes) -> None: ...
+    @property
+    def speech_ended(self) -> bool: ...
+    def finish(self) -> RecognitionLike: ...
+
+
+class RecognizerLike(Protocol):
+    """A recogniser for one vocabulary (app.speech.recognizer.Recognizer)."""
+
+    def utterance(self) -> UtteranceLike: ...
+
+
+RecognizerFactory = Callable[[Vocabulary], RecognizerLike]
+
+
+class RecognitionUnavailable(TrustlabError):
+    """The server has no offline recogniser (its engine is not installed, or failed to load)."""
+
+    status_code = 503
+
+
+def offline_recognizer(vocabulary: Vocabulary) -> RecognizerLike:
+    """The shipped offline recogniser for ``vocabulary`` (RecognitionUnavailable without it)."""
+    try:
+        module = importlib.import_module(RECOGNIZER_MODULE)
+        recognizer: RecognizerLike = module.Recognizer(vocabulary)
+    except ImportError as exc:
+        raise RecognitionUnavailable(
+            f"offline speech recognition is unavailable on this server: {exc}"
+        ) from None
+    except ValueError as exc:  # e.g. a phrase the recogniser's dictionary cannot pronounce
+        raise RecognitionUnavailable(
+            f"the offline recogniser cannot take this study: {exc}"
+        ) from None
+    return recognizer
+
+
+class RecognizerPool:
+    """One recogniser per vocabulary, built on first use (thread-safe; build in a worker thread)."""
+
+    def __init__(self, make: RecognizerFactory = offline_recognizer) -> None:
+        self._make = make
+        self._made: dict[Vocabulary, RecognizerLike] = {}
+        self._lock = threading.Lock()
+
+    def get(self, vocabulary: Vocabulary) -> RecognizerLike:
+        """The recogniser of ``vocabulary``, built now if it is the first time."""
+        with self._lock:
+            recognizer = self._made.get(vocabulary)
+            if recognizer is None:
+                recognizer = self._make(vocabulary)
+                self._made[vocabulary] = recognizer
+            return recognizer
