@@ -19,6 +19,7 @@ from app.cli import (
     population,
     robot,
     runtime,
+    speech,
 )
 from app.cli.errors import ErrorsAsMessages
 
@@ -40,6 +41,7 @@ mixed.register(cli)
 exports.register(cli)
 engine.register(cli)
 population.register(cli)
+speech.register(cli)
 
 
 def main() -> None:

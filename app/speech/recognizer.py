@@ -52,6 +52,8 @@ NOISE_FLOOR = 30.0
 """Standard deviation (int16 units, about -60 dBFS) of a fixed noise added to the input: the
 model was trained on real microphones, and digitally silent stretches (as in synthetic or
 gated audio) otherwise derail its normalisation."""
+BLOCK_BYTES = SAMPLE_RATE // 50 * 2
+"""20 ms: the unit the decoders are fed in."""
 _FILLERS = frozenset({"SIL", "<sil>", "<s>", "</s>", "+NSN+", "+SPN+", "[NOISE]", "[SPEECH]"})
 _DEFAULT_MIN_CONFIDENCE_LOGIT = math.log(0.4 / 0.6)
 
@@ -116,6 +118,14 @@ class _Decoders:
             allphone=f"{model}/{LANGUAGE}-phone.lm.bin", lw=ALLPHONE_LANGUAGE_WEIGHT, **common
         )
 
+    def start(self) -> None:
+        """Begin an utterance from fresh feature extraction: live normalisation would otherwise
+        carry the previous utterance's room over, and the same audio could be heard differently
+        depending on who spoke before."""
+        for decoder in (self.grammar, self.phones):
+            decoder.reinit_feat()
+            decoder.start_utt()
+
 
 def jsgf_words(jsgf: str) -> set[str]:
     """The words of the grammar's single rule."""
@@ -164,8 +174,7 @@ class Utterance:
         self._endpointer = Endpointer(SAMPLE_RATE)
         self._samples = 0
         self._pending = b""
-        for decoder in (decoders.grammar, decoders.phones):
-            decoder.start_utt()
+        decoders.start()
 
     @property
     def speech_ended(self) -> bool:
@@ -178,26 +187,37 @@ class Utterance:
         return self._endpointer.speech_started
 
     def feed(self, pcm: bytes) -> None:
-        """More audio (16 kHz mono int16 LE, any length; a trailing odd byte waits)."""
+        """More audio (16 kHz mono int16 LE, any length).
+
+        The decoders always get whole :data:`BLOCK_BYTES` blocks, whatever the caller's chunks:
+        their live normalisation updates per call, so this keeps a streamed utterance and the
+        same audio given at once (:meth:`Recognizer.recognize`) recognised identically."""
+        self._require()
+        self._pending += pcm
+        whole = len(self._pending) - len(self._pending) % BLOCK_BYTES
+        for start in range(0, whole, BLOCK_BYTES):
+            self._block(self._pending[start : start + BLOCK_BYTES])
+        self._pending = self._pending[whole:]
+
+    def _block(self, block: bytes) -> None:
         decoders = self._require()
-        data = self._pending + pcm
-        usable = len(data) - len(data) % 2
-        self._pending = data[usable:]
-        if not usable:
-            return
-        samples = np.frombuffer(data[:usable], "<i2").astype(np.float64)
+        samples = np.frombuffer(block, "<i2").astype(np.float64)
         index = (self._samples + np.arange(samples.size)) % _NOISE_TABLE.size
         floored = np.clip(np.rint(samples + _NOISE_TABLE[index]), -32768, 32767).astype("<i2")
         self._samples += samples.size
         chunk = floored.tobytes()
-        self._endpointer.feed(data[:usable])
+        self._endpointer.feed(block)
         decoders.grammar.process_raw(chunk, False, False)
         decoders.phones.process_raw(chunk, False, False)
 
     def finish(self) -> Recognition:
         """Close the utterance and decide; the decoders go back to the recogniser's pool."""
-        decoders = self._require()
         started = time.perf_counter()
+        tail = self._pending[: len(self._pending) - len(self._pending) % 2]
+        if tail:
+            self._block(tail)
+        self._pending = b""
+        decoders = self._require()
         self._decoders = None
         try:
             heard, transcript, confidence = _decide(decoders)
@@ -222,7 +242,7 @@ def _decide(decoders: _Decoders) -> tuple[Heard | None, str, float]:
     """End both searches and compare them: (what was heard, transcript, confidence)."""
     decoders.grammar.end_utt()
     decoders.phones.end_utt()
-    phones = [seg for seg in decoders.phones.seg() if seg.word not in _FILLERS]
+    phones = [seg for seg in decoders.phones.seg() or [] if seg.word not in _FILLERS]
     grammar_hyp, phone_hyp = decoders.grammar.hyp(), decoders.phones.hyp()
     transcript = grammar_hyp.hypstr.strip() if grammar_hyp is not None else ""
     if not phones or not transcript or phone_hyp is None:

@@ -1,0 +1,78 @@
+"""``trustlab speech recognize``: the offline recogniser on a WAV file.
+
+A lab records a "yes" in its room with its microphone and checks what the server would hear, how
+sure it is and how long it takes, before any participant comes in.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from app.cli.admin import JsonFlag, emit_json
+from app.cli.errors import fail
+
+speech_cli = typer.Typer(help="Offline speech recognition (yes/no answers).", no_args_is_help=True)
+
+
+def register(cli: typer.Typer) -> None:
+    """Attach these commands to the top-level ``trustlab`` command."""
+    cli.add_typer(speech_cli, name="speech")
+
+
+@speech_cli.command("recognize")
+def recognize(
+    file: Annotated[Path, typer.Argument(help="A WAV file (any rate, channels, PCM or float).")],
+    protocol: Annotated[
+        Path | None,
+        typer.Option(
+            "--protocol",
+            help="Use this protocol file's [speech] phrases and min_confidence "
+            "(default: the default phrases).",
+        ),
+    ] = None,
+    as_json: JsonFlag = False,
+) -> None:
+    """Recognise a yes or a no in FILE: answer, transcript, confidence and time taken."""
+    from app.speech.recognizer import Recognizer, read_wav
+    from app.speech.vocabulary import Vocabulary
+
+    vocabulary = Vocabulary()
+    if protocol is not None:
+        from app.protocol import load_protocol_file
+
+        spec = load_protocol_file(protocol).protocol.speech
+        vocabulary = Vocabulary.of(spec.yes, spec.no, spec.min_confidence)
+    try:
+        pcm = read_wav(file)
+    except ValueError as exc:
+        fail(f"{file}: {exc}", 2)
+    recognizer = Recognizer(vocabulary)
+    started = time.perf_counter()
+    result = recognizer.recognize(pcm)
+    total = time.perf_counter() - started
+    answer = result.answer or "unclear"
+    if as_json:
+        emit_json(
+            {
+                "file": str(file),
+                "answer": answer,
+                "transcript": result.transcript,
+                "confidence": round(result.confidence, 4),
+                "engine": result.engine,
+                "seconds": round(result.seconds, 4),
+                "total_seconds": round(total, 4),
+                "audio_seconds": round(len(pcm) / 32000, 3),
+            }
+        )
+        return
+    typer.echo(f"answer:     {answer}")
+    typer.echo(f"transcript: {result.transcript or '(silence)'}")
+    typer.echo(f"confidence: {result.confidence:.2f} (needs {vocabulary.min_confidence:g})")
+    typer.echo(
+        f"time:       {total * 1000:.0f} ms for {len(pcm) / 32000:.2f} s of audio, "
+        f"final decode {result.seconds * 1000:.0f} ms ({result.engine})"
+    )

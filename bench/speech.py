@@ -1,0 +1,413 @@
+"""How well the offline recogniser (app/speech/recognizer.py) takes yes/no answers in a noisy room.
+
+The labelled set is built here, in a temporary folder, with espeak-ng: every yes and no phrase of
+the default vocabulary plus out-of-grammar speech ("maybe", "I don't know", "the second key"…)
+and coughs and noise bursts, each said by several synthetic voices (accent, speed, pitch). Each
+clip is streamed in 20 ms frames through :class:`app.speech.recognizer.Utterance`, clean and with
+room noise (pink and brown noise plus a babble of overlapping espeak sentences) mixed in at each
+SNR, over several noise seeds.
+
+Reported per condition (mean ± standard deviation over the seeds):
+
+* **accuracy**: yes/no items recognised as their answer;
+* **wrong**: yes/no items recognised as the other answer (the error that misleads a learner);
+* **accepted**: out-of-grammar items and noises accepted as a yes or a no;
+* **latency**: from feeding the clip's last frame that contains speech to :meth:`finish`
+  returning, the frames after it fed as fast as they are processed until the endpointer says
+  the speech ended (median and p95 over all items). **endpoint wait** is the audio time the
+  endpointer needs to call the end (≈ 0.6 s of silence by design): a live participant waits
+  for both.
+
+    .venv/bin/python bench/speech.py                      # the full set (about 10 minutes)
+    .venv/bin/python bench/speech.py --voices 1 --snrs 10 --seeds 1    # a smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from app.speech.recognizer import SAMPLE_RATE, Recognition, Recognizer  # noqa: E402
+from app.speech.vocabulary import Vocabulary  # noqa: E402
+from app.speech.wav import read_wav  # noqa: E402
+
+FRAME = SAMPLE_RATE // 50
+"""20 ms of samples: the frame the room streams."""
+
+
+@dataclass(frozen=True)
+class Voice:
+    """An espeak-ng voice (language+variant), its speed (words/minute) and pitch (0-99)."""
+
+    name: str
+    speed: int
+    pitch: int
+
+
+VOICES = (
+    Voice("en-us", 165, 50),
+    Voice("en-gb+m3", 150, 40),
+    Voice("en-us+f3", 180, 70),
+    Voice("en-gb-scotland+f2", 145, 62),
+    Voice("en-gb-x-rp+m5", 190, 45),
+    Voice("en-us+klatt2", 160, 55),
+    Voice("en-gb-x-gbclan+f4", 155, 66),
+    Voice("en-us+m7", 200, 35),
+)
+OUT_OF_GRAMMAR = (
+    "maybe",
+    "I don't know",
+    "the second key",
+    "hello",
+    "wait a moment",
+    "the red box",
+    "perhaps",
+)
+NOISES = ("cough", "double cough", "noise burst")
+BABBLE_SENTENCES = (
+    "I think we should try the other door first, it looked a bit more promising.",
+    "Did you see where the robot put the blue card after the last round?",
+    "The weather was lovely this morning, but they say it will rain later on.",
+    "Can you pass me the notes from yesterday, I want to check one thing.",
+    "We still have about ten minutes left, so there is no need to hurry.",
+    "My sister is moving to a new flat near the station next month.",
+)
+SNRS = (20.0, 10.0, 5.0)
+TARGETS = {"accuracy": 97.0, "wrong": 0.5, "accepted": 2.0, "p95_ms": 400.0}
+LEAD_SECONDS, TRAIL_SECONDS = 0.5, 1.0
+SPEECH_LEVEL_DBFS = -23.0
+
+
+@dataclass(frozen=True)
+class Clip:
+    """One labelled item: expected "yes"/"no", or None for anything that is not an answer."""
+
+    label: str
+    voice: str
+    expected: str | None
+    samples: np.ndarray
+    """Float samples at 16 kHz, lead and trailing silence included."""
+    last_speech_frame: int
+
+
+@dataclass(frozen=True)
+class Outcome:
+    condition: str
+    seed: int
+    label: str
+    voice: str
+    expected: str | None
+    answer: str | None
+    transcript: str
+    confidence: float
+    latency_ms: float
+    endpoint_wait_ms: float | None
+
+
+def espeak(text: str, voice: Voice, folder: Path) -> np.ndarray:
+    """``text`` said by ``voice``, as floats at 16 kHz."""
+    out = folder / "say.wav"
+    command = ["espeak-ng", "-v", voice.name, "-s", str(voice.speed), "-p", str(voice.pitch)]
+    subprocess.run([*command, "-w", str(out), text], check=True, capture_output=True, timeout=60)
+    return np.frombuffer(read_wav(out), "<i2").astype(np.float64) / 32768.0
+
+
+def trim(signal: np.ndarray) -> np.ndarray:
+    """Without espeak's leading and trailing silence (the clip adds its own)."""
+    loud = np.flatnonzero(np.abs(signal) > 1e-3)
+    return signal[loud[0] : loud[-1] + 1] if loud.size else signal
+
+
+def set_level(signal: np.ndarray, dbfs: float) -> np.ndarray:
+    rms = float(np.sqrt(np.mean(signal**2))) or 1.0
+    return signal * (10 ** (dbfs / 20) / rms)
+
+
+def colored_noise(samples: int, exponent: float, rng: np.random.Generator) -> np.ndarray:
+    """Noise whose power falls as 1/f**exponent (1: pink, 2: brown), unit RMS."""
+    spectrum = np.fft.rfft(rng.normal(size=samples))
+    frequencies = np.fft.rfftfreq(samples, 1 / SAMPLE_RATE)
+    frequencies[0] = frequencies[1]
+    shaped = np.fft.irfft(spectrum / frequencies ** (exponent / 2), samples)
+    return shaped / np.sqrt(np.mean(shaped**2))
+
+
+def burst(seconds: float, decay: float, rng: np.random.Generator) -> np.ndarray:
+    """Band-limited noise (300-3500 Hz) with a sharp attack and exponential decay."""
+    n = int(seconds * SAMPLE_RATE)
+    spectrum = np.fft.rfft(rng.normal(size=n))
+    frequencies = np.fft.rfftfreq(n, 1 / SAMPLE_RATE)
+    spectrum[(frequencies < 300) | (frequencies > 3500)] = 0
+    t = np.arange(n) / SAMPLE_RATE
+    envelope = np.minimum(1.0, t / 0.01) * np.exp(-t / decay) if decay else np.ones(n)
+    return np.fft.irfft(spectrum, n) * envelope
+
+
+def noise_sound(kind: str, rng: np.random.Generator) -> np.ndarray:
+    if kind == "cough":
+        return burst(0.3, 0.07, rng)
+    if kind == "double cough":
+        gap = np.zeros(int(0.15 * SAMPLE_RATE))
+        return np.concatenate([burst(0.3, 0.07, rng), gap, burst(0.3, 0.06, rng)])
+    return burst(0.45, 0.0, rng)
+
+
+def last_speech_frame(signal: np.ndarray) -> int:
+    """The last 20 ms frame whose level is within 35 dB of the loudest frame."""
+    frames = signal[: signal.size - signal.size % FRAME].reshape(-1, FRAME)
+    power = np.mean(frames**2, axis=1) + 1e-12
+    loud = np.flatnonzero(10 * np.log10(power / power.max()) > -35)
+    return int(loud[-1])
+
+
+def clip(label: str, voice: str, expected: str | None, sound: np.ndarray) -> Clip:
+    lead = np.zeros(int(LEAD_SECONDS * SAMPLE_RATE))
+    tail = np.zeros(int(TRAIL_SECONDS * SAMPLE_RATE))
+    samples = np.concatenate([lead, set_level(sound, SPEECH_LEVEL_DBFS), tail])
+    return Clip(label, voice, expected, samples, last_speech_frame(samples))
+
+
+def build_clips(voices: tuple[Voice, ...], vocabulary: Vocabulary, folder: Path) -> list[Clip]:
+    clips: list[Clip] = []
+    for voice in voices:
+        for answer, phrases in (("yes", vocabulary.yes), ("no", vocabulary.no)):
+            for phrase in phrases:
+                clips.append(clip(phrase, voice.name, answer, trim(espeak(phrase, voice, folder))))
+        for phrase in OUT_OF_GRAMMAR:
+            clips.append(clip(phrase, voice.name, None, trim(espeak(phrase, voice, folder))))
+    rng = np.random.default_rng(7)
+    for repeat in range(max(1, len(voices) // 2)):
+        for kind in NOISES:
+            clips.append(clip(kind, f"noise{repeat}", None, noise_sound(kind, rng)))
+    return clips
+
+
+def build_babble(folder: Path) -> np.ndarray:
+    """Several espeak talkers at once, at random offsets: the murmur of a room (unit RMS)."""
+    rng = np.random.default_rng(11)
+    talkers = []
+    for index, sentence in enumerate(BABBLE_SENTENCES):
+        voice = VOICES[index % len(VOICES)]
+        talkers.append(set_level(trim(espeak(sentence, voice, folder)), -20))
+    length = max(t.size for t in talkers) * 2
+    babble = np.zeros(length)
+    for talker in talkers:
+        for _ in range(2):
+            start = int(rng.integers(0, length - talker.size))
+            babble[start : start + talker.size] += talker
+    return babble / np.sqrt(np.mean(babble**2))
+
+
+def room_noise(samples: int, babble: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Equal parts steady noise (pink + brown) and babble, unit RMS, drawn from ``rng``."""
+    steady = colored_noise(samples, 1.0, rng) + 0.5 * colored_noise(samples, 2.0, rng)
+    start = int(rng.integers(0, babble.size - samples))
+    mixed = steady / np.sqrt(np.mean(steady**2)) + babble[start : start + samples]
+    return mixed / np.sqrt(np.mean(mixed**2))
+
+
+def with_noise(item: Clip, snr_db: float, babble: np.ndarray, seed: int) -> np.ndarray:
+    """The clip with room noise at ``snr_db`` below the level of its sound."""
+    rng = np.random.default_rng([seed, abs(hash((item.label, item.voice))) % 2**32])
+    sound_power = 10 ** (SPEECH_LEVEL_DBFS / 10)
+    noise = room_noise(item.samples.size, babble, rng) * np.sqrt(sound_power / 10 ** (snr_db / 10))
+    return item.samples + noise
+
+
+def stream(
+    recognizer: Recognizer, item: Clip, samples: np.ndarray
+) -> tuple[Recognition, float, int]:
+    """Feed 20 ms frames; (recognition, ms from the last speech frame to the answer, frames fed)."""
+    pcm = np.clip(np.rint(samples * 32768), -32768, 32767).astype("<i2").tobytes()
+    utterance = recognizer.utterance()
+    frames = len(pcm) // (2 * FRAME)
+    started = time.perf_counter()
+    fed = frames
+    for index in range(frames):
+        if index == item.last_speech_frame:
+            started = time.perf_counter()
+        utterance.feed(pcm[index * 2 * FRAME : (index + 1) * 2 * FRAME])
+        if index > item.last_speech_frame and utterance.speech_ended:
+            fed = index + 1
+            break
+    recognition = utterance.finish()
+    return recognition, (time.perf_counter() - started) * 1000, fed
+
+
+def run(
+    recognizer: Recognizer,
+    clips: list[Clip],
+    condition: str,
+    seed: int,
+    noise: tuple[float, np.ndarray] | None,
+) -> list[Outcome]:
+    """Every clip once, clean or with ``noise`` (SNR in dB, babble) drawn from ``seed``."""
+    outcomes = []
+    for item in clips:
+        samples = item.samples if noise is None else with_noise(item, *noise, seed)
+        recognition, latency, fed = stream(recognizer, item, samples)
+        ended = fed < samples.size // FRAME
+        wait = (fed - 1 - item.last_speech_frame) * 20.0 if ended else None
+        outcomes.append(
+            Outcome(
+                condition=condition,
+                seed=seed,
+                label=item.label,
+                voice=item.voice,
+                expected=item.expected,
+                answer=recognition.answer,
+                transcript=recognition.transcript,
+                confidence=recognition.confidence,
+                latency_ms=latency,
+                endpoint_wait_ms=wait,
+            )
+        )
+    return outcomes
+
+
+@dataclass(frozen=True)
+class Rates:
+    """One seed's figures for one condition, in percent."""
+
+    accuracy: float
+    wrong: float
+    accepted: float
+
+
+def rates(outcomes: list[Outcome]) -> Rates:
+    answers = [o for o in outcomes if o.expected is not None]
+    others = [o for o in outcomes if o.expected is None]
+    right = sum(o.answer == o.expected for o in answers)
+    wrong = sum(o.answer is not None and o.answer != o.expected for o in answers)
+    accepted = sum(o.answer is not None for o in others)
+    return Rates(
+        accuracy=100 * right / max(1, len(answers)),
+        wrong=100 * wrong / max(1, len(answers)),
+        accepted=100 * accepted / max(1, len(others)),
+    )
+
+
+def spread(values: list[float]) -> str:
+    mean = statistics.fmean(values)
+    if len(values) < 2:
+        return f"{mean:5.1f}"
+    return f"{mean:5.1f} ± {statistics.stdev(values):3.1f}"
+
+
+def percentile(values: list[float], fraction: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, round(fraction * (len(ordered) - 1)))]
+
+
+def report(condition: str, outcomes: list[Outcome]) -> tuple[str, dict[str, float]]:
+    """One table row for ``condition`` and its figures (means over seeds)."""
+    by_seed: dict[int, list[Outcome]] = {}
+    for outcome in outcomes:
+        by_seed.setdefault(outcome.seed, []).append(outcome)
+    per_seed = [rates(group) for group in by_seed.values()]
+    latencies = [o.latency_ms for o in outcomes]
+    waits = [o.endpoint_wait_ms for o in outcomes if o.endpoint_wait_ms is not None]
+    figures = {
+        "accuracy": statistics.fmean(r.accuracy for r in per_seed),
+        "wrong": statistics.fmean(r.wrong for r in per_seed),
+        "accepted": statistics.fmean(r.accepted for r in per_seed),
+        "median_ms": statistics.median(latencies),
+        "p95_ms": percentile(latencies, 0.95),
+    }
+    wait = f"{statistics.median(waits):5.0f}" if waits else "    -"
+    unended = len(outcomes) - len(waits)
+    row = (
+        f"| {condition:9s} | {spread([r.accuracy for r in per_seed]):>10s} "
+        f"| {spread([r.wrong for r in per_seed]):>9s} "
+        f"| {spread([r.accepted for r in per_seed]):>10s} "
+        f"| {figures['median_ms']:5.0f} | {figures['p95_ms']:5.0f} | {wait} "
+        f"| {unended:5d} |"
+    )
+    return row, figures
+
+
+HEADER = (
+    "| condition | accuracy % | wrong % | accepted % | median ms | p95 ms "
+    "| endpoint wait ms | not ended |\n"
+    "|---|---|---|---|---|---|---|---|"
+)
+
+
+def verdict(name: str, figures: dict[str, float]) -> str:
+    """Which targets the condition meets."""
+    checks = [
+        ("accuracy", figures["accuracy"] >= TARGETS["accuracy"], "≥", "%"),
+        ("wrong", figures["wrong"] <= TARGETS["wrong"], "≤", "%"),
+        ("accepted", figures["accepted"] <= TARGETS["accepted"], "≤", "%"),
+        ("p95_ms", figures["p95_ms"] <= TARGETS["p95_ms"], "≤", " ms"),
+    ]
+    parts = [
+        f"{key} {figures[key]:.1f}{unit} (target {sign} {TARGETS[key]:g}{unit}) "
+        f"{'met' if ok else 'MISSED'}"
+        for key, ok, sign, unit in checks
+    ]
+    return f"{name}: " + "; ".join(parts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("--voices", type=int, default=len(VOICES), help="how many voices (1-8)")
+    parser.add_argument("--snrs", type=float, nargs="+", default=list(SNRS), help="SNRs in dB")
+    parser.add_argument("--seeds", type=int, default=8, help="noise seeds per SNR")
+    parser.add_argument("--no-clean", action="store_true", help="skip the clean condition")
+    parser.add_argument("--records", type=Path, help="write every outcome to this JSON-lines file")
+    args = parser.parse_args(argv)
+    if shutil.which("espeak-ng") is None:
+        print("error: espeak-ng is not installed (Debian: apt-get install espeak-ng)")
+        return 2
+    vocabulary = Vocabulary()
+    recognizer = Recognizer(vocabulary)
+    voices = VOICES[: max(1, min(len(VOICES), args.voices))]
+    with tempfile.TemporaryDirectory(prefix="trustlab-speech-bench-") as folder:
+        clips = build_clips(voices, vocabulary, Path(folder))
+        babble = build_babble(Path(folder))
+    answers = sum(c.expected is not None for c in clips)
+    print(
+        f"{len(clips)} clips ({answers} yes/no, {len(clips) - answers} other), "
+        f"{len(voices)} voices, {recognizer.engine}, {args.seeds} noise seeds"
+    )
+    print(HEADER)
+    everything: list[Outcome] = []
+    conditions: list[tuple[str, float | None]] = [] if args.no_clean else [("clean", None)]
+    conditions += [(f"SNR {snr:g} dB", snr) for snr in args.snrs]
+    summary = []
+    for name, snr in conditions:
+        outcomes: list[Outcome] = []
+        for seed in range(1 if snr is None else args.seeds):
+            noise = None if snr is None else (snr, babble)
+            outcomes += run(recognizer, clips, name, seed, noise)
+        row, figures = report(name, outcomes)
+        print(row, flush=True)
+        everything += outcomes
+        if snr is None or snr >= 10:
+            summary.append(verdict(name, figures))
+    for line in summary:
+        print(line)
+    if args.records:
+        with args.records.open("w") as out:
+            for outcome in everything:
+                out.write(json.dumps(asdict(outcome)) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,49 @@
+"""bench/speech.py runs end to end on a small set (one voice, one SNR, one seed) and prints its
+table; without espeak-ng it says so in one line and exits 2."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="needs Debian's espeak-ng")
+def test_the_speech_benchmark_prints_its_table_and_verdicts() -> None:
+    command = [sys.executable, "bench/speech.py", "--voices", "1", "--snrs", "10", "--seeds", "1"]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=280)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    assert re.match(r"\d+ clips \(7 yes/no, \d+ other\), 1 voices, pocketsphinx 5\.1\.1", lines[0])
+    rows = [line for line in lines if line.startswith(("| clean", "| SNR 10"))]
+    assert len(rows) == 2, done.stdout
+    for row in rows:
+        cells = [cell.strip() for cell in row.strip("|").split("|")]
+        assert len(cells) == 8 and all(re.fullmatch(r"[\d.± -]+", c) for c in cells[1:]), row
+    verdicts = [line for line in lines if line.startswith(("clean:", "SNR 10 dB:"))]
+    assert len(verdicts) == 2 and all(re.search(r"(met|MISSED)$", v) for v in verdicts)
+
+
+def test_without_espeak_the_benchmark_says_so_and_exits_2(tmp_path: Path) -> None:
+    env = {**os.environ, "PATH": str(tmp_path)}
+    done = subprocess.run(
+        [sys.executable, "bench/speech.py"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
+    assert done.returncode == 2
+    assert (
+        done.stdout.strip()
+        == "error: espeak-ng is not installed (Debian: apt-get install espeak-ng)"
+    )
