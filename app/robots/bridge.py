@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any, TypeVar
 
+import httpx
+
 from app.api.runtime_schemas import PromptOut, SpeechOut
 from app.client import (
     ApiError,
@@ -45,6 +47,9 @@ from app.speech.vocabulary import Vocabulary
 T = TypeVar("T")
 
 CONFLICT = 409
+SERVER_ERROR = 500
+SERVER_AWAY = (ConnectionError, TimeoutError, OSError, httpx.HTTPError)
+"""What a request raises when the server cannot be reached (the WebSocket's and httpx's)."""
 TRANSCRIPT_MAX = 200
 
 
@@ -159,6 +164,7 @@ class Bridge:
         self._asked: set[int] = set()
         self._answered = _Answered()
         self._stopping = asyncio.Event()
+        self._robot_back = asyncio.Lock()
         self._rng = random.Random()
 
     # -- start and stop ---------------------------------------------------------------------
@@ -274,21 +280,42 @@ class Bridge:
     # -- the work -----------------------------------------------------------------------------
 
     async def _do_work(self) -> None:
+        delays = backoff_delays(self.settings.retry_delay, self.settings.max_retry_delay, self._rng)
         while True:
             item = await self._work.get()
+            prompt: PromptOut | None = None
             try:
                 prompt = await self._prompt_for(item)
                 if prompt is not None:
                     await self._ask(prompt)
             except RobotLost as lost:
                 await self._reconnect_robot(lost)
-                self._queue_open_prompts(await self._fresh_state())
+                self._work.put_nowait(item if prompt is None else _Handle(prompt.step_id))
             except DeviceKeyRefused:
                 raise
             except ApiError as exc:
-                self._log(f"Bridge: the server refused: {exc.detail}")
-            except (ConnectionError, TimeoutError, OSError) as exc:
-                self._log(f"Bridge: lost the server ({exc or type(exc).__name__}); reconnecting.")
+                if exc.status < SERVER_ERROR:
+                    self._log(f"Bridge: the server refused: {exc.detail}")
+                    continue
+                await self._retry_later(item, prompt, exc.detail, next(delays))
+            except SERVER_AWAY as exc:
+                await self._retry_later(item, prompt, str(exc) or type(exc).__name__, next(delays))
+            else:
+                delays = backoff_delays(
+                    self.settings.retry_delay, self.settings.max_retry_delay, self._rng
+                )
+
+    async def _retry_later(
+        self, item: _Ask | _Handle, prompt: PromptOut | None, why: str, delay: float
+    ) -> None:
+        """The server could not be reached or was busy: the question is asked once it answers
+        (a prompt already drawn is asked as it is; nothing is drawn twice)."""
+        self._log(f"Bridge: lost the server ({why}); trying again.")
+        if prompt is not None:
+            self._asked.discard(prompt.step_id)
+            item = _Handle(prompt.step_id)
+        await asyncio.sleep(delay)
+        self._work.put_nowait(item)
 
     async def _prompt_for(self, item: _Ask | _Handle) -> PromptOut | None:
         """The open step to ask, or None when there is nothing (left) to ask."""
@@ -358,8 +385,11 @@ class Bridge:
                     prompt.step_id, speech, wait=True
                 ):
                     return  # someone else's answer was recorded first: say its reply
-                raise
-            except (ConnectionError, TimeoutError, OSError) as exc:
+                if exc.status < SERVER_ERROR:
+                    raise
+                self._log(f"Bridge: the server is busy ({exc.detail}); retrying.")
+                await asyncio.sleep(next(delays))
+            except SERVER_AWAY as exc:
                 self._log(f"Bridge: lost the server ({exc or type(exc).__name__}); retrying.")
                 await asyncio.sleep(next(delays))
         await self._robot(self.robot.say, out.reply, speech.gestures.get(out.confidence))
@@ -414,7 +444,15 @@ class Bridge:
         return await asyncio.to_thread(method, *args)
 
     async def _reconnect_robot(self, lost: RobotLost) -> None:
-        """Tell the console, then reconnect to the robot until it answers again."""
+        """Tell the console, then reconnect to the robot until it answers again. The worker and
+        the cue watcher may both notice the loss: the second waits for the first's reconnection."""
+        if self._robot_back.locked():
+            async with self._robot_back:
+                return
+        async with self._robot_back:
+            await self._reconnect(lost)
+
+    async def _reconnect(self, lost: RobotLost) -> None:
         self._log(f"Bridge: lost {self.robot.description} ({lost}); reconnecting.")
         await self._notice(f"lost the robot ({lost}); reconnecting", attention=True)
         delays = backoff_delays(self.settings.retry_delay, self.settings.max_retry_delay, self._rng)
@@ -435,5 +473,5 @@ class Bridge:
         """A line on the console; the bridge goes on if the server cannot take it."""
         try:
             await self._client.notice(text, attention=attention)
-        except (ApiError, OSError, ConnectionError, TimeoutError) as exc:
-            self._log(f"Bridge: could not update the console ({exc})")
+        except (ApiError, *SERVER_AWAY) as exc:
+            self._log(f"Bridge: could not update the console ({exc or type(exc).__name__})")

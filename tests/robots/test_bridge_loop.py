@@ -8,9 +8,11 @@ import threading
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import httpx
 import pytest
 from sqlalchemy import select
 
+from app.client import RobotClient
 from app.robots.bridge import BridgeRefused, Trigger
 from app.robots.robot import Cue
 from app.services import verify
@@ -258,3 +260,35 @@ def test_an_answer_heard_while_the_server_is_away_is_recorded_once(seated: Lab) 
     assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
     assert said[1].text == answer.reply
     _verify_clean(seated)
+
+
+@SQLITE_ONLY
+def test_a_server_hiccup_before_asking_delays_the_question_not_loses_it(
+    seated: Lab, url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real_speech = RobotClient.speech
+    failures = {"speech": 1}
+
+    async def flaky_speech(self: RobotClient) -> Any:
+        if failures["speech"]:
+            failures["speech"] -= 1
+            raise httpx.ConnectError("connection refused")
+        return await real_speech(self)
+
+    async def no_console(self: RobotClient, text: str | None, *, attention: bool = False) -> None:
+        raise httpx.ConnectError("connection refused")
+
+    monkeypatch.setattr(RobotClient, "speech", flaky_speech)
+    monkeypatch.setattr(RobotClient, "notice", no_console)
+    script = Script()
+    script.add(Drop(), "no")
+    with RunningBridge(FakeRobot(script), url, seated.station, seated.key) as bridge:
+        step = _ask_now(seated)
+        said = script.wait_said(3, BOUND)
+    assert [line.text for line in said[:2]] == [step["question"], step["question"]]
+    [answer] = _answers(seated)
+    assert (answer.prompt_id, answer.answer, said[2].text) == (step["step_id"], False, answer.reply)
+    assert any(
+        "lost the server (connection refused); trying again" in line for line in bridge.lines
+    )
+    assert any("could not update the console (connection refused)" in line for line in bridge.lines)
