@@ -158,6 +158,8 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/api/v1/station/runs"): DEVICES,
     ("POST", "/api/v1/station/steps/{step_id}/answer"): OWN_DEVICE,
     ("WS", "/api/v1/station/ws"): DEVICES,
+    ("WS", "/api/v1/station/audio"): DEVICES,
+    ("GET", "/api/v1/station/speech/audio"): DEVICES,
     # the participant's tablet (each token reaches its own participant's pages only)
     ("GET", "/api/v1/tablet"): PARTICIPANTS,
     ("POST", "/api/v1/tablet/consent"): PARTICIPANTS,

@@ -191,6 +191,7 @@ def _answer_row(body: FloorAnswer, learner_version: int, now: float) -> dict[str
         "modality": "button",
         "transcript": None,
         "transcript_confidence": None,
+        "transcript_engine": None,
     }
 
 

@@ -270,6 +270,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/devices/{device_id}/revoke"): send("POST", "/devices/999999/revoke", data={}),
     ("GET", "/api/v1/station"): get("/api/v1/station"),
     ("GET", "/api/v1/station/room"): get("/api/v1/station/room"),
+    ("GET", "/api/v1/station/speech/audio"): get("/api/v1/station/speech/audio?text=x"),
     ("PUT", "/api/v1/station/presence"): send("PUT", "/api/v1/station/presence", json={}),
     ("GET", "/api/v1/station/speech"): get("/api/v1/station/speech"),
     ("PUT", "/api/v1/station/notice"): send("PUT", "/api/v1/station/notice", json={}),
@@ -318,7 +319,7 @@ def test_every_route_has_a_policy_and_a_probe(app: FastAPI) -> None:
     routes = app_routes(app)
     assert routes - set(POLICY) == set(), "routes without a policy in app/access.py"
     assert set(POLICY) - routes == set(), "policies of routes that no longer exist"
-    assert set(PROBES) | {("WS", "/api/v1/station/ws")} == set(POLICY)
+    assert set(PROBES) | set(SOCKETS) == set(POLICY)
 
 
 def _cells() -> Iterator[tuple[tuple[str, str], Principal]]:
@@ -341,11 +342,15 @@ def test_every_cell(world: World) -> None:
     assert wrong == [], "\n".join(wrong)
 
 
-def test_the_station_socket_admits_devices_only(world: World) -> None:
+SOCKETS = [("WS", "/api/v1/station/ws"), ("WS", "/api/v1/station/audio")]
+
+
+@pytest.mark.parametrize("socket", SOCKETS, ids=["station", "audio"])
+def test_the_station_sockets_admit_devices_only(world: World, socket: tuple[str, str]) -> None:
     for principal in Principal:
         client = client_for(world, principal)
-        allowed = principal in POLICY[("WS", "/api/v1/station/ws")]
-        with client.websocket_connect("/api/v1/station/ws") as ws:
+        allowed = principal in POLICY[socket]
+        with client.websocket_connect(socket[1]) as ws:
             if allowed:
                 assert ws.receive_json()["type"] == "hello"
             else:  # a browser's cookie is no key: its first request is refused at once

@@ -65,16 +65,15 @@ def test_a_bad_notice_is_refused_and_the_old_one_stays(lab: Lab) -> None:
     assert "bridge ready" in lab.experimenter.get(f"/stations/{lab.station}").text
 
 
-def _events(ws: Any) -> list[dict[str, Any]]:
-    """Pushes received until a ping round trip shows nothing more is queued."""
-    ws.send_json({"type": "ping", "id": "sync"})
+def _events_until(ws: Any, last: dict[str, Any]) -> list[dict[str, Any]]:
+    """Pushes received up to and including one whose data is ``last`` (events reach the socket
+    in commit order, through NOTIFY on PostgreSQL, so ``last`` comes after all earlier ones)."""
     seen = []
-    while True:
+    while not seen or seen[-1]["data"] != last:
         message = ws.receive_json()
-        if message["type"] == "pong" and message["id"] == "sync":
-            return seen
         if message["type"] == "event":
             seen.append(message)
+    return seen
 
 
 def test_entering_a_zone_is_pushed_once_and_console_events_are_not(lab: Lab) -> None:
@@ -87,10 +86,12 @@ def test_entering_a_zone_is_pushed_once_and_console_events_are_not(lab: Lab) -> 
         put("/api/v1/station/presence", json={**ZONE, "zone": None})
         put("/api/v1/station/presence", json={**ZONE, "zone": "affection"})
         put("/api/v1/station/notice", json={"text": "a line for the console only"})
-        pushed = _events(ws)
+        put("/api/v1/station/presence", json={**ZONE, "zone": "cognition"})  # the last one
+        pushed = _events_until(ws, {"zone": "cognition"})
     assert [(e["event"], e["data"]) for e in pushed] == [
         ("zone_entered", {"zone": "conation"}),
         ("zone_entered", {"zone": "affection"}),
+        ("zone_entered", {"zone": "cognition"}),
     ]
 
 
