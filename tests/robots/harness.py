@@ -7,15 +7,19 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 from typing import Any
 
 import uvicorn
 from fastapi import FastAPI
+from sqlalchemy import select
 
 from app.robots.bridge import Bridge, BridgeSettings, Trigger
 from app.robots.robot import Robot
+from app.services import verify
+from app.tables import Answer
+from tests.conftest import Lab
 from tests.servers import free_port
 
 BOUND = 30.0
@@ -108,3 +112,32 @@ class RunningBridge:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def ask_now(lab: Lab, category: str = "conation") -> dict[str, Any]:
+    """The operator console's "ask now" (a Wizard-of-Oz prompt): the step as staff see it."""
+    response = lab.experimenter.post(
+        f"/api/v1/stations/{lab.station}/prompts", json={"category": category}
+    )
+    assert response.status_code in (200, 201), response.text
+    return dict(response.json())
+
+
+def stored_answers(lab: Lab) -> list[Answer]:
+    with lab.database.read_session() as db:
+        return list(db.scalars(select(Answer).order_by(Answer.id)))
+
+
+def wait_for(condition: Callable[[], bool]) -> None:
+    """Poll what the bridge's thread brings about (bounded by :data:`BOUND`, not timed)."""
+    for _ in range(int(BOUND / 0.02)):
+        if condition():
+            return
+        threading.Event().wait(0.02)
+    raise AssertionError("the bridge never got there")
+
+
+def assert_verify_clean(lab: Lab) -> None:
+    with lab.database.read_session() as db:
+        report = verify.verify_study(db, study_name=lab.study)
+    assert report.ok, report.findings

@@ -8,7 +8,6 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -19,7 +18,7 @@ from app.cli import cli
 from app.services import verify
 from app.tables import Answer, Prompt
 from tests.conftest import Lab
-from tests.robots.harness import BOUND, served
+from tests.robots.harness import BOUND
 from tests.robots.standins.furhat import FurhatStandIn
 from tests.robots.standins.rosbridge import RosbridgeStandIn
 from tests.robots.standins.script import Script
@@ -29,12 +28,6 @@ pytestmark = [
     pytest.mark.timeout(120),
     pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True),
 ]
-
-
-@pytest.fixture
-def url(lab: Lab) -> Iterator[str]:
-    with served(lab.app) as address:
-        yield address
 
 
 def _count(lab: Lab, table: type[Answer] | type[Prompt]) -> int:

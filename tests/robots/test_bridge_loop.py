@@ -4,8 +4,6 @@ console's notices, each trigger, losing the robot, and the refusals at start."""
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Callable, Iterator
 from typing import Any
 
 import httpx
@@ -15,11 +13,18 @@ from sqlalchemy import select
 from app.client import RobotClient
 from app.robots.bridge import BridgeRefused, Trigger
 from app.robots.robot import Cue
-from app.services import verify
-from app.tables import Answer, Device, Prompt
+from app.tables import Device, Prompt
 from tests.conftest import Lab
 from tests.robots.fake_robot import FakeRobot
-from tests.robots.harness import BOUND, RunningBridge, served
+from tests.robots.harness import (
+    BOUND,
+    RunningBridge,
+    ask_now,
+    assert_verify_clean,
+    served,
+    stored_answers,
+    wait_for,
+)
 from tests.robots.standins.script import Drop, Said, Script, Silence, Words
 from tests.servers import free_port
 
@@ -29,69 +34,20 @@ pytestmark = pytest.mark.timeout(120)
 REPROMPT = "Sorry, I did not catch that. Please answer yes or no."
 
 
-@pytest.fixture
-def url(lab: Lab) -> Iterator[str]:
-    with served(lab.app) as address:
-        yield address
-
-
-@pytest.fixture
-def seated(lab: Lab) -> Lab:
-    """P001 seated at lab-1 with session 1 started."""
-    lab.enrol_and_assign("P001")
-    lab.start_session()
-    return lab
-
-
-def _ask_now(lab: Lab, category: str = "conation") -> dict[str, Any]:
-    """The console's "ask now" (a Wizard-of-Oz prompt)."""
-    response = lab.experimenter.post(
-        f"/api/v1/stations/{lab.station}/prompts", json={"category": category}
-    )
-    assert response.status_code in (200, 201), response.text
-    return dict(response.json())
-
-
-def _answers(lab: Lab) -> list[Answer]:
-    with lab.database.read_session() as db:
-        return list(db.scalars(select(Answer).order_by(Answer.id)))
-
-
-def _wait_answers(lab: Lab, script: Script, count: int, lines: int) -> list[Answer]:
-    """Wait until the robot said ``lines`` lines, then read the stored answers."""
-    script.wait_said(lines, BOUND)
-    return _answers(lab)
-
-
-def _wait_for(condition: Callable[[], bool]) -> None:
-    """Poll a database condition the bridge's thread brings about (bounded, not timed)."""
-    for _ in range(int(BOUND / 0.02)):
-        if condition():
-            return
-        threading.Event().wait(0.02)
-    raise AssertionError("the bridge never got there")
-
-
-def _verify_clean(lab: Lab) -> None:
-    with lab.database.read_session() as db:
-        report = verify.verify_study(db, study_name=lab.study)
-    assert report.ok, report.findings
-
-
 @SQLITE_ONLY
 def test_ask_now_is_said_heard_stored_once_and_replied(seated: Lab, url: str) -> None:
     script = Script()
     script.add(Words("Yeah!", 0.83))
     with RunningBridge(FakeRobot(script), url, seated.station, seated.key):
-        step = _ask_now(seated)
+        step = ask_now(seated)
         said = script.wait_said(2, BOUND)
     assert said[0] == Said(step["question"])
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.answer, answer.modality) == (step["step_id"], True, "speech")
     assert (answer.transcript, answer.transcript_confidence) == ("Yeah!", 0.83)
     assert said[1].text == answer.reply and said[1].gesture is None
     assert script.vocabularies == [["yes", "yeah", "yep", "sure", "no", "nope", "no way"]]
-    _verify_clean(seated)
+    assert_verify_clean(seated)
 
 
 def _notice(lab: Lab) -> tuple[str | None, bool]:
@@ -108,14 +64,14 @@ def test_silence_and_unclear_words_are_asked_again(seated: Lab, url: str) -> Non
     speech = seated.robot.get("/api/v1/station/speech").json()
     assert speech["attempts"] == 3
     with RunningBridge(FakeRobot(script), url, seated.station, seated.key, trigger=Trigger.CONSOLE):
-        _ask_now(seated)
+        ask_now(seated)
         script.wait_said(3, BOUND)
         # three tries: silence, garbage, "maybe" -> the console is asked for an answer
-        _wait_for(lambda: _notice(seated)[0] is not None)
+        wait_for(lambda: _notice(seated)[0] is not None)
         notice, attention = _notice(seated)
         assert attention and notice is not None
         assert "stayed unclear after 3 tries (last heard: “maybe” (0.90))" in notice
-        assert _answers(seated) == []
+        assert stored_answers(seated) == []
         step_id = seated.robot.get("/api/v1/station").json()["open_prompts"][0]["step_id"]
         woz = seated.experimenter.post(
             f"/api/v1/stations/{seated.station}/steps/{step_id}/answer",
@@ -123,9 +79,9 @@ def test_silence_and_unclear_words_are_asked_again(seated: Lab, url: str) -> Non
         )
         assert woz.status_code == 200, woz.text
         said = script.wait_said(4, BOUND)
-        _wait_for(lambda: _notice(seated)[0] is None)
+        wait_for(lambda: _notice(seated)[0] is None)
     assert [line.text for line in said[1:]] == [REPROMPT, REPROMPT, woz.json()["reply"]]
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     assert (answer.answer, answer.modality, answer.transcript) == (False, None, None)
     assert _notice(seated) == (None, False)
     assert len(script.said) == 4 and len(script.vocabularies) == 3
@@ -140,7 +96,7 @@ def test_stepping_into_a_zone_asks_its_category(seated: Lab, url: str) -> None:
         where = {"x": 1.0, "z": 1.0, "heading": 0.0, "zone": "affection"}
         assert seated.robot.put("/api/v1/station/presence", json=where).status_code == 204
         said = script.wait_said(2, BOUND)
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     with seated.database.read_session() as db:
         category = db.scalar(select(Prompt.category).where(Prompt.id == answer.prompt_id))
     assert category == "affection" and said[1].text == answer.reply
@@ -158,7 +114,7 @@ def test_the_robot_s_cue_asks_the_expected_category(seated: Lab, url: str) -> No
         script.wait_said(2, BOUND)
         robot.cues.put(Cue(category=expected[-1], source="ROS topic"))
         script.wait_said(4, BOUND)
-    answers = _answers(seated)
+    answers = stored_answers(seated)
     with seated.database.read_session() as db:
         categories = [db.get(Prompt, a.prompt_id).category for a in answers]  # type: ignore[union-attr]
     assert categories == [expected[0], expected[-1]]
@@ -170,10 +126,10 @@ def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: s
     script.add(Drop(), "yep")
     robot = FakeRobot(script)
     with RunningBridge(robot, url, seated.station, seated.key) as bridge:
-        step = _ask_now(seated)
+        step = ask_now(seated)
         said = script.wait_said(3, BOUND)
     assert [line.text for line in said[:2]] == [step["question"], step["question"]]
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.transcript) == (step["step_id"], "yep")
     assert said[2].text == answer.reply
     assert robot.connects == 2
@@ -182,24 +138,24 @@ def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: s
         for line in bridge.lines
     )
     assert _notice(seated) == (None, False)
-    _verify_clean(seated)
+    assert_verify_clean(seated)
 
 
 def test_a_bridge_killed_mid_answer_and_restarted_answers_once(seated: Lab, url: str) -> None:
     first = Script()
     first.add(Silence())
     with RunningBridge(FakeRobot(first), url, seated.station, seated.key):
-        step = _ask_now(seated)
+        step = ask_now(seated)
         first.wait_said(2, BOUND)  # the question and a reprompt: killed while listening again
-    assert _answers(seated) == []
+    assert stored_answers(seated) == []
     second = Script()
     second.add("no")
     with RunningBridge(FakeRobot(second), url, seated.station, seated.key):
         said = second.wait_said(2, BOUND)  # the open question is asked again at start
     assert said[0].text == step["question"]
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.answer, said[1].text) == (step["step_id"], False, answer.reply)
-    _verify_clean(seated)
+    assert_verify_clean(seated)
 
 
 @SQLITE_ONLY
@@ -246,20 +202,22 @@ def test_an_answer_heard_while_the_server_is_away_is_recorded_once(seated: Lab) 
     port = free_port()
     with served(seated.app, port) as url:
         bridge = RunningBridge(robot, url, seated.station, seated.key).__enter__()
-        step = _ask_now(seated)
+        step = ask_now(seated)
         assert robot.listening.wait(BOUND)
     robot.release.set()  # the participant answers while the server is gone
     try:
-        _wait_for(lambda: not script.replies)  # heard; the answer waits for the server
-        assert _answers(seated) == [] and len(script.said) == 1  # no reply before it is stored
+        wait_for(lambda: not script.replies)  # heard; the answer waits for the server
+        assert (
+            stored_answers(seated) == [] and len(script.said) == 1
+        )  # no reply before it is stored
         with served(seated.app, port):
             said = script.wait_said(2, BOUND)
     finally:
         bridge.stop()
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
     assert said[1].text == answer.reply
-    _verify_clean(seated)
+    assert_verify_clean(seated)
 
 
 @SQLITE_ONLY
@@ -283,10 +241,10 @@ def test_a_server_hiccup_before_asking_delays_the_question_not_loses_it(
     script = Script()
     script.add(Drop(), "no")
     with RunningBridge(FakeRobot(script), url, seated.station, seated.key) as bridge:
-        step = _ask_now(seated)
+        step = ask_now(seated)
         said = script.wait_said(3, BOUND)
     assert [line.text for line in said[:2]] == [step["question"], step["question"]]
-    [answer] = _answers(seated)
+    [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.answer, said[2].text) == (step["step_id"], False, answer.reply)
     assert any(
         "lost the server (connection refused); trying again" in line for line in bridge.lines

@@ -7,19 +7,21 @@ dropped robot connection, and ``trustlab verify``."""
 from __future__ import annotations
 
 import dataclasses
-import threading
-from collections.abc import Callable, Iterator
-from typing import Any
 
 import pytest
-from sqlalchemy import select
 
 from app.protocol import parse_protocol
-from app.services import studies, verify
+from app.services import studies
 from app.services.audit import Actor
-from app.tables import Answer
 from tests.conftest import EXP3_ONLY, Lab, protocol_text
-from tests.robots.harness import BOUND, RunningBridge, served
+from tests.robots.harness import (
+    BOUND,
+    RunningBridge,
+    ask_now,
+    assert_verify_clean,
+    stored_answers,
+    wait_for,
+)
 from tests.robots.kinds import KINDS, Kind
 from tests.robots.standins.script import Drop, Script, Silence, Words
 
@@ -54,39 +56,6 @@ def gesturing(lab: Lab) -> Lab:
     return seated
 
 
-@pytest.fixture
-def url(lab: Lab) -> Iterator[str]:
-    with served(lab.app) as address:
-        yield address
-
-
-def _ask_now(lab: Lab, category: str) -> dict[str, Any]:
-    response = lab.experimenter.post(
-        f"/api/v1/stations/{lab.station}/prompts", json={"category": category}
-    )
-    assert response.status_code in (200, 201), response.text
-    return dict(response.json())
-
-
-def _answers(lab: Lab) -> list[Answer]:
-    with lab.database.read_session() as db:
-        return list(db.scalars(select(Answer).order_by(Answer.id)))
-
-
-def _wait_until(condition: Callable[[], bool]) -> None:
-    for _ in range(int(BOUND / 0.02)):
-        if condition():
-            return
-        threading.Event().wait(0.02)
-    raise AssertionError("never happened")
-
-
-def _verify_clean(lab: Lab) -> None:
-    with lab.database.read_session() as db:
-        report = verify.verify_study(db, study_name=lab.study)
-    assert report.ok, report.findings
-
-
 def test_a_participant_answers_through_the_robot(kind: Kind, gesturing: Lab, url: str) -> None:
     script = Script()
     script.add(Silence(), Words("maybe", 0.95), Words("Yeah", 0.8), Words("no way", 0.7))
@@ -94,11 +63,11 @@ def test_a_participant_answers_through_the_robot(kind: Kind, gesturing: Lab, url
         kind.stand_in(script) as stand_in,
         RunningBridge(kind.robot(stand_in), url, gesturing.station, gesturing.key),
     ):
-        first = _ask_now(gesturing, "conation")
+        first = ask_now(gesturing, "conation")
         script.wait_said(4, BOUND)
-        second = _ask_now(gesturing, "affection")
+        second = ask_now(gesturing, "affection")
         said = script.wait_said(6, BOUND)
-    answers = _answers(gesturing)
+    answers = stored_answers(gesturing)
     assert [(a.prompt_id, a.answer) for a in answers] == [
         (first["step_id"], True),
         (second["step_id"], False),
@@ -119,7 +88,7 @@ def test_a_participant_answers_through_the_robot(kind: Kind, gesturing: Lab, url
         (second["question"], None),
         (answers[1].reply, kind.gesture(GESTURES[answers[1].confidence])),
     ]
-    _verify_clean(gesturing)
+    assert_verify_clean(gesturing)
 
 
 def test_a_dropped_robot_connection_is_survived(kind: Kind, gesturing: Lab, url: str) -> None:
@@ -129,13 +98,13 @@ def test_a_dropped_robot_connection_is_survived(kind: Kind, gesturing: Lab, url:
         kind.stand_in(script) as stand_in,
         RunningBridge(kind.robot(stand_in), url, gesturing.station, gesturing.key) as bridge,
     ):
-        step = _ask_now(gesturing, "cognition")
-        _wait_until(lambda: any("reconnecting" in line for line in bridge.lines))
+        step = ask_now(gesturing, "cognition")
+        wait_for(lambda: any("reconnecting" in line for line in bridge.lines))
         kind.recover(stand_in)
         said = script.wait_said(3, BOUND)
-    [answer] = _answers(gesturing)
+    [answer] = stored_answers(gesturing)
     assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
     assert [line.text for line in said] == [step["question"], step["question"], answer.reply]
     assert any("reconnecting" in line for line in bridge.lines)
     assert any("is back" in line for line in bridge.lines)
-    _verify_clean(gesturing)
+    assert_verify_clean(gesturing)
