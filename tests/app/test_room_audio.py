@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import io
+import os
 import shutil
 import subprocess
 import tempfile
@@ -394,7 +395,18 @@ def sqlite_files(lab: Lab, engine_name: str) -> list[Path]:
 
 
 def _files_under(folder: Path) -> set[Path]:
-    return {p for p in folder.rglob("*") if p.is_file()}
+    """Files below ``folder``; other tests on the machine create and remove folders under the
+    temporary directory meanwhile, so a folder that vanishes during the walk is skipped
+    (``os.walk`` ignores errors), where ``Path.rglob`` raises."""
+    return {Path(root, name) for root, _dirs, names in os.walk(folder) for name in names}
+
+
+def _read_if_still_there(path: Path) -> bytes:
+    """A file's bytes, or nothing when another test removed it since it was listed."""
+    try:
+        return path.read_bytes() if path.stat().st_size < 64_000_000 else b""
+    except (FileNotFoundError, NotADirectoryError, PermissionError):
+        return b""
 
 
 def test_no_audio_is_left_anywhere_after_a_session_without_recording(
@@ -420,10 +432,10 @@ def test_no_audio_is_left_anywhere_after_a_session_without_recording(
     assert len(answers) >= 3 and {a.modality for a in answers} == {"speech"}
     assert _recordings(lab) == 0
     written = (_files_under(tmp_path) | _files_under(temporary)) - before
+    assert sqlite_files[0].is_file(), "the database file to search is where the engine says"
     assert not any(p.suffix.lower() in (".wav", ".pcm", ".raw") for p in written), written
     for path in {*written, *sqlite_files}:  # other tests on the machine write here too
-        if path.exists() and path.stat().st_size < 64_000_000:
-            assert SIGNATURE not in path.read_bytes(), path
+        assert SIGNATURE not in _read_if_still_there(path), path
 
 
 def test_the_room_is_served_its_speech_settings(lab: Lab) -> None:
