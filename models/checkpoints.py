@@ -87,6 +87,13 @@ def observation_for(category: str, dim: int = OBSERVATION_DIM) -> np.ndarray:
     return np.random.default_rng(seed).standard_normal(dim)
 
 
+TRACE_GATES: tuple[str, str, str, str] = ("step", "retention", "others_step", "others_retention")
+"""The per-answer coefficients of a per-question surprise trace (:class:`SurpriseGates`)."""
+TRACE_KINDS: tuple[str, str] = ("surprise", "contradiction")
+"""What a per-question trace adds up (:class:`SurpriseGates`): every surprise, or contradictions
+net of confirmations."""
+
+
 @dataclass(frozen=True)
 class SurpriseGates:
     """How an answer's surprise (:func:`models.learners.mlp_policy.surprise`) changes the step it
@@ -112,6 +119,27 @@ class SurpriseGates:
     step only: scaling the forgetting too lowered how sure C2 could become after any surprise,
     and with it how often it recovered from a change of mind (docs/engine.md, issue 36).
     ``memory_step`` is ``v'``; None: no memory, exactly the gates before it.
+
+    With a *per-question trace* (``trace``, issue 36), the learner keeps one trace per question,
+    ``q_k ← ρ (q_k + u [k = asked])`` (:meth:`Checkpoint.trace_after`), and the gates see the
+    asked question's trace ``q_a`` — through ``u q_a``, a surprise on a question that surprised
+    before — and the trace of the *other* questions, ``o = Σ_{k≠a} q_k``::
+
+        α_t = α_t · exp(v_t u + … + x_t u q_a + y_t o)
+        ρ_t = σ(logit ρ_t + w_t u + x'_t u q_a + y'_t o)
+
+    A sum of surprises cannot tell scattered slips from repeated contradictions of one question;
+    the filter can, because a run of "no"s to the question it was sure of after a consistent
+    history is better explained by a change of mind than by slips. ``u q_a`` is that run,
+    ``o`` the scattered surprises. ``trace`` holds ``x, x', y, y'`` under ``step``,
+    ``retention``, ``others_step`` and ``others_retention``; all zero: exactly the gates
+    without a trace. None: no trace.
+
+    ``trace_kind`` ``"contradiction"`` keeps, instead of every surprise, how far each question
+    has been contradicted: with the signed surprise ``d = (r − r̂)/(yes − no)`` (below 0 for an
+    unexpected no), ``q_a ← ρ max(0, q_a − d)``. The yeses that first found the favourite then
+    leave no trace on it (they would make its first "no" look repeated), and a yes to a question
+    after a "no" to it takes the "no" back, as the filter's belief in a slip does.
     """
 
     yes: float
@@ -119,11 +147,18 @@ class SurpriseGates:
     step: np.ndarray
     retention: np.ndarray
     memory_step: np.ndarray | None = None
+    trace: dict[str, np.ndarray] | None = None
+    trace_kind: str = "surprise"
 
     @property
     def remembers(self) -> bool:
         """Whether the gates see the surprises before the current answer."""
         return self.memory_step is not None
+
+    @property
+    def traces(self) -> bool:
+        """Whether the gates see a per-question trace of the surprises before."""
+        return self.trace is not None
 
     def of(self, p_asked: np.ndarray | float, reward: np.ndarray | float) -> np.ndarray:
         """The surprise of ``reward`` for a question the policy asked with ``p_asked``."""
@@ -208,10 +243,13 @@ class Checkpoint:
         p_asked: np.ndarray | float,
         reward: np.ndarray | float,
         memory: np.ndarray | float = 0.0,
+        trace: tuple[np.ndarray | float, np.ndarray | float] = (0.0, 0.0),
     ) -> tuple[np.ndarray | float, np.ndarray | float]:
         """The step size and forgetting ρ for answer ``answer_index`` (0-based) with this reward
         to a question asked with probability ``p_asked``, with the surprise ``memory`` of the
-        answers before (arrays: one per batch row; only gates that remember read it)."""
+        answers before and ``trace``, the asked question's trace and the others' sum
+        (:meth:`trace_parts`) (arrays: one per batch row; only gates that remember or trace read
+        them)."""
         index = min(answer_index, self.horizon - 1)
         step: np.ndarray | float = float(self.step_sizes[index])
         rho: np.ndarray | float = self.retention_after(answer_index)
@@ -223,6 +261,18 @@ class Checkpoint:
         retention_shift = gates.retention[index] * u
         if gates.memory_step is not None:
             step_exponent = step_exponent + gates.memory_step[index] * memory
+        if gates.trace is not None:
+            repeated, others = u * trace[0], trace[1]
+            step_exponent = (
+                step_exponent
+                + gates.trace["step"][index] * repeated
+                + gates.trace["others_step"][index] * others
+            )
+            retention_shift = (
+                retention_shift
+                + gates.trace["retention"][index] * repeated
+                + gates.trace["others_retention"][index] * others
+            )
         step = step * np.exp(step_exponent)
         with np.errstate(divide="ignore"):
             logit = np.log(rho) - np.log1p(-rho)
@@ -244,10 +294,49 @@ class Checkpoint:
             return memory
         return retention * (memory + self.gates.of(p_asked, reward))
 
+    @staticmethod
+    def trace_parts(trace: np.ndarray, action: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+        """The asked question's trace ``q_a`` and the sum of the others' ``Σ_{k≠a} q_k``, from
+        a trace (…, K) and the asked question (one per batch row)."""
+        values = np.asarray(trace, dtype=np.float64)
+        asked = np.take_along_axis(values, np.asarray(action)[..., None], axis=-1)[..., 0]
+        return asked, values.sum(axis=-1) - asked
+
+    def trace_after(
+        self,
+        trace: np.ndarray,
+        action: np.ndarray | int,
+        p_asked: np.ndarray | float,
+        reward: np.ndarray | float,
+        retention: np.ndarray | float,
+    ) -> np.ndarray:
+        """The per-question surprise trace after this answer, ``ρ (q + u e_a)`` (or, for a
+        contradiction trace, ``ρ max(0, q_a − d)`` on the asked question), for gates that trace
+        (else ``trace`` unchanged). Forgotten by the answer's own ρ, as the memory is."""
+        gates = self.gates
+        if gates is None or not gates.traces:
+            return trace
+        values = np.asarray(trace, dtype=np.float64)
+        onehot = np.asarray(action)[..., None] == np.arange(self.n_arms)
+        rho = np.asarray(retention, dtype=np.float64)
+        rho = rho[..., None] if rho.ndim else rho
+        if gates.trace_kind == "contradiction":
+            expected = gates.no + np.asarray(p_asked, dtype=np.float64) * (gates.yes - gates.no)
+            signed = (np.asarray(reward, dtype=np.float64) - expected) / (gates.yes - gates.no)
+            return rho * np.where(onehot, np.maximum(values - signed[..., None], 0.0), values)
+        u = np.asarray(gates.of(p_asked, reward), dtype=np.float64)[..., None]
+        return rho * (values + u * onehot)
+
     @property
     def remembers(self) -> bool:
         """Whether learners on this checkpoint keep a surprise memory in their state."""
         return self.gates is not None and self.gates.remembers
+
+    @property
+    def traces(self) -> bool:
+        """Whether learners on this checkpoint keep a per-question surprise trace in their
+        state."""
+        return self.gates is not None and self.gates.traces
 
     @property
     def hidden(self) -> int:
@@ -319,6 +408,13 @@ def write_checkpoint(
         }
         if gates.memory_step is not None:
             weights["surprise"]["memory_step"] = np.asarray(gates.memory_step).tolist()
+        if gates.trace is not None:
+            weights["surprise"]["trace"] = {
+                name: np.asarray(gates.trace[name], dtype=np.float64).tolist()
+                for name in TRACE_GATES
+            }
+            if gates.trace_kind != "surprise":  # absent: the first kind, so its hashes stay
+                weights["surprise"]["trace_kind"] = gates.trace_kind
     data = _dump(weights)
     (directory / WEIGHTS_FILE).write_bytes(data)
     (directory / HASH_FILE).write_text(f"{_digest(data)}  {WEIGHTS_FILE}\n")
@@ -492,7 +588,29 @@ def _gates(value: Any, horizon: int, where: Path, forgets: bool) -> SurpriseGate
         memory_step=(
             _array(value, "memory_step", (horizon,), where) if "memory_step" in value else None
         ),
+        trace=_trace(value.get("trace"), horizon, where),
+        trace_kind=_trace_kind(value, where),
     )
+
+
+def _trace_kind(value: dict[str, Any], where: Path) -> str:
+    kind = value.get("trace_kind", "surprise")
+    if kind not in TRACE_KINDS or ("trace" not in value and "trace_kind" in value):
+        raise ValueError(
+            f"checkpoint {where}: 'surprise.trace_kind' must be one of {', '.join(TRACE_KINDS)}, "
+            "with a 'trace'"
+        )
+    return str(kind)
+
+
+def _trace(value: Any, horizon: int, where: Path) -> dict[str, np.ndarray] | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict) or set(value) != set(TRACE_GATES):
+        raise ValueError(
+            f"checkpoint {where}: 'surprise.trace' must be an object with {', '.join(TRACE_GATES)}"
+        )
+    return {name: _array(value, name, (horizon,), where) for name in TRACE_GATES}
 
 
 def find_by_sha256(sha256: str, roots: Sequence[Path]) -> Path | None:

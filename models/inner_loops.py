@@ -113,7 +113,9 @@ def online_rollout(
     retention_logit = p.get("retention_logit")
     gated = "surprise_step" in p
     remembers = "memory_step" in p
+    traces = "trace_step" in p
     memory = torch.zeros(batch.preferred.shape[0], dtype=DTYPE)
+    trace = torch.zeros(batch.preferred.shape[0], args.arms, dtype=DTYPE)
     offset = None
     if args.anchor:  # log prior − f_θ₀(x): the start is the prior, whatever θ₀ is
         log_prior = torch.as_tensor(np.log(args.tasks.prior), dtype=DTYPE)
@@ -155,15 +157,31 @@ def online_rollout(
             log_step = log_step + p["surprise_step"][t] * u
             if remembers:
                 log_step = log_step + p["memory_step"][t] * memory
+            if traces:  # Checkpoint.trace_parts: u q_a and the others' sum
+                asked = (trace * onehot).sum(-1)
+                repeated, others = u * asked, trace.sum(-1) - asked
+                log_step = (
+                    log_step + p["trace_step"][t] * repeated + p["trace_others_step"][t] * others
+                )
         net = apply_step(net, obs, s, log_step.exp(), damping, offset)
         if retention_logit is not None:
             z = retention_logit[t]
             if gated:
                 z = z + p["surprise_retention"][t] * u
+            if traces:
+                z = z + p["trace_retention"][t] * repeated + p["trace_others_retention"][t] * others
             rho = torch.sigmoid(z)
             net = retain(net, initial, rho)
             if remembers:  # models.checkpoints.Checkpoint.memory_after
                 memory = rho * (memory + u)
+            if traces and args.question_trace == "contradiction":
+                signed = (reward - (model.no + p_asked * (model.yes - model.no))) / (
+                    model.yes - model.no
+                )
+                contradicted = torch.clamp(trace - signed.unsqueeze(-1), min=0.0)
+                trace = rho.unsqueeze(-1) * torch.where(onehot.bool(), contradicted, trace)
+            elif traces:  # models.checkpoints.Checkpoint.trace_after
+                trace = rho.unsqueeze(-1) * (trace + u.unsqueeze(-1) * onehot)
     return Rollout(log_probs, torch.stack(taken, dim=1), torch.stack(rewards, dim=1).detach())
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from models.checkpoints import TRACE_GATES
 from models.learners.mlp_policy import init_params, param_shapes
 from models.pretrain_config import PretrainArgs
 
@@ -127,6 +128,8 @@ def layout_for(args: PretrainArgs, obs_dim: int) -> Layout:
             shapes.update({"surprise_step": (args.horizon,), "surprise_retention": (args.horizon,)})
         if args.surprise_memory:
             shapes["memory_step"] = (args.horizon,)
+        if args.question_trace:
+            shapes.update({f"trace_{name}": (args.horizon,) for name in TRACE_GATES})
     return Layout(shapes)
 
 
@@ -149,7 +152,8 @@ def initial_theta(args: PretrainArgs, layout: Layout, rng: np.random.Generator) 
             rho = initial_retention(args)
             values["retention_logit"] = np.full(args.horizon, math.log(rho / (1.0 - rho)))
         # Start as if there were no gates.
-        for name in ("surprise_step", "surprise_retention", "memory_step"):
+        gates = ("surprise_step", "surprise_retention", "memory_step")
+        for name in gates + tuple(f"trace_{name}" for name in TRACE_GATES):
             if name in layout.shapes:
                 values[name] = np.zeros(layout.shapes[name])
     return layout.flatten(values)

@@ -50,7 +50,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from models.checkpoints import Checkpoint, SurpriseGates, observation_for, write_checkpoint
+from models.checkpoints import (
+    TRACE_GATES,
+    Checkpoint,
+    SurpriseGates,
+    observation_for,
+    write_checkpoint,
+)
 from models.inner_loops import (
     OnlineBatch,
     filter_beliefs,
@@ -135,6 +141,12 @@ def _gates(values: dict[str, np.ndarray], args: PretrainArgs) -> SurpriseGates |
         step=values["surprise_step"],
         retention=values["surprise_retention"],
         memory_step=values.get("memory_step"),
+        trace=(
+            {name: values[f"trace_{name}"] for name in TRACE_GATES}
+            if "trace_step" in values
+            else None
+        ),
+        trace_kind=args.question_trace or "surprise",
     )
 
 

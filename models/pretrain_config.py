@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from models.checkpoints import GENERIC
+from models.checkpoints import GENERIC, TRACE_KINDS
 from models.feedback import FeedbackModel
 from models.learners.mlp_policy import HIDDEN_UNITS, UPDATE_RULES
 from models.tasks import DEFAULT_VARIANCE, TaskDistribution, check_prior
@@ -131,6 +131,12 @@ class PretrainArgs:
     each answer (:class:`models.checkpoints.SurpriseGates`), so a participant who contradicted
     the policy before gets evidence weighed like a slipper's; the command line turns it on with
     the gates (issue 36)."""
+    question_trace: str | None = None
+    """``online``, with ``surprise_gates``: keep one trace per question — of every surprise
+    (``surprise``) or of contradictions net of confirmations (``contradiction``) — and let the
+    gates see a surprise on a question that surprised before (a change of mind) apart from the
+    trace on the others (slips) (:class:`models.checkpoints.SurpriseGates`, issue 36); its
+    coefficients start at zero, so training starts from the gates without it. None: no trace."""
     bounded_baseline: bool = False
     """``online``, yes/no answers: keep every reward baseline strictly between the rewards of no
     and yes (meta-learned through a logistic), so a yes can never lower the asked question's
@@ -227,6 +233,13 @@ class PretrainArgs:
             )
         if args.surprise_memory and not args.surprise_gates:
             raise ValueError("a surprise memory is part of the surprise gates: it needs them")
+        if args.question_trace is not None and args.question_trace not in TRACE_KINDS:
+            raise ValueError(
+                f"question_trace must be one of {', '.join(TRACE_KINDS)}, "
+                f"not {args.question_trace!r}"
+            )
+        if args.question_trace and not args.surprise_gates:
+            raise ValueError("a per-question surprise trace is part of the surprise gates")
         if args.population is not None and (
             not isinstance(args.population.get("sha256"), str) or args.preferred_prior is None
         ):

@@ -117,6 +117,7 @@ class BatchMetaPolicy:
         self.offset = checkpoint.offset_for(self.initial, random_init=params is not None)
         self.answers = 0
         self.memory: np.ndarray | float = 0.0
+        self.trace: np.ndarray = np.zeros(checkpoint.n_arms)  # broadcast to (n, K) on update
 
     def probabilities(self) -> np.ndarray:
         """π for every participant (a single row while all still share the start)."""
@@ -133,8 +134,13 @@ class BatchMetaPolicy:
                 np.asarray(actions)[:, None],
                 axis=1,
             )[:, 0]
-        step, retention = c.step_and_retention(self.answers, p_asked, rewards, self.memory)
+        parts: tuple[np.ndarray | float, np.ndarray | float] = (0.0, 0.0)
+        if c.traces:
+            self.trace = np.broadcast_to(self.trace, (len(actions), c.n_arms))
+            parts = c.trace_parts(self.trace, actions)
+        step, retention = c.step_and_retention(self.answers, p_asked, rewards, self.memory, parts)
         self.memory = c.memory_after(self.memory, p_asked, rewards, retention)
+        self.trace = c.trace_after(self.trace, actions, p_asked, rewards, retention)
         if self.params["b2"].ndim == 1:
             self.params = {
                 k: np.broadcast_to(v, (len(actions), *v.shape)) for k, v in self.params.items()

@@ -442,6 +442,16 @@ def pretrain_command(
             '(default: off; docs/engine.md, "C2 calibrated under slips").',
         ),
     ] = None,
+    question_trace: Annotated[
+        str | None,
+        typer.Option(
+            "--question-trace",
+            help="online: keep one trace per question, of every surprise (surprise) or of "
+            "contradictions net of confirmations (contradiction), so the gates tell repeated "
+            "contradictions of one question (a change of mind) from scattered ones (slips) "
+            '(default: none; docs/engine.md, "C2 calibrated under slips").',
+        ),
+    ] = None,
     population: Annotated[
         Path | None,
         typer.Option(
@@ -459,7 +469,14 @@ def pretrain_command(
     root = out
     try:
         training = training_feedback(
-            mode, protocol, paper_feedback, anchor, forgetting, surprise_gates, surprise_memory
+            mode,
+            protocol,
+            paper_feedback,
+            anchor,
+            forgetting,
+            surprise_gates,
+            surprise_memory,
+            question_trace,
         )
         if objective is not None:
             training["objective"] = objective
@@ -542,15 +559,17 @@ def training_feedback(
     forgetting: bool | None,
     gates: bool | None,
     memory: bool | None = None,
+    trace: str | None = None,
 ) -> dict[str, Any]:
     """The ``PretrainArgs`` fields for the feedback model a run trains for.
 
     The paper's Gaussian model (``--paper-feedback``, paper mode, or a protocol declaring it)
     trains as every checkpoint before issue 19 did: plain rewards, calibrated selection. Any
     other model trains anchored at the prior, with a forgetting step when participants may slip
-    or change their minds (and surprise gates on it; their memory only when asked), scored and
-    selected against the exact filter for the model (``objective`` and ``selection`` ``filter``;
-    docs/engine.md, "C2 for real participants"). Explicit flags override these defaults.
+    or change their minds (and surprise gates on it; their memory and per-question trace only
+    when asked), scored and selected against the exact filter for the model (``objective`` and
+    ``selection`` ``filter``; docs/engine.md, "C2 for real participants"). Explicit flags
+    override these defaults.
     """
     from app.protocol import default_protocol, load_protocol_file
     from app.services.learners import feedback_model
@@ -563,6 +582,7 @@ def training_feedback(
             "forgetting": bool(forgetting),
             "surprise_gates": bool(gates),
             "surprise_memory": bool(memory),
+            "question_trace": trace,
         }
     loaded = default_protocol() if protocol is None else load_protocol_file(protocol)
     model = feedback_model(loaded.protocol)
@@ -573,6 +593,7 @@ def training_feedback(
             "forgetting": bool(forgetting),
             "surprise_gates": bool(gates),
             "surprise_memory": bool(memory),
+            "question_trace": trace,
         }
     forgets = model.has_slips_or_changes if forgetting is None else forgetting
     return {
@@ -581,6 +602,7 @@ def training_feedback(
         "forgetting": forgets,
         "surprise_gates": forgets if gates is None else gates,
         "surprise_memory": bool(memory),
+        "question_trace": trace,
         "bounded_baseline": model.kind == "binary",
         "objective": "filter",
         "selection": "filter",

@@ -100,6 +100,24 @@ def _surprise_memory(state: dict[str, Any], checkpoint: Checkpoint) -> float:
     return float(value)
 
 
+def _surprise_trace(state: dict[str, Any], checkpoint: Checkpoint) -> np.ndarray:
+    """The state's per-question surprise trace: required (K finite numbers ≥ 0) for a
+    checkpoint whose gates trace, refused for any other, as the memory is."""
+    if not checkpoint.traces:
+        if "surprise_trace" in state:
+            raise ValueError("meta state has a surprise trace its checkpoint does not keep")
+        return np.zeros(checkpoint.n_arms)
+    value = state.get("surprise_trace")
+    if not isinstance(value, list) or len(value) != checkpoint.n_arms:
+        raise ValueError(f"meta state must record its surprise trace ({checkpoint.n_arms} numbers)")
+    if any(isinstance(v, bool) or not isinstance(v, int | float) for v in value):
+        raise ValueError("meta state's surprise trace must hold numbers")
+    trace = np.array(value, dtype=np.float64)
+    if not (np.all(np.isfinite(trace)) and np.all(trace >= 0)):
+        raise ValueError(f"meta state's surprise trace must be finite and ≥ 0, got {value!r}")
+    return trace
+
+
 class MetaPolicyLearner:
     """One participant's copy of a meta-learned policy.
 
@@ -131,6 +149,7 @@ class MetaPolicyLearner:
         self._params: Params = dict(self._initial)
         self._answers = 0
         self._memory = 0.0
+        self._trace = np.zeros(self.n_arms)
 
     def _set_initial(self, initial: Params) -> None:
         self._initial = initial
@@ -177,6 +196,7 @@ class MetaPolicyLearner:
         self._params = dict(self._initial)
         self._answers = 0
         self._memory = 0.0
+        self._trace = np.zeros(self.n_arms)
 
     def step_size(self, answer_index: int) -> float:
         """The step size of the update after answer number ``answer_index`` (0-based), before
@@ -215,10 +235,12 @@ class MetaPolicyLearner:
         r = check_reward(reward)
         # Only surprise gates need the asked question's probability: no extra forward pass else.
         p_asked = self.probabilities()[a] if self.checkpoint.gates is not None else 1.0
+        parts = self.checkpoint.trace_parts(self._trace, a)
         step, retention = self.checkpoint.step_and_retention(
-            self._answers, p_asked, r, self._memory
+            self._answers, p_asked, r, self._memory, parts
         )
         memory = float(self.checkpoint.memory_after(self._memory, p_asked, r, retention))
+        trace = self.checkpoint.trace_after(self._trace, a, p_asked, r, retention)
         if self.learning_rate is not None:
             step = self.learning_rate
         new = update_params(
@@ -239,6 +261,7 @@ class MetaPolicyLearner:
         self._params = new
         self._answers += 1
         self._memory = memory
+        self._trace = trace
 
     def state_dict(self) -> dict[str, Any]:
         """The learner's weights and answer count as JSON, tied to the checkpoint's hash.
@@ -261,6 +284,8 @@ class MetaPolicyLearner:
             state["initial"] = {name: _encode(self._initial[name]) for name in PARAM_NAMES}
         if self.checkpoint.remembers:  # absent for other checkpoints: their states are unchanged
             state["surprise_memory"] = self._memory
+        if self.checkpoint.traces:  # likewise: only checkpoints that trace record one
+            state["surprise_trace"] = [float(v) for v in self._trace]
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -314,9 +339,11 @@ class MetaPolicyLearner:
         if answers < 0:
             raise ValueError(f"meta state has a negative answer count {answers}")
         memory = _surprise_memory(state, self.checkpoint)
+        trace = _surprise_trace(state, self.checkpoint)
         self._params = params
         self._answers = answers
         self._memory = memory
+        self._trace = trace
         self._random = random
         self._set_initial(initial)  # after _random: a random start is anchored at uniform
 
@@ -325,6 +352,12 @@ class MetaPolicyLearner:
         """What the learner keeps of the surprises so far (0 unless the checkpoint's gates
         remember, :class:`models.checkpoints.SurpriseGates`)."""
         return self._memory
+
+    @property
+    def surprise_trace(self) -> np.ndarray:
+        """What the learner keeps of the surprises so far, per question (zeros unless the
+        checkpoint's gates trace, :class:`models.checkpoints.SurpriseGates`); a copy."""
+        return self._trace.copy()
 
     def __repr__(self) -> str:
         return (

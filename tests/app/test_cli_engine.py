@@ -352,3 +352,11 @@ def test_pretrain_defaults_give_the_gates_their_memory() -> None:
     lone = training_feedback("online", None, False, None, None, False, True)
     with pytest.raises(ValueError, match="needs them"):
         PretrainArgs(**lone).resolved()
+    assert shipped["question_trace"] is None  # the per-question trace, likewise only when asked
+    traced = training_feedback("online", None, False, None, None, None, None, "contradiction")
+    assert PretrainArgs(**traced).resolved().question_trace == "contradiction"
+    with pytest.raises(ValueError, match="question_trace must be one of"):
+        PretrainArgs(**{**traced, "question_trace": "hunch"}).resolved()
+    untraced = training_feedback("online", None, False, None, None, False, None, "surprise")
+    with pytest.raises(ValueError, match="part of the surprise gates"):
+        PretrainArgs(**untraced).resolved()

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 from sqlalchemy import select, update
 
@@ -12,7 +15,14 @@ from app.protocol import parse_protocol
 from app.services import learners, replies, studies, verify
 from app.services.audit import Actor
 from app.tables import LearnerState, Prompt, Run, RunStatus, StudySession
-from models.checkpoints import PRETRAINED_DIR, REPLICATION_DIR, load_checkpoint
+from models.checkpoints import (
+    HASH_FILE,
+    PRETRAINED_DIR,
+    REPLICATION_DIR,
+    TRACE_GATES,
+    WEIGHTS_FILE,
+    load_checkpoint,
+)
 from tests.conftest import Lab, protocol_text
 
 
@@ -176,3 +186,55 @@ def test_verify_replays_learners_of_the_default_and_the_replication_set(
         )
         db.commit()
     assert _findings(c2)
+
+
+def test_verify_replays_a_learner_that_keeps_a_per_question_surprise_trace(
+    lab: Lab, tmp_path: Path
+) -> None:
+    """A checkpoint whose gates trace the surprises per question (issue 36): the trace is in
+    every stored state, verify replays it, and a trace edited in the database is found."""
+    source = PRETRAINED_DIR / "online" / "cognition-k4"
+    weights = json.loads((source / WEIGHTS_FILE).read_text())
+    horizon = len(weights["step_sizes"])
+    weights["surprise"]["trace"] = {
+        name: np.linspace(-1.0 + 0.5 * i, 1.0, horizon).tolist()
+        for i, name in enumerate(TRACE_GATES)
+    }
+    traced = tmp_path / "cognition-k4"
+    traced.mkdir()
+    data = json.dumps(weights).encode()
+    (traced / WEIGHTS_FILE).write_bytes(data)
+    (traced / HASH_FILE).write_text(f"{hashlib.sha256(data).hexdigest()}  {WEIGHTS_FILE}\n")
+    for name in ("config.json", "metrics.json"):
+        (traced / name).write_text((source / name).read_text())
+    assert load_checkpoint(traced).traces
+    changes = {
+        'learner = "exp3"': 'learner = "meta"',
+        'checkpoint = "shipped"': f'checkpoint = "{traced}"',
+    }
+    with lab.database.writing() as db:
+        studies.create_study(
+            db, name="tr", loaded=parse_protocol(protocol_text(**changes)), actor=Actor.system()
+        )
+    c2 = replace(lab, study="tr")
+    c2.enrol_and_assign()
+    for _ in ("familiarisation", "session 1"):
+        c2.start_session()
+        c2.run_session(preferred=1)
+    with lab.database.read_session() as db:
+        states = [row.state for row in db.scalars(select(LearnerState))]
+    assert states and all(len(s["surprise_trace"]) == 4 for s in states)
+    assert any(max(s["surprise_trace"]) > 0 for s in states)
+    assert _findings(c2) == []
+    with lab.database.writing() as db:
+        first = db.scalars(select(LearnerState)).first()
+        assert first is not None
+        trace = list(first.state["surprise_trace"])
+        trace[0] += 0.1
+        db.execute(
+            update(LearnerState)
+            .where(LearnerState.id == first.id)
+            .values(state={**first.state, "surprise_trace": trace})
+        )
+        db.commit()
+    assert any("stored state differs" in detail for _, detail in _findings(c2))

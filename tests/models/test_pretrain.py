@@ -35,11 +35,13 @@ from models.pretrain import (
     PretrainArgs,
     as_checkpoint,
     calibrate_step_scale,
+    filter_score,
     pretrain,
     select_calibrated,
     train,
     with_step_scale,
 )
+from models.seed_selection import filter_validation
 from models.trpo import conjugate_gradient, trpo_step
 
 TINY: dict[str, Any] = {
@@ -96,22 +98,26 @@ ROBUST: dict[str, Any] = {
 
 
 @pytest.mark.parametrize(
-    ("rule", "robust", "memory"),
+    ("rule", "robust", "memory", "trace"),
     [
-        ("natural_expected", False, False),
-        ("natural", False, False),
-        ("gradient", False, False),
-        ("natural_expected", True, False),
-        ("gradient", True, False),
-        ("natural_expected", True, True),
+        ("natural_expected", False, False, None),
+        ("natural", False, False, None),
+        ("gradient", False, False, None),
+        ("natural_expected", True, False, None),
+        ("gradient", True, False, None),
+        ("natural_expected", True, True, None),
+        ("natural_expected", True, False, "surprise"),
+        ("natural_expected", True, True, "contradiction"),
     ],
 )
-def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool, memory: bool) -> None:
+def test_online_rollout_is_the_deployed_learner(
+    rule: str, robust: bool, memory: bool, trace: str | None
+) -> None:
     """The differentiable inner loop and the deployed numpy learner (built from the checkpoint
     training would write) take the same 4 steps on 6 tasks: with the paper's Gaussian rewards,
     and with yes/no answers that slip, a preference that changes, the anchor, forgetting, the
-    surprise gates and their memory of earlier surprises."""
-    options = {**ROBUST, "surprise_memory": memory} if robust else {}
+    surprise gates, their memory of earlier surprises and their per-question trace."""
+    options = {**ROBUST, "surprise_memory": memory, "question_trace": trace} if robust else {}
     args, rng, obs, layout, theta = _setup("online", online_rule=rule, **options)
     batch = sample_online_batch(args, rng)
     if robust:  # the draws exercise what they should
@@ -122,11 +128,17 @@ def test_online_rollout_is_the_deployed_learner(rule: str, robust: bool, memory:
         values["surprise_retention"].copy_(torch.linspace(-1.0, 1.0, args.horizon))
         if memory:
             values["memory_step"].copy_(torch.linspace(0.4, -0.6, args.horizon))
+        for shift, name in enumerate(("step", "retention", "others_step", "others_retention")):
+            if trace is not None:
+                values[f"trace_{name}"].copy_(torch.linspace(-1.0 + shift, 1.0, args.horizon))
     with torch.no_grad():
         rollout = online_rollout(theta, layout, obs, args, batch)
     checkpoint = as_checkpoint(theta, layout, args)
     assert (checkpoint.prior is not None) == robust and (checkpoint.retention is not None) == robust
     assert (checkpoint.gates is not None) == robust and checkpoint.remembers == memory
+    assert checkpoint.traces == (trace is not None)
+    if trace is not None:
+        assert checkpoint.gates is not None and checkpoint.gates.trace_kind == trace
     for task in range(args.tasks_per_batch or 0):
         learner = MetaPolicyLearner(checkpoint)
         np.testing.assert_allclose(
@@ -545,7 +557,32 @@ def test_filter_selection_records_its_score_and_keeps_the_best() -> None:
         ({**ROBUST, "objective": "filter", "wrong_penalty": 0.5}, "log_score objective only"),
     ):
         with pytest.raises(ValueError, match=message):
-            PretrainArgs(**bad).resolved()  # type: ignore[arg-type]
+            PretrainArgs(**bad).resolved()
+
+
+@pytest.mark.parametrize("trace", [None, "contradiction"])
+def test_seed_selection_scores_what_training_validation_scores(trace: str | None) -> None:
+    """The numpy score that compares seeds on one fixed validation set
+    (:func:`models.seed_selection.filter_validation`) is training's own filter score
+    (:func:`models.pretrain.filter_score`) on the same draws, for the deployed learner."""
+    args = PretrainArgs(
+        mode="online", arms=3, horizon=4, **{**TINY, **ROBUST, "question_trace": trace}
+    ).resolved()
+    rng = np.random.default_rng(4)
+    obs = torch.as_tensor(observation_for(args.category), dtype=DTYPE)
+    layout = layout_for(args, obs.shape[0])
+    theta = initial_theta(args, layout, rng)
+    values = layout.unflatten(theta)
+    values["surprise_retention"].copy_(torch.linspace(-1.0, 1.0, args.horizon))
+    if trace is not None:
+        values["trace_retention"].copy_(torch.linspace(-2.0, 1.0, args.horizon))
+    # As written: the config records the model (an in-memory one records nothing).
+    checkpoint = replace(as_checkpoint(theta, layout, args), config={"feedback": args.feedback})
+    numpy = filter_validation(checkpoint, participants=200, seed=99)
+    batch = sample_online_batch(replace(args, tasks_per_batch=200), np.random.default_rng(99))
+    assert numpy.filter_score == pytest.approx(
+        filter_score(theta, layout, obs, args, batch), rel=1e-10
+    )
 
 
 def test_oversampled_changes_of_mind_are_weighted_back_to_the_model() -> None:
