@@ -4,11 +4,15 @@ Run from the repository root::
 
     .venv/bin/python bench/seed_selection.py DIR [DIR ...]        # checkpoint directories
     .venv/bin/python bench/seed_selection.py --participants 20000 DIR ...
+    .venv/bin/python bench/seed_selection.py --targets DIR ...      # also the issue's figures
 
 Scores every checkpoint by the filter objective (models/seed_selection.py) on the same
 participants, drawn from the model each checkpoint was trained for with the selection seed, and
-names the best per category and K. The bench (bench/robust.py) stays a held-out check: nothing it
-measures is used here. Prints figures only; never used as a test assertion.
+names the best per category and K. ``--targets`` also prints the issue's figures on 20,000
+participants of the training model (models.seed_selection.target_validation), which the filter
+objective barely separates (docs/engine.md, "C2 calibrated under slips"). The bench
+(bench/robust.py) stays a held-out check: nothing it measures is used here. Prints figures only;
+never used as a test assertion.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from models.seed_selection import (  # noqa: E402
     Score,
     best_by_validation,
     filter_validation,
+    target_validation,
 )
 
 
@@ -37,6 +42,7 @@ def main() -> None:
     parser.add_argument("checkpoints", type=Path, nargs="+")
     parser.add_argument("--participants", type=int, default=10_000)
     parser.add_argument("--seed", type=int, default=SELECTION_SEED)
+    parser.add_argument("--targets", action="store_true", help="also the issue's figures")
     args = parser.parse_args()
     groups: dict[tuple[str, int, str], list[Score]] = {}
     print(f"# filter objective on {args.participants} participants, seed {args.seed}")
@@ -48,6 +54,13 @@ def main() -> None:
             f"{path}  ({checkpoint.sha256[:12]})  {score.filter_score:.5f} ± "
             f"{score.standard_error:.5f}  ({time.perf_counter() - start:.1f} s)"
         )
+        if args.targets:
+            figures = target_validation(checkpoint, seed=args.seed)
+            print(
+                f"    wrong {figures['wrong_ratio']:.2f} × filter, answers "
+                f"{figures['answers_ratio']:.3f} ×, recovered {figures['recovered']:.3f} "
+                f"(filter {figures['filter_recovered']:.3f})"
+            )
         model = trained_feedback(checkpoint).describe()
         groups.setdefault((checkpoint.category, checkpoint.n_arms, model), []).append(score)
     for (category, arms, _), scores in groups.items():
