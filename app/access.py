@@ -91,6 +91,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/studies/{name}/participants/{code}/link"): STAFF,
     ("POST", "/studies/{name}/participants/{code}/link/revoke"): STAFF,
     ("POST", "/studies/{name}/participants/{code}/lock"): STAFF,
+    ("POST", "/studies/{name}/participants/{code}/language"): STAFF,
     ("POST", "/studies/{name}/participants/{code}/unlock"): STAFF,
     ("GET", "/api/v1/stations"): STAFF,
     ("GET", "/api/v1/stations/{name}/state"): STAFF,

@@ -174,6 +174,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/studies/{name}/participants/{code}/unlock"): send(
         "POST", "/studies/rt/participants/NOPE/unlock", data={}
     ),
+    ("POST", "/studies/{name}/participants/{code}/language"): send(
+        "POST", "/studies/rt/participants/NOPE/language", data={"language": "en"}
+    ),
     ("PUT", "/api/v1/stations/{name}/participant"): send(
         "PUT", "/api/v1/stations/ghost/participant", json={"study": "rt", "code": "P001"}
     ),

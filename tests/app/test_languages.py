@@ -450,3 +450,24 @@ def test_exports_carry_each_participants_language(swedish_lab: Lab) -> None:
     counts = _per_language(dataset.participants)
     assert "<h3>Languages</h3>" in counts and ">sv<" in counts and ">en<" in counts
     assert _per_language(dataset.participants[dataset.participants.language == "sv"]) == ""
+
+
+@sqlite_only("the page's form and refusals; the service's SQL is tested above")
+def test_staff_change_the_language_on_the_participant_page(
+    swedish_lab: Lab, user_client: UserClientFactory
+) -> None:
+    lab = swedish_lab
+    _enrol(lab, code="S1", language="sv")
+    page = lab.experimenter.get("/studies/sv/participants/S1")
+    assert "takes part in <strong>sv</strong>" in page.text
+    token = re.search(r'name="csrf_token" value="([^"]+)"', page.text)
+    assert token
+    changed = lab.experimenter.post(
+        "/studies/sv/participants/S1/language", data={"csrf_token": token[1], "language": "en"}
+    )
+    assert changed.status_code == 200 and "S1 now takes part in English." in changed.text
+    refused = lab.experimenter.post(
+        "/studies/sv/participants/S1/language", data={"csrf_token": token[1], "language": "fi"}
+    )
+    assert refused.status_code == 422
+    assert "study &#39;sv&#39; is not run in &#39;fi&#39;" in refused.text
