@@ -471,3 +471,12 @@ def test_staff_change_the_language_on_the_participant_page(
     )
     assert refused.status_code == 422
     assert "study &#39;sv&#39; is not run in &#39;fi&#39;" in refused.text
+
+
+@sqlite_only("rendering only")
+def test_the_console_shows_the_seated_participants_language(swedish_lab: Lab) -> None:
+    _enrol(swedish_lab, code="S1", language="sv")
+    _seat(swedish_lab, "S1")
+    console = swedish_lab.experimenter.get(f"/stations/{swedish_lab.station}")
+    assert console.status_code == 200
+    assert 'class="console-language"' in console.text and ">sv</span>" in console.text
