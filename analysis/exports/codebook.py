@@ -14,8 +14,8 @@ from analysis.dataset import StudyDataset
 from analysis.exports.csvfile import CSV_TEXT_RULE
 from analysis.exports.tables import (
     LONG_COLUMNS,
-    STEP_EXPORT_BASE_COLUMNS,
     WideColumn,
+    steps_columns,
     wide_columns,
     with_language,
 )
@@ -187,6 +187,10 @@ _STEPS = {
     "preferred_arm": ("Protocol's preferred question of the category (0-based arm)", "integer"),
     "p_preferred_before": ("Probability of the preferred question before the answer", "numeric"),
     "p_preferred_after": ("Probability of the preferred question after the update", "numeric"),
+    "modality": ("How the answer was given: key, button, speech or wizard", "string"),
+    "transcript": ("Spoken answers: the words the recogniser heard", "string"),
+    "transcript_confidence": ("Spoken answers: the recogniser's confidence (0-1)", "numeric"),
+    "transcript_engine": ("Spoken answers: the recogniser (name and version)", "string"),
 }
 
 
@@ -230,10 +234,7 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
         elif column.source == "scale":
             rows.append(_scale_entry(column, scales[column.key]))
     rows += [_plain_entry("long", c, *_LONG[c]) for c in with_language(LONG_COLUMNS, dataset)]
-    rows += [
-        _plain_entry("steps", c, *_STEPS[c])
-        for c in with_language(STEP_EXPORT_BASE_COLUMNS, dataset)
-    ]
+    rows += [_plain_entry("steps", c, *_STEPS[c]) for c in steps_columns(dataset)]
     arms = max((len(q) for q in dataset.protocol["categories"].values()), default=0)
     for when, text in (("before", "before the answer"), ("after", "after the update")):
         rows += [

@@ -27,6 +27,7 @@ __all__ = [
     "WideColumn",
     "adaptation_trust_table",
     "long_table",
+    "steps_columns",
     "steps_table",
     "wide_columns",
     "wide_table",
@@ -53,10 +54,24 @@ STEP_EXPORT_BASE_COLUMNS = (
 """Columns of :func:`steps_table` before the per-arm probabilities ``p_before_<arm>`` /
 ``p_after_<arm>`` (0-based arm index, like ``action``)."""
 
+ANSWER_COLUMNS = ("modality", "transcript", "transcript_confidence", "transcript_engine")
+"""How each answer was given, when the step log has it (trustlab's does; a step log from
+elsewhere may not): ``key``, ``button``, ``speech`` or ``wizard``; for spoken answers the words
+the recogniser heard, its confidence and which recogniser it was. They follow the probabilities
+of the preferred question in the steps table."""
+
 LANGUAGE = "language"
 """A participant attribute that also goes into every long and steps row, right after the
 condition, when the dataset has it (trustlab's exports always do): a multi-language study is
 analysed by language, and a row should say which words the participant was given."""
+
+
+def steps_columns(dataset: StudyDataset) -> tuple[str, ...]:
+    """The steps table's columns before the per-arm probabilities, for this dataset."""
+    base = with_language(STEP_EXPORT_BASE_COLUMNS, dataset)
+    if all(column in dataset.steps.columns for column in ANSWER_COLUMNS):
+        base = (*base, *ANSWER_COLUMNS)
+    return base
 
 
 def with_language(columns: tuple[str, ...], dataset: StudyDataset) -> tuple[str, ...]:
@@ -256,7 +271,8 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     """The adaptation step log with one column per arm probability.
 
     Columns :data:`STEP_EXPORT_BASE_COLUMNS` (with ``language`` after ``condition`` when the
-    participants have one), then ``p_before_0`` … ``p_before_<K−1>`` and
+    participants have one, and :data:`ANSWER_COLUMNS` at their end when the log has them),
+    then ``p_before_0`` … ``p_before_<K−1>`` and
     ``p_after_0`` … (K = the largest number of arms; categories with fewer arms leave the rest
     empty). ``preferred_arm`` is the protocol's preferred question of the row's category and
     ``p_preferred_before/after`` its probability. Rows are ordered by participant (as in the
@@ -265,7 +281,7 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     """
     steps = dataset.steps
     preferred = dataset.protocol["preferred_arms"]
-    base = with_language(STEP_EXPORT_BASE_COLUMNS, dataset)
+    base = steps_columns(dataset)
     if steps.empty:
         return pd.DataFrame(columns=list(base))
     participant_rank = pd.Index(dataset.participants["participant"]).get_indexer(
@@ -310,6 +326,8 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     arm = out["preferred_arm"].to_numpy(dtype=np.int64)
     out["p_preferred_before"] = p_before[np.arange(len(steps)), arm]
     out["p_preferred_after"] = p_after[np.arange(len(steps)), arm]
+    for column in ANSWER_COLUMNS if ANSWER_COLUMNS[0] in base else ():
+        out[column] = steps[column].to_numpy()
     for j in range(n_arms):
         out[f"p_before_{j}"] = p_before[:, j]
     for j in range(n_arms):

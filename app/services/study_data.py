@@ -19,6 +19,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from analysis.dataset import ProtocolSummary, StudyDataset, empty_steps
+from analysis.exports.tables import ANSWER_COLUMNS
 from analysis.instruments import InstrumentSpec as AnalysisInstrument
 from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
@@ -301,6 +302,10 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
             Answer.reward,
             Answer.probability,
             Answer.confidence_level,
+            Answer.modality,
+            Answer.transcript,
+            Answer.transcript_confidence,
+            Answer.transcript_engine,
         )
         .join(Prompt, Prompt.id == Answer.prompt_id)
         .join(Run, Run.id == Prompt.run_id)
@@ -330,6 +335,7 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
             "reward",
             "reply_probability",
             "reply_level",
+            *ANSWER_COLUMNS,
         ],
     )
 

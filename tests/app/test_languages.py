@@ -443,6 +443,7 @@ def test_exports_carry_each_participants_language(swedish_lab: Lab) -> None:
         assert {
             p: table[table.participant == p]["language"].unique().tolist() for p in expected
         } == {p: [language] for p, language in expected.items()}
+    assert "transcript_engine" in steps_table(dataset).columns  # how each answer was given
     book = codebook_table(dataset)
     described = book[book.column == "language"]
     assert sorted(described.file) == ["long", "steps", "wide"]
