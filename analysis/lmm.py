@@ -20,9 +20,10 @@ correlation of ±1 is reported there, as singular.
 
 from __future__ import annotations
 
+import itertools
 import re
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -719,6 +720,7 @@ def linear_mixed_models(
     random_slope: bool = True,
     within_levels: list[Any] | None = None,
     confidence: float = 0.95,
+    covariates: Sequence[str] = (),
 ) -> LinearMixedModels:
     """The mixed-model counterpart of :func:`analysis.anova.mixed_anova`.
 
@@ -739,6 +741,12 @@ def linear_mixed_models(
         The declared within levels (default: those in the data).
     confidence : float
         Coverage of every CI.
+    covariates : sequence of str
+        Participant-level categorical columns (e.g. ``language`` in a study run in several)
+        added as main effects, sum-coded, so each gets its own type III test and the
+        condition and session effects are adjusted for it. The estimated marginal means
+        average over its levels with equal weights. Each needs one value per participant and
+        two or more levels among those who rated.
 
     Returns
     -------
@@ -776,7 +784,15 @@ def linear_mixed_models(
             "within": data[within].to_numpy(),
         }
     )
+    covariate_names = _covariate_columns(data, covariates, subject, (dv, within, between, subject))
+    for column, name in covariate_names.items():
+        frame[column] = data[name].map(to_python).astype(str).to_numpy()
     frame = frame[np.isfinite(frame["y"])].reset_index(drop=True)
+    for column, name in covariate_names.items():
+        if frame[column].nunique() < 2:
+            raise InvalidInputError(
+                f"covariate {name!r} has one level among the participants who rated: leave it out"
+            )
     if len(frame) and frame["y"].nunique() == 1:
         raise CannotComputeError(
             f"the mixed model of {dv!r}", f"every rating is the same ({frame['y'].iloc[0]:g})"
@@ -805,9 +821,11 @@ def linear_mixed_models(
             "from the residual"
         )
         random_slope = False
-    formula = "y ~ C(between, Sum) * C(within, Sum)"
-    labels = term_labeller(between, within)
-    base = f"{dv} ~ {between} * {within}"
+    formula = "y ~ C(between, Sum) * C(within, Sum)" + "".join(
+        f" + C({column}, Sum)" for column in covariate_names
+    )
+    labels = term_labeller(between, within, covariate_names)
+    base = f"{dv} ~ {between} * {within}" + "".join(f" + {n}" for n in covariate_names.values())
     fits = [
         fit_mixed_model(
             frame,
@@ -842,11 +860,20 @@ def linear_mixed_models(
             )
             slope = MixedModelFit(**empty, converged=False, problem=str(error))
         fits.append(slope)
+    covariate_levels = {column: sorted(frame[column].unique()) for column in covariate_names}
     fits = [
-        _with_emmeans(fit, frame, between, within, group_levels, present_levels, confidence)
+        _with_emmeans(
+            fit,
+            between,
+            within,
+            group_levels,
+            present_levels,
+            confidence,
+            covariate_levels,
+        )
         for fit in fits
     ]
-    fits = [_study_names(fit, subject, within) for fit in fits]
+    fits = [_study_names(fit, subject, within, covariate_names) for fit in fits]
     kept = design.excluded[design.excluded["subject"].astype(str).isin(set(frame["subject"]))]
     return LinearMixedModels(
         dv=dv,
@@ -864,12 +891,35 @@ def linear_mixed_models(
     )
 
 
-def term_labeller(between: str, within: str) -> Callable[[str], str]:
+def _covariate_columns(
+    data: pd.DataFrame, covariates: Sequence[str], subject: str, taken: Sequence[str]
+) -> dict[str, str]:
+    """The model's column for each covariate (``cov0``…), after checking it can be one."""
+    columns = {}
+    for index, name in enumerate(covariates):
+        if name not in data.columns:
+            raise InvalidInputError(f"no covariate column {name!r}; columns: {list(data.columns)}")
+        if name in taken:
+            raise InvalidInputError(f"{name!r} is already in the model; it cannot be a covariate")
+        if data[name].isna().any():
+            raise InvalidInputError(f"covariate {name!r} has missing values")
+        if (data.groupby(subject)[name].nunique() > 1).any():
+            raise InvalidInputError(
+                f"covariate {name!r} must have one value per participant ({subject!r})"
+            )
+        columns[f"cov{index}"] = name
+    return columns
+
+
+def term_labeller(
+    between: str, within: str, covariates: dict[str, str] | None = None
+) -> Callable[[str], str]:
     """Readable names of the patsy columns and terms.
 
     ``C(between, Sum)[S.C1]`` becomes ``condition[C1]`` and ``C(between, Sum):C(within, Sum)``
-    becomes ``condition × session``."""
-    names = {"between": between, "within": within}
+    becomes ``condition × session``; ``covariates`` maps a covariate's model column (``cov0``)
+    to its name (``language``)."""
+    names = {"between": between, "within": within, **(covariates or {})}
 
     def label(column: str) -> str:
         if column == "Intercept":
@@ -883,13 +933,15 @@ def term_labeller(between: str, within: str) -> Callable[[str], str]:
 
 def _with_emmeans(
     fit: MixedModelFit,
-    frame: pd.DataFrame,
     between: str,
     within: str,
     group_levels: list[Any],
     within_levels: list[Any],
     confidence: float,
+    covariate_levels: dict[str, list[str]] | None = None,
 ) -> MixedModelFit:
+    """Each condition × session cell's estimated marginal mean, averaged with equal weights
+    over the covariates' levels (as emmeans does by default)."""
     if not fit.converged or fit.inference is None:
         empty = pd.DataFrame(columns=[between, within, *EMM_COLUMNS])
         return replace(fit, emmeans=empty)
@@ -901,7 +953,14 @@ def _with_emmeans(
     grid["between"] = pd.Categorical(grid["between"], categories=group_levels)
     grid["within"] = pd.Categorical(grid["within"], categories=within_levels)
     grid["y"] = 0.0
-    rows = np.asarray(build_design_matrices([fit.design_info], grid)[0])
+    levels = covariate_levels or {}
+    combinations = list(itertools.product(*levels.values())) or [()]
+    rows = np.zeros((len(grid), len(fit.design_info.column_names)))
+    for combination in combinations:
+        for column, level in zip(levels, combination, strict=True):
+            grid[column] = pd.Categorical([level] * len(grid), categories=levels[column])
+        rows += np.asarray(build_design_matrices([fit.design_info], grid)[0])
+    rows /= len(combinations)
     stats_rows = [fit.inference.contrast(row) for row in rows]
     table = pd.DataFrame(
         {
@@ -916,11 +975,14 @@ def _with_emmeans(
     return replace(fit, emmeans=table.assign(ci_low=low, ci_high=high))
 
 
-def _study_names(fit: MixedModelFit, subject: str, within: str) -> MixedModelFit:
+def _study_names(
+    fit: MixedModelFit, subject: str, within: str, covariates: dict[str, str] | None = None
+) -> MixedModelFit:
     effects = {
         "C(between, Sum)": "between",
         "C(within, Sum)": "within",
         "C(between, Sum):C(within, Sum)": "interaction",
+        **{f"C({column}, Sum)": name for column, name in (covariates or {}).items()},
     }
     tests = fit.tests.assign(effect=fit.tests["effect"].map(lambda e: effects.get(e, e)))
     variance = fit.variance.assign(

@@ -142,18 +142,38 @@ def analyse_mixed_models(
             raise InvalidInputError(
                 f"no per-session measure {unknown}; have {[o.key for o in result.outcomes]}"
             )
+    languages = _languages(result)
     outcomes = []
     for outcome in chosen:
         if progress is not None:
             progress(outcome.key)
         outcomes.append(
-            _outcome_models(outcome, measures, measures_problem, random_slope, result.confidence)
+            _outcome_models(
+                outcome, measures, measures_problem, random_slope, result.confidence, languages
+            )
         )
     return StudyMixedModels(
         outcomes=tuple(outcomes),
         measures=measures,
         measures_problem=measures_problem,
         random_slope=random_slope,
+    )
+
+
+LANGUAGE = "language"
+
+
+def _languages(result: StudyAnalysis) -> pd.Series | None:
+    """Each analysed participant's language, when the study ran in more than one: the linear
+    mixed models then adjust for it (a covariate); None otherwise."""
+    participants = result.dataset.participants
+    if LANGUAGE not in participants.columns:
+        return None
+    analysed = participants[participants["participant"].isin(result.participants["participant"])]
+    if analysed[LANGUAGE].nunique(dropna=True) < 2:
+        return None
+    return pd.Series(
+        analysed[LANGUAGE].to_numpy(), index=analysed["participant"].to_numpy(), name=LANGUAGE
     )
 
 
@@ -182,9 +202,15 @@ def _outcome_models(
     measures_problem: str,
     random_slope: bool,
     confidence: float,
+    languages: pd.Series | None = None,
 ) -> OutcomeMixedModels:
-    dv = outcome.key if outcome.key not in _FACTORS else "value"
+    dv = outcome.key if outcome.key not in (*_FACTORS, LANGUAGE) else "value"
     data = outcome.data.rename(columns={"value": dv})
+    covariates: tuple[str, ...] = ()
+    if languages is not None:
+        data = data.assign(**{LANGUAGE: data["participant"].map(languages).to_numpy()})
+        if data[LANGUAGE].dropna().nunique() > 1 and not data[LANGUAGE].isna().any():
+            covariates = (LANGUAGE,)
     lmm = ordinal = adaptation = None
     lmm_problem = ordinal_problem = adaptation_problem = ""
     try:
@@ -196,6 +222,7 @@ def _outcome_models(
             subject="participant",
             random_slope=random_slope,
             confidence=confidence,
+            covariates=covariates,
         )
     except AnalysisError as error:
         lmm_problem = str(error)

@@ -14,9 +14,10 @@ from analysis.dataset import StudyDataset
 from analysis.exports.csvfile import CSV_TEXT_RULE
 from analysis.exports.tables import (
     LONG_COLUMNS,
-    STEP_EXPORT_BASE_COLUMNS,
     WideColumn,
+    steps_columns,
     wide_columns,
+    with_language,
 )
 from analysis.instruments import InstrumentSpec, ItemSpec
 from analysis.scoring import ScaleSpec
@@ -127,6 +128,7 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
         "participant": ("Participant code", "string", "nominal", "", ""),
         "condition": ("Experimental condition", "string", "nominal", conditions, ""),
         "status": ("Participant status at export", "string", "nominal", "", ""),
+        "language": (LANGUAGE_LABEL, "string", "nominal", "", ""),
     }
     out = []
     for column in columns:
@@ -155,9 +157,12 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
     return out
 
 
+LANGUAGE_LABEL = "Language the participant took part in (ISO 639 code)"
+
 _LONG = {
     "participant": ("Participant code", "string"),
     "condition": ("Experimental condition", "string"),
+    "language": (LANGUAGE_LABEL, "string"),
     "instrument": ("Instrument key", "string"),
     "session": ("Session number (empty for once-only instruments)", "integer"),
     "item": ("Item key (see the wide file's codebook rows for the wording)", "string"),
@@ -171,6 +176,7 @@ _LONG = {
 _STEPS = {
     "participant": ("Participant code", "string"),
     "condition": ("Experimental condition", "string"),
+    "language": (LANGUAGE_LABEL, "string"),
     "category": ("Mental-activity category of the question", "string"),
     "session": ("Session number", "integer"),
     "run": ("Run within the session", "integer"),
@@ -181,6 +187,10 @@ _STEPS = {
     "preferred_arm": ("Protocol's preferred question of the category (0-based arm)", "integer"),
     "p_preferred_before": ("Probability of the preferred question before the answer", "numeric"),
     "p_preferred_after": ("Probability of the preferred question after the update", "numeric"),
+    "modality": ("How the answer was given: key, button, speech or wizard", "string"),
+    "transcript": ("Spoken answers: the words the recogniser heard", "string"),
+    "transcript_confidence": ("Spoken answers: the recogniser's confidence (0-1)", "numeric"),
+    "transcript_engine": ("Spoken answers: the recogniser (name and version)", "string"),
 }
 
 
@@ -223,8 +233,8 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
             rows.append(_item_entry(column, spec, item, "wide"))
         elif column.source == "scale":
             rows.append(_scale_entry(column, scales[column.key]))
-    rows += [_plain_entry("long", c, *_LONG[c]) for c in LONG_COLUMNS]
-    rows += [_plain_entry("steps", c, *_STEPS[c]) for c in STEP_EXPORT_BASE_COLUMNS]
+    rows += [_plain_entry("long", c, *_LONG[c]) for c in with_language(LONG_COLUMNS, dataset)]
+    rows += [_plain_entry("steps", c, *_STEPS[c]) for c in steps_columns(dataset)]
     arms = max((len(q) for q in dataset.protocol["categories"].values()), default=0)
     for when, text in (("before", "before the answer"), ("after", "after the update")):
         rows += [

@@ -61,6 +61,14 @@ def mixed_command(
             "numbers ascending, text in natural order (S2 before S10).",
         ),
     ] = "",
+    covariate: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--covariate",
+            help="A participant-level categorical column added to the linear models as a main "
+            "effect (e.g. language in a study run in several; repeatable).",
+        ),
+    ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print one JSON object (the stable contract).")
     ] = False,
@@ -83,6 +91,7 @@ def mixed_command(
                 subject=subject,
                 random_slope=random_slope,
                 within_levels=levels,
+                covariates=tuple(covariate or ()),
             )
             bar.update(1 + int(random_slope))
         except AnalysisError as error:

@@ -19,6 +19,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from analysis.dataset import ProtocolSummary, StudyDataset, empty_steps
+from analysis.exports.tables import ANSWER_COLUMNS
 from analysis.instruments import InstrumentSpec as AnalysisInstrument
 from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
@@ -108,6 +109,8 @@ def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
                 "accepted", "Consent given", "categorical", value_labels=(("yes", "yes"),)
             ),
             AnalysisItem("version", "Version of the consent text", "text"),
+            AnalysisItem("consent_language", "Language of the consent text accepted", "text"),
+            AnalysisItem("consent_sha256", "SHA-256 of the exact consent text accepted", "text"),
         ),
     )
     return (
@@ -220,7 +223,13 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
 
 def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame:
     rows = db.execute(
-        select(Participant.code, Allocation.condition, Participant.status, Participant.strata)
+        select(
+            Participant.code,
+            Allocation.condition,
+            Participant.status,
+            Participant.language,
+            Participant.strata,
+        )
         .join(Allocation, Allocation.participant_id == Participant.id)
         .where(Participant.study_id == study.id)
         .order_by(Participant.enrolled_at, Participant.id)
@@ -231,11 +240,19 @@ def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame
                 "participant": code,
                 "condition": condition,
                 "status": status,
+                # Not chosen yet (the tablet asks first): the language the study would use.
+                "language": language or protocol.default_language,
                 **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
             }
-            for code, condition, status, strata in rows
+            for code, condition, status, language, strata in rows
         ],
-        columns=["participant", "condition", "status", *protocol.allocation.stratify_by],
+        columns=[
+            "participant",
+            "condition",
+            "status",
+            "language",
+            *protocol.allocation.stratify_by,
+        ],
     )
     return frame
 
@@ -285,6 +302,10 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
             Answer.reward,
             Answer.probability,
             Answer.confidence_level,
+            Answer.modality,
+            Answer.transcript,
+            Answer.transcript_confidence,
+            Answer.transcript_engine,
         )
         .join(Prompt, Prompt.id == Answer.prompt_id)
         .join(Run, Run.id == Prompt.run_id)
@@ -314,6 +335,7 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
             "reward",
             "reply_probability",
             "reply_level",
+            *ANSWER_COLUMNS,
         ],
     )
 

@@ -36,6 +36,10 @@ from analysis.instruments import DEFAULT_INSTRUMENTS, InstrumentSpec, ItemSpec
 from analysis.synthetic import synthetic_study
 
 
+def dataset_with(dataset: StudyDataset, **frames: pd.DataFrame) -> StudyDataset:
+    return dataclasses.replace(dataset, **frames)
+
+
 @pytest.fixture(scope="module")
 def dataset() -> StudyDataset:
     ds = synthetic_study(6, seed=4, dropout_rate=0.3)
@@ -147,6 +151,28 @@ def test_steps_table(dataset: StudyDataset) -> None:
     np.testing.assert_allclose(out[[f"p_after_{j}" for j in range(4)]].sum(axis=1), 1.0)
     assert set(out["answer"]) <= {0, 1}
     assert out["category"].iloc[0] == "conation"  # protocol order
+
+
+def test_steps_say_how_each_answer_was_given_when_the_log_has_it(dataset: StudyDataset) -> None:
+    """trustlab's step log carries the modality and, for spoken answers, the transcript, its
+    confidence and the recogniser; the steps table and its codebook follow, a log without them
+    (another lab's CSV) keeps its columns."""
+    n = len(dataset.steps)
+    spoken = dataset.steps.assign(
+        modality=["speech", "key"] * (n // 2) + ["speech"] * (n % 2),
+        transcript=["yeah", None] * (n // 2) + ["yeah"] * (n % 2),
+        transcript_confidence=[0.83, None] * (n // 2) + [0.83] * (n % 2),
+        transcript_engine=["pocketsphinx 5.1.1 (en-us)", None] * (n // 2)
+        + ["pocketsphinx 5.1.1 (en-us)"] * (n % 2),
+    )
+    out = steps_table(dataset_with(dataset, steps=spoken))
+    columns = ["modality", "transcript", "transcript_confidence", "transcript_engine"]
+    assert out.columns[out.columns.get_loc("p_preferred_after") + 1 :][:4].tolist() == columns
+    assert set(out["modality"]) == {"speech", "key"}
+    assert set(out.loc[out.modality == "speech", "transcript"]) == {"yeah"}
+    book = codebook_table(dataset_with(dataset, steps=spoken))
+    assert set(columns) <= set(book[book.file == "steps"]["column"])
+    assert not set(columns) & set(steps_table(dataset).columns)
 
 
 def test_codebook_covers_every_column(dataset: StudyDataset) -> None:
