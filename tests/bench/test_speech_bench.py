@@ -22,12 +22,12 @@ def test_the_speech_benchmark_prints_its_table_and_verdicts() -> None:
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=280)
     assert done.returncode == 0, done.stderr
     lines = done.stdout.strip().splitlines()
-    assert re.match(r"\d+ clips \(7 yes/no, \d+ other\), 1 voices, pocketsphinx 5\.1\.1", lines[0])
+    assert re.match(r"\d+ clips \(7 yes/no, \d+ other\), 1 voices \(all\), pocketsphinx 5\.1\.1", lines[0])
     rows = [line for line in lines if line.startswith(("| clean", "| SNR 10"))]
     assert len(rows) == 2, done.stdout
     for row in rows:
         cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert len(cells) == 8 and all(re.fullmatch(r"[\d.± -]+", c) for c in cells[1:]), row
+        assert len(cells) == 9 and all(re.fullmatch(r"[\d.± -]+", c) for c in cells[1:]), row
     verdicts = [line for line in lines if line.startswith(("clean:", "SNR 10 dB:"))]
     assert len(verdicts) == 2 and all(re.search(r"(met|MISSED)$", v) for v in verdicts)
 

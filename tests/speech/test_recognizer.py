@@ -40,27 +40,9 @@ def quiet(seconds: float, seed: int = 0) -> bytes:
         ("no", "no"),
         ("nope", "no"),
         ("no_way", "no"),
-        pytest.param(
-            "maybe",
-            None,
-            marks=pytest.mark.xfail(
-                strict=True, reason="known false accept (heard as 'yeah'): docs/performance.md"
-            ),
-        ),
-        pytest.param(
-            "i_dont_know",
-            None,
-            marks=pytest.mark.xfail(
-                strict=True, reason="known false accept (heard as 'no'): docs/performance.md"
-            ),
-        ),
-        pytest.param(
-            "cough",
-            None,
-            marks=pytest.mark.xfail(
-                strict=True, reason="known false accept (heard as 'yep'): docs/performance.md"
-            ),
-        ),
+        ("maybe", None),
+        ("i_dont_know", None),
+        ("cough", None),
         ("silence", None),
     ],
 )
