@@ -37,6 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -244,7 +245,7 @@ def room_noise(samples: int, babble: np.ndarray, rng: np.random.Generator) -> np
 
 def with_noise(item: Clip, snr_db: float, babble: np.ndarray, seed: int) -> np.ndarray:
     """The clip with room noise at ``snr_db`` below the level of its sound."""
-    rng = np.random.default_rng([seed, abs(hash((item.label, item.voice))) % 2**32])
+    rng = np.random.default_rng([seed, zlib.crc32(f"{item.label}|{item.voice}".encode())])
     sound_power = 10 ** (SPEECH_LEVEL_DBFS / 10)
     noise = room_noise(item.samples.size, babble, rng) * np.sqrt(sound_power / 10 ** (snr_db / 10))
     return item.samples + noise
@@ -391,17 +392,58 @@ def verdict(name: str, figures: dict[str, float]) -> str:
     return f"{name}: " + "; ".join(parts)
 
 
+def voice_split(voice: str) -> str:
+    """Which half a recorded outcome's voice (or noise repeat) belongs to."""
+    names = [v.name for v in VOICES]
+    index = names.index(voice) if voice in names else int(voice.removeprefix("noise"))
+    return "tuning" if in_split(index, "tuning") else "held-out"
+
+
+def report_records(files: list[Path], split: str) -> int:
+    """The table and verdicts of outcomes recorded by earlier runs, per condition."""
+    by_condition: dict[str, list[Outcome]] = {}
+    for file in files:
+        for line in file.read_text().splitlines():
+            outcome = Outcome(**json.loads(line))
+            if split == "all" or voice_split(outcome.voice) == split:
+                by_condition.setdefault(outcome.condition, []).append(outcome)
+    order = sorted(
+        by_condition, key=lambda c: (c != "clean", -float(c.split()[1]) if " " in c else 0)
+    )
+    seeds = {o.seed for o in by_condition.get(order[-1], [])} if order else set()
+    print(f"{len(files)} record files, {split} voices, {len(seeds)} noise seeds")
+    print(HEADER)
+    summary = []
+    for condition in order:
+        row, figures = report(condition, by_condition[condition])
+        print(row)
+        if condition == "clean" or float(condition.split()[1]) >= 10:
+            summary.append(verdict(condition, figures))
+    for line in summary:
+        print(line)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--voices", type=int, default=len(VOICES), help="how many voices (1-8)")
     parser.add_argument("--snrs", type=float, nargs="+", default=list(SNRS), help="SNRs in dB")
     parser.add_argument("--seeds", type=int, default=8, help="noise seeds per SNR")
+    parser.add_argument("--first-seed", type=int, default=0, help="the first noise seed")
     parser.add_argument("--no-clean", action="store_true", help="skip the clean condition")
     parser.add_argument(
         "--split", choices=SPLITS, default="all", help="all voices, or the tuning or held-out half"
     )
     parser.add_argument("--records", type=Path, help="write every outcome to this JSON-lines file")
+    parser.add_argument(
+        "--from-records",
+        type=Path,
+        nargs="+",
+        help="only report: the table of these --records files (e.g. seeds run in parallel)",
+    )
     args = parser.parse_args(argv)
+    if args.from_records:
+        return report_records(args.from_records, args.split)
     if shutil.which("espeak-ng") is None:
         print("error: espeak-ng is not installed (Debian: apt-get install espeak-ng)")
         return 2
@@ -424,7 +466,8 @@ def main(argv: list[str] | None = None) -> int:
     records = args.records.open("w") if args.records else None
     for name, snr in conditions:
         outcomes: list[Outcome] = []
-        for seed in range(1 if snr is None else args.seeds):
+        seeds = [0] if snr is None else range(args.first_seed, args.first_seed + args.seeds)
+        for seed in seeds:
             noise = None if snr is None else (snr, babble)
             outcomes += run(recognizer, clips, name, seed, noise)
         row, figures = report(name, outcomes)

@@ -228,6 +228,7 @@ def test_the_command_prints_the_answer_transcript_confidence_and_time() -> None:
     assert "answer:     yes" in done.stdout
     assert "transcript: yes" in done.stdout
     assert "confidence: " in done.stdout and "time: " in done.stdout
+    assert "heard:      yes" in done.stdout
 
 
 def test_the_command_prints_one_json_object() -> None:
@@ -237,6 +238,15 @@ def test_the_command_prints_one_json_object() -> None:
     assert shown["answer"] == "no" and shown["transcript"] in Vocabulary().no
     assert set(shown) >= {"answer", "transcript", "confidence", "engine", "seconds"}
     assert 0 <= shown["confidence"] <= 1
+
+
+def test_the_command_says_unclear_for_other_words_and_what_it_heard_instead() -> None:
+    done = runner.invoke(cli, ["speech", "recognize", str(DATA / "maybe.wav"), "--json"])
+    assert done.exit_code == 0, done.output
+    shown = json.loads(done.stdout)
+    assert shown["answer"] == "unclear"
+    assert shown["confidence"] < Vocabulary().min_confidence
+    assert "maybe" in shown["heard"]
 
 
 def test_the_command_uses_a_protocols_phrases(tmp_path: Path) -> None:
