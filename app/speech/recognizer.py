@@ -198,13 +198,13 @@ class Recognizer:
         return utterance.finish()
 
     def utterance(self) -> Utterance:
-        """A streaming recognition: :meth:`Utterance.feed` frames as they come, then finish."""
-        return Utterance(self)
+        """A streaming recognition: :meth:`Utterance.feed` frames as they come, then finish.
 
-    def _borrow(self) -> _Decoders:
+        Its decoders are lent now (a new pair loaded if all are lent, a few seconds), so that
+        the load falls at the start of listening, not between the end of speech and the answer."""
         with self._lock:
             decoders = self._idle.pop() if self._idle else None
-        return decoders or _Decoders(self._jsgf)
+        return Utterance(self, decoders or _Decoders(self._jsgf))
 
     def _give_back(self, decoders: _Decoders) -> None:
         with self._lock:
@@ -230,8 +230,9 @@ class Recognizer:
 class Utterance:
     """One participant's answer, streamed in (:meth:`feed`) and decoded on :meth:`finish`."""
 
-    def __init__(self, recognizer: Recognizer) -> None:
+    def __init__(self, recognizer: Recognizer, decoders: _Decoders) -> None:
         self._recognizer = recognizer
+        self._decoders = decoders
         self._endpointer = Endpointer(SAMPLE_RATE)
         self._audio = bytearray()
         self._finished = False
@@ -254,23 +255,24 @@ class Utterance:
         self._endpointer.feed(pcm)
 
     def finish(self) -> Recognition:
-        """Close the utterance and decide (silence when the endpointer heard no speech)."""
+        """Close the utterance and decide (silence when the endpointer heard no speech); the
+        decoders go back to the recogniser's pool."""
         if self._finished:
             raise RuntimeError("this utterance is finished")
         self._finished = True
         started = time.perf_counter()
         recognizer = self._recognizer
         phrase, words, confidence, heard = "", "", 0.0, None
-        speech = self._speech()
-        if speech:
-            decoders = recognizer._borrow()
-            try:
+        decoders = self._decoders
+        try:
+            speech = self._speech()
+            if speech:
                 phrase, words = decoders.decode(speech)
                 if phrase:
                     heard, confidence = recognizer._decide(decoders, phrase, words)
-            finally:
-                recognizer._give_back(decoders)
-        self._audio = bytearray()
+        finally:
+            recognizer._give_back(decoders)
+            self._audio = bytearray()
         return Recognition(
             answer=recognizer.vocabulary.classify(heard),
             transcript=phrase,
