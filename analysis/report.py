@@ -341,6 +341,7 @@ def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
             [("condition", "Condition", None), ("status", "Status", None), ("n", "n", _int)],
             left=("condition", "status"),
         )
+        + _per_language(participants)
         + "<h3>Exclusions</h3>"
         + (
             f"<p>Statuses excluded from every analysis: "
@@ -350,6 +351,21 @@ def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
         + "</section>"
     )
     return "participants", "Participants and exclusions", content
+
+
+def _per_language(participants: pd.DataFrame) -> str:
+    """Participants per language and condition, for a study run in more than one language
+    (nothing for a study in one: the table would say only that)."""
+    if "language" not in participants or participants["language"].nunique(dropna=True) < 2:
+        return ""
+    counts = (
+        participants.groupby(["language", "condition"], sort=True).size().rename("n").reset_index()
+    )
+    return "<h3>Languages</h3>" + _table(
+        counts,
+        [("language", "Language", None), ("condition", "Condition", None), ("n", "n", _int)],
+        left=("language", "condition"),
+    )
 
 
 def _outcome_title(outcome: OutcomeAnalysis) -> str:

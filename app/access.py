@@ -59,6 +59,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/t/{token}"): EVERYONE,
     ("GET", "/k/{token}"): EVERYONE,
     ("GET", "/stations/{name}/room"): EVERYONE,  # a shell: the device key typed into it is the key
+    ("GET", "/api/v1/languages/{language}/words"): EVERYONE,  # interface sentences only
     # signed-in people
     ("POST", "/logout"): USERS,
     ("GET", "/api/v1/session"): USERS,
@@ -90,6 +91,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/studies/{name}/participants/{code}/link"): STAFF,
     ("POST", "/studies/{name}/participants/{code}/link/revoke"): STAFF,
     ("POST", "/studies/{name}/participants/{code}/lock"): STAFF,
+    ("POST", "/studies/{name}/participants/{code}/language"): STAFF,
     ("POST", "/studies/{name}/participants/{code}/unlock"): STAFF,
     ("GET", "/api/v1/stations"): STAFF,
     ("GET", "/api/v1/stations/{name}/state"): STAFF,
@@ -163,8 +165,11 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # the participant's tablet (each token reaches its own participant's pages only)
     ("GET", "/api/v1/tablet"): PARTICIPANTS,
     ("POST", "/api/v1/tablet/consent"): PARTICIPANTS,
+    ("POST", "/api/v1/tablet/language"): PARTICIPANTS,
     ("POST", "/api/v1/tablet/questionnaires/{instrument}"): PARTICIPANTS,
     ("GET", "/tablet"): PARTICIPANTS,
+    ("GET", "/tablet/language"): PARTICIPANTS,
+    ("POST", "/tablet/language"): PARTICIPANTS,
     ("GET", "/tablet/consent"): PARTICIPANTS,
     ("POST", "/tablet/consent"): PARTICIPANTS,
     ("GET", "/tablet/q/{instrument}"): PARTICIPANTS,

@@ -86,6 +86,9 @@ class BotConfig:
     """Bot stations are named PREFIX-1 … PREFIX-C."""
     responses: ResponseModel = field(default_factory=ResponseModel)
     """How the simulated participants answer the questionnaires."""
+    language: str | None = None
+    """Enrol every bot in this language; None: the study's default, or, where the tablet asks,
+    a language drawn from those it offers."""
 
 
 @dataclass
@@ -192,7 +195,11 @@ class _Tablet:
         """Answer pages until the tablet says wait or done; returns how many it submitted."""
         submitted = 0
         page = await self._send("GET", "/api/v1/tablet")
-        while page["kind"] in ("consent", "questionnaire"):
+        while page["kind"] in ("language", "consent", "questionnaire"):
+            if page["kind"] == "language":
+                chosen = self.rng.choice([offered["code"] for offered in page["languages"]])
+                page = await self._send("POST", "/api/v1/tablet/language", {"language": chosen})
+                continue
             if page["kind"] == "consent":
                 page = await self._send("POST", "/api/v1/tablet/consent", {"accept": True})
             else:
@@ -232,7 +239,7 @@ class _Lane:
         self.tick = tick
 
     async def run_participant(self) -> None:
-        enrolled = await self.experimenter.enroll(self.config.study)
+        enrolled = await self.experimenter.enroll(self.config.study, language=self.config.language)
         code = str(enrolled["code"])
         self.summary.participants += 1
         link = await self.experimenter.call(

@@ -517,12 +517,18 @@ class ExperimenterClient:
         return value
 
     async def enroll(
-        self, study: str, *, code: str | None = None, strata: dict[str, str] | None = None
+        self,
+        study: str,
+        *,
+        code: str | None = None,
+        strata: dict[str, str] | None = None,
+        language: str | None = None,
     ) -> dict[str, Any]:
-        """Enrol and randomise a participant."""
-        value: dict[str, Any] = await self.call(
-            "POST", f"/studies/{study}/participants", {"code": code, "strata": strata or {}}
-        )
+        """Enrol and randomise a participant (``language``: one of the study's)."""
+        body: dict[str, Any] = {"code": code, "strata": strata or {}}
+        if language is not None:
+            body["language"] = language
+        value: dict[str, Any] = await self.call("POST", f"/studies/{study}/participants", body)
         return value
 
     async def ensure_station(self, name: str) -> None:

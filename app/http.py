@@ -22,7 +22,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.errors import DatabaseUnavailable, NotAuthenticated, TrustlabError
-from app.web.templating import is_htmx, render
+from app.i18n import catalogues
+from app.web.templating import is_htmx, render, tablet_catalogue
 
 log = logging.getLogger(__name__)
 
@@ -125,12 +126,13 @@ TABLET_PATHS = ("/tablet", "/t/", "/k/")
 """Participant pages: their errors are participant pages too (no staff styling or links)."""
 
 TABLET_HEADINGS = {
-    401: "The questionnaire is not open on this tablet",
-    403: "This page has expired",
-    404: "This page does not exist",
-    409: "This cannot be done right now",
-    503: "Please wait a moment",
+    401: catalogues.Message("The questionnaire is not open on this tablet"),
+    403: catalogues.Message("This page has expired"),
+    404: catalogues.Message("This page does not exist"),
+    409: catalogues.Message("This cannot be done right now"),
+    503: catalogues.Message("Please wait a moment"),
 }
+TABLET_HEADING_OTHERWISE = catalogues.Message("Something went wrong")
 
 
 def _error_response(
@@ -139,9 +141,13 @@ def _error_response(
     if wants_json(request):
         return JSONResponse({"detail": message, **(extra or {})}, status_code=status)
     if request.url.path.startswith(TABLET_PATHS):
+        words = tablet_catalogue(request)
         context = {
-            "heading": TABLET_HEADINGS.get(status, "Something went wrong"),
-            "message": message,
+            "heading": words.say(
+                TABLET_HEADINGS.get(status, catalogues.Message("Something went wrong"))
+            ),
+            "message": words.say(message),
+            "catalogue": words,
         }
         return render(request, "tablet_message.html", context, status_code=status)
     return render(request, "error.html", {"status": status, "message": message}, status_code=status)

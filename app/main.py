@@ -16,7 +16,16 @@ from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from app import collector
 from app.activity import ActivityRecorder
-from app.api import health, session, station, station_audio, station_ws, stations, tablet
+from app.api import (
+    health,
+    languages,
+    session,
+    station,
+    station_audio,
+    station_ws,
+    stations,
+    tablet,
+)
 from app.api import studies as studies_api
 from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
@@ -137,6 +146,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         stations.router,
         stations.devices_router,
         tablet.router,
+        languages.router,
     ):
         api.include_router(resource)
     app.include_router(api)

@@ -24,8 +24,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StringConstraints, ValidationError
 
+from app.i18n import catalogues, protocol_texts
+from app.i18n.languages import UnknownLanguage, check_code
 from app.room import RoomSpec, check_room, default_room
 from app.speech.vocabulary import DEFAULT_MIN_CONFIDENCE, DEFAULT_NO, DEFAULT_YES, normalise
 from models.feedback import FeedbackModel
@@ -53,6 +55,19 @@ class StudyInfo(_Strict):
     rules: list[Text] = Field(default_factory=list, description="Shown to participants.")
     blinded: bool = Field(
         default=False, description="Experimenters see neutral condition labels only."
+    )
+    languages: list[str] = Field(
+        default_factory=lambda: ["en"],
+        min_length=1,
+        max_length=20,
+        description="The languages participants may take part in; the first is the protocol's "
+        "own and the default, each other one gives every participant-facing text in "
+        "[translations.<language>].",
+    )
+    language_choice: bool = Field(
+        default=False,
+        description="The tablet's first page lets a participant whose language was not set at "
+        "enrolment choose one of the languages.",
     )
 
 
@@ -408,6 +423,35 @@ class Protocol(_Strict):
     room: RoomSpec | None = Field(
         default=None, description="The escape room's floor plan (app/room.py); default layout."
     )
+    translations: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="Every participant-facing text in each further language of study.languages "
+        "(app/i18n/protocol_texts.py names them).",
+    )
+    _in_languages: dict[str, Protocol] = PrivateAttr(default_factory=dict)
+
+    @property
+    def default_language(self) -> str:
+        """The protocol's own language, the first of ``study.languages``."""
+        return self.study.languages[0]
+
+    def in_language(self, language: str) -> Protocol:
+        """This protocol with every participant-facing text in ``language`` (the protocol
+        itself for its own language); what a participant sees and hears comes from it. Its
+        ``default_language`` is ``language``; it is for showing, not for checking or storing.
+
+        Built once per protocol and language. KeyError for a language the protocol does not
+        offer (enrolment refuses those, so here it is a defect)."""
+        if language == self.default_language:
+            return self
+        if language not in self.study.languages:
+            raise KeyError(language)
+        localised = self._in_languages.get(language)
+        if localised is None:
+            data = protocol_texts.translated(self.model_dump(mode="json"), language)
+            localised = Protocol.model_validate(data)
+            self._in_languages[language] = localised
+        return localised
 
     def room_layout(self) -> RoomSpec:
         """The floor plan the room client draws: ``[room]``, or the default for the categories."""
@@ -656,6 +700,27 @@ def _check_speech(protocol: Protocol) -> list[Problem]:
     return problems
 
 
+def _check_languages(protocol: Protocol) -> list[Problem]:
+    """Real language codes, each once, and every further language's every text translated."""
+    problems = _unique(protocol.study.languages, "study.languages", "language")
+    for index, code in enumerate(protocol.study.languages):
+        try:
+            check_code(code)
+        except UnknownLanguage as exc:
+            problems.append(Problem(f"study.languages[{index}]", str(exc)))
+    if problems:
+        return problems
+    for index, code in enumerate(protocol.study.languages):
+        unusable = catalogues.check_language(code)
+        if unusable:
+            problems.append(Problem(f"study.languages[{index}]", unusable))
+    data = protocol.model_dump(mode="json")
+    return problems + [
+        Problem(path, reason)
+        for path, reason in protocol_texts.translation_problems(data, protocol.study.languages)
+    ]
+
+
 def _check_allocation(protocol: Protocol) -> list[Problem]:
     allocation = protocol.allocation
     n = len(protocol.conditions)
@@ -776,6 +841,7 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
             )
         )
     problems += _check_speech(protocol)
+    problems += _check_languages(protocol)
     problems += _check_allocation(protocol)
     problems += _check_instruments(protocol.questionnaires)
     if protocol.room is not None:

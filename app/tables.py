@@ -206,6 +206,8 @@ class Participant(Base):
     locked_at: Mapped[datetime | None]
     token_hash: Mapped[str | None] = mapped_column(String(64))
     token_generation: Mapped[int] = mapped_column(default=0, server_default="0")
+    language: Mapped[str | None] = mapped_column(String(16))
+    """One of the study's languages; None: not chosen yet, the study's first applies."""
 
     study: Mapped[Study] = relationship()
     allocation: Mapped[Allocation] = relationship(

@@ -8,6 +8,7 @@ the participant and study in one query, as the request's first read (:func:`app.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass
 from typing import Annotated
@@ -20,7 +21,7 @@ from app.deps import SessionDep, bearer_key, identify
 from app.errors import Conflict, NotAuthenticated
 from app.protocol import Protocol
 from app.security import sign
-from app.services import tablet_tokens
+from app.services import languages, tablet_tokens
 from app.services.studies import protocol_of
 from app.tables import Participant, Station, Study
 
@@ -44,6 +45,11 @@ class Tablet:
             return tablet_tokens.kiosk_link_topic(self.station.id)
         return tablet_tokens.participant_link_topic(self.participant.id)
 
+    def in_language_of_participant(self) -> Tablet:
+        """This tablet after the participant's language changed (its texts in the new one)."""
+        protocol = languages.protocol_for(self.participant.language, protocol_of(self.study))
+        return dataclasses.replace(self, protocol=protocol)
+
     def topics(self) -> list[str]:
         """Live topics whose events should refresh this tablet."""
         topics = [f"participant:{self.participant.id}"]
@@ -64,7 +70,8 @@ def resolve(db: Session, credential: str) -> Tablet:
         participant, study = seated, seated_study
     else:
         participant, study = tablet_tokens.participant_for_token(db, credential)
-    return Tablet(participant, study, protocol_of(study), station, credential)
+    protocol = languages.protocol_for(participant.language, protocol_of(study))
+    return Tablet(participant, study, protocol, station, credential)
 
 
 async def _resolved(db: Session, credential: str) -> Tablet:

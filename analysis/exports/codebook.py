@@ -17,6 +17,7 @@ from analysis.exports.tables import (
     STEP_EXPORT_BASE_COLUMNS,
     WideColumn,
     wide_columns,
+    with_language,
 )
 from analysis.instruments import InstrumentSpec, ItemSpec
 from analysis.scoring import ScaleSpec
@@ -127,6 +128,7 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
         "participant": ("Participant code", "string", "nominal", "", ""),
         "condition": ("Experimental condition", "string", "nominal", conditions, ""),
         "status": ("Participant status at export", "string", "nominal", "", ""),
+        "language": (LANGUAGE_LABEL, "string", "nominal", "", ""),
     }
     out = []
     for column in columns:
@@ -155,9 +157,12 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
     return out
 
 
+LANGUAGE_LABEL = "Language the participant took part in (ISO 639 code)"
+
 _LONG = {
     "participant": ("Participant code", "string"),
     "condition": ("Experimental condition", "string"),
+    "language": (LANGUAGE_LABEL, "string"),
     "instrument": ("Instrument key", "string"),
     "session": ("Session number (empty for once-only instruments)", "integer"),
     "item": ("Item key (see the wide file's codebook rows for the wording)", "string"),
@@ -171,6 +176,7 @@ _LONG = {
 _STEPS = {
     "participant": ("Participant code", "string"),
     "condition": ("Experimental condition", "string"),
+    "language": (LANGUAGE_LABEL, "string"),
     "category": ("Mental-activity category of the question", "string"),
     "session": ("Session number", "integer"),
     "run": ("Run within the session", "integer"),
@@ -223,8 +229,11 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
             rows.append(_item_entry(column, spec, item, "wide"))
         elif column.source == "scale":
             rows.append(_scale_entry(column, scales[column.key]))
-    rows += [_plain_entry("long", c, *_LONG[c]) for c in LONG_COLUMNS]
-    rows += [_plain_entry("steps", c, *_STEPS[c]) for c in STEP_EXPORT_BASE_COLUMNS]
+    rows += [_plain_entry("long", c, *_LONG[c]) for c in with_language(LONG_COLUMNS, dataset)]
+    rows += [
+        _plain_entry("steps", c, *_STEPS[c])
+        for c in with_language(STEP_EXPORT_BASE_COLUMNS, dataset)
+    ]
     arms = max((len(q) for q in dataset.protocol["categories"].values()), default=0)
     for when, text in (("before", "before the answer"), ("after", "after the update")):
         rows += [

@@ -30,6 +30,7 @@ __all__ = [
     "steps_table",
     "wide_columns",
     "wide_table",
+    "with_language",
 ]
 
 LONG_COLUMNS = ("participant", "condition", "instrument", "session", "item", "value", "scored")
@@ -51,6 +52,26 @@ STEP_EXPORT_BASE_COLUMNS = (
 )
 """Columns of :func:`steps_table` before the per-arm probabilities ``p_before_<arm>`` /
 ``p_after_<arm>`` (0-based arm index, like ``action``)."""
+
+LANGUAGE = "language"
+"""A participant attribute that also goes into every long and steps row, right after the
+condition, when the dataset has it (trustlab's exports always do): a multi-language study is
+analysed by language, and a row should say which words the participant was given."""
+
+
+def with_language(columns: tuple[str, ...], dataset: StudyDataset) -> tuple[str, ...]:
+    """``columns`` with ``language`` after ``condition`` when the participants carry one."""
+    if LANGUAGE not in dataset.attribute_columns:
+        return columns
+    at = columns.index("condition") + 1
+    return (*columns[:at], LANGUAGE, *columns[at:])
+
+
+def _per_participant(dataset: StudyDataset, column: str) -> pd.Series:
+    return pd.Series(
+        dataset.participants[column].to_numpy(),
+        index=dataset.participants["participant"].to_numpy(),
+    )
 
 
 ADAPTATION_BASE_COLUMNS = MEASURE_COLUMNS
@@ -121,7 +142,8 @@ def wide_columns(dataset: StudyDataset) -> list[WideColumn]:
 def long_table(dataset: StudyDataset) -> pd.DataFrame:
     """Every stored answer, raw and scored: one row per participant × instrument × session × item.
 
-    Columns :data:`LONG_COLUMNS`. ``scored`` applies the reverse key (e.g. ``trust_5``: 6 − x)
+    Columns :data:`LONG_COLUMNS` (with ``language`` after ``condition`` when the participants
+    have one: :func:`with_language`). ``scored`` applies the reverse key (e.g. ``trust_5``: 6 − x)
     and is empty for categorical and free-text items. Rows are ordered by participant (as in
     the participants table), then session (once-only instruments first), then instrument and
     item in questionnaire order.
@@ -148,7 +170,10 @@ def long_table(dataset: StudyDataset) -> pd.DataFrame:
     order = np.lexsort((item_rank.to_numpy(), session, participant_rank))
     out = scored.iloc[order].reset_index(drop=True)
     out["condition"] = out["participant"].map(condition).to_numpy()
-    return out[list(LONG_COLUMNS)]
+    columns = with_language(LONG_COLUMNS, dataset)
+    if LANGUAGE in columns:
+        out[LANGUAGE] = out["participant"].map(_per_participant(dataset, LANGUAGE)).to_numpy()
+    return out[list(columns)]
 
 
 def wide_table(dataset: StudyDataset) -> pd.DataFrame:
@@ -230,7 +255,8 @@ def _as_column(values: np.ndarray, kind: str) -> Any:
 def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     """The adaptation step log with one column per arm probability.
 
-    Columns :data:`STEP_EXPORT_BASE_COLUMNS`, then ``p_before_0`` … ``p_before_<K−1>`` and
+    Columns :data:`STEP_EXPORT_BASE_COLUMNS` (with ``language`` after ``condition`` when the
+    participants have one), then ``p_before_0`` … ``p_before_<K−1>`` and
     ``p_after_0`` … (K = the largest number of arms; categories with fewer arms leave the rest
     empty). ``preferred_arm`` is the protocol's preferred question of the row's category and
     ``p_preferred_before/after`` its probability. Rows are ordered by participant (as in the
@@ -239,8 +265,9 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
     """
     steps = dataset.steps
     preferred = dataset.protocol["preferred_arms"]
+    base = with_language(STEP_EXPORT_BASE_COLUMNS, dataset)
     if steps.empty:
-        return pd.DataFrame(columns=list(STEP_EXPORT_BASE_COLUMNS))
+        return pd.DataFrame(columns=list(base))
     participant_rank = pd.Index(dataset.participants["participant"]).get_indexer(
         steps["participant"]
     )
@@ -273,6 +300,8 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
         after = probability_matrix(steps["probs_after"].to_numpy()[rows], "probs_after")
         blocks.append((rows, before, after))
     n_arms = max(before.shape[1] for _, before, _ in blocks)
+    if LANGUAGE in base:
+        out.insert(2, LANGUAGE, steps["participant"].map(_per_participant(dataset, LANGUAGE)))
     p_before = np.full((len(steps), n_arms), np.nan)
     p_after = np.full((len(steps), n_arms), np.nan)
     for rows, before, after in blocks:

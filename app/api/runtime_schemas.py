@@ -169,7 +169,11 @@ class _PromptFields(BaseModel):
     step_id: int
     category: str
     action: int = Field(description="Index of the chosen question among the category's K.")
-    question: str
+    question: str = Field(description="The question in the participant's language.")
+    language: str = Field(
+        default="en",
+        description="The participant's language (e.g. 'sv'): what to say it, and the reply, in.",
+    )
     adapts: bool = Field(description="False in the familiarisation run: answers are not learned.")
     session: int
     run: int
@@ -248,6 +252,11 @@ class _StateFields(BaseModel):
     session: SessionOut | None
     run: RunOut | None
     expected: ExpectedOut
+    language: str | None = Field(
+        default=None,
+        description="The seated participant's language (e.g. 'sv'): what the room shows and "
+        "the robot says everything in. Null when nobody is seated.",
+    )
 
 
 class StationStateOut(_StateFields):
@@ -284,6 +293,15 @@ class SpeechOut(SpeechSpec):
     for, when an answer counts, and how often it asks again (docs/robots.md)."""
 
     study: str = Field(description="The study's short name.")
+    language: str = Field(
+        description="The seated participant's language (else the study's first): the phrases and "
+        "the request to answer again are in it."
+    )
+    offline_recognition: bool = Field(
+        description="Whether the trustlab server can recognise answers in this language (its "
+        "offline recogniser knows US English only); if not, the room takes answers by button, "
+        "or by the browser's recogniser where cloud_recognizer allows it."
+    )
 
 
 class DeviceOut(BaseModel):

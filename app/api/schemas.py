@@ -64,6 +64,13 @@ class EnrolmentRequest(RequestBody):
     strata: dict[str, str] = Field(
         default_factory=dict, description="Values of the study's stratification factors."
     )
+    language: str | None = Field(
+        default=None,
+        max_length=16,
+        examples=["sv"],
+        description="One of the study's languages; omitted: the study's first, or the "
+        "participant chooses on the tablet when the protocol lets them.",
+    )
 
 
 class Enrolled(BaseModel):
@@ -73,6 +80,9 @@ class Enrolled(BaseModel):
     condition: str = Field(description="Condition id, or its neutral label for blinded roles.")
     stratum: str
     replaces: str | None = None
+    language: str | None = Field(
+        default=None, description="The participant's language (None: chosen on the tablet)."
+    )
 
 
 class ParticipantOut(BaseModel):
@@ -85,6 +95,9 @@ class ParticipantOut(BaseModel):
     enrolled_at: datetime
     withdrawn_at: datetime | None
     locked: bool = False
+    language: str | None = Field(
+        default=None, description="The participant's language (None: not chosen yet)."
+    )
 
 
 class Withdrawal(RequestBody):

@@ -80,14 +80,14 @@ async def get_spoken_line(
     """A line of the study this station runs, spoken (for a room client whose browser has no
     voices): its questions, replies, request to answer again and rules only; any other text is a
     404. Synthesised on the server with espeak-ng, once per line."""
-    await as_device(
+    language = await as_device(
         request.app,
         key,
         write=False,
         op=lambda db, device: station_ops.check_spoken_line(db, station=device.seat, text=text),
     )
     synthesiser: Synthesiser = request.app.state.synthesiser
-    wav = await run_in_threadpool(synthesiser.wav, text)
+    wav = await run_in_threadpool(synthesiser.wav, text, language)
     return Response(wav, media_type="audio/wav")
 
 

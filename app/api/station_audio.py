@@ -261,6 +261,11 @@ class _AudioConnection:
                 f"step {message.step_id} is not open at station {self.device.station}: "
                 "listen only while its question is asked"
             )
+        if not speech.offline_recognition:
+            raise Conflict(
+                f"the server recognises US English only, and this participant answers in "
+                f"{speech.language!r}: take the answer by button"
+            )
         vocabulary = Vocabulary.of(speech.yes, speech.no, speech.min_confidence)
         recognizer = await run_in_threadpool(self.pool.get, vocabulary)
         utterance = await run_in_threadpool(recognizer.utterance)

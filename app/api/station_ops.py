@@ -25,11 +25,12 @@ from app.api.runtime_schemas import (
     StationStateOut,
 )
 from app.errors import Conflict, NotFound
-from app.services import answer_audio, room_presence, runtime, stations
+from app.protocol import Protocol
+from app.services import answer_audio, languages, room_presence, runtime, stations
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.services.studies import protocol_of
-from app.speech.lines import spoken_lines
+from app.speech.lines import RECOGNISED_LANGUAGES, spoken_lines
 from app.tables import Device, Station, Study
 
 StationRef = str | Seat
@@ -62,10 +63,18 @@ def _study_run_by(db: Session, station: Seat) -> Study:
     return study
 
 
+def _as_seated_sees_it(study: Study, station: Seat) -> Protocol:
+    """The study's protocol in the seated participant's language (the study's first when
+    nobody of this study is seated)."""
+    seated = station.participant
+    language = seated.language if seated is not None and seated.study_id == study.id else None
+    return languages.protocol_for(language, protocol_of(study))
+
+
 def room(db: Session, *, station: Seat) -> RoomOut:
     """The room of the seated participant's study, or else of the study the station runs."""
     study = _study_run_by(db, station)
-    protocol = protocol_of(study)
+    protocol = _as_seated_sees_it(study, station)
     return RoomOut(
         study=study.name,
         title=study.title,
@@ -78,18 +87,28 @@ def room(db: Session, *, station: Seat) -> RoomOut:
 def speech(db: Session, *, station: Seat) -> SpeechOut:
     """How a robot that hears takes answers in the study the station runs (same rule as room)."""
     study = _study_run_by(db, station)
-    return SpeechOut(study=study.name, **protocol_of(study).speech.model_dump())
+    protocol = _as_seated_sees_it(study, station)
+    return SpeechOut(
+        study=study.name,
+        language=protocol.default_language,
+        offline_recognition=protocol.default_language in RECOGNISED_LANGUAGES,
+        **protocol.speech.model_dump(),
+    )
 
 
-def check_spoken_line(db: Session, *, station: Seat, text: str) -> None:
-    """Refuse (404) a line the study the station runs never says (same rule as room): the server
-    synthesises its robot's lines, not any text a device sends."""
+def check_spoken_line(db: Session, *, station: Seat, text: str) -> str:
+    """The language of a line the study the station runs says (the seated participant's
+    first); 404 for any other text (same rule as room): the server synthesises its robot's
+    lines, not any text a device sends."""
     study = _study_run_by(db, station)
-    if text not in spoken_lines(protocol_of(study)):
-        raise NotFound(
-            f"not a line of study {study.name!r}: the server speaks only its questions, replies, "
-            "request to answer again and rules"
-        )
+    seated = _as_seated_sees_it(study, station)
+    for language in seated.study.languages:
+        if text in spoken_lines(protocol_of(study).in_language(language)):
+            return language
+    raise NotFound(
+        f"not a line of study {study.name!r}: the server speaks only its questions, replies, "
+        "request to answer again and rules"
+    )
 
 
 def presence(db: Session, *, station: Seat, device_id: int, body: PresenceRequest) -> None:
@@ -126,7 +145,11 @@ def _prompt(
         zone=body.zone,
     )
     out = prompt_out(
-        result.prompt, session=result.session_number, run=result.run_number, created=result.created
+        result.prompt,
+        session=result.session_number,
+        run=result.run_number,
+        created=result.created,
+        language=result.language,
     )
     return result, out
 
@@ -230,13 +253,14 @@ def expected_out(expected: runtime.Expected) -> ExpectedOut:
     )
 
 
-def prompt_out(prompt: Step, *, session: int, run: int, created: bool) -> PromptOut:
+def prompt_out(prompt: Step, *, session: int, run: int, created: bool, language: str) -> PromptOut:
     """Serialise a prompt."""
     return PromptOut(
         step_id=prompt.id,
         category=prompt.category,
         action=prompt.action,
         question=prompt.question,
+        language=language,
         probabilities=prompt.probabilities,
         adapts=prompt.adapts,
         session=session,
@@ -280,10 +304,12 @@ def state_out(view: runtime.StationView) -> StationStateOut:
                 session=session.number if session else 0,
                 run=run.number if run else 0,
                 created=False,
+                language=view.language or "en",
             )
             for p in view.open_prompts
         ],
         expected=expected_out(view.expected),
+        language=view.language,
     )
 
 

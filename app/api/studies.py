@@ -54,6 +54,7 @@ def _participant(study: Study, participant: Participant, actor: Actor) -> Partic
         enrolled_at=participant.enrolled_at,
         withdrawn_at=participant.withdrawn_at,
         locked=participant.locked_at is not None,
+        language=participant.language,
     )
 
 
@@ -131,7 +132,12 @@ def enrol(name: str, body: EnrolmentRequest, db: SessionDep, user: ExperimenterU
     """Enrol a participant and reveal their allocation (once)."""
     actor = Actor.of_user(user)
     result = enrolment.enroll_participant(
-        db, study_name=name, actor=actor, code=body.code, strata=body.strata
+        db,
+        study_name=name,
+        actor=actor,
+        code=body.code,
+        strata=body.strata,
+        language=body.language,
     )
     study = studies.get_study(db, name)
     replaced = result.allocation.replaces_participant_id
@@ -141,6 +147,7 @@ def enrol(name: str, body: EnrolmentRequest, db: SessionDep, user: ExperimenterU
         condition=enrolment.condition_label(study, result.condition, actor=actor),
         stratum=result.participant.stratum,
         replaces=replaced_code,
+        language=result.participant.language,
     )
 
 

@@ -13,9 +13,11 @@ from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
 from app.deps import OneHopRouter, SessionDep
+from app.i18n.languages import native_name
 from app.inputs import SessionNumber
 from app.services import questionnaires
 from app.tablet import BearerTablet, Tablet
+from app.web import tablet_pages
 from app.web.tablet_pages import participant_actor
 
 router = OneHopRouter(prefix="/tablet", tags=["tablet"])
@@ -25,7 +27,15 @@ class PageOut(BaseModel):
     """The page the participant should see, with the instrument to fill in if any."""
 
     participant: str
-    kind: str = Field(description="consent | questionnaire | wait | done | withdrawn")
+    kind: str = Field(
+        description="language | consent | questionnaire | wait | done | withdrawn "
+        "(language: post the participant's choice to /api/v1/tablet/language)"
+    )
+    language: str = Field(description="The language every text here is in.")
+    languages: list[dict[str, str]] = Field(
+        default_factory=list,
+        description="On the language page: the study's languages as {code, name}.",
+    )
     instrument: dict[str, Any] | None = None
     session: int | None = None
     consent: dict[str, str] | None = None
@@ -36,6 +46,12 @@ class ConsentIn(RequestBody):
     """Agreement to the consent text."""
 
     accept: bool
+
+
+class LanguageIn(RequestBody):
+    """The participant's choice on the language page."""
+
+    language: str = Field(max_length=16, examples=["sv"])
 
 
 class AnswersIn(RequestBody):
@@ -50,6 +66,12 @@ def _page_out(tablet: Tablet, page: questionnaires.Page) -> PageOut:
     return PageOut(
         participant=tablet.participant.code,
         kind=page.kind,
+        language=tablet.protocol.default_language,
+        languages=[
+            {"code": code, "name": native_name(code)} for code in tablet.protocol.study.languages
+        ]
+        if page.kind == "language"
+        else [],
         instrument=page.instrument.model_dump(mode="json") if page.instrument else None,
         session=page.session,
         consent={"version": spec.consent.version, "text": spec.consent.text}
@@ -76,6 +98,15 @@ def consent(body: ConsentIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
         actor=participant_actor(tablet),
     )
     return _page_out(tablet, result.page)
+
+
+@router.post("/language")
+def language(body: LanguageIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
+    """Choose the participant's language (only while the page is ``language``); returns the
+    next page, in that language."""
+    tablet_pages.choose(db, tablet, body.language)
+    chosen = tablet.in_language_of_participant()
+    return _page_out(chosen, questionnaires.next_page(db, chosen.participant, chosen.protocol))
 
 
 @router.post("/questionnaires/{instrument}", responses={422: {"description": "Per-item errors"}})

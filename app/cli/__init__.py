@@ -15,6 +15,7 @@ from app.cli import (
     bridge,
     engine,
     exports,
+    languages,
     mixed,
     population,
     robot,
@@ -42,6 +43,7 @@ exports.register(cli)
 engine.register(cli)
 population.register(cli)
 speech.register(cli)
+languages.register(cli)
 
 
 def main() -> None:

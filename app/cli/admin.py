@@ -17,7 +17,7 @@ from app.db import Database, describe_url
 from app.demo import pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
-from app.services import audit, blinding, enrolment, studies, users
+from app.services import audit, blinding, enrolment, languages, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -338,6 +338,13 @@ def participant_enroll(
     code: Annotated[
         str | None, typer.Option(help="Participant code (default P001, P002…).")
     ] = None,
+    language: Annotated[
+        str | None,
+        typer.Option(
+            help="One of the study's languages (default: its first, or chosen on the tablet "
+            "when the protocol lets participants choose)."
+        ),
+    ] = None,
     as_json: JsonFlag = False,
 ) -> None:
     """Enrol a participant and reveal their allocation."""
@@ -350,14 +357,54 @@ def participant_enroll(
             actor=Actor.command_line(),
             code=code,
             strata=_parse_strata(stratum or []),
+            language=language,
         )
         # Not the entry's place in the allocation sequence: it is concealed while the study
         # enrols (app.services.blinding.allocation_disclosed).
-        payload = {"code": result.participant.code, "condition": result.condition}
+        payload = {
+            "code": result.participant.code,
+            "condition": result.condition,
+            "language": result.participant.language,
+        }
     if as_json:
         emit_json(payload)
     else:
-        typer.echo(f"enrolled {payload['code']} in {study!r}: condition {payload['condition']}")
+        spoken = payload["language"] or "chosen on the tablet"
+        typer.echo(
+            f"enrolled {payload['code']} in {study!r}: condition {payload['condition']}, "
+            f"language {spoken}"
+        )
+
+
+@participant_cli.command("language")
+def participant_language(
+    study: Annotated[str, typer.Option(help="Study name.")],
+    code: Annotated[str, typer.Option(help="Participant code.")],
+    language: Annotated[str, typer.Option(help="One of the study's languages, e.g. sv.")],
+    override_reason: Annotated[
+        str,
+        typer.Option(
+            help="Why, when a session has already started (required then; kept in the audit "
+            "log): their answers so far were given in the other language."
+        ),
+    ] = "",
+) -> None:
+    """Set a participant's language (before their first session; after it only with a reason)."""
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.writing() as db:
+        found = studies.get_study(db, study)
+        languages.set_language(
+            db,
+            participant=enrolment.get_participant(db, found, code, for_update=True),
+            protocol=studies.protocol_of(found),
+            study_name=study,
+            language=language,
+            actor=Actor.command_line(),
+            actor_role=Role.ADMIN,  # whoever runs the server's command line administers it
+            override_reason=override_reason,
+        )
+    typer.echo(f"{code} in {study!r} now takes part in {language}")
 
 
 @participant_cli.command("withdraw")

@@ -18,6 +18,7 @@ import typer
 
 from app.cli.errors import fail
 from app.client import ApiError, DeviceKeyRefused
+from app.i18n.languages import UnknownLanguage, check_code
 from app.robots.bridge import Bridge, BridgeRefused, BridgeSettings, Trigger
 from app.robots.robot import Robot
 
@@ -49,6 +50,14 @@ TriggerOption = Annotated[
 ]
 Host = Annotated[str, typer.Option(help="The robot's address.")]
 Language = Annotated[str, typer.Option(help="The language the robot speaks and listens in.")]
+Speaks = Annotated[
+    str,
+    typer.Option(
+        help="The participants' language the robot's voice and recogniser are set up for (a "
+        "study language code such as en or sv); a participant in another is left to the "
+        "console's Wizard-of-Oz answer."
+    ),
+]
 Voice = Annotated[
     str | None, typer.Option(help="One of the robot's voices (default: its current voice).")
 ]
@@ -97,8 +106,12 @@ def _run(robot: Robot, settings: BridgeSettings) -> None:
         print(file=sys.stderr)
 
 
-def _settings(url: str, station: str, key: str, trigger: Trigger) -> BridgeSettings:
-    return BridgeSettings(url=url, station=station, key=key, trigger=trigger)
+def _settings(url: str, station: str, key: str, trigger: Trigger, speaks: str) -> BridgeSettings:
+    try:
+        check_code(speaks)
+    except UnknownLanguage as exc:
+        fail(f"--speaks: {exc}", code=2)
+    return BridgeSettings(url=url, station=station, key=key, trigger=trigger, speaks=speaks)
 
 
 @bridge.command("naoqi")
@@ -107,6 +120,7 @@ def naoqi(
     station: StationName,
     key: Key,
     trigger: TriggerOption = Trigger.PRESENCE,
+    speaks: Speaks = "en",
     host: Host = "127.0.0.1",
     port: Annotated[
         int | None,
@@ -156,7 +170,7 @@ def naoqi(
         animated=animated,
         cue_events=tuple(cue_event) if cue_event else adapter.HEAD_SENSORS,
     )
-    _run(adapter.NaoqiRobot(options), _settings(url, station, key, trigger))
+    _run(adapter.NaoqiRobot(options), _settings(url, station, key, trigger, speaks))
 
 
 @bridge.command("furhat")
@@ -165,6 +179,7 @@ def furhat(
     station: StationName,
     key: Key,
     trigger: TriggerOption = Trigger.PRESENCE,
+    speaks: Speaks = "en",
     host: Host = "localhost",
     port: Annotated[
         int, typer.Option(min=1, max=65535, help="The Remote API skill's port.")
@@ -175,7 +190,7 @@ def furhat(
     """A Furhat, through its Remote API skill (furhat-remote-api)."""
     adapter = _vendor("furhat", "Furhat")
     options = adapter.FurhatOptions(host=host, port=port, voice=voice, language=language)
-    _run(adapter.FurhatRobot(options), _settings(url, station, key, trigger))
+    _run(adapter.FurhatRobot(options), _settings(url, station, key, trigger, speaks))
 
 
 @bridge.command("rosbridge")
@@ -184,6 +199,7 @@ def rosbridge(
     station: StationName,
     key: Key,
     trigger: TriggerOption = Trigger.PRESENCE,
+    speaks: Speaks = "en",
     host: Host = "localhost",
     port: Annotated[
         int, typer.Option(min=1, max=65535, help="rosbridge_server's WebSocket port.")
@@ -222,4 +238,4 @@ def rosbridge(
         cue_topic=cue_topic,
         require_cue_topic=trigger == Trigger.ROBOT,
     )
-    _run(adapter.RosbridgeRobot(options), _settings(url, station, key, trigger))
+    _run(adapter.RosbridgeRobot(options), _settings(url, station, key, trigger, speaks))

@@ -221,6 +221,13 @@ def bots(
     ] = 0.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     transport: Annotated[str, typer.Option(help="ws or rest for the robot side.")] = "ws",
+    language: Annotated[
+        str | None,
+        typer.Option(
+            help="Enrol every participant in this language (default: the study's first, or a "
+            "language drawn from those the tablet offers)."
+        ),
+    ] = None,
     as_json: JsonFlag = False,
 ) -> None:
     """Simulated participants driven through the whole protocol over HTTP/WebSocket."""
@@ -238,6 +245,7 @@ def bots(
         noise=noise,
         seed=seed,
         transport=transport,  # type: ignore[arg-type]
+        language=language,
     )
     with tqdm(desc="answers", unit="step", file=sys.stderr, disable=as_json) as bar:
         try:

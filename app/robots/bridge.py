@@ -88,6 +88,9 @@ class BridgeSettings:
     max_retry_delay: float = 10.0
     cue_poll_seconds: float = 1.0
     request_timeout: float = 15.0
+    speaks: str = "en"
+    """The participants' language the robot is set up to speak and hear (its voice and
+    recogniser options): a participant in another language is not spoken to in the wrong one."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "trigger", Trigger(self.trigger))  # "robot" as Trigger.ROBOT
@@ -344,6 +347,9 @@ class Bridge:
     async def _ask(self, prompt: PromptOut) -> None:
         """Say the question, listen until an answer counts, send it, say the reply."""
         self._asked.add(prompt.step_id)
+        if prompt.language != self.settings.speaks:
+            await self._cannot_speak(prompt)
+            return
         speech = await self._client.speech()
         vocabulary = Vocabulary.of(speech.yes, speech.no, speech.min_confidence)
         await self._robot(self.robot.say, prompt.question, None)
@@ -426,6 +432,28 @@ class Bridge:
         )
         await self._notice(line[:300], attention=True)
         self._log(f"Bridge: {line}.")
+        await self._until_settled(prompt)
+        await self._notice(None)
+        await self._say_recorded_reply(prompt.step_id, speech)
+
+    async def _cannot_speak(self, prompt: PromptOut) -> None:
+        """The participant's language is not the robot's: nothing is said (a question in the
+        wrong voice, or a recogniser listening for the wrong words, would not be the study's),
+        and the console is asked for a Wizard-of-Oz answer."""
+        participant = (self._socket.state or {}).get("participant") or "the participant"
+        line = (
+            f"{participant} takes part in {prompt.language!r}, but this robot speaks "
+            f"{self.settings.speaks!r}: ask “{prompt.question}” and give a Wizard-of-Oz answer "
+            f"on this console, or restart the bridge with --speaks {prompt.language} and the "
+            "robot's voice for it"
+        )
+        await self._notice(line[:300], attention=True)
+        self._log(f"Bridge: {line}.")
+        await self._until_settled(prompt)
+        await self._notice(None)
+
+    async def _until_settled(self, prompt: PromptOut) -> None:
+        """Until the step is answered elsewhere (the console) or no longer open."""
 
         def settled() -> bool:
             if prompt.step_id in self._answered.replies:
@@ -435,8 +463,6 @@ class Bridge:
 
         async with self._answered.changed:
             await self._answered.changed.wait_for(settled)
-        await self._notice(None)
-        await self._say_recorded_reply(prompt.step_id, speech)
 
     # -- the robot and the console ------------------------------------------------------------
 

@@ -21,7 +21,7 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
 from app.protocol import AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
-from app.services import audit, blinding, learners
+from app.services import audit, blinding, languages, learners
 from app.services.audit import Actor
 from app.services.studies import enrolment_counts, get_study, protocol_of
 from app.tables import (
@@ -198,17 +198,26 @@ def enroll_participant(
     code: str | None = None,
     strata: Mapping[str, str] | None = None,
     checkpoint_dir: Path | None = None,
+    language: str | None = None,
 ) -> Enrolment:
     """Enrol a participant and reveal their allocation; commits.
 
+    ``language``: one of the study's languages; without it the participant gets the study's
+    first, or chooses on the tablet when the protocol lets them (app.services.languages).
+
     Raises NotFound for an unknown study, Conflict for a closed study or a taken code, and
-    InvalidInput for a malformed code or strata that do not match the protocol.
+    InvalidInput for a malformed code, a language the study does not offer or strata that do
+    not match the protocol.
     """
     study = get_study(db, study_name, for_update=True)
     if study.status != StudyStatus.OPEN:
         raise Conflict(f"study {study.name!r} is closed to enrolment; an admin can reopen it")
     protocol = protocol_of(study)
     clean_strata = _validate_strata(protocol.allocation, strata or {})
+    if language is not None:
+        languages.offered(protocol, language, study_name=study.name)
+    elif not languages.chooses_on_tablet(protocol):
+        language = protocol.default_language
     if code is not None:
         code = code.strip()
         PARTICIPANT_CODE.check(code)
@@ -220,6 +229,7 @@ def enroll_participant(
         stratum=stratum_key(clean_strata),
         strata=clean_strata,
         enrolled_by=actor.name,
+        language=language,
     )
     db.add(participant)
     db.flush()
@@ -233,7 +243,7 @@ def enroll_participant(
         action="participant.enrolled",
         study_id=study.id,
         subject=participant.code,
-        details={"stratum": participant.stratum},
+        details={"stratum": participant.stratum, "language": participant.language},
     )
     audit.record(
         db,

@@ -49,6 +49,8 @@ class ParticipantRow:
     group: str
     status: str
     stratum: str
+    language: str | None
+    """The participant's language (None: not chosen yet on the tablet)."""
     locked: bool
     sessions_done: int
     running_session: int | None
@@ -149,6 +151,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
                 group=group,
                 status=participant.status,
                 stratum=participant.stratum,
+                language=participant.language,
                 locked=participant.locked_at is not None,
                 sessions_done=len(closed),
                 running_session=running.number if running else None,

@@ -22,6 +22,7 @@ its response needs no further query and no second transaction.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -30,8 +31,9 @@ from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
+from app.i18n.catalogues import Message
 from app.protocol import InstrumentSpec, ItemKind, ItemSpec, Protocol
-from app.services import audit
+from app.services import audit, languages
 from app.services.audit import Actor
 from app.services.stations import participant_topic, station_topic, study_topic
 from app.tables import (
@@ -54,7 +56,7 @@ DESCRIPTION_MAX = 200
 class Page:
     """The page a participant should see now."""
 
-    kind: str  # consent | questionnaire | wait | done | withdrawn
+    kind: str  # language | consent | questionnaire | wait | done | withdrawn
     instrument: InstrumentSpec | None = None
     session: int | None = None
 
@@ -137,7 +139,9 @@ def page_for(participant: Participant, protocol: Protocol, where: Progress) -> P
         return Page("withdrawn")
     done = where.done
     if (CONSENT, None) not in done:
-        return Page("consent")
+        return (
+            Page("language") if languages.needs_choice(participant, protocol) else Page("consent")
+        )
     for instrument in protocol.instruments_at("pre"):
         if (instrument.key, None) not in done:
             return Page("questionnaire", instrument)
@@ -214,6 +218,10 @@ def blocker_given(
 # ---------------------------------------------------------------------------------- validation
 
 
+def _choose_between(low: int, high: int) -> Message:
+    return Message("Choose one of %(low)d–%(high)d.", low=low, high=high)
+
+
 def _validate_item(
     item: ItemSpec, raw: str, protocol: Protocol, answers: Mapping[str, str]
 ) -> tuple[dict[str, str], str | None]:
@@ -225,34 +233,38 @@ def _validate_item(
         try:
             point = int(raw)
         except ValueError:
-            return {}, f"Choose one of {scale.minimum}–{scale.maximum}."
+            return {}, _choose_between(scale.minimum, scale.maximum)
         if not scale.minimum <= point <= scale.maximum:
-            return {}, f"Choose one of {scale.minimum}–{scale.maximum}."
+            return {}, _choose_between(scale.minimum, scale.maximum)
         return {item.key: str(point)}, None
     if item.kind is ItemKind.NUMBER:
         try:
             number = int(raw)
         except ValueError:
-            return {}, "Enter a whole number."
+            return {}, Message("Enter a whole number.")
         assert item.minimum is not None and item.maximum is not None
         if not item.minimum <= number <= item.maximum:
-            return {}, f"Enter a number from {item.minimum} to {item.maximum}."
+            return {}, Message(
+                "Enter a number from %(low)d to %(high)d.", low=item.minimum, high=item.maximum
+            )
         return {item.key: str(number)}, None
     if item.kind is ItemKind.CHOICE:
         option = next((o for o in item.options if o.value == raw), None)
         if option is None:
-            return {}, "Choose one of the options."
+            return {}, Message("Choose one of the options.")
         values = {item.key: option.value}
         if option.describe:
             description = answers.get(item.key + DESCRIPTION_SUFFIX, "").strip()
             if len(description) > DESCRIPTION_MAX:
-                return {}, f"Describe it in at most {DESCRIPTION_MAX} characters."
+                return {}, Message(
+                    "Describe it in at most %(most)d characters.", most=DESCRIPTION_MAX
+                )
             if description:
                 values[item.key + DESCRIPTION_SUFFIX] = description
         return values, None
     text = raw.strip()
     if len(text) > item.max_length:
-        return {}, f"Write at most {item.max_length} characters."
+        return {}, Message("Write at most %(most)d characters.", most=item.max_length)
     return ({item.key: text} if text else {}), None
 
 
@@ -279,7 +291,7 @@ def validate_answers(
         raw = answers.get(item.key, "")
         if not str(raw).strip():
             if item.required:
-                errors[item.key] = "Please answer this question."
+                errors[item.key] = Message("Please answer this question.")
             continue
         stored, error = _validate_item(item, str(raw).strip(), protocol, answers)
         if error:
@@ -497,18 +509,29 @@ def _refuse_if_locked(participant: Participant) -> None:
 def accept_consent(
     db: Session, *, participant: Participant, protocol: Protocol, accepted: bool, actor: Actor
 ) -> SubmitResult:
-    """Record consent to the protocol's consent text (its version is stored with it); commits."""
+    """Record consent to the protocol's consent text; commits.
+
+    ``protocol`` is the one the participant read (in their language): the record keeps the
+    text's version, its language and the SHA-256 of the exact words accepted."""
     participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     if not accepted:
-        raise QuestionnaireInvalid({"accept": "Please tick the box to take part."})
+        raise QuestionnaireInvalid({"accept": Message("Please tick the box to take part.")})
+    consent = protocol.questionnaires.consent
+    record = {
+        "accepted": "yes",
+        "version": consent.version,
+        # Named apart from the participant's own `language` column in the wide export.
+        "consent_language": protocol.default_language,
+        "consent_sha256": hashlib.sha256(consent.text.encode()).hexdigest(),
+    }
     where = progress(db, participant)
     revision, changed = _store(
         db,
         participant=participant,
         instrument=CONSENT,
         session=None,
-        values={"accepted": "yes", "version": protocol.questionnaires.consent.version},
+        values=record,
         actor=actor,
         revising=(CONSENT, None) in where.done,
     )
@@ -518,7 +541,7 @@ def accept_consent(
         action="participant.consented",
         study_id=participant.study_id,
         subject=participant.code,
-        details={"version": protocol.questionnaires.consent.version},
+        details={k: record[k] for k in ("version", "consent_language", "consent_sha256")},
     )
     _publish(db, participant, station, CONSENT, None)
     where.done.add((CONSENT, None))

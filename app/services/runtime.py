@@ -40,7 +40,15 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import Protocol
-from app.services import blinding, learner_cache, learners, questionnaires, replies, step_store
+from app.services import (
+    blinding,
+    languages,
+    learner_cache,
+    learners,
+    questionnaires,
+    replies,
+    step_store,
+)
 from app.services.audit import Actor
 from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
 from app.services.step_store import (
@@ -127,8 +135,11 @@ def _context(
         status = step_store.lock_timeline(cursor, participant_id=participant.id)
         if status is not None and status != participant.status:  # changed before the lock
             participant = dataclasses.replace(participant, status=status)
-    protocol = protocol_by_id(
-        db, study_id=participant.study_id, protocol_sha256=participant.protocol_sha256
+    protocol = languages.protocol_for(
+        participant.language,
+        protocol_by_id(
+            db, study_id=participant.study_id, protocol_sha256=participant.protocol_sha256
+        ),
     )
     run = step_store.latest_run(cursor, participant_id=participant.id) if latest_run else None
     return Context(cursor, seat, participant, protocol, run)
@@ -470,6 +481,8 @@ class PromptResult:
     run_number: int
     learners_shown: bool = True
     """Whether staff may see the learner's figures (False while the study is blinded)."""
+    language: str = "en"
+    """The language the question is in: the participant's."""
 
 
 def _refuse_withdrawn(ctx: Context) -> None:
@@ -513,7 +526,14 @@ def request_prompt(
     for step in progress.open:
         if step.category == category:
             db.commit()
-            return PromptResult(step, False, run.session_number, run.run_number, ctx.learners_shown)
+            return PromptResult(
+                step,
+                False,
+                run.session_number,
+                run.run_number,
+                ctx.learners_shown,
+                ctx.protocol.default_language,
+            )
     if category in progress.answered:
         waiting = [s.category for s in progress.open] + progress.pending
         raise Conflict(
@@ -550,7 +570,14 @@ def request_prompt(
         action=action,
     )
     db.commit()
-    return PromptResult(step, True, run.session_number, run.run_number, ctx.learners_shown)
+    return PromptResult(
+        step,
+        True,
+        run.session_number,
+        run.run_number,
+        ctx.learners_shown,
+        ctx.protocol.default_language,
+    )
 
 
 @dataclass(frozen=True)
@@ -773,6 +800,8 @@ class StationView:
     expected: Expected
     learners_shown: bool = True
     """Whether staff may see the seated participant's learners (app.services.blinding)."""
+    language: str | None = None
+    """The seated participant's language: what the room and the robot speak (None: nobody)."""
 
 
 def station_view(db: Session, *, station_name: str, seat: Seat | None = None) -> StationView:
@@ -828,6 +857,7 @@ def _view(db: Session, ctx: Context) -> StationView:
         open_prompts,
         expected_next(db, ctx),
         ctx.learners_shown,
+        ctx.protocol.default_language,
     )
 
 

@@ -42,6 +42,8 @@ class Seated:
     protocol_sha256: str
     unblinded: bool
     """Whether an admin has unblinded the study (app.services.blinding)."""
+    language: str | None = None
+    """The participant's language (None: not chosen, the study's first applies)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -68,7 +70,7 @@ class DeviceSeat:
 
 
 _SEAT_COLUMNS = """s.id, s.name, p.id, p.code, p.status, p.study_id, st.name, st.allocation_seed,
-    st.protocol_sha256, st.unblinded_at IS NOT NULL"""
+    st.protocol_sha256, st.unblinded_at IS NOT NULL, p.language"""
 _SEATED_JOINS = """LEFT JOIN participant p ON p.id = s.participant_id
     LEFT JOIN study st ON st.id = p.study_id"""
 
@@ -83,11 +85,13 @@ _STATION_SEAT = Statement(
 
 
 def _seat(columns: tuple[Any, ...]) -> Seat:
-    station_id, station_name, pid, code, status, study_id, study, seed, sha, unblinded = columns
+    station_id, station_name, pid, code, status, study_id, study, seed, sha, unblinded, lang = (
+        columns
+    )
     seated = (
         None
         if pid is None
-        else Seated(pid, code, status, study_id, study, seed, sha, bool(unblinded))
+        else Seated(pid, code, status, study_id, study, seed, sha, bool(unblinded), lang)
     )
     return Seat(station_id, station_name, seated)
 

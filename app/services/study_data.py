@@ -108,6 +108,8 @@ def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
                 "accepted", "Consent given", "categorical", value_labels=(("yes", "yes"),)
             ),
             AnalysisItem("version", "Version of the consent text", "text"),
+            AnalysisItem("consent_language", "Language of the consent text accepted", "text"),
+            AnalysisItem("consent_sha256", "SHA-256 of the exact consent text accepted", "text"),
         ),
     )
     return (
@@ -220,7 +222,13 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
 
 def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame:
     rows = db.execute(
-        select(Participant.code, Allocation.condition, Participant.status, Participant.strata)
+        select(
+            Participant.code,
+            Allocation.condition,
+            Participant.status,
+            Participant.language,
+            Participant.strata,
+        )
         .join(Allocation, Allocation.participant_id == Participant.id)
         .where(Participant.study_id == study.id)
         .order_by(Participant.enrolled_at, Participant.id)
@@ -231,11 +239,19 @@ def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame
                 "participant": code,
                 "condition": condition,
                 "status": status,
+                # Not chosen yet (the tablet asks first): the language the study would use.
+                "language": language or protocol.default_language,
                 **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
             }
-            for code, condition, status, strata in rows
+            for code, condition, status, language, strata in rows
         ],
-        columns=["participant", "condition", "status", *protocol.allocation.stratify_by],
+        columns=[
+            "participant",
+            "condition",
+            "status",
+            "language",
+            *protocol.allocation.stratify_by,
+        ],
     )
     return frame
 

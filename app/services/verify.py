@@ -28,7 +28,7 @@ from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
 from app.randomisation import entry_at
-from app.services import learners, replies
+from app.services import languages, learners, replies
 from app.services.runtime import FAMILIARISATION, first_session_number, runs_in, session_label
 from app.services.studies import get_study, protocol_of
 from app.tables import (
@@ -162,6 +162,21 @@ class _Study:
         participant = self.participants.get(participant_id)
         return participant.code if participant else None
 
+    def protocol_asked_in(self, prompt: Prompt) -> Protocol:
+        """The protocol in the language this prompt was asked in: the participant's, or another
+        of the study's when its question is that language's (an admin may have changed the
+        language after a session, with a recorded reason). The participant's when no language's
+        text matches, so the check reports the mismatch."""
+        participant = self.participants.get(prompt.participant_id)
+        own = languages.protocol_for(participant.language if participant else None, self.protocol)
+        for language in (own.default_language, *self.protocol.study.languages):
+            candidate = self.protocol.in_language(language)
+            category = next((c for c in candidate.categories if c.name == prompt.category), None)
+            questions = category.questions if category is not None else []
+            if 0 <= prompt.action < len(questions) and questions[prompt.action] == prompt.question:
+                return candidate
+        return own
+
 
 def _check_learners(data: _Study, report: VerifyReport) -> None:
     protocol = data.protocol
@@ -294,7 +309,8 @@ def _check_steps(data: _Study, report: VerifyReport) -> None:
         if category is None or not 0 <= prompt.action < len(category.questions):
             report.findings.append(Finding("step", code, f"step {prompt.id}: unknown question"))
             continue
-        if prompt.question != category.questions[prompt.action]:
+        asked_in = data.protocol_asked_in(prompt)
+        if prompt.question != asked_in.category(prompt.category).questions[prompt.action]:
             report.findings.append(
                 Finding("step", code, f"step {prompt.id}: question text is not the protocol's")
             )
@@ -316,7 +332,7 @@ def _check_steps(data: _Study, report: VerifyReport) -> None:
                 )
             )
         level = confidence_level(answer.probability, protocol.replies.thresholds)
-        line = protocol.replies.levels[level].line(answer.answer)
+        line = asked_in.replies.levels[level].line(answer.answer)
         if level != answer.confidence_level or answer.reply != line:
             report.findings.append(
                 Finding("step", code, f"step {prompt.id}: reply does not follow the thresholds")

@@ -8,15 +8,23 @@ adds itself: a device key must not turn the server into a text-to-speech service
 
 from __future__ import annotations
 
+from app.i18n.catalogues import catalogue
 from app.protocol import Protocol
 
 ROOM_LINES = ("Well done! Back to the start for the next run.",)
-"""What static/js/room.js says aloud of its own (keep the two in step)."""
+"""What static/js/room.js says aloud of its own (keep the two in step), as message ids: the room
+says them in the participant's language."""
+
+RECOGNISED_LANGUAGES = frozenset({"en"})
+"""The languages the server's offline recogniser knows (pocketsphinx's shipped US-English model);
+a participant in another language answers by button, or by the browser's recogniser where the
+protocol allows a cloud recogniser."""
 
 
 def spoken_lines(protocol: Protocol) -> frozenset[str]:
-    """Every line the robot of a study with this protocol may say."""
-    lines: set[str] = set(ROOM_LINES)
+    """Every line the robot of a study with this protocol may say, in the protocol's language."""
+    words = catalogue(protocol.default_language)
+    lines: set[str] = {words.gettext(line) for line in ROOM_LINES}
     for category in protocol.categories:
         lines.update(category.questions)
     for level in protocol.replies.levels:

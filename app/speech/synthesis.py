@@ -58,28 +58,31 @@ class Synthesiser:
     def available(self) -> bool:
         return self.program is not None
 
-    def wav(self, text: str) -> bytes:
-        """The line spoken, as a WAV file; SpeechUnavailable when it cannot be made."""
+    def wav(self, text: str, language: str = "en") -> bytes:
+        """The line spoken in ``language`` (its espeak-ng voice), as a WAV file;
+        SpeechUnavailable when it cannot be made."""
+        voice = self.voice if language == "en" else language.lower()
+        key = f"{voice}\n{text}"
         with self._lock:
-            cached = self._cache.get(text)
+            cached = self._cache.get(key)
             if cached is not None:
-                self._cache.move_to_end(text)
+                self._cache.move_to_end(key)
                 return cached
-        audio = self._synthesise(text)
+        audio = self._synthesise(text, voice)
         with self._lock:
-            self._cache[text] = audio
+            self._cache[key] = audio
             while len(self._cache) > self._cached_lines:
                 self._cache.popitem(last=False)
         return audio
 
-    def _synthesise(self, text: str) -> bytes:
+    def _synthesise(self, text: str, voice: str) -> bytes:
         if self.program is None:
             self._log_missing_once()
             raise SpeechUnavailable(
                 "speech synthesis is unavailable: espeak-ng is not installed on the server "
                 "(the room shows captions only)"
             )
-        command = [self.program, "-v", self.voice, "-s", str(self.words_per_minute), "--stdout"]
+        command = [self.program, "-v", voice, "-s", str(self.words_per_minute), "--stdout"]
         try:
             done = subprocess.run(  # the text goes in on stdin: never parsed as an option
                 command,

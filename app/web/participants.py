@@ -5,8 +5,25 @@ from __future__ import annotations
 from fastapi import Request
 from fastapi.responses import Response
 
-from app.deps import CurrentUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
-from app.services import blinding, enrolment, questionnaires, studies, tablet_tokens, timeline
+from app.deps import (
+    CurrentUser,
+    ExperimenterUser,
+    FormFields,
+    OneHopRouter,
+    SessionDep,
+    SettingsDep,
+)
+from app.errors import Conflict, InvalidInput, PermissionDenied
+from app.i18n.languages import native_name
+from app.services import (
+    blinding,
+    enrolment,
+    languages,
+    questionnaires,
+    studies,
+    tablet_tokens,
+    timeline,
+)
 from app.services.audit import Actor
 from app.tables import Role
 from app.web.qr import qr_svg
@@ -29,8 +46,23 @@ def participant_page(
     code: str,
 ) -> Response:
     """Everything recorded for one participant, and what can be done with them."""
+    return _participant_page(request, db, settings, user, name, code)
+
+
+def _participant_page(
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    user: CurrentUser,
+    name: str,
+    code: str,
+    *,
+    language_error: str = "",
+    status_code: int = 200,
+) -> Response:
     study = studies.get_study(db, name)
     participant = enrolment.get_participant(db, study, code)
+    protocol = studies.protocol_of(study)
     can_act = user.role in (Role.ADMIN, Role.EXPERIMENTER)
     token = tablet_tokens.participant_token(settings.secret, participant) if can_act else None
     link = f"{str(request.base_url).rstrip('/')}/t/{token}" if token else None
@@ -48,7 +80,55 @@ def participant_page(
             "can_act": can_act,
             "link": link,
             "qr": qr_svg(link) if link else "",
+            "languages": [(c, native_name(c)) for c in protocol.study.languages],
+            "language": languages.language_of(participant.language, protocol),
+            "language_chosen": participant.language is not None,
+            "language_locked": languages.has_started(db, participant),
+            "is_admin": user.role == Role.ADMIN,
+            "language_error": language_error,
         },
+        status_code=status_code,
+    )
+
+
+@router.post("/studies/{name}/participants/{code}/language")
+def set_language(
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    user: ExperimenterUser,
+    name: str,
+    code: str,
+    fields: FormFields,
+) -> Response:
+    """Change the participant's language (after their first session: admins, with a reason)."""
+    study = studies.get_study(db, name)
+    language = fields.get("language", "").strip()
+    try:
+        languages.set_language(
+            db,
+            participant=enrolment.get_participant(db, study, code, for_update=True),
+            protocol=studies.protocol_of(study),
+            study_name=name,
+            language=language,
+            actor=Actor.of_user(user),
+            actor_role=Role(user.role),
+            override_reason=fields.get("reason", ""),
+        )
+    except (InvalidInput, Conflict, PermissionDenied) as exc:
+        db.rollback()
+        return _participant_page(
+            request,
+            db,
+            settings,
+            user,
+            name,
+            code,
+            language_error=exc.message,
+            status_code=exc.status_code,
+        )
+    return redirect_with_notice(
+        request, _page_url(name, code), f"{code} now takes part in {native_name(language)}."
     )
 
 

@@ -9,6 +9,7 @@ from fastapi.responses import Response
 
 from app.deps import CurrentUser, ExperimenterUser, FormFields, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
+from app.i18n.languages import native_name
 from app.services import blinding, enrolment, overview, studies
 from app.services.audit import Actor
 from app.tables import Role, User
@@ -75,6 +76,7 @@ def _study_page(
             "form_values": form_values or {},
             "revealed": revealed,
             "stratum_prefix": STRATUM_FIELD_PREFIX,
+            "language_names": {code: native_name(code) for code in protocol.study.languages},
         },
         block="participant_table"
         if request.query_params.get("block") == "participant_table"
@@ -107,6 +109,7 @@ def enrol(
             actor=actor,
             code=fields.get("code", "").strip() or None,
             strata=strata,
+            language=fields.get("language", "").strip() or None,
         )
     except (InvalidInput, Conflict) as exc:
         db.rollback()

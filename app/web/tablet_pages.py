@@ -17,11 +17,13 @@ from fastapi.responses import RedirectResponse, Response
 from starlette.concurrency import run_in_threadpool
 
 from app.deps import FormFields, OneHopRouter, SessionDep, SettingsDep, set_private_cookie
-from app.errors import Conflict, NotAuthenticated, PermissionDenied, TrustlabError
+from app.errors import Conflict, InvalidInput, NotAuthenticated, PermissionDenied, TrustlabError
+from app.i18n.catalogues import Catalogue, Message, catalogue
+from app.i18n.languages import native_name
 from app.inputs import SessionNumber
 from app.protocol import InstrumentSpec
 from app.security import same
-from app.services import questionnaires
+from app.services import languages, questionnaires
 from app.services.audit import Actor
 from app.tables import ActorKind
 from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
@@ -64,11 +66,17 @@ def kiosk_link(request: Request, token: str, db: SessionDep) -> Response:
     return _open_link(request, token, db)
 
 
+def _catalogue(tablet: Tablet) -> Catalogue:
+    """The interface words in the participant's language."""
+    return catalogue(tablet.protocol.default_language)
+
+
 def _context(request: Request, tablet: Tablet, settings: SettingsDep) -> dict[str, Any]:
     return {
         "tablet": tablet,
         "form_token": form_token(settings.secret, tablet.credential),
-        "study_title": tablet.study.title,
+        "study_title": tablet.protocol.study.title,
+        "catalogue": _catalogue(tablet),
     }
 
 
@@ -100,7 +108,9 @@ def _current_or_redirect(
 
 def _check_form_token(tablet: Tablet, settings: SettingsDep, submitted: str) -> None:
     if not same(submitted, form_token(settings.secret, tablet.credential)):
-        raise PermissionDenied("this form expired; the page will reload with your answers kept")
+        raise PermissionDenied(
+            Message("this form expired; the page will reload with your answers kept")
+        )
 
 
 def _consent(
@@ -120,7 +130,7 @@ def _consent(
                 **_context(request, tablet, settings),
                 "paragraphs": [p.strip() for p in consent.text.split("\n\n") if p.strip()],
                 "rules": tablet.protocol.study.rules,
-                "error": error,
+                "error": _catalogue(tablet).say(error) if error else "",
                 "position": questionnaires.position(
                     tablet.protocol, questionnaires.Page("consent")
                 ),
@@ -187,7 +197,7 @@ def _questionnaire(
                 "session": session,
                 "scales": scales,
                 "values": values,
-                "errors": errors,
+                "errors": {key: _catalogue(tablet).say(text) for key, text in errors.items()},
                 "description_suffix": questionnaires.DESCRIPTION_SUFFIX,
                 "action": page.path,
                 "position": questionnaires.position(tablet.protocol, page),
@@ -305,6 +315,57 @@ def _simple_page(kind: str, template: str) -> Callable[..., Response]:
 
     page.__doc__ = f"The {kind} page."
     return page
+
+
+@router.get("/tablet/language")
+def language_page(
+    request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep
+) -> Response:
+    """The participant chooses the language of the whole study (when the protocol lets them)."""
+    current = _current_or_redirect(db, tablet, "language")
+    if isinstance(current, Response):
+        return current
+    choices = [(code, native_name(code)) for code in tablet.protocol.study.languages]
+    return _no_store(
+        render(
+            request,
+            "tablet_language.html",
+            {**_context(request, tablet, settings), "choices": choices},
+        )
+    )
+
+
+@router.post("/tablet/language")
+def choose_language(
+    db: SessionDep,
+    tablet: CookieTablet,
+    settings: SettingsDep,
+    csrf_token: Annotated[str, Form(max_length=200)] = "",
+    language: Annotated[str, Form(max_length=16)] = "",
+) -> Response:
+    """Record the participant's language, then go on to the consent page in it."""
+    _check_form_token(tablet, settings, csrf_token)
+    try:
+        choose(db, tablet, language)
+    except InvalidInput:  # not one of the buttons: show the page again
+        db.rollback()
+        return RedirectResponse("/tablet/language", status_code=303)
+    return RedirectResponse("/tablet", status_code=303)
+
+
+def choose(db: SessionDep, tablet: Tablet, language: str) -> None:
+    """The participant's own choice of language, allowed only while the tablet asks for it
+    (the page and the JSON tablet share it)."""
+    if not languages.needs_choice(tablet.participant, tablet.protocol):
+        raise Conflict(Message("the language has already been chosen"))
+    languages.set_language(
+        db,
+        participant=tablet.participant,
+        protocol=tablet.protocol,
+        study_name=tablet.study.name,
+        language=language,
+        actor=participant_actor(tablet),
+    )
 
 
 router.get("/tablet/wait")(_simple_page("wait", "tablet_wait.html"))

@@ -15,15 +15,21 @@ from urllib.parse import quote
 
 from fastapi import Request
 from fastapi.responses import HTMLResponse, RedirectResponse
-from jinja2 import Environment, FileSystemLoader, StrictUndefined, select_autoescape
+from jinja2 import Environment, FileSystemLoader, StrictUndefined, pass_context, select_autoescape
+from jinja2.runtime import Context
+from markupsafe import Markup
 
 from app.deps import CSRF_FIELD, CSRF_HEADER, set_private_cookie
+from app.i18n.catalogues import SOURCE_LANGUAGE, Catalogue, catalogue, ui_languages
 from app.inputs import STATION_NAME
 from app.security import sign, unsign
 from app.settings import REPO_ROOT
 from app.web.assets import asset
 
 NOTICE_COOKIE = "tl_notice"
+LANGUAGE_COOKIE = "tl_lang"
+"""The language of the last participant page this browser showed, so that an error page (which
+cannot know whose tablet it is on) speaks it too."""
 
 REFUSAL_HEADER = "X-Trustlab-Refusal"
 """A refused request's message, percent-encoded UTF-8. htmx does not swap a 4xx/5xx response, so
@@ -39,7 +45,11 @@ environment = Environment(
     undefined=StrictUndefined,
     trim_blocks=True,
     lstrip_blocks=True,
+    extensions=["jinja2.ext.i18n"],
 )
+# Staff pages are in English: their marked words pass through. Participant pages get their
+# language's catalogue per request (:func:`_language_context`).
+environment.install_null_translations(newstyle=True)  # type: ignore[attr-defined]
 
 
 def _when(value: datetime | None) -> str:
@@ -49,6 +59,43 @@ def _when(value: datetime | None) -> str:
 environment.filters["when"] = _when
 environment.globals["asset"] = asset
 environment.globals["station_name_rule"] = STATION_NAME.sentence
+
+
+def _language_context(catalogue: Catalogue) -> dict[str, Any]:
+    """What a page needs to speak the participant's language: ``gettext``/``ngettext`` (with
+    Jinja's "newstyle" rules: values filled in with ``%``, escaped when the page autoescapes),
+    the ``lang`` and ``dir`` of its ``<html>``, and the room scripts' message table."""
+
+    @pass_context
+    def gettext(context: Context, text: str, /, **values: Any) -> str:
+        translated = catalogue.gettext(text)
+        if context.eval_ctx.autoescape:
+            translated = Markup(translated)
+        return translated % values
+
+    @pass_context
+    def ngettext(
+        context: Context, singular: str, plural: str, number: int, /, **values: Any
+    ) -> str:
+        values.setdefault("num", number)
+        translated = catalogue.ngettext(singular, plural, number)
+        if context.eval_ctx.autoescape:
+            translated = Markup(translated)
+        return translated % values
+
+    return {
+        "gettext": gettext,
+        "_": gettext,
+        "ngettext": ngettext,
+        "lang": catalogue.language,
+        "dir": catalogue.direction,
+    }
+
+
+def tablet_catalogue(request: Request) -> Catalogue:
+    """The interface words of the language this browser last showed a participant page in."""
+    code = request.cookies.get(LANGUAGE_COOKIE, "")
+    return catalogue(code if code in ui_languages() else SOURCE_LANGUAGE)
 
 
 def is_htmx(request: Request) -> bool:
@@ -111,6 +158,8 @@ def render(
     """The page, or only ``block`` of it when htmx asks."""
     page = environment.get_template(template)
     values = {**_base_context(request), **(context or {})}
+    if isinstance(values.get("catalogue"), Catalogue):
+        values.update(_language_context(values["catalogue"]))
     if block is not None and is_htmx(request):
         render_block = page.blocks[block]
         html = "".join(render_block(page.new_context(values)))
@@ -118,6 +167,9 @@ def render(
         html = page.render(values)
     response = HTMLResponse(html, status_code=status_code)
     response.headers["Vary"] = "HX-Request"
+    language = values.get("lang")
+    if isinstance(language, str) and request.cookies.get(LANGUAGE_COOKIE) != language:
+        set_private_cookie(response, request, LANGUAGE_COOKIE, language, max_age=7 * 86400)
     if status_code >= 400:
         refusal = next((v for k in REFUSAL_KEYS if isinstance(v := values.get(k), str) and v), "")
         if refusal:

@@ -12,6 +12,7 @@ import { RoomScene, webglAvailable } from "./room/scene.js";
 import { ServerListener } from "./room/microphone.js";
 import { StationSocket } from "./room/socket.js";
 import { Listener, Voice } from "./room/speech.js";
+import { _, language, useLanguage } from "./room/words.js";
 import {
   inside,
   normaliseHeading,
@@ -35,7 +36,7 @@ const PRESENCE_KEEPALIVE_MS = 10000; // and at least one every ten seconds
 const DRAG_DEGREES = 0.25; // a mouse drag turns the participant this much per pixel
 const RETRY_REFUSED_MS = 3000; // a refused prompt is not asked again sooner (standing in its zone)
 const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no."; // until [speech] is read
-const TO_THE_EXIT = "Now walk to the exit: the solid circle.";
+const TO_THE_EXIT = () => _("Now walk to the exit: the solid circle.");
 const el = (id) => document.getElementById(id);
 const options = new URLSearchParams(location.search);
 
@@ -109,6 +110,7 @@ function canWalk() {
 function applyState(state) {
   const before = room.state;
   room.state = state;
+  if (state.language && state.language !== language()) switchLanguage(state.language);
   if (state.study && room.study && state.study !== room.study) closeRoom(); // another study's room
   if (!room.scene && state.study && !room.loading) loadRoom(); // e.g. a seating we did not hear of
   if ((before && before.participant) !== state.participant) newParticipant();
@@ -152,14 +154,14 @@ function answeredElsewhere(data) {
   const step = data && data.step_id;
   if (!step || step !== room.shown || room.answeredHere.has(step) || !data.reply) return;
   room.shown = null;
-  say("reply", data.reply, { speak: true, hint: needsExit() ? TO_THE_EXIT : "" });
+  say("reply", data.reply, { speak: true, hint: needsExit() ? TO_THE_EXIT() : "" });
 }
 
 /** Between two runs the participant walks out through the exit; the caption says so whenever
  * it does not already (after a reply elsewhere, a reload or a reconnection too). */
 function guideToExit() {
-  if (!el("captions").hidden && el("caption-text").textContent.includes(TO_THE_EXIT)) return;
-  say("robot", TO_THE_EXIT, { speak: false });
+  if (!el("captions").hidden && el("caption-text").textContent.includes(TO_THE_EXIT())) return;
+  say("robot", TO_THE_EXIT(), { speak: false });
 }
 
 async function refreshState() {
@@ -227,11 +229,11 @@ function reachExit() {
     sessionStorage.setItem(stores.exited, runKey());
     room.pose = startPose(room.layout);
     room.held.clear(); // a key still held from the walk out does not walk them off again
-    say("robot", "Well done! Back to the start for the next run.", { speak: true });
+    say("robot", _("Well done! Back to the start for the next run."), { speak: true });
     render();
   } else if (sessionRunning() && !room.exitHint && room.state.run && room.state.run.status === "running") {
     room.exitHint = true;
-    say("robot", "Not yet: there is more to find in the room before the exit.", { speak: false });
+    say("robot", _("Not yet: there is more to find in the room before the exit."), { speak: false });
   }
 }
 
@@ -339,7 +341,7 @@ function answer(value, modality, heard) {
     pending.transcript_engine = heard.engine || "browser";
   }
   localStorage.setItem(stores.answer, JSON.stringify(pending)); // before sending: a crash resends it
-  if (modality !== "speech") say("participant", value === "yes" ? "Yes." : "No.", { speak: false });
+  if (modality !== "speech") say("participant", value === "yes" ? _("Yes.") : _("No."), { speak: false });
   sendAnswer(pending);
 }
 
@@ -359,7 +361,7 @@ function sendAnswer(pending) {
         showDetail(error.detail || "");
       } else {
         el("answer").hidden = false;
-        showDetail(`The answer was not taken: ${error.detail || "unknown error"}. Please answer again.`);
+        showDetail(_("The answer was not taken. Please answer again."));
       }
       refreshState();
     });
@@ -370,7 +372,7 @@ function sendAnswer(pending) {
 function replied(reply) {
   room.answeredHere.add(reply.step_id); // its answer_recorded push is not replied to again
   closeQuestion();
-  const hint = reply.run_completed && !reply.session_completed ? TO_THE_EXIT : "";
+  const hint = reply.run_completed && !reply.session_completed ? TO_THE_EXIT() : "";
   say("reply", reply.reply, { speak: true, hint });
   refreshState();
 }
@@ -388,7 +390,7 @@ function resumeStoredAnswer() {
 
 function say(kind, text, { speak, hint } = {}) {
   el("captions").hidden = false;
-  const speaker = { question: "Robot", reply: "Robot", robot: "Robot", participant: "You" }[kind];
+  const speaker = { question: _("Robot"), reply: _("Robot"), robot: _("Robot"), participant: _("You") }[kind];
   el("caption-speaker").textContent = `${speaker}:`;
   el("caption-text").textContent = hint ? `${text} ${hint}` : text;
   el("captions").dataset.kind = kind;
@@ -427,10 +429,10 @@ function reportPresence(zone) {
 // ---------------------------------------------------------------- what the participant sees
 
 const WAITING = {
-  assign: ["Welcome", "The experimenter will seat the next participant in a moment."],
-  wait: ["Please use the tablet", "Fill in the questionnaire on the tablet; the room goes on afterwards."],
-  done: ["Thank you!", "You have finished the study."],
-  none: ["The session has ended", "Please tell the experimenter."],
+  assign: () => [_("Welcome"), _("The experimenter will seat the next participant in a moment.")],
+  wait: () => [_("Please use the tablet"), _("Fill in the questionnaire on the tablet; the room goes on afterwards.")],
+  done: () => [_("Thank you!"), _("You have finished the study.")],
+  none: () => [_("The session has ended"), _("Please tell the experimenter.")],
 };
 
 function render() {
@@ -438,11 +440,12 @@ function render() {
   const label = el("run-label");
   if (state && state.session && sessionRunning()) {
     const s = state.session;
-    const run = state.run ? ` · run ${state.run.number} of ${s.runs}` : "";
-    label.textContent = s.familiarisation ? "Practice run (not counted)" : `Session ${s.number}${run}`;
+    const session = _("Session %(number)s", { number: s.number });
+    const run = state.run ? _("run %(number)s of %(runs)s", { number: state.run.number, runs: s.runs }) : "";
+    label.textContent = s.familiarisation ? _("Practice run (not counted)") : [session, run].filter(Boolean).join(" · ");
     label.classList.toggle("practice", s.familiarisation);
   } else {
-    label.textContent = "Escape room";
+    label.textContent = _("Escape room");
     label.classList.remove("practice");
   }
   if (room.layout && room.scene) {
@@ -455,13 +458,14 @@ function render() {
   const action = state.expected.action;
   if (action === "start_session") {
     const next = state.expected.session;
-    const title = next === 0 ? "A practice run comes first" : `Session ${next} comes next`;
-    showNotice(title, "The experimenter starts it in a moment. Meanwhile, the rules:", { rules: true });
+    const title = next === 0 ? _("A practice run comes first") : _("Session %(number)s comes next", { number: next });
+    showNotice(title, _("The experimenter starts it in a moment. Meanwhile, the rules:"), { rules: true });
   } else {
-    const [title, text] = WAITING[action] || ["Please wait", ""];
+    const [title, text] = WAITING[action] ? WAITING[action]() : [_("Please wait"), ""];
     showNotice(title, text, { rules: action === "assign" });
   }
-  showDetail(state.expected.message);
+  // The server's hint is for the experimenter, in English: shown to English rooms only.
+  showDetail(language() === "en" ? state.expected.message : "");
 }
 
 function zoneState(category) {
@@ -492,7 +496,7 @@ function showDetail(text) {
 }
 
 function setConnection(status) {
-  const words = { connecting: "Connecting…", online: "Connected", offline: "Offline", closed: "Closed" };
+  const words = { connecting: _("Connecting…"), online: _("Connected"), offline: _("Offline"), closed: _("Closed") };
   el("connection").textContent = words[status] || status;
   el("connection").dataset.status = status;
   // shown from a lost connection until the next is up (not while the very first one opens)
@@ -560,6 +564,33 @@ async function loadRoom() {
   buildRoom(body);
 }
 
+/** Speak the seated participant's language: the page's words, then (as the server now answers
+ * in it) the study's rules, the request to answer again and how the room listens. */
+async function switchLanguage(code) {
+  await useLanguage(code);
+  render();
+  if (room.key && room.layout) {
+    loadSpeech();
+    refreshRules();
+  }
+}
+
+async function refreshRules() {
+  try {
+    const response = await fetch("/api/v1/station/room", {
+      headers: { Authorization: `Bearer ${room.key}` },
+      cache: "no-store",
+    });
+    if (response.ok) showRules((await response.json()).rules);
+  } catch {
+    // the network: the rules stay as they were until the next load
+  }
+}
+
+function showRules(rules) {
+  el("rules").replaceChildren(...rules.map((rule) => Object.assign(document.createElement("li"), { textContent: rule })));
+}
+
 function speechSettings() {
   return room.speech || { listen_seconds: 8, reprompt: ASK_AGAIN, cloud_recognizer: false };
 }
@@ -583,6 +614,8 @@ async function loadSpeech() {
   const browser = new Listener(LISTEN && room.speech.cloud_recognizer);
   if (browser.available) {
     room.listener = browser;
+  } else if (room.speech.offline_recognition === false) {
+    room.listener = NOT_LISTENING; // the server knows no words of this language: buttons
   } else {
     const scheme = location.protocol === "https:" ? "wss" : "ws";
     const url = `${scheme}://${location.host}/api/v1/station/audio`;
@@ -622,8 +655,7 @@ function buildRoom(description) {
   room.layout = description.layout;
   room.study = description.study;
   room.segments = wallSegments(room.layout);
-  const rules = el("rules");
-  rules.replaceChildren(...description.rules.map((rule) => Object.assign(document.createElement("li"), { textContent: rule })));
+  showRules(description.rules);
   room.scene = new RoomScene(el("view"), room.layout, {
     robot: options.get("robot"),
     scale: options.has("scale") ? Number(options.get("scale")) : undefined,

@@ -174,6 +174,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/studies/{name}/participants/{code}/unlock"): send(
         "POST", "/studies/rt/participants/NOPE/unlock", data={}
     ),
+    ("POST", "/studies/{name}/participants/{code}/language"): send(
+        "POST", "/studies/rt/participants/NOPE/language", data={"language": "en"}
+    ),
     ("PUT", "/api/v1/stations/{name}/participant"): send(
         "PUT", "/api/v1/stations/ghost/participant", json={"study": "rt", "code": "P001"}
     ),
@@ -198,6 +201,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/stations/{name}"): get("/stations/lab-1"),
     ("GET", "/stations/{name}/room-panel"): get("/stations/lab-1/room-panel"),
     ("GET", "/stations/{name}/room"): get("/stations/lab-1/room"),
+    ("GET", "/api/v1/languages/{language}/words"): get("/api/v1/languages/sv/words"),
     **{
         ("POST", f"/stations/{{name}}/{action}"): send(
             "POST", f"/stations/ghost/{action}", data=data
@@ -281,10 +285,13 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("GET", "/api/v1/tablet"): get("/api/v1/tablet"),
     ("POST", "/api/v1/tablet/consent"): send("POST", "/api/v1/tablet/consent", json={}),
+    ("POST", "/api/v1/tablet/language"): send("POST", "/api/v1/tablet/language", json={}),
     ("POST", "/api/v1/tablet/questionnaires/{instrument}"): send(
         "POST", "/api/v1/tablet/questionnaires/nope", json={"answers": {}}
     ),
     ("GET", "/tablet"): get("/tablet"),
+    ("GET", "/tablet/language"): get("/tablet/language"),
+    ("POST", "/tablet/language"): send("POST", "/tablet/language", tablet_form=True),
     ("GET", "/tablet/consent"): get("/tablet/consent"),
     ("POST", "/tablet/consent"): send("POST", "/tablet/consent", tablet_form=True),
     ("GET", "/tablet/q/{instrument}"): get("/tablet/q/nope"),

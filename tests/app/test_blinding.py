@@ -137,7 +137,8 @@ def _experimenter_pages() -> list[str]:
         if path in {"/static", "/api/v1/docs", "/api/v1/openapi.json"}:
             continue
         name = "lab-b" if "station" in path else "blind"
-        paths.append(path.replace("{name}", name).replace("{code}", "P001"))
+        filled = path.replace("{name}", name).replace("{code}", "P001")
+        paths.append(filled.replace("{language}", "sv"))
     return paths
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
+from importlib import resources
 from pathlib import Path
 
 import pytest
@@ -15,11 +16,12 @@ from app import bots, demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
 from app.db import Database
-from app.services import accounts, stations, users, verify
+from app.protocol import parse_protocol
+from app.services import accounts, stations, studies, users, verify
 from app.services.audit import Actor
 from app.settings import Settings
-from app.tables import Answer, Device, Response, Role
-from tests.conftest import PASSWORD, make_user
+from app.tables import Answer, Device, Participant, Prompt, Response, Role
+from tests.conftest import PASSWORD, make_user, sqlite_only
 from tests.servers import ServerProcess
 
 
@@ -237,3 +239,46 @@ def test_retiring_the_demo_archives_the_bots_stations_only(
         hidden = [s.name for s in stations.list_stations(db, archived=True)]
     assert shown == ["demo-5", "lab-1"]
     assert hidden == ["demo-1", "demo-4"]
+
+
+@pytest.mark.slow
+@sqlite_only("the language's SQL runs on both engines in tests/app/test_languages.py")
+def test_bots_take_part_in_swedish_and_choose_a_language_where_the_tablet_asks(
+    server: ServerProcess, database: Database
+) -> None:
+    """A whole participant in Swedish (consent, pre-study, every prompt and reply, the trust
+    and post questionnaires), and one who chooses on the tablet's language page."""
+    text = (resources.files("app.protocols") / "fast_adaptation_trust_sv.toml").read_text()
+    text = text.replace('learner = "meta"', 'learner = "exp3"')
+    protocol = parse_protocol(text)
+    with database.writing() as db:
+        studies.create_study(db, name="sv", loaded=protocol, actor=Actor.system())
+    swedish = protocol.protocol.in_language("sv")
+    for language in ("sv", None):
+        config = dataclasses.replace(_config(server, "sv", 1), language=language)
+        summary = asyncio.run(run_bots(config))
+        assert summary.errors == [] and summary.completed == 1
+    with database.read_session() as db:
+        chosen = dict(db.execute(select(Participant.code, Participant.language)).all())
+        first = min(chosen)
+        questions = db.execute(
+            select(Prompt.category, Prompt.action, Prompt.question, Answer.reply)
+            .join(Answer, Answer.prompt_id == Prompt.id)
+            .join(Participant, Participant.id == Prompt.participant_id)
+            .where(Participant.code == first)
+        ).all()
+        consent = db.scalar(
+            select(Response.value).where(
+                Response.instrument == "consent", Response.item == "consent_language"
+            )
+        )
+        report = verify.verify_study(db, study_name="sv")
+    assert chosen[first] == "sv" and set(chosen.values()) <= {"sv", "en"}
+    assert None not in chosen.values()  # the second chose on the tablet
+    lines = {level.line(answer) for level in swedish.replies.levels for answer in (True, False)}
+    assert len(questions) == 39
+    for category, action, question, reply in questions:
+        assert question == swedish.category(category).questions[action]
+        assert reply in lines
+    assert consent == "sv"
+    assert report.ok, report.findings

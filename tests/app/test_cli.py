@@ -143,7 +143,8 @@ def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) ->
     )
     assert code == 0
     payload = json.loads(out)
-    assert set(payload) == {"code", "condition"}  # not its place in the sequence (issue 35)
+    # not its place in the sequence (issue 35)
+    assert set(payload) == {"code", "condition", "language"}
     assert payload["code"] == "P001" and payload["condition"] in {"C1", "C2"}
     code, _, err = run(database_url, "participant", "enroll", "--study", "lab")
     assert (code, err.strip()) == (

@@ -4,6 +4,7 @@ console's notices, each trigger, losing the robot, and the refusals at start."""
 
 from __future__ import annotations
 
+from importlib import resources
 from typing import Any
 
 import httpx
@@ -11,10 +12,13 @@ import pytest
 from sqlalchemy import select
 
 from app.client import RobotClient
+from app.protocol import parse_protocol
 from app.robots.bridge import BridgeRefused, Trigger
 from app.robots.robot import Cue
+from app.services import studies
+from app.services.audit import Actor
 from app.tables import Device, Prompt
-from tests.conftest import Lab
+from tests.conftest import Lab, fill_pre_study, tablet_client
 from tests.robots.fake_robot import FakeRobot
 from tests.robots.harness import (
     BOUND,
@@ -250,3 +254,44 @@ def test_a_server_hiccup_before_asking_delays_the_question_not_loses_it(
         "lost the server (connection refused); trying again" in line for line in bridge.lines
     )
     assert any("could not update the console (connection refused)" in line for line in bridge.lines)
+
+
+@SQLITE_ONLY
+def test_a_participant_in_another_language_is_left_to_the_console(lab: Lab, url: str) -> None:
+    """A robot set up for English says nothing to a Swedish participant (not the question in
+    the wrong voice): the console is asked for the answer, and the step is answered once."""
+    text = (resources.files("app.protocols") / "fast_adaptation_trust_sv.toml").read_text()
+    with lab.database.writing() as db:
+        studies.create_study(
+            db,
+            name="sv",
+            loaded=parse_protocol(text.replace('learner = "meta"', 'learner = "exp3"')),
+            actor=Actor.system(),
+        )
+    lab.study = "sv"
+    enrolled = lab.experimenter.post(
+        "/api/v1/studies/sv/participants", json={"code": "S1", "language": "sv"}
+    )
+    assert enrolled.status_code == 201, enrolled.text
+    seated = lab.experimenter.put(
+        f"/api/v1/stations/{lab.station}/participant", json={"study": "sv", "code": "S1"}
+    )
+    assert seated.status_code == 200, seated.text
+    fill_pre_study(tablet_client(lab.app, lab, "S1"))
+    lab.start_session()
+    script = Script()
+    with RunningBridge(FakeRobot(script), url, lab.station, lab.key) as bridge:
+        step = ask_now(lab)
+        wait_for(lambda: _notice(lab)[1])
+        notice, attention = _notice(lab)
+        assert attention and notice is not None
+        assert notice.startswith("S1 takes part in 'sv', but this robot speaks 'en'")
+        answered = lab.experimenter.post(
+            f"/api/v1/stations/{lab.station}/steps/{step['step_id']}/answer",
+            json={"answer": "yes", "idempotency_key": "wizard"},
+        )
+        assert answered.status_code == 200, answered.text
+        wait_for(lambda: _notice(lab) == (None, False))
+    assert script.said == [] and script.vocabularies == []
+    assert any("takes part in 'sv'" in line for line in bridge.lines)
+    assert len(stored_answers(lab)) == 1
