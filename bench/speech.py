@@ -410,8 +410,8 @@ def report_records(files: list[Path], split: str) -> int:
     order = sorted(
         by_condition, key=lambda c: (c != "clean", -float(c.split()[1]) if " " in c else 0)
     )
-    seeds = {o.seed for o in by_condition.get(order[-1], [])} if order else set()
-    print(f"{len(files)} record files, {split} voices, {len(seeds)} noise seeds")
+    seeds = ", ".join(f"{c} {len({o.seed for o in by_condition[c]})}" for c in order)
+    print(f"{len(files)} record files, {split} voices; noise seeds: {seeds}")
     print(HEADER)
     summary = []
     for condition in order:
