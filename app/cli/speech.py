@@ -61,6 +61,7 @@ def recognize(
                 "file": str(file),
                 "answer": answer,
                 "transcript": result.transcript,
+                "heard": result.heard,
                 "confidence": round(result.confidence, 4),
                 "engine": result.engine,
                 "seconds": round(result.seconds, 4),
@@ -71,6 +72,7 @@ def recognize(
         return
     typer.echo(f"answer:     {answer}")
     typer.echo(f"transcript: {result.transcript or '(silence)'}")
+    typer.echo(f"heard:      {result.heard or '(nothing)'} (open-vocabulary, for comparison)")
     typer.echo(f"confidence: {result.confidence:.2f} (needs {vocabulary.min_confidence:g})")
     typer.echo(
         f"time:       {total * 1000:.0f} ms for {len(pcm) / 32000:.2f} s of audio, "

@@ -4,13 +4,22 @@ The room streams audio while a question is open and must decide when to stop lis
 answer. Speech has started once a few frames in a short stretch sound like speech (a click or a
 door is one frame, a word is several); it has ended once, after that, the last
 :data:`END_SILENCE_SECONDS` were nearly all non-speech (a stray noisy frame in the pause does not
-restart the wait). Frames are classified by pocketsphinx's own voice-activity detector.
+restart the wait).
+
+A frame is speech when pocketsphinx's voice-activity detector says so **and** it is at least
+:data:`SPEECH_ABOVE_FLOOR_DB` louder than the room's noise floor. The detector alone calls a
+murmur of background talkers speech for ever (in babble at 10 dB SNR an utterance never ended);
+the floor is the level the room keeps returning to, tracked per utterance (it falls quickly to a
+quieter frame and rises slowly while nobody speaks), so the same rule serves a silent booth and a
+noisy lab without a fixed level for either.
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
+import numpy as np
 from pocketsphinx import Vad
 
 FRAME_SECONDS = 0.02
@@ -22,6 +31,28 @@ END_SPEECH_FRAMES_ALLOWED = 3
 """Frames classified as speech the closing silence may still contain."""
 VAD_MODE = 3
 """The detector's strictest mode: the least likely to call room noise speech."""
+SPEECH_ABOVE_FLOOR_DB = 7.0
+"""How far above the noise floor a frame must be to count as speech: above the frame-to-frame
+swing of steady noise and babble (a few dB), below a voice at 10 dB SNR."""
+FLOOR_FALL = 0.3
+"""Fraction of the gap the floor closes per frame towards a quieter frame (falls within ~0.1 s)."""
+FLOOR_RISE_DB = 0.06
+"""Most the floor rises per non-speech frame (3 dB a second): a voice cannot lift it, a room
+that got louder is followed within seconds."""
+HANGOVER_FRAMES = 5
+"""Frames after a run of speech that still count as speech for the end of speech (the detector's
+own hangover): the fading tail of a word is part of it, so the wait starts after the word. A
+lone loud frame (a knock, a peak of the babble) gets none, so it cannot hold the end off."""
+QUIETEST_FLOOR_DBFS = -70.0
+"""The floor never counts as lower than this: digital silence (a gated or synthetic stream)
+would otherwise make any faint hiss 'speech'."""
+
+
+def level_dbfs(pcm: bytes) -> float:
+    """The frame's RMS level in dB relative to full scale (-120 for digital silence)."""
+    samples = np.frombuffer(pcm, "<i2").astype(np.float64) / 32768.0
+    power = float(np.mean(samples**2)) if samples.size else 0.0
+    return 10.0 * math.log10(power) if power > 1e-12 else -120.0
 
 
 class Endpointer:
@@ -36,6 +67,12 @@ class Endpointer:
         self.frames = 0
         self.speech_started = False
         self.speech_ended = False
+        self._hangover = 0
+        self._run = 0
+        self.floor_dbfs: float | None = None
+        """The tracked noise floor (None before the first frame)."""
+        self.first_speech_frame = -1
+        """Index of the first frame of the stretch that started speech (-1 before it)."""
         self.last_speech_frame = -1
         """Index (in :data:`FRAME_SECONDS` frames) of the last frame classified as speech."""
 
@@ -44,17 +81,35 @@ class Endpointer:
         data = self._pending + pcm
         whole = len(data) - len(data) % self._frame_bytes
         for start in range(0, whole, self._frame_bytes):
-            self._frame(self._vad.is_speech(data[start : start + self._frame_bytes]))
+            speech = self._is_speech(data[start : start + self._frame_bytes])
+            self._run = self._run + 1 if speech else 0
+            word = self._run >= 2
+            self._hangover = HANGOVER_FRAMES if word else max(0, self._hangover - 1)
+            self._frame(speech, speech or self._hangover > 0)
         self._pending = data[whole:]
 
-    def _frame(self, speech: bool) -> None:
+    def _is_speech(self, frame: bytes) -> bool:
+        level = level_dbfs(frame)
+        floor = level if self.floor_dbfs is None else self.floor_dbfs
+        loud = level > max(floor, QUIETEST_FLOOR_DBFS) + SPEECH_ABOVE_FLOOR_DB
+        speech = loud and self._vad.is_speech(frame)
+        if level < floor:
+            floor += FLOOR_FALL * (level - floor)
+        elif not speech:
+            floor += min(FLOOR_RISE_DB, level - floor)
+        self.floor_dbfs = floor
+        return speech
+
+    def _frame(self, speech: bool, held: bool) -> None:
+        """One frame: ``speech`` as classified, ``held`` with the hangover (for the end)."""
         if speech:
             self.last_speech_frame = self.frames
         self.frames += 1
         self._recent.append(speech)
-        self._closing.append(speech)
+        self._closing.append(held)
         if not self.speech_started and sum(self._recent) >= START_SPEECH_FRAMES:
             self.speech_started = True
+            self.first_speech_frame = self.frames - len(self._recent)
             self._closing.clear()
         elif self.speech_started and not self.speech_ended:
             full = len(self._closing) == self._closing.maxlen

@@ -1,27 +1,35 @@
 """Offline yes/no recognition with pocketsphinx, whose US-English model ships inside its wheel.
 
-Two searches run over the same audio, frame by frame as it streams in:
+Two searches listen to the same stretch of speech:
 
 * the **answer grammar**: a JSGF grammar whose only sentences are the vocabulary's phrases, so
-  the best path is always one of them — which is also why it cannot be trusted alone: a pure
-  grammar forces every sound ("maybe", a cough) onto its nearest phrase;
-* a **free phone loop** (pocketsphinx's allphone search over the model's phone bigram): the best
-  sequence of any English phones, a yardstick of how well *anything* could explain the audio.
+  its best path is always one of them — which is why it cannot be trusted alone: a pure grammar
+  forces every sound ("maybe", a cough) onto its nearest phrase;
+* an **open-vocabulary listener**: the model's own English trigram language model (also in the
+  wheel, about 130,000 words), which says what else the speech could have been ("maybe" comes out
+  as "maybe", "I don't know" as "i don't know", a cough as nothing or a stray short word).
 
-The confidence is the log-likelihood ratio of the two best paths, per frame of speech: a phrase
-that was really said fits nearly as well as (or better than, thanks to its context-dependent
-phones) the free loop, while a phrase forced onto other words or noise fits far worse. The ratio
-is mapped to 0-1 by a logistic curve (:func:`confidence_of`) calibrated on bench/speech.py so
-that the vocabulary's default ``min_confidence`` (0.4) is the operating point; the vocabulary's
-``classify`` then makes the final call, so a protocol can be stricter than the default.
+An answer counts only when the two agree: the listener's words must *sound* like a phrase of the
+answer the grammar chose — closer, phone by phone, than to any phrase of the other answer. The
+confidence is that phonetic agreement (:func:`agreement`), so the vocabulary's ``min_confidence``
+(0.4 by default) is the operating point and a protocol can be stricter. Comparing sounds rather
+than spellings keeps near misses of a real answer ("yea" for "yeah", "no wait" for "no way")
+while anything that is really other speech sounds different. Both sides are scored by the same
+acoustic model on the same frames, so room noise shifts neither the way the old grammar-vs-phone
+loop score was shifted (docs/performance.md).
 
-Decoders take about half a second to load, so a :class:`Recognizer` keeps a pool of decoder
-pairs and lends one to each :class:`Utterance` (several stations may listen at once).
+Only the speech is decoded: the endpointer (app.speech.endpoint) marks where speech started and
+last was, and :meth:`Utterance.finish` decodes that stretch plus :data:`PAD_SECONDS` either side,
+with the cepstral mean taken over that stretch (batch normalisation): leading and trailing room
+noise can neither pull a phrase over itself nor skew the normalisation. Audio is only held in
+memory, for the one utterance.
+
+Decoders take a while to load, so a :class:`Recognizer` keeps a pool of decoder pairs and lends
+one to each :class:`Utterance` (several stations may listen at once).
 """
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -31,37 +39,58 @@ from typing import Literal
 import numpy as np
 from pocketsphinx import Decoder, get_model_path
 
-from app.speech.endpoint import Endpointer
+from app.speech.endpoint import FRAME_SECONDS, Endpointer
 from app.speech.vocabulary import Heard, Vocabulary
 from app.speech.wav import read_wav
 
-__all__ = ["SAMPLE_RATE", "Recognition", "Recognizer", "UnknownWords", "Utterance", "read_wav"]
+__all__ = [
+    "SAMPLE_RATE",
+    "Recognition",
+    "Recognizer",
+    "UnknownWords",
+    "Utterance",
+    "agreement",
+    "read_wav",
+]
 
 SAMPLE_RATE = 16000
 LANGUAGE = "en-us"
 
-ALLPHONE_LANGUAGE_WEIGHT = 3.0
-"""How much the phone loop trusts its phone bigram: lower makes it a freer, tougher yardstick."""
-LLR_AT_MIN_CONFIDENCE = -4.0
-"""The per-frame log-likelihood ratio (pocketsphinx score units) that maps to confidence 0.4."""
-LLR_SCALE = 4.0
-"""How many score units move the confidence by one logit."""
-MIN_SPEECH_FRAMES = 20
-"""A floor under the per-frame normalisation, so a 50 ms blip cannot swing the ratio."""
+PAD_SECONDS = 0.2
+"""Audio kept either side of the endpointer's speech: soft onsets and final consonants (the
+"s" of "yes", the "p" of "nope") are quieter than the vowel the endpointer keys on."""
 NOISE_FLOOR = 30.0
-"""Standard deviation (int16 units, about -60 dBFS) of a fixed noise added to the input: the
-model was trained on real microphones, and digitally silent stretches (as in synthetic or
-gated audio) otherwise derail its normalisation."""
-BLOCK_BYTES = SAMPLE_RATE // 50 * 2
-"""20 ms: the unit the decoders are fed in."""
-_FILLERS = frozenset({"SIL", "<sil>", "<s>", "</s>", "+NSN+", "+SPN+", "[NOISE]", "[SPEECH]"})
-_DEFAULT_MIN_CONFIDENCE_LOGIT = math.log(0.4 / 0.6)
+"""Standard deviation (int16 units, about -60 dBFS) of a fixed noise added to the decoders'
+input: the model was trained on real microphones, and digitally silent stretches (as in synthetic
+or gated audio) otherwise derail its normalisation."""
+FRAME_BYTES = round(SAMPLE_RATE * FRAME_SECONDS) * 2
+"""One endpointer frame (20 ms) of int16 audio."""
+LISTENER_SEARCH = {"maxhmmpf": 3000, "maxwpf": 10}
+"""Caps on the open-vocabulary search (active HMMs and words started per frame; the defaults are
+30,000 and unlimited): on the bench they halve its processor time and changed none of its
+decisions on the tuning voices, clean and at 10 dB."""
+_NOT_WORDS = ("<", "[", "+")
+"""Fillers the listener may put in its transcript (<sil>, [NOISE], +SPN+…): no words."""
 
 
-def confidence_of(llr_per_frame: float) -> float:
-    """The logistic map of the grammar-vs-phone-loop ratio to 0-1 (0.4 at the calibrated point)."""
-    logit = (llr_per_frame - LLR_AT_MIN_CONFIDENCE) / LLR_SCALE + _DEFAULT_MIN_CONFIDENCE_LOGIT
-    return 1.0 / (1.0 + math.exp(-max(-50.0, min(50.0, logit))))
+def agreement(phrase: list[str], heard: list[str]) -> float:
+    """How much the phones ``heard`` sound like the phrase's phones, 0-1.
+
+    One minus the phone edit distance over the longer sequence, with half an edit and one phone
+    of smoothing, so that an exact match of a short word (2-3 phones, little evidence) scores
+    about 0.85 and only a long exact match approaches 1."""
+    if not phrase:
+        return 0.0
+    previous = list(range(len(heard) + 1))
+    for i, mine in enumerate(phrase, 1):
+        current = [i]
+        for j, theirs in enumerate(heard, 1):
+            current.append(
+                min(previous[j] + 1, current[j - 1] + 1, previous[j - 1] + (mine != theirs))
+            )
+        previous = current
+    distance = previous[-1]
+    return max(0.0, 1.0 - (distance + 0.5) / (max(len(phrase), len(heard)) + 1))
 
 
 class UnknownWords(ValueError):
@@ -75,13 +104,16 @@ class Recognition:
     answer: Literal["yes", "no"] | None
     """None: unclear (another phrase, noise, a doubtful match) or silence."""
     transcript: str
-    """The phrase the answer grammar matched best ("" for silence): what the recogniser heard
-    within its vocabulary, also when the confidence then rejects it."""
+    """The phrase the answer grammar matched best ("" for silence or noise it could not fit):
+    what the recogniser heard within its vocabulary, also when the confidence then rejects it."""
     confidence: float
-    """0-1, from the grammar-vs-phone-loop likelihood ratio (:func:`confidence_of`)."""
+    """0-1: how much the open-vocabulary listener's words sound like the phrase (:func:`agreement`);
+    0 when they sound more like the other answer."""
     engine: str
     seconds: float
     """Processing time of the final decode (from :meth:`Utterance.finish` being called)."""
+    heard: str = ""
+    """What the open-vocabulary listener made of the same speech (for a lab checking its room)."""
 
 
 def engine_name() -> str:
@@ -94,43 +126,54 @@ def _jsgf(vocabulary: Vocabulary) -> str:
     return f"#JSGF V1.0;\ngrammar answers;\npublic <answer> = {alternatives};\n"
 
 
+def jsgf_words(jsgf: str) -> set[str]:
+    """The words of the grammar's single rule."""
+    rule = jsgf.split("=", 1)[1].rstrip(";\n")
+    return set(rule.replace("|", " ").split())
+
+
 class _Decoders:
-    """One answer-grammar decoder and one phone-loop decoder, used by one utterance at a time."""
+    """The answer grammar and the open-vocabulary listener, used by one utterance at a time."""
 
     def __init__(self, jsgf: str) -> None:
         model = get_model_path(LANGUAGE)
         common = {
             "hmm": f"{model}/{LANGUAGE}",
             "dict": f"{model}/cmudict-en-us.dict",
-            "lm": None,
             "loglevel": "FATAL",
-            "cmn": "live",
+            "cmn": "batch",
         }
-        self.grammar = Decoder(**common)
-        unknown = sorted(
-            {w for w in jsgf_words(jsgf) if self.grammar.lookup_word(w) is None},
-        )
+        self.grammar = Decoder(lm=None, **common)
+        unknown = sorted({w for w in jsgf_words(jsgf) if self.grammar.lookup_word(w) is None})
         if unknown:
             raise UnknownWords(f"not in the recogniser's dictionary: {', '.join(unknown)}")
         self.grammar.add_jsgf_string("answers", jsgf)
         self.grammar.activate_search("answers")
-        self.phones = Decoder(
-            allphone=f"{model}/{LANGUAGE}-phone.lm.bin", lw=ALLPHONE_LANGUAGE_WEIGHT, **common
+        self.listener = Decoder(
+            lm=f"{model}/{LANGUAGE}.lm.bin",
+            **common,
+            **LISTENER_SEARCH,
         )
 
-    def start(self) -> None:
-        """Begin an utterance from fresh feature extraction: live normalisation would otherwise
-        carry the previous utterance's room over, and the same audio could be heard differently
-        depending on who spoke before."""
-        for decoder in (self.grammar, self.phones):
-            decoder.reinit_feat()
+    def phones(self, words: str) -> list[str]:
+        """The words' phones by the shared dictionary (unknown words give none)."""
+        phones: list[str] = []
+        for word in words.split():
+            if not word.startswith(_NOT_WORDS):
+                phones += (self.grammar.lookup_word(word) or "").split()
+        return phones
+
+    def decode(self, pcm: bytes) -> tuple[str, str]:
+        """(grammar's phrase, listener's words) for one stretch of speech, decoded as a whole."""
+        said = []
+        for decoder in (self.grammar, self.listener):
             decoder.start_utt()
-
-
-def jsgf_words(jsgf: str) -> set[str]:
-    """The words of the grammar's single rule."""
-    rule = jsgf.split("=", 1)[1].rstrip(";\n")
-    return set(rule.replace("|", " ").split())
+            decoder.process_raw(pcm, False, True)
+            decoder.end_utt()
+            hypothesis = decoder.hyp()
+            words = hypothesis.hypstr if hypothesis is not None else ""
+            said.append(" ".join(w for w in words.split() if not w.startswith(_NOT_WORDS)))
+        return said[0], said[1]
 
 
 _NOISE_TABLE = np.random.default_rng(20240601).normal(0.0, NOISE_FLOOR, SAMPLE_RATE)
@@ -155,7 +198,10 @@ class Recognizer:
         return utterance.finish()
 
     def utterance(self) -> Utterance:
-        """A streaming recognition: :meth:`Utterance.feed` frames as they come, then finish."""
+        """A streaming recognition: :meth:`Utterance.feed` frames as they come, then finish.
+
+        Its decoders are lent now (a new pair loaded if all are lent, a few seconds), so that
+        the load falls at the start of listening, not between the end of speech and the answer."""
         with self._lock:
             decoders = self._idle.pop() if self._idle else None
         return Utterance(self, decoders or _Decoders(self._jsgf))
@@ -164,17 +210,32 @@ class Recognizer:
         with self._lock:
             self._idle.append(decoders)
 
+    def _decide(self, decoders: _Decoders, phrase: str, words: str) -> tuple[Heard, float]:
+        """The grammar's phrase with its confidence: the listener's agreement with it (0 when
+        the listener sounds at least as much like a phrase of the other answer)."""
+        answer = self.vocabulary.classify(Heard(phrase, 1.0))
+        if answer is None:
+            return Heard(phrase, 0.0), 0.0
+        vocabulary = self.vocabulary
+        same, other = (
+            (vocabulary.yes, vocabulary.no) if answer == "yes" else (vocabulary.no, vocabulary.yes)
+        )
+        heard = decoders.phones(words)
+        mine = max(agreement(decoders.phones(p), heard) for p in same)
+        theirs = max((agreement(decoders.phones(p), heard) for p in other), default=0.0)
+        confidence = mine if mine > theirs else 0.0
+        return Heard(phrase, confidence), confidence
+
 
 class Utterance:
     """One participant's answer, streamed in (:meth:`feed`) and decoded on :meth:`finish`."""
 
     def __init__(self, recognizer: Recognizer, decoders: _Decoders) -> None:
         self._recognizer = recognizer
-        self._decoders: _Decoders | None = decoders
+        self._decoders = decoders
         self._endpointer = Endpointer(SAMPLE_RATE)
-        self._samples = 0
-        self._pending = b""
-        decoders.start()
+        self._audio = bytearray()
+        self._finished = False
 
     @property
     def speech_ended(self) -> bool:
@@ -187,68 +248,51 @@ class Utterance:
         return self._endpointer.speech_started
 
     def feed(self, pcm: bytes) -> None:
-        """More audio (16 kHz mono int16 LE, any length).
-
-        The decoders always get whole :data:`BLOCK_BYTES` blocks, whatever the caller's chunks:
-        their live normalisation updates per call, so this keeps a streamed utterance and the
-        same audio given at once (:meth:`Recognizer.recognize`) recognised identically."""
-        self._require()
-        self._pending += pcm
-        whole = len(self._pending) - len(self._pending) % BLOCK_BYTES
-        for start in range(0, whole, BLOCK_BYTES):
-            self._block(self._pending[start : start + BLOCK_BYTES])
-        self._pending = self._pending[whole:]
-
-    def _block(self, block: bytes) -> None:
-        decoders = self._require()
-        samples = np.frombuffer(block, "<i2").astype(np.float64)
-        index = (self._samples + np.arange(samples.size)) % _NOISE_TABLE.size
-        floored = np.clip(np.rint(samples + _NOISE_TABLE[index]), -32768, 32767).astype("<i2")
-        self._samples += samples.size
-        chunk = floored.tobytes()
-        self._endpointer.feed(block)
-        decoders.grammar.process_raw(chunk, False, False)
-        decoders.phones.process_raw(chunk, False, False)
+        """More audio (16 kHz mono int16 LE, any length), kept in memory until :meth:`finish`."""
+        if self._finished:
+            raise RuntimeError("this utterance is finished")
+        self._audio += pcm
+        self._endpointer.feed(pcm)
 
     def finish(self) -> Recognition:
-        """Close the utterance and decide; the decoders go back to the recogniser's pool."""
+        """Close the utterance and decide (silence when the endpointer heard no speech); the
+        decoders go back to the recogniser's pool."""
+        if self._finished:
+            raise RuntimeError("this utterance is finished")
+        self._finished = True
         started = time.perf_counter()
-        tail = self._pending[: len(self._pending) - len(self._pending) % 2]
-        if tail:
-            self._block(tail)
-        self._pending = b""
-        decoders = self._require()
-        self._decoders = None
+        recognizer = self._recognizer
+        phrase, words, confidence, heard = "", "", 0.0, None
+        decoders = self._decoders
         try:
-            heard, transcript, confidence = _decide(decoders)
+            speech = self._speech()
+            if speech:
+                phrase, words = decoders.decode(speech)
+                if phrase:
+                    heard, confidence = recognizer._decide(decoders, phrase, words)
         finally:
-            self._recognizer._give_back(decoders)
-        answer = self._recognizer.vocabulary.classify(heard) if heard else None
+            recognizer._give_back(decoders)
+            self._audio = bytearray()
         return Recognition(
-            answer=answer,
-            transcript=transcript,
+            answer=recognizer.vocabulary.classify(heard),
+            transcript=phrase,
             confidence=confidence,
-            engine=self._recognizer.engine,
+            engine=recognizer.engine,
             seconds=time.perf_counter() - started,
+            heard=words,
         )
 
-    def _require(self) -> _Decoders:
-        if self._decoders is None:
-            raise RuntimeError("this utterance is finished")
-        return self._decoders
-
-
-def _decide(decoders: _Decoders) -> tuple[Heard | None, str, float]:
-    """End both searches and compare them: (what was heard, transcript, confidence)."""
-    decoders.grammar.end_utt()
-    decoders.phones.end_utt()
-    phones = [seg for seg in decoders.phones.seg() or [] if seg.word not in _FILLERS]
-    grammar_hyp, phone_hyp = decoders.grammar.hyp(), decoders.phones.hyp()
-    transcript = grammar_hyp.hypstr.strip() if grammar_hyp is not None else ""
-    if not phones or not transcript or phone_hyp is None:
-        return None, "", 0.0
-    logmath = decoders.grammar.get_logmath()
-    frames = max(MIN_SPEECH_FRAMES, phones[-1].end_frame - phones[0].start_frame + 1)
-    llr = (logmath.log(grammar_hyp.best_score) - logmath.log(phone_hyp.best_score)) / frames
-    confidence = confidence_of(llr)
-    return Heard(transcript, confidence), transcript, confidence
+    def _speech(self) -> bytes:
+        """The endpointer's speech with :data:`PAD_SECONDS` either side, the noise floor added
+        (b"" when no speech started)."""
+        endpointer = self._endpointer
+        if not endpointer.speech_started:
+            return b""
+        pad = round(PAD_SECONDS / FRAME_SECONDS)
+        first = max(0, endpointer.first_speech_frame - pad) * FRAME_BYTES
+        last = (endpointer.last_speech_frame + 1 + pad) * FRAME_BYTES
+        stretch = self._audio[first : min(last, len(self._audio) - len(self._audio) % 2)]
+        samples = np.frombuffer(bytes(stretch), "<i2").astype(np.float64)
+        index = (first // 2 + np.arange(samples.size)) % _NOISE_TABLE.size
+        floored = np.rint(samples + _NOISE_TABLE[index])
+        return np.clip(floored, -32768, 32767).astype("<i2").tobytes()
