@@ -44,6 +44,14 @@ class Settings(BaseSettings):
             "Generated once into var/secret_key when not given."
         ),
     )
+    pseudonym_key: SecretStr | None = Field(
+        default=None,
+        description=(
+            "The key of pseudonymised exports (`trustlab export --pseudonymise`, the analysis "
+            "page's pseudonymised downloads): participant codes become keyed hashes that cannot "
+            "be linked back without it. Keep it on the server, apart from the files shared."
+        ),
+    )
     checkpoint_dir: Path | None = Field(
         default=None,
         description="Pre-trained meta-policy checkpoints; defaults to the ones shipped in models/.",

@@ -122,10 +122,23 @@ def _scale_entry(column: WideColumn, scale: ScaleSpec) -> dict[str, Any]:
     }
 
 
+PSEUDONYM_LABEL = (
+    "Participant pseudonym (a keyed hash of the code, the same in every file of this study; "
+    "the key stays with the lab)"
+)
+
+
+def _participant_label(dataset: StudyDataset) -> str:
+    """What the participant column holds: the lab's codes, or pseudonyms."""
+    if dataset.manifest.get("participants") == "pseudonymised":
+        return PSEUDONYM_LABEL
+    return "Participant code"
+
+
 def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> list[dict[str, Any]]:
     conditions = "; ".join(f"{c['code']}={c['label']}" for c in dataset.protocol["conditions"])
     fixed = {
-        "participant": ("Participant code", "string", "nominal", "", ""),
+        "participant": (_participant_label(dataset), "string", "nominal", "", ""),
         "condition": ("Experimental condition", "string", "nominal", conditions, ""),
         "status": ("Participant status at export", "string", "nominal", "", ""),
         "language": (LANGUAGE_LABEL, "string", "nominal", "", ""),
@@ -233,8 +246,15 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
             rows.append(_item_entry(column, spec, item, "wide"))
         elif column.source == "scale":
             rows.append(_scale_entry(column, scales[column.key]))
-    rows += [_plain_entry("long", c, *_LONG[c]) for c in with_language(LONG_COLUMNS, dataset)]
-    rows += [_plain_entry("steps", c, *_STEPS[c]) for c in steps_columns(dataset)]
+    participant = (_participant_label(dataset), "string")
+    rows += [
+        _plain_entry("long", c, *(participant if c == "participant" else _LONG[c]))
+        for c in with_language(LONG_COLUMNS, dataset)
+    ]
+    rows += [
+        _plain_entry("steps", c, *(participant if c == "participant" else _STEPS[c]))
+        for c in steps_columns(dataset)
+    ]
     arms = max((len(q) for q in dataset.protocol["categories"].values()), default=0)
     for when, text in (("before", "before the answer"), ("after", "after the update")):
         rows += [
@@ -294,6 +314,7 @@ def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
         "study": dataset.protocol["study"],
         "protocol_version": dataset.protocol.get("version", ""),
         "conditions": [dict(c) for c in dataset.protocol["conditions"]],
+        "participants": dataset.manifest.get("participants", "codes"),
         "csv_text_cells": CSV_TEXT_RULE,
         "instruments": [
             {

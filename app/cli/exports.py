@@ -12,12 +12,13 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from pydantic import SecretStr
 
 from analysis.exports import EXPORT_FORMATS, SUMS_FILE, sha256_file, write_all_exports, write_export
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
 from app.private_files import new_private_file, refuse_existing, refuse_link
-from app.services import audit, studies, study_data
+from app.services import audit, pseudonyms, studies, study_data
 from app.services.audit import Actor
 from app.services.blinding import is_sealed
 from app.settings import Settings
@@ -42,6 +43,14 @@ def export(
     force: Annotated[
         bool, typer.Option("--force", help="Replace files that exist (never a symbolic link).")
     ] = False,
+    pseudonymise: Annotated[
+        bool,
+        typer.Option(
+            "--pseudonymise",
+            help="Replace participant codes by keyed-hash pseudonyms (TRUSTLAB_PSEUDONYM_KEY), "
+            "for data shared outside the lab.",
+        ),
+    ] = False,
     as_json: JsonFlag = False,
 ) -> None:
     """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
@@ -49,18 +58,22 @@ def export(
     kept unless --force."""
     if format != ALL and format not in EXPORT_FORMATS:
         raise InvalidInput(f"--format {format!r}: choose one of {', '.join(EXPORT_FORMATS)}, {ALL}")
+    settings = Settings()
+    key = pseudonyms.require_key(_secret(settings.pseudonym_key)) if pseudonymise else None
     targets = _targets(format, out)
     for target in targets:  # refuse before the (slow) export, and before writing any file
         refuse_link(target)
         if target.exists() and not force:
             raise InvalidInput(f"{target} exists; choose a new file name, or --force to replace it")
         refuse_existing(target, replace=force)  # a folder is never replaced
-    database = open_database(Settings())
+    database = open_database(settings)
     require_current_schema(database)
     with database.read_session() as db:
         found = studies.get_study(db, study)
         dataset = study_data.load_dataset(db, study=found)
         study_id, sealed = found.id, is_sealed(found)
+    if key is not None:
+        dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
     staging = partial(new_private_file, replace=force)
     if format == ALL:
         out.mkdir(mode=FOLDER_MODE, parents=True, exist_ok=True)
@@ -85,6 +98,7 @@ def export(
                 "files": files,
                 "data_sha256": dataset.manifest["data_sha256"],
                 "for_unblinded_use": sealed,
+                "pseudonymised": key is not None,
             },
         )
         db.commit()
@@ -99,6 +113,10 @@ def export(
         return
     for name, info in files.items():
         typer.echo(f"{name:<13} {info['path']}  sha256 {info['sha256'][:16]}…")
+
+
+def _secret(value: SecretStr | None) -> str | None:
+    return value.get_secret_value() if value is not None else None
 
 
 def _targets(format: str, out: Path) -> list[Path]:

@@ -17,7 +17,7 @@ from analysis.study import analyse_study
 from app.deps import AnalystUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
-from app.services import audit, blinding, studies, study_data
+from app.services import audit, blinding, pseudonyms, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
 from app.services.mixed_view import mixed_view
@@ -54,6 +54,7 @@ def analysis_page(
             "manifest": dataset.manifest,
             "step_logs": STEP_LOG_EXPORTS,
             "steps_withheld": dataset.steps_withheld,
+            "pseudonyms": request.app.state.settings.pseudonym_key is not None,
         },
     )
 
@@ -108,7 +109,14 @@ def download(
     study = studies.get_study(db, name)
     if export in STEP_LOG_EXPORTS and not blinding.shows_learners(study):
         raise Conflict(f"no step log yet: {blinding.LEARNERS_SEALED}")  # before reading it all
+    pseudonymise = request.query_params.get("pseudonymise") in ("1", "true", "yes")
+    key = None
+    if pseudonymise:
+        configured = request.app.state.settings.pseudonym_key
+        key = pseudonyms.require_key(configured.get_secret_value() if configured else None)
     dataset = study_data.load_dataset(db, study=study, for_staff=True)
+    if key is not None:
+        dataset = pseudonyms.pseudonymised(dataset, key=key, study=study.name)
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
     path = write_export(dataset, export, folder / spec.filename)
     digest = sha256_file(path)
@@ -119,7 +127,11 @@ def download(
             action="export.downloaded",
             study_id=study.id,
             subject=export,
-            details={"sha256": digest, "data_sha256": dataset.manifest["data_sha256"]},
+            details={
+                "sha256": digest,
+                "data_sha256": dataset.manifest["data_sha256"],
+                "pseudonymised": key is not None,
+            },
         )
         writer.commit()
 
