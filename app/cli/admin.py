@@ -407,6 +407,56 @@ def participant_language(
     typer.echo(f"{code} in {study!r} now takes part in {language}")
 
 
+@participant_cli.command("export")
+def participant_export(
+    study: Annotated[str, typer.Option(help="Study name.")],
+    code: Annotated[str, typer.Option(help="Participant code.")],
+    out: Annotated[
+        Path, typer.Option(help="Folder to write CODE.json and CODE.html into (made if missing).")
+    ],
+    audio: Annotated[
+        bool, typer.Option("--audio", help="Include recorded answers' audio (base64 WAV).")
+    ] = False,
+    force: Annotated[bool, typer.Option("--force", help="Replace files that exist.")] = False,
+) -> None:
+    """Everything stored about one participant, as JSON and a readable HTML page (for their
+    subject-access request). Owner-only files; audited."""
+    from app.private_files import new_private_file, refuse_existing, refuse_link
+    from app.services import subject_access
+    from app.web.templating import environment
+
+    targets = [out / f"{code}.json", out / f"{code}.html"]
+    for target in targets:
+        refuse_link(target)
+        if target.exists() and not force:
+            raise InvalidInput(f"{target} exists; choose another folder, or --force to replace it")
+        refuse_existing(target, replace=force)
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.read_session() as db:
+        record = subject_access.participant_record(
+            db, study_name=study, code=code, with_audio=audio
+        )
+    out.mkdir(mode=0o700, parents=True, exist_ok=True)
+    page = environment.get_template("subject_access.html").render(record=record)
+    for target, content in zip(
+        targets, (json.dumps(record, indent=2, ensure_ascii=False), page), strict=True
+    ):
+        with new_private_file(target, replace=force) as draft:
+            draft.write_text(content + "\n", encoding="utf-8")
+    with database.writing() as db:
+        audit.record(
+            db,
+            actor=Actor.command_line(),
+            action="participant.exported",
+            study_id=studies.get_study(db, study).id,
+            subject=code,
+            details={"audio": audio},
+        )
+        db.commit()
+    typer.echo(f"wrote {targets[0]} and {targets[1]}")
+
+
 @participant_cli.command("withdraw")
 def participant_withdraw(
     study: Annotated[str, typer.Option(help="Study name.")],
