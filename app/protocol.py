@@ -17,6 +17,7 @@ import itertools
 import math
 import re
 import tomllib
+import weakref
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
@@ -24,7 +25,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, StringConstraints, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 
 from app.i18n import catalogues, protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
@@ -428,7 +429,6 @@ class Protocol(_Strict):
         description="Every participant-facing text in each further language of study.languages "
         "(app/i18n/protocol_texts.py names them).",
     )
-    _in_languages: dict[str, Protocol] = PrivateAttr(default_factory=dict)
 
     @property
     def default_language(self) -> str:
@@ -446,11 +446,15 @@ class Protocol(_Strict):
             return self
         if language not in self.study.languages:
             raise KeyError(language)
-        localised = self._in_languages.get(language)
+        entry = _LOCALISED.get(id(self))
+        if entry is None or entry[0]() is not self:
+            key = id(self)
+            entry = (weakref.ref(self, lambda _gone: _LOCALISED.pop(key, None)), {})
+            _LOCALISED[key] = entry
+        localised = entry[1].get(language)
         if localised is None:
             data = protocol_texts.translated(self.model_dump(mode="json"), language)
-            localised = Protocol.model_validate(data)
-            self._in_languages[language] = localised
+            localised = entry[1][language] = Protocol.model_validate(data)
         return localised
 
     def room_layout(self) -> RoomSpec:
@@ -490,6 +494,11 @@ class Protocol(_Strict):
             if scale.name == name:
                 return scale
         raise KeyError(name)
+
+
+_LOCALISED: dict[int, tuple[weakref.ref[Protocol], dict[str, Protocol]]] = {}
+"""Each protocol's translated copies, built once (:meth:`Protocol.in_language`). Kept beside
+the protocols, not in them: a cache inside would make equal protocols compare unequal."""
 
 
 @dataclass(frozen=True)

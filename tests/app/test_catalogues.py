@@ -3,6 +3,7 @@ sources, refused in one line when broken, and right-to-left where the language s
 
 from __future__ import annotations
 
+import functools
 import io
 
 import pytest
@@ -17,6 +18,12 @@ from app.i18n.extract import extract
 from app.web import templating
 
 SHIPPED = ["de", "en", "sv"]
+
+
+@functools.cache
+def _extracted() -> Catalog:
+    """The sources' messages, extracted once for the module (a few seconds each time)."""
+    return extract()
 
 
 def _ids(catalog: Catalog) -> set[str]:
@@ -34,14 +41,14 @@ def test_english_swedish_and_german_ship_complete() -> None:
 def test_every_catalogue_holds_exactly_the_messages_the_sources_use(language: str) -> None:
     """A sentence added to a participant page without a translation fails here (run
     `trustlab languages update` and translate), as does one left behind after removal."""
-    in_sources, in_catalogue = _ids(extract()), _ids(read_catalog(language))
+    in_sources, in_catalogue = _ids(_extracted()), _ids(read_catalog(language))
     assert in_sources - in_catalogue == set(), "untranslated: add them to the catalogue"
     assert in_catalogue - in_sources == set(), "no longer used: remove them"
 
 
 def test_the_sources_mark_what_participants_read() -> None:
     """The extraction finds each kind of source (a template, a service sentence, an error page)."""
-    ids = _ids(extract())
+    ids = _ids(_extracted())
     assert {"Continue", "Please answer this question.", "This page has expired"} <= ids
     assert "Choose one of %(low)d–%(high)d." in ids  # a Message with values
 

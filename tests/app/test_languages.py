@@ -81,6 +81,15 @@ def test_the_swedish_example_translates_every_participant_facing_text() -> None:
     assert swedish.learners == english.learners and swedish.schedule == english.schedule
 
 
+def test_a_translated_copy_is_built_once_and_changes_nothing_of_the_protocol() -> None:
+    protocol, twin = (parse_protocol(_swedish_text()).protocol for _ in range(2))
+    swedish = protocol.in_language("sv")
+    assert protocol.in_language("sv") is swedish  # built once
+    assert protocol == twin  # equal protocols stay equal (studies compare them)
+    with pytest.raises(KeyError):
+        protocol.in_language("de")  # not one of its languages: enrolment refuses it first
+
+
 def test_the_swedish_example_is_the_shipped_protocol_apart_from_its_languages() -> None:
     """The two files must not drift: everything but the language keys is the same."""
     swedish = tomllib.loads(_swedish_text())
