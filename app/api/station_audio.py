@@ -235,15 +235,13 @@ class _AudioConnection:
             await self.send({"type": "cancelled", "id": message.id})
 
     async def drop(self) -> None:
-        """Forget the answer being listened to, unheard: its audio goes with it.
-
-        The utterance is still finished (in a worker thread, its result unused), which gives its
-        decoders back to the recogniser's pool: a dropped one would cost the next answer a
-        model load."""
+        """Forget the answer being listened to, unheard: its audio goes with it, and its
+        decoders go back to the recogniser's pool undecoded (a lost pair would cost the next
+        answer a model load; a decode would cost half a second of CPU for nothing)."""
         listening, self.listening = self.listening, None
         if listening is not None:
             with contextlib.suppress(Exception):
-                await run_in_threadpool(listening.utterance.finish)
+                listening.utterance.abandon()
 
     async def start(self, message: StartMessage) -> None:
         await self.drop()  # a new start replaces whatever was being listened to

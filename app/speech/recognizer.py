@@ -282,6 +282,16 @@ class Utterance:
             heard=words,
         )
 
+    def abandon(self) -> None:
+        """Forget the utterance unheard (the question was answered elsewhere, or the client
+        cancelled): its audio is dropped and its decoders go back to the pool without the
+        decode :meth:`finish` would pay for. Nothing happens if it is already finished."""
+        if self._finished:
+            return
+        self._finished = True
+        self._audio = bytearray()
+        self._recognizer._give_back(self._decoders)
+
     def _speech(self) -> bytes:
         """The endpointer's speech with :data:`PAD_SECONDS` either side, the noise floor added
         (b"" when no speech started)."""

@@ -65,6 +65,7 @@ class ScriptedUtterance:
     script: list[Heard]
     loops_seen: list[bool]
     finished: list[ScriptedUtterance]
+    abandoned: list[ScriptedUtterance]
     spoke: bool = False
     ended: bool = False
 
@@ -87,6 +88,9 @@ class ScriptedUtterance:
         self.finished.append(self)  # the real one gives its decoders back to the pool here
         return self.script.pop(0) if self.spoke else Heard(None, "", 0.0)
 
+    def abandon(self) -> None:
+        self.abandoned.append(self)  # the real one gives its decoders back, undecoded
+
 
 @dataclass
 class ScriptedRecognizer:
@@ -96,9 +100,10 @@ class ScriptedRecognizer:
     vocabularies: list[Vocabulary] = field(default_factory=list)
     loops_seen: list[bool] = field(default_factory=list)
     finished: list[ScriptedUtterance] = field(default_factory=list)
+    abandoned: list[ScriptedUtterance] = field(default_factory=list)
 
     def utterance(self) -> ScriptedUtterance:
-        return ScriptedUtterance(self.script, self.loops_seen, self.finished)
+        return ScriptedUtterance(self.script, self.loops_seen, self.finished, self.abandoned)
 
 
 @pytest.fixture
@@ -283,7 +288,7 @@ def test_more_audio_than_the_protocol_allows_is_cut_off(
         lab, "limited", **{"max_answer_seconds = 15.0": "max_answer_seconds = 0.5"}
     )
     step = _open_step(limited)
-    recognizer.script += [Heard("no", "no", 0.9), Heard("yes", "yes", 0.9)]
+    recognizer.script += [Heard("yes", "yes", 0.9)]  # the cut-off answer is never decoded
     with limited.robot.websocket_connect(AUDIO) as ws:
         _receive(ws, "hello")
         ws.send_json({"type": "start", "id": 1, "step_id": step})
@@ -293,7 +298,8 @@ def test_more_audio_than_the_protocol_allows_is_cut_off(
         cut = _receive(ws, "error")
         assert (cut["id"], cut["status"]) == (1, 413)
         assert "cut off: more than 0.5 s of audio for one answer" in cut["detail"]
-        assert len(recognizer.finished) == 1  # dropped unheard, its decoders given back
+        # dropped unheard: its decoders given back without a decode
+        assert (len(recognizer.abandoned), recognizer.finished) == (1, [])
         ws.send_bytes(SILENCE)  # the rest of what the client sent before it heard: dropped quietly
         ws.send_json({"type": "ping", "id": 2})
         assert _receive(ws, "pong")["id"] == 2

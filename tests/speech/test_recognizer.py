@@ -129,6 +129,20 @@ def test_two_answers_listened_to_at_once_each_get_their_own(recognizer: Recogniz
     assert again.finish().answer == "no"
 
 
+def test_an_abandoned_utterance_gives_its_decoders_back_undecoded(recognizer: Recognizer) -> None:
+    utterance = recognizer.utterance()
+    lent = utterance._decoders
+    utterance.feed(read_wav(DATA / "yes.wav"))
+    utterance.abandon()
+    utterance.abandon()  # twice: nothing more happens
+    with pytest.raises(RuntimeError):
+        utterance.feed(quiet(0.1))
+    again = recognizer.utterance()
+    assert again._decoders is lent  # back in the pool, lent again (no model load)
+    again.feed(read_wav(DATA / "no.wav"))
+    assert again.finish().answer == "no"  # and still decodes correctly
+
+
 def test_a_finished_utterance_takes_no_more_audio(recognizer: Recognizer) -> None:
     utterance = recognizer.utterance()
     utterance.feed(quiet(0.1))
