@@ -424,36 +424,34 @@ class Bridge:
         self, prompt: PromptOut, heard: Heard | None, speech: SpeechOut
     ) -> None:
         """Tell the console the answer stayed unclear; say the reply once it gives one."""
-        participant = (self._socket.state or {}).get("participant") or "the participant"
-        line = (
-            f"{participant}'s answer to “{prompt.question}” stayed unclear after "
+        await self._wait_for_the_console(
+            prompt,
+            f"{self._participant()}'s answer to “{prompt.question}” stayed unclear after "
             f"{speech.attempts} tries (last heard: {describe_heard(heard)}): give a "
-            "Wizard-of-Oz answer on this console"
+            "Wizard-of-Oz answer on this console",
         )
-        await self._notice(line[:300], attention=True)
-        self._log(f"Bridge: {line}.")
-        await self._until_settled(prompt)
-        await self._notice(None)
         await self._say_recorded_reply(prompt.step_id, speech)
 
     async def _cannot_speak(self, prompt: PromptOut) -> None:
         """The participant's language is not the robot's: nothing is said (a question in the
         wrong voice, or a recogniser listening for the wrong words, would not be the study's),
         and the console is asked for a Wizard-of-Oz answer."""
-        participant = (self._socket.state or {}).get("participant") or "the participant"
-        line = (
-            f"{participant} takes part in {prompt.language!r}, but this robot speaks "
+        await self._wait_for_the_console(
+            prompt,
+            f"{self._participant()} takes part in {prompt.language!r}, but this robot speaks "
             f"{self.settings.speaks!r}: ask “{prompt.question}” and give a Wizard-of-Oz answer "
             f"on this console, or restart the bridge with --speaks {prompt.language} and the "
-            "robot's voice for it"
+            "robot's voice for it",
         )
+
+    def _participant(self) -> str:
+        return str((self._socket.state or {}).get("participant") or "the participant")
+
+    async def _wait_for_the_console(self, prompt: PromptOut, line: str) -> None:
+        """Put ``line`` on the console as a notice that needs the operator, until the step is
+        answered there (or is no longer open); then clear it."""
         await self._notice(line[:300], attention=True)
         self._log(f"Bridge: {line}.")
-        await self._until_settled(prompt)
-        await self._notice(None)
-
-    async def _until_settled(self, prompt: PromptOut) -> None:
-        """Until the step is answered elsewhere (the console) or no longer open."""
 
         def settled() -> bool:
             if prompt.step_id in self._answered.replies:
@@ -463,6 +461,7 @@ class Bridge:
 
         async with self._answered.changed:
             await self._answered.changed.wait_for(settled)
+        await self._notice(None)
 
     # -- the robot and the console ------------------------------------------------------------
 
