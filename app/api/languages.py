@@ -7,8 +7,7 @@ study's texts. The room fetches the seated participant's language when it change
 
 from __future__ import annotations
 
-from fastapi import APIRouter
-from fastapi.responses import JSONResponse
+from fastapi import APIRouter, Response
 from pydantic import BaseModel, Field
 
 from app.errors import NotFound
@@ -26,14 +25,12 @@ class WordsOut(BaseModel):
 
 
 @router.get("/{language}/words")
-def words(language: str) -> JSONResponse:
+def words(language: str, response: Response) -> WordsOut:
     """The interface catalogue of ``language`` (404 naming the shipped ones otherwise)."""
     if language not in ui_languages():
         raise NotFound(
             f"no interface catalogue for {language!r}; shipped: {', '.join(ui_languages())}"
         )
-    words = catalogue(language)
-    body = WordsOut(language=language, direction=words.direction, messages=words.messages)
-    response = JSONResponse(body.model_dump())
+    found = catalogue(language)
     response.headers["Cache-Control"] = "public, max-age=300"
-    return response
+    return WordsOut(language=language, direction=found.direction, messages=found.messages)
