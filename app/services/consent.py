@@ -31,12 +31,13 @@ from app.errors import Conflict, InvalidInput
 from app.protocol import Protocol, mentions_audio_recording
 from app.services import audit, studies
 from app.services.audit import Actor
-from app.services.stations import participant_topic, study_topic
+from app.services.stations import participant_topic, station_topic_of, study_topic
 from app.tables import (
     ConsentRecord,
     ConsentVersion,
     Participant,
     ParticipantStatus,
+    Station,
     Study,
     utcnow,
 )
@@ -272,14 +273,19 @@ def add_version(
         ) from None
     # Tablets waiting for their participant move on to the new text (when the protocol asks
     # for it) and staff pages show who needs to consent again.
-    active = db.scalars(
-        select(Participant.id).where(
-            Participant.study_id == study.id, Participant.status != ParticipantStatus.WITHDRAWN
-        )
-    )
+    # Robots and consoles learn that their participant's next session now waits.
+    active = db.execute(
+        select(Participant.id, Station.id)
+        .outerjoin(Station, Station.participant_id == Participant.id)
+        .where(Participant.study_id == study.id, Participant.status != ParticipantStatus.WITHDRAWN)
+    ).all()
     events.publish(
         db,
-        topics=[study_topic(study.id), *(participant_topic(pid) for pid in active)],
+        topics=[
+            study_topic(study.id),
+            *(participant_topic(pid) for pid, _ in active),
+            *(station_topic_of(sid) for _, sid in active if sid is not None),
+        ],
         type="consent_changed",
         version=number,
     )

@@ -9,7 +9,7 @@ import re
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 
 from app.db import Database
 from app.errors import InvalidInput, NotFound
@@ -238,3 +238,24 @@ def test_unchanged_unknown_and_unmentioned_recording_are_refused(database: Datab
         consent.add_version(db, study_name=recording, texts={"": NEW_TEXT}, actor=ADMIN)
     with database.read_session() as db:
         assert db.scalar(select(func.count()).select_from(ConsentVersion)) == 0
+
+
+def test_verify_checks_each_consent_against_its_version(lab: Lab) -> None:
+    from app.services import verify
+
+    lab = dataclasses.replace(lab, study=_create(lab.database, "checked", **RECONSENT))
+    code = lab.enrol_and_assign()
+    _add(lab.database, lab.study)
+    assert (
+        lab.tablets[code].post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
+    )
+    with lab.database.read_session() as db:
+        assert verify.verify_study(db, study_name=lab.study).findings == []
+    with lab.database.writing() as db:
+        db.execute(update(ConsentRecord).where(ConsentRecord.version == 2).values(sha256="0" * 64))
+        db.commit()
+    with lab.database.read_session() as db:
+        findings = verify.verify_study(db, study_name=lab.study).findings
+    assert [(f.check, f.participant, f.detail) for f in findings] == [
+        ("consent", code, "the words of version 2 answered in en are not the version's")
+    ]
