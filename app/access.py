@@ -144,6 +144,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/admin/studies/{name}/archive"): ADMINS,
     ("GET", "/admin/studies/{name}/unblind"): ADMINS,
     ("POST", "/admin/studies/{name}/unblind"): ADMINS,
+    ("POST", "/admin/studies/{name}/consent"): ADMINS,
     ("GET", "/admin/audit"): ADMINS,
     ("GET", "/admin/audit.csv"): ADMINS,
     ("POST", "/stations"): ADMINS,

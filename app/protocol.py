@@ -424,10 +424,19 @@ class ScoreSpec(_Strict):
 
 
 class ConsentSpec(_Strict):
-    """The consent text participants must accept; its version is stored with the acceptance."""
+    """The consent text participants must accept; its version is stored with the acceptance.
+
+    This is version 1 of the study's consent text; an admin adds later versions while the study
+    runs (app.services.consent)."""
 
     version: Text
     text: Text
+    reconsent_before_next_session: bool = Field(
+        default=False,
+        description="When the consent text changes, a participant who accepted an earlier "
+        "version sees the new one on the tablet first, and their next session cannot start "
+        "until they accept it. Off: they are only flagged on the staff pages.",
+    )
 
 
 class QuestionnairesSpec(_Strict):

@@ -13,6 +13,7 @@ from app.cli import (
     admin,
     analysis,
     bridge,
+    consent,
     engine,
     exports,
     languages,
@@ -33,6 +34,7 @@ cli = typer.Typer(
     add_completion=False,
 )
 admin.register(cli)
+consent.register(cli)
 accounts.register(cli)
 runtime.register(cli)
 robot.register(cli)

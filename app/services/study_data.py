@@ -111,6 +111,12 @@ def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
             AnalysisItem("version", "Version of the consent text", "text"),
             AnalysisItem("consent_language", "Language of the consent text accepted", "text"),
             AnalysisItem("consent_sha256", "SHA-256 of the exact consent text accepted", "text"),
+            AnalysisItem(
+                "consent_version",
+                "Number of the consent text's version accepted (1: the protocol's own; the "
+                "latest, when accepted again after a change)",
+                "text",
+            ),
         ),
     )
     return (

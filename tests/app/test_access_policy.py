@@ -266,6 +266,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/admin/studies/{name}/unblind"): send(
         "POST", "/admin/studies/ghost/unblind", data={}
     ),
+    ("POST", "/admin/studies/{name}/consent"): send(
+        "POST", "/admin/studies/ghost/consent", data={"confirm": "yes"}
+    ),
     ("GET", "/admin/audit"): get("/admin/audit"),
     ("GET", "/admin/audit.csv"): get("/admin/audit.csv?action=none"),
     ("POST", "/stations"): send("POST", "/stations", data={}),
