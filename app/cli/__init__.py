@@ -18,6 +18,7 @@ from app.cli import (
     languages,
     mixed,
     population,
+    retention,
     robot,
     runtime,
     speech,
@@ -44,6 +45,7 @@ engine.register(cli)
 population.register(cli)
 speech.register(cli)
 languages.register(cli)
+retention.register(cli)
 
 
 def main() -> None:
