@@ -211,6 +211,9 @@ class Participant(Base):
     erased_at: Mapped[datetime | None]
     """Set when the participant's data was erased (app.services.erasure): the row stays, under a
     pseudonym, only so that their allocation slot keeps the sequence whole."""
+    anonymised_at: Mapped[datetime | None]
+    """Set when a retention deadline anonymised the participant (app.services.retention): the
+    code is a random id, free text and transcripts are gone."""
 
     study: Mapped[Study] = relationship()
     allocation: Mapped[Allocation] = relationship(

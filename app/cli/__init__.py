@@ -19,6 +19,7 @@ from app.cli import (
     languages,
     mixed,
     population,
+    retention,
     robot,
     runtime,
     speech,
@@ -46,6 +47,7 @@ engine.register(cli)
 population.register(cli)
 speech.register(cli)
 languages.register(cli)
+retention.register(cli)
 
 
 def main() -> None:

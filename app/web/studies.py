@@ -19,7 +19,7 @@ from app.deps import (
 )
 from app.errors import Conflict, InvalidInput
 from app.i18n.languages import native_name
-from app.services import blinding, consent, enrolment, erasure, overview, studies
+from app.services import blinding, consent, enrolment, erasure, overview, retention, studies
 from app.services.audit import Actor
 from app.tables import ParticipantStatus, Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
@@ -76,6 +76,7 @@ def _study_page(
             "study": study,
             "protocol": protocol,
             "overview": overview.study_overview(db, study=study, actor=Actor.of_user(user)),
+            "retention_due": retention.deadline(study),
             "shows_conditions": blinding.shows_conditions(study, Actor.of_user(user)),
             "neutral_groups": list(
                 dict.fromkeys(blinding.condition_labels(study, Actor.of_user(user)).values())
