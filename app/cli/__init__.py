@@ -18,6 +18,7 @@ from app.cli import (
     languages,
     mixed,
     population,
+    power,
     robot,
     runtime,
     speech,
@@ -39,6 +40,7 @@ robot.register(cli)
 bridge.register(cli)
 analysis.register(cli)
 mixed.register(cli)
+power.register(cli)
 exports.register(cli)
 engine.register(cli)
 population.register(cli)

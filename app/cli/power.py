@@ -1,0 +1,253 @@
+"""``trustlab power``: how many participants, and why, before the study runs.
+
+Exactly one of three things is left open and answered: the power (``--n`` and an effect size),
+the total N for a target power (``--target-power`` and an effect size) or the smallest
+detectable effect (``--n`` and ``--target-power``, no effect size). The effect size is Cohen's
+``--f``, a partial ``--eta2`` (read under ``--convention gpower|spss``), or a ``--means`` table
+with its ``--sd``; ``--pilot`` estimates ρ, ε and the effects from a stored study or a long CSV.
+The formulas are :mod:`analysis.power`'s. With ``--json`` it prints one object (the
+:meth:`analysis.power.PowerAnswer.to_dict` contract); bad input prints one line ``error: …``
+and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any
+
+import typer
+
+from analysis.apa import format_number
+from analysis.errors import AnalysisError
+from analysis.power import (
+    EFFECTS,
+    PowerAnswer,
+    PowerDesign,
+    detectable_effect,
+    effect_sizes_from_means,
+    f_from_eta2,
+    n_for_power,
+    power_for_n,
+)
+from app.cli.analysis import bad_input
+
+__all__ = ["parse_means", "power_command", "register", "render_answer"]
+
+
+def register(cli: typer.Typer) -> None:
+    """Add the ``power`` command to the ``trustlab`` command line."""
+    cli.command("power")(power_command)
+
+
+def power_command(
+    effect: Annotated[
+        str,
+        typer.Option("--effect", help="The effect to plan for: between, within or interaction."),
+    ],
+    groups: Annotated[
+        int | None, typer.Option("--groups", help="Between levels k (conditions).")
+    ] = None,
+    sessions: Annotated[
+        int | None, typer.Option("--sessions", help="Within levels m (sessions).")
+    ] = None,
+    f: Annotated[float | None, typer.Option("--f", help="Cohen's f of the effect.")] = None,
+    eta2: Annotated[
+        float | None,
+        typer.Option("--eta2", help="Partial eta² of the effect, read under --convention."),
+    ] = None,
+    convention: Annotated[
+        str,
+        typer.Option(
+            "--convention",
+            help="How the effect size is read: gpower (G*Power's default: f of the population, "
+            "with rho) or spss (G*Power's 'as in SPSS': the partial eta² an ANOVA table prints, "
+            "rho already in it).",
+        ),
+    ] = "gpower",
+    means: Annotated[
+        str | None,
+        typer.Option(
+            "--means",
+            help="Cell means, a row per group, sessions by commas, groups by semicolons "
+            "(e.g. '3.0,2.4;2.9,3.2'): f from the table, as G*Power's effect size from means.",
+        ),
+    ] = None,
+    sd: Annotated[
+        str | None,
+        typer.Option("--sd", help="With --means: one SD, or one per mean in the same layout."),
+    ] = None,
+    rho: Annotated[
+        float | None,
+        typer.Option("--rho", help="Correlation among the repeated measures, in (−1, 1)."),
+    ] = None,
+    epsilon: Annotated[
+        float,
+        typer.Option("--epsilon", help="Non-sphericity correction ε in [1/(m − 1), 1]."),
+    ] = 1.0,
+    alpha: Annotated[float, typer.Option("--alpha", help="Significance level.")] = 0.05,
+    n: Annotated[int | None, typer.Option("--n", help="Total number of participants.")] = None,
+    target_power: Annotated[
+        float | None, typer.Option("--target-power", help="The power to reach, in (0, 1).")
+    ] = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object (the stable contract).")
+    ] = False,
+) -> None:
+    """Power, sample size or detectable effect of the mixed ANOVA's between, within or
+    interaction test (G*Power 3.1's formulas)."""
+    try:
+        answer = answer_question(
+            effect=effect,
+            groups=groups,
+            sessions=sessions,
+            f=f,
+            eta2=eta2,
+            convention=convention,
+            means=means,
+            sd=sd,
+            rho=rho,
+            epsilon=epsilon,
+            alpha=alpha,
+            n=n,
+            target_power=target_power,
+        )
+    except AnalysisError as error:
+        raise bad_input(str(error)) from None
+    if as_json:
+        typer.echo(json.dumps(answer.to_dict(), allow_nan=False))
+    else:
+        typer.echo(render_answer(answer))
+
+
+def answer_question(
+    *,
+    effect: str,
+    groups: int | None,
+    sessions: int | None,
+    f: float | None,
+    eta2: float | None,
+    convention: str,
+    means: str | None,
+    sd: str | None,
+    rho: float | None,
+    epsilon: float,
+    alpha: float,
+    n: int | None,
+    target_power: float | None,
+) -> PowerAnswer:
+    """The question the options ask, answered (:class:`AnalysisError` for bad input)."""
+    from analysis.errors import InvalidInputError
+
+    if effect not in EFFECTS:
+        raise InvalidInputError(f"--effect must be one of {', '.join(EFFECTS)}, not {effect!r}")
+    given = [name for name, value in (("--f", f), ("--eta2", eta2), ("--means", means)) if value]
+    if f == 0 or eta2 == 0:
+        given = given or ["--f" if f == 0 else "--eta2"]
+    if len(given) > 1:
+        raise InvalidInputError(f"give one effect size, not {' and '.join(given)}")
+    if (means is None) != (sd is None):
+        raise InvalidInputError("--means and --sd go together")
+    size: float | None = f
+    if eta2 is not None:
+        size = f_from_eta2(eta2)
+    if means is not None and sd is not None:
+        table = parse_means(means, "--means")
+        sds: Any = parse_means(sd, "--sd")
+        if len(sds) == 1 and len(sds[0]) == 1:
+            sds = sds[0][0]
+        k, m = len(table), len(table[0])
+        if (groups, sessions) != (None, None) and (groups, sessions) != (k, m):
+            raise InvalidInputError(
+                f"--means has {k} group(s) × {m} session(s); --groups {groups} "
+                f"--sessions {sessions} say otherwise"
+            )
+        groups, sessions = k, m
+        size = effect_sizes_from_means(table, sds)[effect]
+        if convention != "gpower":
+            raise InvalidInputError(
+                "an f from --means describes the population: use --convention gpower"
+            )
+    if groups is None or sessions is None:
+        raise InvalidInputError("--groups and --sessions are needed (or a --means table)")
+    design = PowerDesign(
+        effect,  # type: ignore[arg-type]
+        groups,
+        sessions,
+        rho,
+        epsilon=epsilon,
+        alpha=alpha,
+        convention=convention,  # type: ignore[arg-type]
+    )
+    asked = [size is None, n is None, target_power is None]
+    if sum(asked) != 1:
+        raise InvalidInputError(
+            "leave exactly one of effect size, --n and --target-power open: give an effect "
+            "size and --n (power), an effect size and --target-power (N), or --n and "
+            "--target-power (the smallest detectable effect)"
+        )
+    if size is None:
+        return detectable_effect(design, n_total=n, target=target_power)  # type: ignore[arg-type]
+    if n is None:
+        return n_for_power(design, f=size, target=target_power)  # type: ignore[arg-type]
+    return power_for_n(design, f=size, n_total=n)
+
+
+def parse_means(text: str, option: str) -> list[list[float]]:
+    """A table written as ``a,b;c,d`` (rows by semicolons), every row as long as the first."""
+    from analysis.errors import InvalidInputError
+
+    try:
+        rows = [[float(cell) for cell in row.split(",")] for row in text.split(";")]
+    except ValueError:
+        raise InvalidInputError(
+            f"{option} must be numbers, commas between sessions and semicolons between groups: "
+            f"{text!r}"
+        ) from None
+    if any(len(row) != len(rows[0]) for row in rows):
+        raise InvalidInputError(f"{option}: every group needs as many values as the first")
+    return rows
+
+
+def render_answer(answer: PowerAnswer) -> str:
+    """The answer in words, then every number behind it."""
+    design = answer.design
+    what = {
+        "between": "between-groups effect",
+        "within": "within (session) effect",
+        "interaction": "group × session interaction",
+    }[design.effect]
+    size = (
+        f"f = {format_number(answer.f, 4)} (η² = {format_number(answer.eta2, 4)}, "
+        f"{design.convention} convention)"
+    )
+    if answer.question == "power":
+        head = (
+            f"Power {format_number(answer.power, 3)} to detect the {what} with N = {answer.n_total}"
+        )
+    elif answer.question == "sample size":
+        head = (
+            f"N = {answer.n_total} ({answer.n_total // design.groups} per group) reaches power "
+            f"{format_number(answer.power, 3)} (target {answer.target_power:g}) for the {what}"
+        )
+    else:
+        head = (
+            f"With N = {answer.n_total}, the smallest {what} detected with power "
+            f"{answer.target_power:g} is {size}"
+        )
+    rho = "—" if design.rho is None else format_number(design.rho, 3)
+    lines = [
+        head,
+        "",
+        f"  design       {design.groups} group(s) × {design.sessions} session(s), "
+        f"alpha {design.alpha:g}",
+        f"  effect size  {size}",
+        f"  rho          {rho}"
+        + ("" if design.to_dict()["rho_used"] else " (not used by this convention)"),
+        f"  epsilon      {format_number(design.epsilon, 3)}"
+        + ("" if design.uses_epsilon else " (not used by the between effect)"),
+        f"  lambda       {format_number(answer.lam, 4)}",
+        f"  df           {format_number(answer.df1, 3)}, {format_number(answer.df2, 3)}",
+        f"  critical F   {format_number(answer.f_critical, 4)}",
+        f"  power        {format_number(answer.power, 4)}",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,141 @@
+"""``trustlab power``: the three questions, the JSON contract and one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import typer
+from typer.testing import CliRunner, Result
+
+from app.cli.analysis import EXIT_BAD_INPUT
+from app.cli.power import register
+
+PAPER = ["--groups", "2", "--sessions", "4"]
+
+
+@pytest.fixture(scope="module")
+def cli() -> typer.Typer:
+    app = typer.Typer()
+
+    @app.callback()
+    def main() -> None:
+        """Stand-in for the trustlab app, which has many commands."""
+
+    register(app)
+    return app
+
+
+def run(cli: typer.Typer, *args: str) -> Result:
+    return CliRunner().invoke(cli, ["power", *args])
+
+
+def test_power_for_n_as_json_carries_outputs_and_inputs(cli: typer.Typer) -> None:
+    # The seed paper's interaction, F(3, 66) = 5.629, partial η² = .204, read "as in SPSS".
+    result = run(
+        cli,
+        "--effect",
+        "interaction",
+        *PAPER,
+        "--eta2",
+        ".204",
+        "--convention",
+        "spss",
+        "--n",
+        "24",
+        "--json",
+    )
+    assert result.exit_code == 0, result.stderr
+    payload = json.loads(result.stdout)
+    assert payload["question"] == "power"
+    assert payload["n_total"] == 24
+    assert (payload["df1"], payload["df2"]) == (3, 66)
+    assert payload["lambda"] == pytest.approx(16.915, abs=1e-3)
+    assert payload["power"] == pytest.approx(0.933, abs=1e-3)
+    assert payload["design"]["convention"] == "spss" and payload["design"]["rho_used"] is False
+
+
+def test_sample_size_and_detectable_effect(cli: typer.Typer) -> None:
+    found = run(
+        cli,
+        "--effect",
+        "between",
+        *PAPER,
+        "--f",
+        "0.5",
+        "--rho",
+        "0.6",
+        "--target-power",
+        "0.8",
+        "--json",
+    )
+    payload = json.loads(found.stdout)
+    assert payload["question"] == "sample size" and payload["n_total"] % 2 == 0
+    assert payload["power"] >= 0.8 and payload["target_power"] == 0.8
+    smallest = run(
+        cli, "--effect", "between", *PAPER, "--rho", "0.6", "--n", "24", "--target-power", "0.8"
+    )
+    assert smallest.exit_code == 0, smallest.stderr
+    assert smallest.stdout.startswith("With N = 24, the smallest between-groups effect")
+    assert "power        0.8000" in smallest.stdout
+
+
+def test_a_means_table_sets_the_design_and_f(cli: typer.Typer) -> None:
+    result = run(
+        cli,
+        "--effect",
+        "within",
+        "--means",
+        "1,2,3;1,2,3",
+        "--sd",
+        "2",
+        "--rho",
+        "0.5",
+        "--n",
+        "20",
+        "--json",
+    )
+    payload = json.loads(result.stdout)
+    assert (payload["design"]["groups"], payload["design"]["sessions"]) == (2, 3)
+    assert payload["f"] == pytest.approx((2 / 3) ** 0.5 / 2)
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--effect", "within", *PAPER, "--f", "0.2", "--rho", "1.2", "--n", "24"], "rho"),
+        (
+            [
+                "--effect",
+                "within",
+                *PAPER,
+                "--f",
+                "0.2",
+                "--rho",
+                ".5",
+                "--epsilon",
+                "0.2",
+                "--n",
+                "24",
+            ],
+            "epsilon",
+        ),
+        (["--effect", "within", *PAPER, "--f", "-0.2", "--rho", ".5", "--n", "24"], "f must"),
+        (
+            ["--effect", "within", *PAPER, "--f", "0.2", "--rho", ".5", "--target-power", "1.5"],
+            "target power",
+        ),
+        (["--effect", "sideways", *PAPER, "--f", "0.2", "--rho", ".5", "--n", "24"], "--effect"),
+        (["--effect", "within", *PAPER, "--f", "0.2", "--eta2", ".1", "--n", "24"], "one effect"),
+        (["--effect", "within", *PAPER, "--f", "0.2", "--rho", ".5"], "exactly one"),
+        (["--effect", "within", "--f", "0.2", "--rho", ".5", "--n", "24"], "--groups"),
+        (["--effect", "within", "--means", "1,2;3", "--sd", "1", "--n", "9"], "every group"),
+    ],
+)
+def test_bad_input_is_one_line_without_a_traceback(
+    cli: typer.Typer, args: list[str], words: str
+) -> None:
+    result = run(cli, *args)
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert result.stderr.startswith("error: ") and words in result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
