@@ -170,7 +170,7 @@ def answer_question(
     if groups is None or sessions is None:
         raise InvalidInputError("--groups and --sessions are needed (or a --means table)")
     design = PowerDesign(
-        effect,  # type: ignore[arg-type]
+        effect,
         groups,
         sessions,
         rho,
