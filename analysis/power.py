@@ -75,6 +75,8 @@ Effect = Literal["between", "within", "interaction"]
 Convention = Literal["gpower", "spss"]
 EFFECTS: tuple[Effect, ...] = ("between", "within", "interaction")
 CONVENTIONS: tuple[Convention, ...] = ("gpower", "spss")
+_EPSILON_ROUNDING = 5e-4
+"""An ε this far below 1/(m − 1) is that bound typed with three decimals, and taken as it."""
 MAX_N = 10_000_000
 """The sample-size search stops here: a plan that needs more participants is not a plan."""
 
@@ -175,10 +177,12 @@ class PowerDesign:
                 raise InvalidInputError(f"epsilon must be 1 with a single session, got {eps:g}")
             return
         low = 1 / (m - 1)
-        if not low - 1e-12 <= eps <= 1:
+        if not low - _EPSILON_ROUNDING <= eps <= 1:
             raise InvalidInputError(
                 f"epsilon must be between 1/(m − 1) = {low:.4g} and 1 for {m} sessions, got {eps:g}"
             )
+        if eps < low:  # the lower bound typed as a rounded decimal (.333 for 1/3)
+            object.__setattr__(self, "epsilon", low)
 
     @property
     def uses_epsilon(self) -> bool:

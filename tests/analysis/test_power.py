@@ -236,3 +236,22 @@ def test_bad_input_is_one_clear_line(make: object, words: str) -> None:
 def test_analytic_answers_are_plain_numbers() -> None:
     answer = n_for_power(PowerDesign("between", 2, 4, 0.6), f=0.37, target=0.8)
     assert isinstance(answer.n_total, int) and math.isfinite(answer.power)
+
+
+def test_the_pi_guides_worked_example() -> None:
+    # docs/pi-guide.md, "Plan the next study": the seed paper's η² read "as in SPSS", and the
+    # same answers from its means table with the ρ ≈ .60 its F values imply.
+    between = PowerDesign("between", 2, 4, None, convention="spss")
+    inter = PowerDesign("interaction", 2, 4, None, convention="spss")
+    assert round(power_for_n(between, f=f_from_eta2(0.179), n_total=24).power, 3) == 0.553
+    assert n_for_power(between, f=f_from_eta2(0.179), target=0.8).n_total == 40
+    assert round(power_for_n(inter, f=f_from_eta2(0.204), n_total=24).power, 3) == 0.933
+    assert n_for_power(inter, f=f_from_eta2(0.204), target=0.8).n_total == 18
+    lower = PowerDesign("interaction", 2, 4, None, epsilon=0.333, convention="spss")
+    assert lower.epsilon == 1 / 3
+    sizes = effect_sizes_from_means(
+        [[3.03, 2.42, 2.83, 2.67], [2.92, 3.17, 3.75, 3.92]],
+        [[1.24, 0.996, 1.267, 0.888], [0.793, 0.835, 0.754, 0.515]],
+    )
+    by_means = power_for_n(PowerDesign("between", 2, 4, 0.6), f=sizes["between"], n_total=24)
+    assert round(by_means.power, 3) == 0.552
