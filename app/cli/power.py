@@ -13,12 +13,16 @@ and exits with status 2.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
+import pandas as pd
 import typer
 
+from analysis._checks import to_python
 from analysis.apa import format_number
-from analysis.errors import AnalysisError
+from analysis.errors import AnalysisError, InvalidInputError
 from analysis.power import (
     EFFECTS,
     PowerAnswer,
@@ -29,7 +33,8 @@ from analysis.power import (
     n_for_power,
     power_for_n,
 )
-from app.cli.analysis import bad_input
+from analysis.power_pilot import PILOT_QUANTITIES, PilotEstimate, estimate_pilot
+from app.cli.analysis import bad_input, read_csv_file
 
 __all__ = ["parse_means", "power_command", "register", "render_answer"]
 
@@ -81,21 +86,73 @@ def power_command(
         typer.Option("--rho", help="Correlation among the repeated measures, in (−1, 1)."),
     ] = None,
     epsilon: Annotated[
-        float,
-        typer.Option("--epsilon", help="Non-sphericity correction ε in [1/(m − 1), 1]."),
-    ] = 1.0,
+        float | None,
+        typer.Option(
+            "--epsilon", help="Non-sphericity correction ε in [1/(m − 1), 1] (default 1)."
+        ),
+    ] = None,
     alpha: Annotated[float, typer.Option("--alpha", help="Significance level.")] = 0.05,
     n: Annotated[int | None, typer.Option("--n", help="Total number of participants.")] = None,
     target_power: Annotated[
         float | None, typer.Option("--target-power", help="The power to reach, in (0, 1).")
     ] = None,
+    pilot: Annotated[
+        str | None,
+        typer.Option(
+            "--pilot",
+            help="A stored study's name or a long CSV: rho, epsilon and f estimated from its "
+            "complete participants (bootstrap intervals), unless given.",
+        ),
+    ] = None,
+    dv: Annotated[
+        str | None,
+        typer.Option(
+            "--dv", help="With --pilot: the rating column of the CSV, or the study's measure."
+        ),
+    ] = None,
+    within: Annotated[
+        str, typer.Option("--within", help="With a --pilot CSV: the session column.")
+    ] = "session",
+    between: Annotated[
+        str, typer.Option("--between", help="With a --pilot CSV: the condition column.")
+    ] = "condition",
+    subject: Annotated[
+        str, typer.Option("--subject", help="With a --pilot CSV: the participant column.")
+    ] = "participant",
+    replicates: Annotated[
+        int, typer.Option("--replicates", help="With --pilot: bootstrap resamples.")
+    ] = 500,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the bootstrap.")] = 0,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print one JSON object (the stable contract).")
     ] = False,
 ) -> None:
     """Power, sample size or detectable effect of the mixed ANOVA's between, within or
-    interaction test (G*Power 3.1's formulas)."""
+    interaction test (G*Power 3.1's formulas), from effect sizes or a pilot."""
+    estimate: PilotEstimate | None = None
     try:
+        if pilot is not None:
+            data, columns = read_pilot(pilot, dv, within=within, between=between, subject=subject)
+            estimate = estimate_pilot(
+                data,
+                dv=columns["dv"],
+                within=columns["within"],
+                between=columns["between"],
+                subject=columns["subject"],
+                replicates=replicates,
+                seed=seed,
+            )
+            groups = estimate.groups if groups is None else groups
+            sessions = estimate.sessions if sessions is None else sessions
+            rho = estimate.estimates["rho"] if rho is None else rho
+            if (
+                epsilon is None
+                and effect != "between"
+                and np.isfinite(estimate.estimates["epsilon"])
+            ):
+                epsilon = max(estimate.estimates["epsilon"], 1 / max(sessions - 1, 1))
+            if f is None and eta2 is None and means is None and not (n and target_power):
+                f = estimate.f(effect) if effect in EFFECTS else None
         answer = answer_question(
             effect=effect,
             groups=groups,
@@ -111,12 +168,126 @@ def power_command(
             n=n,
             target_power=target_power,
         )
+        bracket = _bracket(answer, estimate)
     except AnalysisError as error:
         raise bad_input(str(error)) from None
     if as_json:
-        typer.echo(json.dumps(answer.to_dict(), allow_nan=False))
+        payload = answer.to_dict()
+        if estimate is not None:
+            payload["pilot"] = estimate.to_dict()
+            payload["pilot"]["source"] = pilot
+            payload["pilot_range"] = {k: v.to_dict() for k, v in bracket.items()}
+        typer.echo(json.dumps(_finite(payload), allow_nan=False))
     else:
-        typer.echo(render_answer(answer))
+        text = render_answer(answer)
+        if estimate is not None:
+            text = render_pilot(estimate, pilot or "", bracket) + "\n\n" + text
+        typer.echo(text)
+
+
+def read_pilot(
+    source: str, dv: str | None, *, within: str, between: str, subject: str
+) -> tuple[pd.DataFrame, dict[str, str]]:
+    """A pilot's long data and its columns (``dv``, ``within``, ``between``, ``subject``): a
+    CSV file as it is, a stored study's measure (``--dv``, default ``trust_1``) as the report
+    analyses it."""
+    path = Path(source)
+    if path.exists() or source.endswith(".csv"):
+        if dv is None:
+            raise InvalidInputError("--pilot with a CSV needs --dv (the rating column)")
+        return read_csv_file(path), {
+            "dv": dv,
+            "within": within,
+            "between": between,
+            "subject": subject,
+        }
+    from analysis.study import analyse_study
+    from app.cli.admin import open_database, require_current_schema
+    from app.services import studies, study_data
+    from app.settings import Settings
+
+    database = open_database(Settings())
+    require_current_schema(database)
+    with database.read_session() as db:
+        dataset = study_data.load_dataset(db, study=studies.get_study(db, source))
+    key = dv or "trust_1"
+    outcome = analyse_study(dataset).outcome(key)
+    columns = {"dv": key, "within": "session", "between": "condition", "subject": "participant"}
+    return outcome.data.rename(columns={"value": key}), columns
+
+
+def _bracket(answer: PowerAnswer, estimate: PilotEstimate | None) -> dict[str, PowerAnswer]:
+    """The same question at the ends of the pilot's interval for f (ρ and ε as used)."""
+    if estimate is None or answer.question == "detectable effect":
+        return {}
+    low, high = estimate.intervals[f"f_{answer.design.effect}"]
+    if not (np.isfinite(low) and np.isfinite(high)) or answer.f != estimate.f(answer.design.effect):
+        return {}
+    answers = {}
+    for name, size in (("f_ci_low", low), ("f_ci_high", high)):
+        try:
+            if answer.question == "power":
+                answers[name] = power_for_n(answer.design, f=size, n_total=answer.n_total)
+            else:
+                answers[name] = n_for_power(
+                    answer.design, f=size, target=answer.target_power or 0.8
+                )
+        except AnalysisError:  # e.g. an f of 0 never reaches the target
+            continue
+    return answers
+
+
+def _finite(value: Any) -> Any:
+    """NaN and ±inf as None, all the way down (JSON has no NaN)."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def render_pilot(estimate: PilotEstimate, source: str, bracket: dict[str, PowerAnswer]) -> str:
+    """The pilot's estimates with their intervals, and the answer at the ends of f's."""
+    sizes = ", ".join(
+        f"{to_python(g)} {n}"
+        for g, n in zip(estimate.group_levels, estimate.group_sizes, strict=True)
+    )
+    pct = f"{estimate.confidence * 100:g} %"
+    lines = [
+        f"Pilot {source} ({estimate.dv!r}): {sizes} complete participants, "
+        f"{estimate.sessions} sessions, {estimate.excluded} left out as incomplete; "
+        f"{pct} bootstrap intervals ({estimate.replicates} resamples of participants within "
+        f"condition, seed {estimate.seed})",
+    ]
+    labels = {
+        "rho": "rho (corr. among sessions)",
+        "epsilon": "epsilon (Greenhouse-Geisser)",
+        "sd": "SD of one rating",
+        "var_participant": "participant variance",
+        "var_residual": "residual variance",
+        "f_between": "f between",
+        "f_within": "f within",
+        "f_interaction": "f interaction",
+    }
+    for name in PILOT_QUANTITIES:
+        low, high = estimate.intervals[name]
+        lines.append(
+            f"  {labels[name]:<29} {format_number(estimate.estimates[name], 3):>7}  "
+            f"[{format_number(low, 3)}, {format_number(high, 3)}]"
+        )
+    for name, other in bracket.items():
+        end = "low" if name.endswith("low") else "high"
+        what = (
+            f"power {format_number(other.power, 3)}"
+            if other.question == "power"
+            else f"N = {other.n_total}"
+        )
+        lines.append(
+            f"  at the {end} end of f's interval (f = {format_number(other.f, 3)}): {what}"
+        )
+    return "\n".join(lines)
 
 
 def answer_question(
@@ -130,14 +301,12 @@ def answer_question(
     means: str | None,
     sd: str | None,
     rho: float | None,
-    epsilon: float,
+    epsilon: float | None,
     alpha: float,
     n: int | None,
     target_power: float | None,
 ) -> PowerAnswer:
     """The question the options ask, answered (:class:`AnalysisError` for bad input)."""
-    from analysis.errors import InvalidInputError
-
     if effect not in EFFECTS:
         raise InvalidInputError(f"--effect must be one of {', '.join(EFFECTS)}, not {effect!r}")
     given = [name for name, value in (("--f", f), ("--eta2", eta2), ("--means", means)) if value]
@@ -174,7 +343,7 @@ def answer_question(
         groups,
         sessions,
         rho,
-        epsilon=epsilon,
+        epsilon=1.0 if epsilon is None else epsilon,
         alpha=alpha,
         convention=convention,  # type: ignore[arg-type]
     )
@@ -194,8 +363,6 @@ def answer_question(
 
 def parse_means(text: str, option: str) -> list[list[float]]:
     """A table written as ``a,b;c,d`` (rows by semicolons), every row as long as the first."""
-    from analysis.errors import InvalidInputError
-
     try:
         rows = [[float(cell) for cell in row.split(",")] for row in text.split(";")]
     except ValueError:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import pandas as pd
 import pytest
 import typer
 from typer.testing import CliRunner, Result
@@ -139,3 +141,59 @@ def test_bad_input_is_one_line_without_a_traceback(
     assert result.exit_code == EXIT_BAD_INPUT
     assert result.stderr.startswith("error: ") and words in result.stderr
     assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+
+
+DROPOUTS = Path(__file__).parents[1] / "analysis" / "data" / "mixed_2x4_dropouts.csv"
+PILOT = ["--pilot", str(DROPOUTS), "--dv", "trust", "--replicates", "50", "--seed", "7"]
+
+
+def test_a_pilot_csv_gives_rho_epsilon_and_f_with_intervals(cli: typer.Typer) -> None:
+    result = run(cli, "--effect", "interaction", *PILOT, "--n", "40", "--json")
+    assert result.exit_code == 0, result.stderr
+    payload = json.loads(result.stdout)
+    pilot = payload["pilot"]
+    assert pilot["n_per_group"] == [9, 13] and pilot["excluded_incomplete"] == 3
+    estimates = pilot["estimates"]
+    design = payload["design"]
+    assert design["rho"] == estimates["rho"]["estimate"]
+    assert design["epsilon"] == estimates["epsilon"]["estimate"]
+    assert payload["f"] == estimates["f_interaction"]["estimate"]
+    assert estimates["rho"]["ci_low"] < estimates["rho"]["estimate"] < estimates["rho"]["ci_high"]
+    low, high = payload["pilot_range"]["f_ci_low"], payload["pilot_range"]["f_ci_high"]
+    assert low["power"] < payload["power"] < high["power"]
+    again = run(cli, "--effect", "interaction", *PILOT, "--n", "40", "--json")
+    assert json.loads(again.stdout) == payload  # the seed repeats the intervals
+
+
+def test_given_values_override_the_pilots(cli: typer.Typer) -> None:
+    result = run(
+        cli,
+        "--effect",
+        "within",
+        *PILOT,
+        "--rho",
+        "0.3",
+        "--epsilon",
+        "1",
+        "--f",
+        "0.2",
+        "--n",
+        "30",
+        "--json",
+    )
+    design = json.loads(result.stdout)["design"]
+    assert (design["rho"], design["epsilon"]) == (0.3, 1.0)
+    text = run(cli, "--effect", "within", *PILOT, "--n", "30")
+    assert text.stdout.startswith("Pilot ") and "epsilon (Greenhouse-Geisser)" in text.stdout
+
+
+def test_a_pilot_too_small_is_refused_in_one_line(cli: typer.Typer, tmp_path: Path) -> None:
+    data = pd.read_csv(DROPOUTS)
+    keep = data["participant"].isin(data["participant"].unique()[:14])
+    small = tmp_path / "small.csv"
+    data[keep].to_csv(small, index=False)
+    result = run(cli, "--effect", "within", "--pilot", str(small), "--dv", "trust", "--n", "20")
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert "4 or more participants" in result.stderr and result.stderr.count("\n") == 1
+    missing = run(cli, "--effect", "within", "--pilot", str(small), "--n", "20")
+    assert "needs --dv" in missing.stderr
