@@ -13,12 +13,14 @@ and exits with status 2.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
 import pandas as pd
 import typer
+from tqdm import tqdm
 
 from analysis._checks import to_python
 from analysis.apa import format_number
@@ -34,6 +36,7 @@ from analysis.power import (
     power_for_n,
 )
 from analysis.power_pilot import PILOT_QUANTITIES, PilotEstimate, estimate_pilot
+from analysis.power_simulation import SimulatedPower, effect_pattern, simulate_power_curve
 from app.cli.analysis import bad_input, read_csv_file
 
 __all__ = ["parse_means", "power_command", "register", "render_answer"]
@@ -122,7 +125,25 @@ def power_command(
     replicates: Annotated[
         int, typer.Option("--replicates", help="With --pilot: bootstrap resamples.")
     ] = 500,
-    seed: Annotated[int, typer.Option("--seed", help="Seed of the bootstrap.")] = 0,
+    seed: Annotated[
+        int, typer.Option("--seed", help="Seed of the bootstrap and of the simulation.")
+    ] = 0,
+    simulate: Annotated[
+        int | None,
+        typer.Option(
+            "--simulate",
+            help="Also simulate this many datasets at the N asked or found and fit each with "
+            "the random-intercept mixed model (power with a Monte-Carlo interval).",
+        ),
+    ] = None,
+    curve: Annotated[
+        Path | None,
+        typer.Option(
+            "--curve",
+            help="With --simulate: write the power curve over N (analytic and simulated) as "
+            "a self-contained HTML page.",
+        ),
+    ] = None,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print one JSON object (the stable contract).")
     ] = False,
@@ -169,20 +190,116 @@ def power_command(
             target_power=target_power,
         )
         bracket = _bracket(answer, estimate)
+        if curve is not None and simulate is None:
+            raise InvalidInputError("--curve draws the simulated power: add --simulate R")
+        simulated: list[SimulatedPower] = []
+        if simulate is not None:
+            table, spread = _simulation_model(answer, estimate, means, sd)
+            n_values = _curve_n(answer) if curve is not None else [answer.n_total]
+            with tqdm(
+                total=simulate * len(n_values),
+                desc="datasets",
+                unit="fit",
+                file=sys.stderr,
+                leave=False,
+            ) as bar:
+                simulated = simulate_power_curve(
+                    answer.design.effect,
+                    means=table,
+                    sd=spread,
+                    rho=answer.design.rho if answer.design.rho is not None else float("nan"),
+                    n_values=n_values,
+                    replicates=simulate,
+                    seed=seed,
+                    alpha=answer.design.alpha,
+                    progress=lambda: bar.update(1),
+                )
+            if curve is not None:
+                from analysis.power_figures import power_curve_figure, write_power_curve
+
+                figure = power_curve_figure(answer.design, answer.f, simulated, answer.target_power)
+                try:
+                    write_power_curve(curve, figure)
+                except OSError as error:
+                    raise InvalidInputError(f"cannot write {curve}: {error}") from None
     except AnalysisError as error:
         raise bad_input(str(error)) from None
+    at_n = next((s for s in simulated if s.n_total == answer.n_total), None)
     if as_json:
         payload = answer.to_dict()
         if estimate is not None:
             payload["pilot"] = estimate.to_dict()
             payload["pilot"]["source"] = pilot
             payload["pilot_range"] = {k: v.to_dict() for k, v in bracket.items()}
+        if simulated:
+            payload["simulation"] = at_n.to_dict() if at_n else None
+            payload["curve"] = [s.to_dict() for s in simulated] if curve is not None else None
+            payload["curve_file"] = str(curve) if curve is not None else None
         typer.echo(json.dumps(_finite(payload), allow_nan=False))
     else:
         text = render_answer(answer)
         if estimate is not None:
             text = render_pilot(estimate, pilot or "", bracket) + "\n\n" + text
+        if simulated:
+            text += "\n\n" + render_simulation(simulated, at_n, curve)
         typer.echo(text)
+
+
+def _simulation_model(
+    answer: PowerAnswer, estimate: PilotEstimate | None, means: str | None, sd: str | None
+) -> tuple[np.ndarray, float]:
+    """The cell means and SD the datasets are drawn from: the pilot's or the --means table's
+    when the answer's f is theirs, else a pattern with the answer's f (SD 1)."""
+    design = answer.design
+    if design.convention != "gpower" or design.rho is None:
+        raise InvalidInputError(
+            "--simulate draws datasets from the population: use --convention gpower with --rho"
+        )
+    if answer.question == "detectable effect":
+        raise InvalidInputError("--simulate needs an effect size (the power or N question)")
+    effect = design.effect
+    if estimate is not None and answer.f == estimate.f(effect):
+        return estimate.means, estimate.estimates["sd"]
+    if means is not None and sd is not None:
+        table = np.asarray(parse_means(means, "--means"), dtype=float)
+        sds = np.asarray(parse_means(sd, "--sd"), dtype=float)
+        spread = float(np.sqrt(np.mean(sds**2)))
+        if effect_sizes_from_means(table, spread if sds.size == 1 else sds)[effect] == answer.f:
+            return table, spread
+    return effect_pattern(effect, answer.f, design.groups, design.sessions), 1.0
+
+
+def _curve_n(answer: PowerAnswer) -> list[int]:
+    """Six totals, multiples of k, from about half to twice the N asked or found."""
+    k = answer.design.groups
+    per_group = max(answer.n_total // k, 2)
+    steps = np.unique(np.round(np.geomspace(max(per_group / 2, 2), per_group * 2, 6)).astype(int))
+    values = sorted({int(k * s) for s in steps} | {answer.n_total})
+    return [n for n in values if n // k >= 2 and n % k == 0]
+
+
+def render_simulation(
+    simulated: list[SimulatedPower], at_n: SimulatedPower | None, curve: Path | None
+) -> str:
+    """The simulated power (and the curve's points) in words."""
+    lines = []
+    if at_n is not None:
+        lines.append(
+            f"Simulated power of the mixed model (random intercept, REML, Satterthwaite df) at "
+            f"N = {at_n.n_total}: {format_number(at_n.power, 3)} "
+            f"[{format_number(at_n.ci_low, 3)}, {format_number(at_n.ci_high, 3)}] "
+            f"(95 % Wilson; {at_n.rejections} of {at_n.replicates} datasets, seed {at_n.seed}"
+            + (f", {at_n.failures} fits without a test" if at_n.failures else "")
+            + ")"
+        )
+    if curve is not None:
+        lines.append(f"Power curve ({curve}):")
+        lines += [
+            f"  N = {s.n_total:>4}  {format_number(s.power, 3)}  "
+            f"[{format_number(s.ci_low, 3)}, {format_number(s.ci_high, 3)}]"
+            for s in simulated
+        ]
+    return "\n".join(lines)
 
 
 def read_pilot(

@@ -197,3 +197,33 @@ def test_a_pilot_too_small_is_refused_in_one_line(cli: typer.Typer, tmp_path: Pa
     assert "4 or more participants" in result.stderr and result.stderr.count("\n") == 1
     missing = run(cli, "--effect", "within", "--pilot", str(small), "--n", "20")
     assert "needs --dv" in missing.stderr
+
+
+def test_simulate_adds_the_mixed_models_power_and_a_curve(cli: typer.Typer, tmp_path: Path) -> None:
+    curve = tmp_path / "curve.html"
+    args = ["--effect", "between", *PAPER, "--f", "0.4", "--rho", "0.5", "--n", "12"]
+    result = run(cli, *args, "--simulate", "6", "--seed", "9", "--curve", str(curve), "--json")
+    assert result.exit_code == 0, result.stderr
+    payload = json.loads(result.stdout)
+    simulation = payload["simulation"]
+    assert simulation["n_total"] == 12 and simulation["replicates"] == 6
+    assert simulation["ci_low"] <= simulation["power"] <= simulation["ci_high"]
+    assert [point["n_total"] for point in payload["curve"]] == sorted(
+        point["n_total"] for point in payload["curve"]
+    )
+    assert "datasets" in result.stderr  # the progress bar
+    assert "plotly" in curve.read_text()[:200_000].lower()
+    again = run(cli, *args, "--simulate", "6", "--seed", "9", "--json")
+    assert json.loads(again.stdout)["simulation"] == simulation
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (["--curve", "x.html", "--rho", ".5"], "add --simulate"),
+        (["--simulate", "5", "--convention", "spss"], "--convention gpower"),
+    ],
+)
+def test_simulation_refusals(cli: typer.Typer, extra: list[str], words: str) -> None:
+    result = run(cli, "--effect", "within", *PAPER, "--eta2", ".1", "--n", "12", *extra)
+    assert result.exit_code == EXIT_BAD_INPUT and words in result.stderr
