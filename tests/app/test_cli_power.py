@@ -10,8 +10,14 @@ import pytest
 import typer
 from typer.testing import CliRunner, Result
 
+from analysis.power_pilot import estimate_pilot
+from analysis.study import analyse_study
 from app.cli.analysis import EXIT_BAD_INPUT
 from app.cli.power import register
+from app.db import Database
+from app.services import studies, study_data
+from bench.seed import seed_study
+from tests.conftest import sqlite_only
 
 PAPER = ["--groups", "2", "--sessions", "4"]
 
@@ -227,3 +233,50 @@ def test_simulate_adds_the_mixed_models_power_and_a_curve(cli: typer.Typer, tmp_
 def test_simulation_refusals(cli: typer.Typer, extra: list[str], words: str) -> None:
     result = run(cli, "--effect", "within", *PAPER, "--eta2", ".1", "--n", "12", *extra)
     assert result.exit_code == EXIT_BAD_INPUT and words in result.stderr
+
+
+def _run_on(database_url: str, *args: str) -> Result:
+    """The real ``trustlab`` command line on the test's database."""
+    from app.cli import cli as trustlab
+
+    return CliRunner().invoke(
+        trustlab, ["power", *args], env={"TRUSTLAB_DATABASE_URL": database_url}
+    )
+
+
+@sqlite_only("the stored study is read once, as `trustlab export` reads it; the maths is the CSV's")
+def test_a_stored_study_as_the_pilot(database: Database, database_url: str) -> None:
+    seed_study(database, name="pilot", participants=10, seed=4)
+    with database.read_session() as db:
+        dataset = study_data.load_dataset(db, study=studies.get_study(db, "pilot"))
+    outcome = analyse_study(dataset).outcome("trust_2")
+    data = outcome.data.rename(columns={"value": "trust_2"})
+    expected = estimate_pilot(
+        data,
+        dv="trust_2",
+        within="session",
+        between="condition",
+        subject="participant",
+        replicates=20,
+        seed=3,
+    )
+    args = ["--effect", "interaction", "--pilot", "pilot", "--replicates", "20", "--seed", "3"]
+    result = _run_on(database_url, *args, "--dv", "trust_2", "--n", "40", "--json")
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    pilot = payload["pilot"]
+    assert pilot["source"] == "pilot" and pilot["dv"] == "trust_2"
+    assert pilot["n_per_group"] == list(expected.group_sizes) and sum(expected.group_sizes) == 10
+    assert pilot["sessions"] == [1, 2, 3, 4]
+    assert payload["f"] == pytest.approx(expected.f("interaction"))
+    assert payload["design"]["rho"] == pytest.approx(expected.estimates["rho"])
+    assert (payload["design"]["groups"], payload["design"]["sessions"]) == (2, 4)
+    default = _run_on(database_url, *args, "--n", "40")
+    assert default.exit_code == 0, default.output
+    assert default.stdout.startswith("Pilot pilot ('trust_1'): C1 ")  # the first trust item
+    for name, dv, words in (("ghost", "trust_1", "ghost"), ("pilot", "trust_9", "trust_9")):
+        refused = _run_on(
+            database_url, "--effect", "within", "--pilot", name, "--dv", dv, "--n", "40"
+        )
+        assert refused.exit_code != 0 and refused.stderr.startswith("error: "), refused.output
+        assert words in refused.stderr and refused.stderr.count("\n") == 1, refused.stderr
