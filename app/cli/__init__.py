@@ -19,6 +19,7 @@ from app.cli import (
     mixed,
     population,
     power,
+    prereg,
     robot,
     runtime,
     speech,
@@ -41,6 +42,7 @@ bridge.register(cli)
 analysis.register(cli)
 mixed.register(cli)
 power.register(cli)
+prereg.register(cli)
 exports.register(cli)
 engine.register(cli)
 population.register(cli)
