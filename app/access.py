@@ -80,6 +80,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # experimenters (and admins): enrolment, participants, sessions, Wizard-of-Oz
     ("POST", "/api/v1/studies/{name}/participants"): STAFF,
     ("POST", "/api/v1/studies/{name}/participants/{code}/withdraw"): STAFF,
+    ("POST", "/api/v1/studies/{name}/participants/{code}/erase"): STAFF,
     ("GET", "/api/v1/studies/{name}/participants/{code}/link"): STAFF,
     ("POST", "/api/v1/studies/{name}/participants/{code}/link"): STAFF,
     ("DELETE", "/api/v1/studies/{name}/participants/{code}/link"): STAFF,

@@ -114,6 +114,10 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
     fsyncs the WAL at every commit, so it survives power loss and OS crashes too, at the price of
     one fsync (milliseconds on ordinary disks) per write request. NORMAL fsyncs only at
     checkpoints. The default (app.settings) is FULL.
+
+    ``secure_delete`` zeroes what a DELETE removes instead of leaving it in free pages, so an
+    erased participant's answers (app.services.erasure) cannot be read back out of the file with
+    a hex editor; trustlab deletes rarely, so its cost does not show.
     """
     writers = threading.Lock()
 
@@ -125,6 +129,7 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
         cursor = dbapi_connection.cursor()
         cursor.execute("PRAGMA journal_mode=WAL")
         cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute("PRAGMA secure_delete=ON")
         cursor.execute("PRAGMA busy_timeout=30000")
         cursor.execute(f"PRAGMA synchronous={synchronous}")
         cursor.execute(f"PRAGMA wal_autocheckpoint={autocheckpoint_pages}")
@@ -259,6 +264,17 @@ class WalCheckpointer:
             connection.close()
         self.runs += 1
         return int(row[0]), int(row[1]), int(row[2])
+
+    def truncate(self) -> bool:
+        """Copy the whole WAL into the database file and empty it, so that no earlier version of
+        a page (say, one an erasure has since zeroed) stays in the WAL; False when a reader
+        still needs the WAL (it is then emptied by a later checkpoint)."""
+        connection = sqlite3.connect(self._path, timeout=30, isolation_level=None)
+        try:
+            row = connection.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchone()
+        finally:
+            connection.close()
+        return int(row[0]) == 0
 
     def start(self) -> None:
         """Checkpoint every interval until :meth:`stop`."""

@@ -25,7 +25,14 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StringConstraints,
+    ValidationError,
+    field_validator,
+)
 
 from app.i18n import catalogues, protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
@@ -328,6 +335,30 @@ class AllocationSpec(_Strict):
     )
 
 
+WithdrawalOption = Literal["keep", "erase"]
+_BOTH_WITHDRAWAL_OPTIONS: list[WithdrawalOption] = ["keep", "erase"]
+
+
+class WithdrawalSpec(_Strict):
+    """What a withdrawal may do with the data collected so far (app/services/erasure.py): keep
+    it (the participant stays in the analysis as withdrawn) or erase it. The staff member who
+    withdraws someone chooses among these; an ethics board may require either one alone."""
+
+    options: list[WithdrawalOption] = Field(
+        default_factory=lambda: _BOTH_WITHDRAWAL_OPTIONS.copy(),
+        min_length=1,
+        max_length=2,
+        description='Allowed: "keep" (data kept) and/or "erase" (everything they gave removed).',
+    )
+
+    @field_validator("options")
+    @classmethod
+    def _distinct(cls, options: list[str]) -> list[str]:
+        if len(set(options)) != len(options):
+            raise ValueError("each option at most once")
+        return options
+
+
 class ItemKind(StrEnum):
     """How an item is answered."""
 
@@ -420,6 +451,7 @@ class Protocol(_Strict):
     speech: SpeechSpec = Field(default_factory=SpeechSpec)
     learners: LearnerSettings = Field(default_factory=LearnerSettings)
     allocation: AllocationSpec = Field(default_factory=AllocationSpec)
+    withdrawal: WithdrawalSpec = Field(default_factory=WithdrawalSpec)
     questionnaires: QuestionnairesSpec
     room: RoomSpec | None = Field(
         default=None, description="The escape room's floor plan (app/room.py); default layout."

@@ -53,7 +53,10 @@ def _run(database: Database, action: object, revision: str) -> None:
 
 
 def create_append_only_guard(table: str) -> None:
-    """Inside a migration: make ``table`` refuse UPDATE, DELETE (and TRUNCATE on PostgreSQL)."""
+    """Inside a migration: make ``table`` refuse UPDATE, DELETE (and TRUNCATE on PostgreSQL).
+
+    Since revision 0016 ``prompt``, ``answer`` and ``audit_event`` carry the guard of
+    :func:`create_erasable_guard` instead; a migration that rebuilds one of them re-adds that."""
     from alembic import op
 
     if op.get_bind().dialect.name == "postgresql":
@@ -88,3 +91,58 @@ def drop_append_only_guard(table: str) -> None:
     else:
         op.execute(f"DROP TRIGGER IF EXISTS {table}_no_update")
         op.execute(f"DROP TRIGGER IF EXISTS {table}_no_delete")
+
+
+ERASURE_MARKER = "erasure_in_progress"
+"""The table whose rows, present only inside an erasure's transaction, open the guards of
+:func:`create_erasable_guard` for one participant (app.services.erasure)."""
+
+ERASABLE_TABLES = {
+    "prompt": "participant_id",
+    "answer": "participant_id",
+    "audit_event": "study_id",
+}
+"""Append-only tables an erasure may change, and the column naming the marked rows: a prompt or
+answer of the participant being erased; an audit event of their study (only the events that name
+the participant are rewritten)."""
+
+
+def create_erasable_guard(table: str) -> None:
+    """Inside a migration: make ``table`` append-only except for the rows an erasure in progress
+    marks (its :data:`ERASURE_MARKER` row has the same value in :data:`ERASABLE_TABLES`' column).
+
+    The marker rows are inserted and deleted inside the erasure's own transaction, so no other
+    transaction ever sees one: for everyone else the table stays exactly as append-only as
+    before. TRUNCATE (PostgreSQL) stays refused."""
+    from alembic import op
+
+    key = ERASABLE_TABLES[table]
+    if op.get_bind().dialect.name == "postgresql":
+        op.execute(
+            "CREATE OR REPLACE FUNCTION trustlab_append_only() RETURNS trigger "
+            "LANGUAGE plpgsql AS $$ BEGIN "
+            "RAISE EXCEPTION '% is append-only', TG_TABLE_NAME; END $$"
+        )
+        op.execute(
+            "CREATE OR REPLACE FUNCTION trustlab_append_only_unless_erasing() RETURNS trigger "
+            "LANGUAGE plpgsql AS $$ BEGIN "
+            f"IF EXISTS (SELECT 1 FROM {ERASURE_MARKER} e "
+            "WHERE (to_jsonb(e) ->> TG_ARGV[0]) = (to_jsonb(OLD) ->> TG_ARGV[0])) THEN "
+            "IF TG_OP = 'DELETE' THEN RETURN OLD; END IF; RETURN NEW; END IF; "
+            "RAISE EXCEPTION '% is append-only', TG_TABLE_NAME; END $$"
+        )
+        op.execute(
+            f"CREATE TRIGGER {table}_append_only BEFORE UPDATE OR DELETE ON {table} "
+            f"FOR EACH ROW EXECUTE FUNCTION trustlab_append_only_unless_erasing('{key}')"
+        )
+        op.execute(
+            f"CREATE TRIGGER {table}_no_truncate BEFORE TRUNCATE ON {table} "
+            "FOR EACH STATEMENT EXECUTE FUNCTION trustlab_append_only()"
+        )
+    else:
+        for verb in ("UPDATE", "DELETE"):
+            op.execute(
+                f"CREATE TRIGGER {table}_no_{verb.lower()} BEFORE {verb} ON {table} "
+                f"WHEN NOT EXISTS (SELECT 1 FROM {ERASURE_MARKER} WHERE {key} = OLD.{key}) "
+                f"BEGIN SELECT RAISE(ABORT, '{table} is append-only'); END"
+            )

@@ -208,6 +208,9 @@ class Participant(Base):
     token_generation: Mapped[int] = mapped_column(default=0, server_default="0")
     language: Mapped[str | None] = mapped_column(String(16))
     """One of the study's languages; None: not chosen yet, the study's first applies."""
+    erased_at: Mapped[datetime | None]
+    """Set when the participant's data was erased (app.services.erasure): the row stays, under a
+    pseudonym, only so that their allocation slot keeps the sequence whole."""
 
     study: Mapped[Study] = relationship()
     allocation: Mapped[Allocation] = relationship(
@@ -249,6 +252,17 @@ class Allocation(Base):
     participant: Mapped[Participant] = relationship(
         back_populates="allocation", foreign_keys=[participant_id]
     )
+
+
+class ErasureInProgress(Base):
+    """A participant being erased, inside the erasure's own transaction only: its row opens the
+    append-only guards for that participant's prompts and answers and their study's audit events
+    (app.schema.create_erasable_guard), and is deleted before the transaction commits."""
+
+    __tablename__ = "erasure_in_progress"
+
+    participant_id: Mapped[int] = mapped_column(primary_key=True, autoincrement=False)
+    study_id: Mapped[int]
 
 
 class AuditEvent(Base):

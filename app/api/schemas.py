@@ -106,6 +106,36 @@ class Withdrawal(RequestBody):
     reason: str = Field(default="", max_length=2000)
 
 
+class ErasureRequest(RequestBody):
+    """Erase everything a participant gave the study; ``confirm`` repeats their code."""
+
+    confirm: str = Field(
+        max_length=64, description="The participant's code again: erasure cannot be undone."
+    )
+    reason: str = Field(default="", max_length=2000, description="Not stored with the data.")
+
+
+class EarlierCopyOut(BaseModel):
+    """A backup or export made before the erasure that may still hold the participant."""
+
+    kind: str
+    made_at: datetime
+    where: str
+    exists: bool | None = Field(
+        description="Whether the file is still on the server (null: unknown)."
+    )
+
+
+class ErasureOut(BaseModel):
+    """What an erasure removed (rows per table) and the earlier copies the audit log knows of."""
+
+    code: str
+    study: str
+    erased_at: datetime
+    removed: dict[str, int]
+    earlier_copies: list[EarlierCopyOut]
+
+
 class Health(BaseModel):
     """Whether the service and its database answer."""
 

@@ -11,6 +11,8 @@ from app.api.schemas import (
     ConditionCount,
     Enrolled,
     EnrolmentRequest,
+    ErasureOut,
+    ErasureRequest,
     ParticipantOut,
     StudyCreate,
     StudyStatusChange,
@@ -21,7 +23,7 @@ from app.api.schemas import (
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import blinding, enrolment, questionnaires, studies, tablet_tokens
+from app.services import blinding, enrolment, erasure, questionnaires, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Participant, Study, StudyStatus
 
@@ -161,6 +163,30 @@ def withdraw(
         db, study_name=name, code=code, actor=actor, reason=body.reason
     )
     return _participant(studies.get_study(db, name), participant, actor)
+
+
+@router.post("/{name}/participants/{code}/erase")
+def erase(
+    name: str,
+    code: str,
+    body: ErasureRequest,
+    db: SessionDep,
+    settings: SettingsDep,
+    user: ExperimenterUser,
+) -> ErasureOut:
+    """Withdraw (if still active) and erase everything the participant gave the study, if the
+    protocol allows erasure; the allocation slot stays."""
+    if body.confirm.strip() != code:
+        raise InvalidInput(f"confirm must repeat the participant's code ({code}): erasure is final")
+    result = erasure.erase_participant(
+        db,
+        study_name=name,
+        code=code,
+        actor=Actor.of_user(user),
+        secret=settings.secret,
+        reason=body.reason,
+    )
+    return ErasureOut.model_validate(result.to_json())
 
 
 def _link(request: Request, token: str | None, prefix: str) -> TabletLink:

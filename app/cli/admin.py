@@ -17,7 +17,7 @@ from app.db import Database, describe_url
 from app.demo import pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
-from app.services import audit, blinding, enrolment, languages, studies, users
+from app.services import audit, blinding, enrolment, erasure, languages, studies, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -461,13 +461,53 @@ def participant_export(
 def participant_withdraw(
     study: Annotated[str, typer.Option(help="Study name.")],
     code: Annotated[str, typer.Option(help="Participant code.")],
-    reason: Annotated[str, typer.Option(help="Why (kept in the record).")] = "",
+    reason: Annotated[str, typer.Option(help="Why (kept with a kept withdrawal).")] = "",
+    erase: Annotated[
+        bool,
+        typer.Option(
+            "--erase",
+            help="Erase everything they gave the study (if the protocol allows it); the "
+            "allocation slot stays. Also for someone already withdrawn.",
+        ),
+    ] = False,
+    yes: Annotated[bool, typer.Option("--yes", help="Do not ask before erasing.")] = False,
 ) -> None:
-    """Withdraw a participant (their allocation and data are kept)."""
-    database = open_database(Settings())
+    """Withdraw a participant: keep the data collected so far, or --erase it."""
+    settings = Settings()
+    database = open_database(settings)
     require_current_schema(database)
-    with database.writing() as db:
-        enrolment.withdraw_participant(
-            db, study_name=study, code=code, actor=Actor.command_line(), reason=reason
+    if not erase:
+        with database.writing() as db:
+            enrolment.withdraw_participant(
+                db, study_name=study, code=code, actor=Actor.command_line(), reason=reason
+            )
+        typer.echo(f"withdrew {code} from {study!r} (their data is kept)")
+        return
+    if not yes:
+        if not sys.stdin.isatty():
+            raise InvalidInput(f"erasing {code} cannot be undone: add --yes to confirm")
+        typer.confirm(
+            f"Erase every answer, questionnaire and transcript of {code} in {study!r}? "
+            "This cannot be undone",
+            abort=True,
         )
-    typer.echo(f"withdrew {code} from {study!r}")
+    with database.writing() as db:
+        result = erasure.erase_participant(
+            db,
+            study_name=study,
+            code=code,
+            actor=Actor.command_line(),
+            secret=settings.secret,
+            reason=reason,
+        )
+    removed = ", ".join(f"{table} {n}" for table, n in result.removed.items()) or "none"
+    typer.echo(
+        f"erased {code} from {study!r} (rows removed: {removed}); their allocation slot stays"
+    )
+    if result.earlier_copies:
+        typer.echo(
+            f"made before the erasure, these may still hold {code} "
+            "(docs/data-protection.md, 'Copies made before an erasure'):"
+        )
+        for copy in result.earlier_copies:
+            typer.echo(f"  {copy.describe()}")

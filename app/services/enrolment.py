@@ -281,11 +281,38 @@ def get_participant(
     return participant
 
 
+KEEP = "keep"
+ERASE = "erase"
+"""The two things a withdrawal may do with the data (app.protocol.WithdrawalSpec)."""
+
+
+def withdrawal_options(study: Study) -> tuple[str, ...]:
+    """What the study's protocol lets a withdrawal do with the data: keep and/or erase."""
+    return tuple(protocol_of(study).withdrawal.options)
+
+
+def require_withdrawal_option(study: Study, option: str) -> None:
+    """Refuse a withdrawal option the protocol does not allow, saying which it does."""
+    options = withdrawal_options(study)
+    if option not in options:
+        if option == ERASE:
+            raise Conflict(
+                f"study {study.name!r} keeps withdrawn participants' data (its protocol's "
+                "withdrawal.options has no 'erase')"
+            )
+        raise Conflict(
+            f"study {study.name!r} erases the data of everyone who withdraws (its protocol's "
+            "withdrawal.options is ['erase']): erase instead"
+        )
+
+
 def withdraw_participant(
     db: Session, *, study_name: str, code: str, actor: Actor, reason: str = ""
 ) -> Participant:
-    """Mark a participant withdrawn (they keep their allocation and data); commits."""
+    """Mark a participant withdrawn (they keep their allocation and data); commits. Refused
+    when the protocol erases everyone who withdraws (app.services.erasure does that)."""
     study = get_study(db, study_name)
+    require_withdrawal_option(study, KEEP)
     participant = get_participant(db, study, code, for_update=True)
     if participant.status == ParticipantStatus.WITHDRAWN:
         raise Conflict(f"participant {code!r} is already withdrawn")
@@ -305,10 +332,11 @@ def withdraw_participant(
 
 
 def list_participants(db: Session, study: Study) -> list[Participant]:
-    """Every participant of the study in enrolment order, allocations loaded."""
+    """Every participant of the study in enrolment order, allocations loaded; erased ones are
+    left out (their rows only hold allocation slots)."""
     query = (
         select(Participant)
-        .where(Participant.study_id == study.id)
+        .where(Participant.study_id == study.id, Participant.erased_at.is_(None))
         .order_by(Participant.enrolled_at, Participant.id)
     )
     return list(db.scalars(query))

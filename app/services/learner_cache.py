@@ -41,6 +41,12 @@ class LearnerCache:
             learner = self._entries.pop((row_id, version), None)
         return learner if learner is not None else rebuild()
 
+    def forget(self, row_id: int) -> None:
+        """Drop every version of a row that was deleted (its id may be given to a new row)."""
+        with self._lock:
+            for key in [key for key in self._entries if key[0] == row_id]:
+                del self._entries[key]
+
     def put(self, row_id: int, version: int, learner: Learner) -> None:
         """Keep a learner known to match the committed row at ``version``."""
         with self._lock:

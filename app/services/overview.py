@@ -77,6 +77,8 @@ class StudyOverview:
     groups: dict[str, dict[str, int]] = field(default_factory=dict)
     sessions_total: int = 0
     questionnaires_total: int = 0
+    erased: int = 0
+    """Participants whose data was erased: counted in their group as withdrawn, never listed."""
 
 
 def _latest(*values: datetime | None) -> datetime | None:
@@ -145,6 +147,9 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
         group = condition_label(study, condition, actor=actor)
         counts = overview.groups.setdefault(group, dict.fromkeys(ParticipantStatus, 0))
         counts[participant.status] += 1
+        if participant.erased_at is not None:
+            overview.erased += 1
+            continue
         overview.rows.append(
             ParticipantRow(
                 code=participant.code,

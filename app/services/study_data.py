@@ -231,7 +231,7 @@ def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame
             Participant.strata,
         )
         .join(Allocation, Allocation.participant_id == Participant.id)
-        .where(Participant.study_id == study.id)
+        .where(Participant.study_id == study.id, Participant.erased_at.is_(None))
         .order_by(Participant.enrolled_at, Participant.id)
     ).all()
     frame = pd.DataFrame(

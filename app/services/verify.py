@@ -14,7 +14,9 @@
   protocol does not know, participants without learners or allocation;
 - **allocation**: every sequence allocation is the seed's entry at its index, indices have no gaps,
   replacements replace a withdrawn participant of the same stratum and take their condition, and
-  the groups stay within half the largest block of each other per stratum.
+  the groups stay within half the largest block of each other per stratum (an erased
+  participant's slot counts: it stays, as a withdrawal);
+- **erasures**: nothing but the allocation slot remains of an erased participant.
 """
 
 from __future__ import annotations
@@ -210,6 +212,8 @@ def _check_learners(data: _Study, report: VerifyReport) -> None:
                 )
         _replay(data, row, prompts_by_learner[(row.participant_id, row.category)], report)
     for participant in data.participants.values():
+        if participant.erased_at is not None:
+            continue  # _check_erased: nothing of theirs may remain
         for category in categories:
             if (participant.id, category) not in seen:
                 report.findings.append(
@@ -504,6 +508,27 @@ def _check_allocation(data: _Study, report: VerifyReport) -> None:
             )
 
 
+def _check_erased(data: _Study, report: VerifyReport) -> None:
+    """An erased participant keeps only their allocation slot: no learner, session, prompt or
+    answer may still point at them (app.services.erasure)."""
+    erased = {p.id for p in data.participants.values() if p.erased_at is not None}
+    if not erased:
+        return
+    left = Counter(
+        [("learner", row.participant_id) for row in data.learners]
+        + [("session", row.participant_id) for row in data.sessions]
+        + [("prompt", row.participant_id) for row in data.prompts]
+        + [("answer", row.participant_id) for row in data.answers.values()]
+    )
+    for (kind, participant_id), n in sorted(left.items()):
+        if participant_id in erased:
+            report.findings.append(
+                Finding(
+                    "erasure", data.code(participant_id), f"erased, yet {n} {kind} row(s) remain"
+                )
+            )
+
+
 def verify_study(db: Session, *, study_name: str) -> VerifyReport:
     """Run every check on one study."""
     study = get_study(db, study_name)
@@ -513,4 +538,5 @@ def verify_study(db: Session, *, study_name: str) -> VerifyReport:
     _check_timeline(data, report)
     _check_steps(data, report)
     _check_learners(data, report)
+    _check_erased(data, report)
     return report

@@ -7,12 +7,19 @@ from typing import Annotated
 from fastapi import Form, Request
 from fastapi.responses import Response
 
-from app.deps import CurrentUser, ExperimenterUser, FormFields, OneHopRouter, SessionDep
+from app.deps import (
+    CurrentUser,
+    ExperimenterUser,
+    FormFields,
+    OneHopRouter,
+    SessionDep,
+    SettingsDep,
+)
 from app.errors import Conflict, InvalidInput
 from app.i18n.languages import native_name
-from app.services import blinding, enrolment, overview, studies
+from app.services import blinding, enrolment, erasure, overview, studies
 from app.services.audit import Actor
-from app.tables import Role, User
+from app.tables import ParticipantStatus, Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
@@ -133,23 +140,72 @@ def enrol(
 def withdraw_form(
     request: Request, db: SessionDep, user: ExperimenterUser, name: str, code: str
 ) -> Response:
-    """Ask for confirmation (and a reason) before withdrawing a participant."""
+    """Ask what to do with the data (the protocol's options) and for confirmation before
+    withdrawing a participant, or before erasing someone already withdrawn."""
+    return _withdraw_page(request, db, name, code)
+
+
+def _withdraw_page(
+    request: Request,
+    db: SessionDep,
+    name: str,
+    code: str,
+    *,
+    form_error: str | None = None,
+    status_code: int = 200,
+) -> Response:
     study = studies.get_study(db, name)
     participant = enrolment.get_participant(db, study, code)
-    return render(request, "withdraw.html", {"study": study, "participant": participant})
+    options = enrolment.withdrawal_options(study)
+    if participant.status == ParticipantStatus.WITHDRAWN:
+        options = tuple(o for o in options if o == enrolment.ERASE)
+        if not options:
+            raise Conflict(f"participant {code!r} is already withdrawn (their data is kept)")
+    return render(
+        request,
+        "withdraw.html",
+        {
+            "study": study,
+            "participant": participant,
+            "options": options,
+            "form_error": form_error,
+        },
+        status_code=status_code,
+    )
 
 
 @router.post("/studies/{name}/participants/{code}/withdraw")
 def withdraw(
     request: Request,
     db: SessionDep,
+    settings: SettingsDep,
     user: ExperimenterUser,
     name: str,
     code: str,
     reason: Annotated[str, Form(max_length=2000)] = "",
+    data: Annotated[str, Form(max_length=16)] = enrolment.KEEP,
+    confirm_code: Annotated[str, Form(max_length=64)] = "",
 ) -> Response:
-    """Withdraw a participant; they keep their allocation and data."""
-    enrolment.withdraw_participant(
-        db, study_name=name, code=code, actor=Actor.of_user(user), reason=reason
+    """Withdraw a participant keeping their data, or erase everything they gave the study
+    (which needs their code typed again)."""
+    actor = Actor.of_user(user)
+    if data == enrolment.KEEP:
+        enrolment.withdraw_participant(db, study_name=name, code=code, actor=actor, reason=reason)
+        return redirect_with_notice(request, f"/studies/{name}", f"Withdrew {code}.")
+    if data != enrolment.ERASE:
+        raise InvalidInput(
+            f"choose what happens to the data: {enrolment.KEEP} or {enrolment.ERASE}"
+        )
+    if confirm_code.strip() != code:
+        return _withdraw_page(
+            request,
+            db,
+            name,
+            code,
+            form_error=f"Type {code} to confirm that everything they gave is to be erased.",
+            status_code=422,
+        )
+    result = erasure.erase_participant(
+        db, study_name=name, code=code, actor=actor, secret=settings.secret, reason=reason
     )
-    return redirect_with_notice(request, f"/studies/{name}", f"Withdrew {code}.")
+    return render(request, "erased.html", {"study": studies.get_study(db, name), "result": result})

@@ -138,6 +138,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/api/v1/studies/{name}/participants/{code}/withdraw"): send(
         "POST", "/api/v1/studies/rt/participants/NOPE/withdraw", json={}
     ),
+    ("POST", "/api/v1/studies/{name}/participants/{code}/erase"): send(
+        "POST", "/api/v1/studies/rt/participants/NOPE/erase", json={"confirm": "NOPE"}
+    ),
     ("GET", "/api/v1/studies/{name}/participants/{code}/link"): get(
         "/api/v1/studies/rt/participants/NOPE/link"
     ),

@@ -156,7 +156,7 @@ def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) ->
     )
     assert code == 2 and "write it as key=value" in err
     code, out, _ = run(database_url, "participant", "withdraw", "--study", "lab", "--code", "P001")
-    assert (code, out.strip()) == (0, "withdrew P001 from 'lab'")
+    assert (code, out.strip()) == (0, "withdrew P001 from 'lab' (their data is kept)")
     code, out, _ = run(database_url, "study", "list", "--json")
     listed = json.loads(out)["studies"][0]
     assert listed["name"] == "lab"

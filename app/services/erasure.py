@@ -1,0 +1,326 @@
+"""Withdrawal with erasure: everything a participant gave a study, removed in one transaction.
+
+What goes: every prompt and answer (with transcripts and recorded audio), session and run, learner
+state, questionnaire answer and submission (free text included), the room presence of the station
+they were at, their tablet token, their language and stratification values, and every personal
+detail of the audit events about them. What stays, and why:
+
+- **The allocation row and a participant row under a pseudonym** (``~erased-…``), because the
+  concealed sequence is checked slot by slot (app.services.verify): removing a revealed slot would
+  leave a gap, and a later enrolment would then be given an entry someone already had. The slot
+  counts as withdrawn, so balance, concealment and dropout replacement hold.
+- **The audit events**, rewritten: the participant's code becomes the pseudonym wherever it
+  appears, and the details of events about them (answers, free-text edits, reasons) are dropped,
+  so the log still shows that things happened, and when, but holds no personal data. The erasure
+  itself is recorded the same way.
+
+The pseudonym is a keyed hash (the server's secret) of the study and the code: it cannot be
+turned back into the code without the key, and it lets a second erasure of the same code be
+refused as "already erased" instead of "unknown".
+
+The prompt, answer and audit tables are append-only for everyone else: an erasure marks its
+participant in ``erasure_in_progress`` inside its own transaction, which opens their guards for
+exactly that participant (app.schema.create_erasable_guard), and removes the mark before
+committing. Copies made before the erasure (backups, exports, downloads) still hold the data:
+:func:`erase_participant` lists the ones the audit log knows of, so the lab can deal with them.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import String, cast, delete, or_, select, update
+from sqlalchemy.orm import Session
+
+from app import events
+from app.db import WalCheckpointer
+from app.errors import Conflict, InvalidInput, NotFound
+from app.services import audit, learner_cache, pseudonyms
+from app.services.audit import Actor
+from app.services.enrolment import ERASE, get_participant, require_withdrawal_option
+from app.services.stations import study_topic
+from app.services.studies import get_study
+from app.tables import (
+    Answer,
+    AnswerAudio,
+    AuditEvent,
+    Device,
+    ErasureInProgress,
+    LearnerState,
+    Participant,
+    ParticipantStatus,
+    Prompt,
+    Response,
+    RoomPresence,
+    Run,
+    Station,
+    Study,
+    StudySession,
+    Submission,
+    utcnow,
+)
+
+ERASED_PREFIX = "~erased-"
+"""Erased participants' codes start with this; no enrolment code can (app.inputs)."""
+
+
+def erased_code(secret: bytes, study: Study, code: str) -> str:
+    """The pseudonym an erased participant's row carries instead of ``code``."""
+    return ERASED_PREFIX + pseudonyms.pseudonym(secret, study.name, code)[len(pseudonyms.PREFIX) :]
+
+
+def is_erased_code(code: str) -> bool:
+    """Whether a participant code is an erased participant's pseudonym."""
+    return code.startswith(ERASED_PREFIX)
+
+
+@dataclass(frozen=True)
+class EarlierCopy:
+    """A file made before the erasure that may still hold the participant (from the audit log)."""
+
+    kind: str  # backup | export | download | subject-access export
+    made_at: datetime
+    where: str
+    exists: bool | None  # on this server; None when trustlab cannot tell (a browser download)
+
+    def describe(self) -> str:
+        """One line for the command line and the web page."""
+        when = self.made_at.strftime("%Y-%m-%d %H:%M UTC")
+        state = {True: "", False: " (no longer there)", None: ""}[self.exists]
+        return f"{self.kind} of {when}: {self.where}{state}"
+
+
+@dataclass
+class Erasure:
+    """What one erasure removed, and the copies that predate it."""
+
+    code: str
+    study: str
+    erased_at: datetime
+    removed: dict[str, int] = field(default_factory=dict)
+    earlier_copies: list[EarlierCopy] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """For the API and ``--json``."""
+        return {
+            "code": self.code,
+            "study": self.study,
+            "erased_at": self.erased_at.isoformat(),
+            "removed": self.removed,
+            "earlier_copies": [
+                {
+                    "kind": copy.kind,
+                    "made_at": copy.made_at.isoformat(),
+                    "where": copy.where,
+                    "exists": copy.exists,
+                }
+                for copy in self.earlier_copies
+            ],
+        }
+
+
+def erase_participant(
+    db: Session,
+    *,
+    study_name: str,
+    code: str,
+    actor: Actor,
+    secret: bytes,
+    reason: str = "",
+) -> Erasure:
+    """Withdraw (if still active) and erase one participant, in one transaction; commits.
+
+    Refused, with nothing changed: a study whose protocol does not allow erasure, a code that
+    was already erased, a participant who does not exist."""
+    study = get_study(db, study_name)
+    require_withdrawal_option(study, ERASE)
+    pseudonym = erased_code(secret, study, code)
+    try:
+        participant = get_participant(db, study, code, for_update=True)
+    except NotFound:
+        earlier = db.scalar(
+            select(Participant.erased_at).where(
+                Participant.study_id == study.id, Participant.code == pseudonym
+            )
+        )
+        if earlier is not None:
+            raise Conflict(
+                f"participant {code!r} was already erased from {study.name!r} on "
+                f"{earlier:%Y-%m-%d}: nothing of theirs is stored"
+            ) from None
+        raise
+    if participant.erased_at is not None:  # pragma: no cover - erased rows carry the pseudonym
+        raise Conflict(f"participant {code!r} was already erased")
+    if len(reason) > 2000:
+        raise InvalidInput("the reason is longer than 2000 characters")
+    now = utcnow()
+    earlier_copies = list(_earlier_copies(db, study, participant, code))
+    learner_ids = list(
+        db.scalars(select(LearnerState.id).where(LearnerState.participant_id == participant.id))
+    )
+    db.add(ErasureInProgress(participant_id=participant.id, study_id=study.id))
+    db.flush()
+    removed = _remove_data(db, participant)
+    _scrub_audit(db, study, code, pseudonym)
+    _scrub_devices(db, code)
+    if participant.status != ParticipantStatus.WITHDRAWN:
+        participant.status = ParticipantStatus.WITHDRAWN
+        participant.withdrawn_at = now
+    participant.code = pseudonym
+    participant.erased_at = now
+    participant.withdrawal_reason = ""
+    participant.strata = {}
+    participant.language = None
+    participant.token_hash = None
+    participant.token_generation += 1
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.erased",
+        study_id=study.id,
+        subject=pseudonym,
+        details={"removed": removed, "reason_given": bool(reason.strip())},
+    )
+    db.execute(delete(ErasureInProgress).where(ErasureInProgress.participant_id == participant.id))
+    events.publish(db, topics=[study_topic(study.id)], type="participant_erased")
+    db.commit()
+    cache = learner_cache.of(db)
+    for learner_id in learner_ids:  # row ids can be reused once deleted (SQLite)
+        cache.forget(learner_id)
+    _empty_sqlite_wal(db)
+    return Erasure(
+        code=code,
+        study=study.name,
+        erased_at=now,
+        removed=removed,
+        earlier_copies=earlier_copies,
+    )
+
+
+def _empty_sqlite_wal(db: Session) -> None:
+    """SQLite zeroes deleted content (app.db: secure_delete), but the WAL still holds the pages
+    as they were before; a TRUNCATE checkpoint empties it (best effort: with a reader still on
+    an old snapshot, a later checkpoint does it)."""
+    url = db.get_bind().engine.url
+    if url.get_backend_name() == "sqlite" and url.database not in (None, "", ":memory:"):
+        WalCheckpointer(str(url.database)).truncate()
+
+
+def _remove_data(db: Session, participant: Participant) -> dict[str, int]:
+    """Delete every row of the participant's data, children first; counts per table."""
+    owned = participant.id
+    sessions = select(StudySession.id).where(StudySession.participant_id == owned)
+    stations = select(Station.id).where(Station.participant_id == owned)
+    statements = {
+        "answer_audio": delete(AnswerAudio).where(AnswerAudio.participant_id == owned),
+        "answer": delete(Answer).where(Answer.participant_id == owned),
+        "prompt": delete(Prompt).where(Prompt.participant_id == owned),
+        "run": delete(Run).where(Run.session_id.in_(sessions)),
+        "study_session": delete(StudySession).where(StudySession.participant_id == owned),
+        "learner": delete(LearnerState).where(LearnerState.participant_id == owned),
+        "response": delete(Response).where(Response.participant_id == owned),
+        "submission": delete(Submission).where(Submission.participant_id == owned),
+        "room_presence": delete(RoomPresence).where(RoomPresence.station_id.in_(stations)),
+    }
+    removed = {}
+    for table, statement in statements.items():
+        result = db.execute(statement, execution_options={"synchronize_session": False})
+        removed[table] = int(result.rowcount or 0)  # type: ignore[attr-defined]
+    db.execute(
+        update(Station)
+        .where(Station.participant_id == owned)
+        .values(participant_id=None, assigned_at=None),
+        execution_options={"synchronize_session": False},
+    )
+    db.expire_all()
+    return {table: count for table, count in removed.items() if count}
+
+
+def _code_pattern(code: str) -> re.Pattern[str]:
+    """The code as a whole word: ``P01`` must not match inside ``P017``."""
+    return re.compile(rf"(?<![A-Za-z0-9_-]){re.escape(code)}(?![A-Za-z0-9_-])")
+
+
+def _replace_in(value: Any, pattern: re.Pattern[str], replacement: str) -> Any:
+    if isinstance(value, str):
+        return pattern.sub(replacement, value)
+    if isinstance(value, list):
+        return [_replace_in(item, pattern, replacement) for item in value]
+    if isinstance(value, dict):
+        return {
+            _replace_in(key, pattern, replacement): _replace_in(item, pattern, replacement)
+            for key, item in value.items()
+        }
+    return value
+
+
+def _scrub_audit(db: Session, study: Study, code: str, pseudonym: str) -> None:
+    """Rewrite the study's audit events that name the participant: the pseudonym for the code;
+    no details at all for events about them (answers, edits, reasons are personal data)."""
+    pattern = _code_pattern(code)
+    candidates = select(AuditEvent).where(
+        AuditEvent.study_id == study.id,
+        or_(
+            AuditEvent.subject == code,
+            AuditEvent.actor.contains(code, autoescape=True),
+            cast(AuditEvent.details, String).contains(code, autoescape=True),
+        ),
+    )
+    for event in db.scalars(candidates):
+        about = event.subject == code
+        names = about or pattern.search(event.actor) or pattern.search(str(event.details))
+        if not names:
+            continue
+        event.subject = pseudonym if about else pattern.sub(pseudonym, event.subject)
+        event.actor = pattern.sub(pseudonym, event.actor)[:64]
+        if about:
+            event.details = {"erased": True}
+        else:
+            event.details = _replace_in(event.details, pattern, pseudonym)
+    db.flush()
+
+
+def _scrub_devices(db: Session, code: str) -> None:
+    """A robot's last notice may name the participant ("waiting for P017 …"): drop it."""
+    pattern = _code_pattern(code)
+    for device in db.scalars(select(Device).where(Device.notice.is_not(None))):
+        if device.notice and pattern.search(device.notice):
+            device.notice = None
+            device.notice_attention = False
+
+
+def _earlier_copies(
+    db: Session, study: Study, participant: Participant, code: str
+) -> Iterator[EarlierCopy]:
+    """Backups and exports made since the participant enrolled, as the audit log records them."""
+    query = (
+        select(AuditEvent)
+        .where(
+            AuditEvent.occurred_at >= participant.enrolled_at,
+            AuditEvent.action.in_(
+                ("db.backed_up", "export.written", "export.downloaded", "participant.exported")
+            ),
+        )
+        .order_by(AuditEvent.occurred_at)
+    )
+    for event in db.scalars(query):
+        if event.action == "db.backed_up":
+            where = str(event.details.get("file", "?"))
+            yield EarlierCopy("backup", event.occurred_at, where, Path(where).exists())
+        elif event.study_id != study.id:
+            continue
+        elif event.action == "export.written":
+            for spec in (event.details.get("files") or {}).values():
+                where = str(spec.get("path", "?"))
+                yield EarlierCopy("export", event.occurred_at, where, Path(where).exists())
+        elif event.action == "export.downloaded":
+            where = f"{event.subject} downloaded by {event.actor}"
+            yield EarlierCopy("download", event.occurred_at, where, None)
+        elif event.subject == code:
+            where = f"their own data, written by {event.actor}"
+            yield EarlierCopy("subject-access export", event.occurred_at, where, None)
