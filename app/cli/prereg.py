@@ -121,7 +121,7 @@ def prereg_command(
     with database.read_session() as db:
         found = studies.get_study(db, study)
         dataset = study_data.load_dataset(db, study=found)
-        source, digest, study_id = found.protocol_source, found.protocol_sha256, found.id
+        source, study_id = found.protocol_source, found.id
     try:
         if effect is not None:
             power = answer_question(
@@ -157,7 +157,6 @@ def prereg_command(
         seeds=_seeds(dataset.manifest, power),
         created_at=utcnow().isoformat(timespec="seconds"),
     )
-    assert plan["protocol_sha256"] == digest
     text = json.dumps(registration, indent=2, ensure_ascii=False) + "\n"
     contents = (text, registration_markdown(registration), registration_html(registration), source)
     out.mkdir(mode=0o700, parents=True, exist_ok=True)
