@@ -119,6 +119,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # analysts (and admins): analysis and exports
     ("GET", "/studies/{name}/analysis"): ANALYSTS,
     ("GET", "/studies/{name}/analysis/mixed"): ANALYSTS,
+    ("GET", "/studies/{name}/analysis/power"): ANALYSTS,
     ("GET", "/studies/{name}/exports/{export}"): ANALYSTS,
     # admins: accounts, studies, stations and keys, the audit log
     ("POST", "/api/v1/studies"): ADMINS,

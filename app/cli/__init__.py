@@ -19,6 +19,8 @@ from app.cli import (
     languages,
     mixed,
     population,
+    power,
+    prereg,
     retention,
     robot,
     runtime,
@@ -42,6 +44,8 @@ robot.register(cli)
 bridge.register(cli)
 analysis.register(cli)
 mixed.register(cli)
+power.register(cli)
+prereg.register(cli)
 exports.register(cli)
 engine.register(cli)
 population.register(cli)

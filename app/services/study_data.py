@@ -25,7 +25,7 @@ from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
 from analysis.scoring import ScaleSpec
 from app.protocol import InstrumentSpec, ItemKind, Protocol
-from app.services import learners
+from app.services import learners, registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
 from app.services.studies import protocol_of
@@ -397,6 +397,7 @@ def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> Study
         "learners": json.loads(json.dumps(protocol.learners.model_dump(mode="json"))),
         "software": _software(),
     }
+    registration, registration_source = registrations.latest(db, study)
     return StudyDataset(
         participants=participants,
         responses=responses,
@@ -406,4 +407,6 @@ def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> Study
         instruments=instruments,
         scales=scales_of(protocol),
         steps_withheld=withheld,
+        registration=registration,
+        registration_source=registration_source,
     )
