@@ -30,5 +30,4 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("participant") as batch:
-        batch.drop_column("anonymised_at")
+    op.drop_column("participant", "anonymised_at")

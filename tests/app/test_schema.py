@@ -411,9 +411,9 @@ def test_0017_keeps_earlier_consents_as_version_1(blank_database_url: str) -> No
             )
         )
     with pytest.raises(Conflict, match="would delete 1 later consent version"):
-        schema.downgrade(database, "-1")
+        schema.downgrade(database, "0016")
     with database.engine.begin() as connection:
         connection.execute(text("DELETE FROM consent_version"))
-    schema.downgrade(database, "-1")
+    schema.downgrade(database, "0016")
     assert "consent_record" not in inspect(database.engine).get_table_names()
     database.dispose()
