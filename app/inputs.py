@@ -64,10 +64,13 @@ PageNumber = Annotated[int, _Canonical, Field(ge=1, le=10**9)]
 SessionNumber = Annotated[int, _Canonical, Field(ge=1, le=10**6)]
 """A session's number within a study (1, 2, …)."""
 
+VersionNumber = Annotated[int, _Canonical, Field(ge=1, le=10**6)]
+"""A numbered version (of a study's consent text: 1, 2, …)."""
+
 Count = Annotated[int, _Canonical, Field(ge=0, le=MAX_ROW_ID)]
 """A non-negative count or option (a sample size, a sums-of-squares type): 0 … 2**63 - 1."""
 
-INTEGER_TYPES = (RowId, PageNumber, SessionNumber, Count)
+INTEGER_TYPES = (RowId, PageNumber, SessionNumber, VersionNumber, Count)
 """Every integer shape a request may use (the route-walking test checks for these)."""
 
 

@@ -15,7 +15,7 @@ from app.api.schemas import RequestBody
 from app.deps import OneHopRouter, SessionDep
 from app.errors import InvalidInput
 from app.i18n.languages import native_name
-from app.inputs import SessionNumber
+from app.inputs import SessionNumber, VersionNumber
 from app.services import consent as consent_versions
 from app.services import questionnaires
 from app.tablet import BearerTablet, Tablet
@@ -57,10 +57,8 @@ class ConsentIn(RequestBody):
         default=False,
         description="Refuse a new version after accepting an earlier one (staff are shown it).",
     )
-    version: int | None = Field(
+    version: VersionNumber | None = Field(
         default=None,
-        ge=1,
-        le=1_000_000,
         description="The number of the version shown; refused with 409 if it is no longer "
         "the current one.",
     )

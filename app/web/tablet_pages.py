@@ -20,7 +20,7 @@ from app.deps import FormFields, OneHopRouter, SessionDep, SettingsDep, set_priv
 from app.errors import Conflict, InvalidInput, NotAuthenticated, PermissionDenied, TrustlabError
 from app.i18n.catalogues import Catalogue, Message, catalogue
 from app.i18n.languages import native_name
-from app.inputs import SessionNumber
+from app.inputs import SessionNumber, VersionNumber
 from app.protocol import InstrumentSpec
 from app.security import same
 from app.services import consent, languages, questionnaires
@@ -167,7 +167,7 @@ def give_consent(
     csrf_token: Annotated[str, Form(max_length=200)] = "",
     accept: Annotated[str, Form(max_length=10)] = "",
     decline: Annotated[str, Form(max_length=10)] = "",
-    version: Annotated[int | None, Form(ge=1, le=1_000_000)] = None,
+    version: Annotated[VersionNumber | None, Form()] = None,
 ) -> Response:
     """Record consent (with the text's version), or a refusal of a new version."""
     _check_form_token(tablet, settings, csrf_token)

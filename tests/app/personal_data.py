@@ -11,7 +11,7 @@ from sqlalchemy.engine import make_url
 from typer.testing import CliRunner, Result
 
 from app.cli import cli
-from app.db import Database
+from app.db import Database, WalCheckpointer
 from app.protocol import parse_protocol
 from app.services import studies
 from app.services.audit import Actor
@@ -87,13 +87,17 @@ def run_cli(database_url: str, *args: str) -> Result:
     return CliRunner().invoke(cli, list(args), env={"TRUSTLAB_DATABASE_URL": database_url})
 
 
-def dump_database(database: Database) -> bytes:
+def dump_database(database: Database, *others: Database) -> bytes:
     """Everything the database holds: pg_dump's SQL, or the SQLite file and its WAL byte for
-    byte (deleted content included, were it not zeroed)."""
+    byte (deleted content included, were it not zeroed). ``others``: further engines on the
+    same database (the served app's), closed first so that, as docs/data-protection.md says, a
+    checkpoint once no reader holds an old snapshot leaves no earlier page in the WAL."""
     url = make_url(database.url)
     if url.get_backend_name() == "sqlite":
-        database.dispose()
+        for engine in (database, *others):
+            engine.dispose()
         path = Path(str(url.database))
+        assert WalCheckpointer(str(path)).truncate(), "a reader still holds an old snapshot"
         return b"".join(
             p.read_bytes() for p in (path, path.with_name(path.name + "-wal")) if p.exists()
         )

@@ -73,7 +73,7 @@ def test_an_erased_participant_leaves_no_trace_and_their_slot_keeps_the_sequence
     assert erased.exit_code == 0, erased.output
     assert "erased GONE-4711" in erased.output and "allocation slot stays" in erased.output
     assert str(tmp_path / "before") in erased.output  # the earlier export is listed
-    assert mentions(dump_database(lab.database), "GONE-4711") == []
+    assert mentions(dump_database(lab.database, lab.app.state.database), "GONE-4711") == []
     after = run_cli(
         database_url,
         "export",

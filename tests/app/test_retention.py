@@ -73,7 +73,7 @@ def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
     done = _run(lab, closed + timedelta(days=366))
 
     assert done.done["participants"] == 2 and done.done["transcript"] == 6
-    content = dump_database(lab.database)
+    content = dump_database(lab.database, lab.app.state.database)
     for code in ("ANON-ME-1", "ANON-ME-2"):
         assert mentions(content, code) == [], code
     with lab.database.read_session() as db:
@@ -112,7 +112,7 @@ def test_erasing_when_due_removes_everyone_and_keeps_the_slots(lab: Lab) -> None
     closed = _close(lab)
     done = _run(lab, closed + timedelta(days=200))
     assert done.done["participants"] == 1 and done.done["answer"] == 3
-    assert mentions(dump_database(lab.database), "ERASE-DUE") == []
+    assert mentions(dump_database(lab.database, lab.app.state.database), "ERASE-DUE") == []
     with lab.database.read_session() as db:
         slot = db.scalar(select(Participant))
         assert slot is not None and slot.erased_at is not None
