@@ -102,7 +102,7 @@ def enrolment_site(
         )
     if site not in declared:
         raise InvalidInput(
-            f"site {site!r} is not one of study {study.name!r}'s sites: {', '.join(declared)}"
+            f"site {site!r} is not a site of study {study.name!r}: {', '.join(declared)}"
         )
     if actor.sites is not None and site not in actor.sites:
         raise PermissionDenied(
