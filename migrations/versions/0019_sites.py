@@ -33,7 +33,7 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    with op.batch_alter_table("user") as batch:
-        batch.drop_column("sites")
-    with op.batch_alter_table("participant") as batch:
-        batch.drop_column("site")
+    # In place (SQLite 3.35+ drops a plain column), not a batch rebuild: a rebuild of participant
+    # or user fails on SQLite once other rows refer to them.
+    op.drop_column("user", "sites")
+    op.drop_column("participant", "site")
