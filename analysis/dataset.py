@@ -165,6 +165,12 @@ class StudyDataset:
     steps_withheld : str
         Why ``steps`` is left empty although steps were recorded (a blinded study that has not
         been unblinded); shown where the adaptation results would be. Empty: nothing withheld.
+    registration : mapping or None
+        The study's pre-registration (``prereg.json``, :mod:`analysis.prereg`), when it has one:
+        the report then says whether its analyses are those registered, or lists each deviation.
+    registration_source : str
+        Where the registration came from (a file and its SHA-256, or the audit log), for the
+        report.
 
     Raises
     ------
@@ -182,6 +188,8 @@ class StudyDataset:
     scales: tuple[ScaleSpec, ...] = DEFAULT_SCALES
     excluded_statuses: frozenset[str] = DEFAULT_EXCLUDED_STATUSES
     steps_withheld: str = ""
+    registration: Mapping[str, Any] | None = None
+    registration_source: str = ""
 
     def __post_init__(self) -> None:
         for name in ("participants", "responses", "steps"):

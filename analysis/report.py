@@ -40,6 +40,7 @@ from analysis.mixed_prose import (
     lmm_sentences,
     ordinal_sentences,
 )
+from analysis.prereg import check_registration
 from analysis.prose import item_title
 from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
 
@@ -135,6 +136,7 @@ def build_report(
     figures = _FigureCounter()
     sections = [
         _methods(result, confidence),
+        *([_registration(result)] if result.dataset.registration is not None else []),
         _participants(result),
         *[_outcome_section(result, o, figures, confidence) for o in result.outcomes],
         *([mixed_models_section(result, mixed, figures)] if mixed is not None else []),
@@ -293,6 +295,30 @@ def _methods(result: StudyAnalysis, confidence: float) -> tuple[str, str, str]:
         + "</section>"
     )
     return "methods", "Methods", content
+
+
+def _registration(result: StudyAnalysis) -> tuple[str, str, str]:
+    """Whether the analyses below are the registered ones (:mod:`analysis.prereg`)."""
+    assert result.dataset.registration is not None
+    check = check_registration(
+        result.dataset.registration, result, source=result.dataset.registration_source
+    )
+    when = html.escape(check.registered_at or "an unknown date")
+    source = f" ({html.escape(check.source)})" if check.source else ""
+    if check.as_registered:
+        body = (
+            f'<p class="apa"><strong>As registered.</strong> The protocol, the measures, the '
+            f"models, α, the sums of squares, the confidence level and the exclusion rules of "
+            f"this report are those of the pre-registration of {when}{source}.</p>"
+        )
+    else:
+        items = "".join(f"<li>{html.escape(d)}</li>" for d in check.deviations)
+        body = (
+            f'<div class="problem"><p><strong>Deviations from the pre-registration</strong> of '
+            f"{when}{source}:</p><ul>{items}</ul></div>"
+        )
+    content = f'<section id="registration"><h2>Registration</h2>{body}</section>'
+    return "registration", "Registration", content
 
 
 def _participants(result: StudyAnalysis) -> tuple[str, str, str]:

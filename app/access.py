@@ -119,6 +119,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # analysts (and admins): analysis and exports
     ("GET", "/studies/{name}/analysis"): ANALYSTS,
     ("GET", "/studies/{name}/analysis/mixed"): ANALYSTS,
+    ("GET", "/studies/{name}/analysis/power"): ANALYSTS,
     ("GET", "/studies/{name}/exports/{export}"): ANALYSTS,
     # admins: accounts, studies, stations and keys, the audit log
     ("POST", "/api/v1/studies"): ADMINS,
@@ -145,6 +146,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/admin/studies/{name}/archive"): ADMINS,
     ("GET", "/admin/studies/{name}/unblind"): ADMINS,
     ("POST", "/admin/studies/{name}/unblind"): ADMINS,
+    ("POST", "/admin/studies/{name}/consent"): ADMINS,
     ("GET", "/admin/audit"): ADMINS,
     ("GET", "/admin/audit.csv"): ADMINS,
     ("POST", "/stations"): ADMINS,

@@ -36,6 +36,7 @@ from pydantic import (
 
 from app.i18n import catalogues, protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
+from app.periods import Period
 from app.room import RoomSpec, check_room, default_room
 from app.speech.vocabulary import DEFAULT_MIN_CONFIDENCE, DEFAULT_NO, DEFAULT_YES, normalise
 from models.feedback import FeedbackModel
@@ -387,6 +388,34 @@ class WithdrawalSpec(_Strict):
         return options
 
 
+class RetentionSpec(_Strict):
+    """How long identifiable data is kept after the study closes, and what happens to it then
+    (app/services/retention.py, ``trustlab retention run``). Not declared: kept until someone
+    erases it."""
+
+    identifiable_for: Text | None = Field(
+        default=None,
+        description='After the study closes, e.g. "5 years", "18 months" or "P5Y".',
+    )
+    then: Literal["anonymise", "erase"] = Field(
+        default="anonymise",
+        description="anonymise: codes become random ids, free text, transcripts and recordings "
+        "are dropped; erase: everything each participant gave is removed.",
+    )
+
+    @field_validator("identifiable_for")
+    @classmethod
+    def _a_period(cls, text: str | None) -> str | None:
+        if text is not None:
+            Period.parse(text)
+        return text
+
+    @property
+    def period(self) -> Period | None:
+        """The declared period (None: no deadline)."""
+        return None if self.identifiable_for is None else Period.parse(self.identifiable_for)
+
+
 class ItemKind(StrEnum):
     """How an item is answered."""
 
@@ -452,10 +481,19 @@ class ScoreSpec(_Strict):
 
 
 class ConsentSpec(_Strict):
-    """The consent text participants must accept; its version is stored with the acceptance."""
+    """The consent text participants must accept; its version is stored with the acceptance.
+
+    This is version 1 of the study's consent text; an admin adds later versions while the study
+    runs (app.services.consent)."""
 
     version: Text
     text: Text
+    reconsent_before_next_session: bool = Field(
+        default=False,
+        description="When the consent text changes, a participant who accepted an earlier "
+        "version sees the new one on the tablet first, and their next session cannot start "
+        "until they accept it. Off: they are only flagged on the staff pages.",
+    )
 
 
 class QuestionnairesSpec(_Strict):
@@ -480,6 +518,7 @@ class Protocol(_Strict):
     learners: LearnerSettings = Field(default_factory=LearnerSettings)
     allocation: AllocationSpec = Field(default_factory=AllocationSpec)
     withdrawal: WithdrawalSpec = Field(default_factory=WithdrawalSpec)
+    retention: RetentionSpec = Field(default_factory=RetentionSpec)
     sites: SitesSpec | None = Field(
         default=None, description="The sites of a multi-site study (none: a single place)."
     )

@@ -217,6 +217,9 @@ class Participant(Base):
     erased_at: Mapped[datetime | None]
     """Set when the participant's data was erased (app.services.erasure): the row stays, under a
     pseudonym, only so that their allocation slot keeps the sequence whole."""
+    anonymised_at: Mapped[datetime | None]
+    """Set when a retention deadline anonymised the participant (app.services.retention): the
+    code is a random id, free text and transcripts are gone."""
 
     study: Mapped[Study] = relationship()
     allocation: Mapped[Allocation] = relationship(
@@ -593,6 +596,45 @@ class Submission(Base):
     submitted_at: Mapped[datetime] = mapped_column(default=utcnow)
     revision: Mapped[int] = mapped_column(default=1)
     revised_at: Mapped[datetime | None]
+
+
+class ConsentVersion(Base):
+    """One version of a study's consent text, in every one of its languages.
+
+    Version 1 is the protocol's own text; it is stored here when the first later version is
+    added (until then :mod:`app.services.consent` reads it from the protocol). Every change of
+    the wording makes a new version; none is ever edited or deleted, so every acceptance can be
+    traced to the exact words."""
+
+    __tablename__ = "consent_version"
+    __table_args__ = (UniqueConstraint("study_id", "version"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    study_id: Mapped[int] = mapped_column(ForeignKey("study.id"), index=True)
+    version: Mapped[int] = mapped_column(Integer, doc="1, 2, 3…: 1 is the protocol's own text.")
+    label: Mapped[str] = mapped_column(String(64), doc="What the lab calls it, e.g. '1.0'.")
+    texts: Mapped[dict[str, Any]] = mapped_column(doc="language code → the text.")
+    sha256: Mapped[dict[str, Any]] = mapped_column(doc="language code → SHA-256 of its text.")
+    created_at: Mapped[datetime] = mapped_column(default=utcnow)
+    created_by: Mapped[str] = mapped_column(String(64), default="")
+    reason: Mapped[str] = mapped_column(Text, default="")
+
+
+class ConsentRecord(Base):
+    """A participant's answer to one version of the consent text: accepted (or, asked again
+    after a change, declined), in which language, the SHA-256 of the words shown, and when.
+    One row per answer, so the record holds every version a participant accepted."""
+
+    __tablename__ = "consent_record"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
+    version: Mapped[int] = mapped_column(Integer)
+    label: Mapped[str] = mapped_column(String(64))
+    language: Mapped[str] = mapped_column(String(16))
+    sha256: Mapped[str] = mapped_column(String(64))
+    accepted: Mapped[bool]
+    answered_at: Mapped[datetime] = mapped_column(default=utcnow)
 
 
 class AttemptOutcome(StrEnum):

@@ -13,8 +13,10 @@ from pydantic import BaseModel, Field
 
 from app.api.schemas import RequestBody
 from app.deps import OneHopRouter, SessionDep
+from app.errors import InvalidInput
 from app.i18n.languages import native_name
 from app.inputs import SessionNumber
+from app.services import consent as consent_versions
 from app.services import questionnaires
 from app.tablet import BearerTablet, Tablet
 from app.web import tablet_pages
@@ -38,14 +40,30 @@ class PageOut(BaseModel):
     )
     instrument: dict[str, Any] | None = None
     session: int | None = None
-    consent: dict[str, str] | None = None
+    consent: dict[str, Any] | None = Field(
+        default=None,
+        description="On the consent page: version (the lab's label), number (1, 2…: send it "
+        "back with the answer), text, and again (true: asked again after the text changed; "
+        "the participant may decline).",
+    )
     scales: list[dict[str, Any]] = Field(default_factory=list)
 
 
 class ConsentIn(RequestBody):
-    """Agreement to the consent text."""
+    """Agreement to the consent text (or, asked again after it changed, a refusal)."""
 
     accept: bool
+    decline: bool = Field(
+        default=False,
+        description="Refuse a new version after accepting an earlier one (staff are shown it).",
+    )
+    version: int | None = Field(
+        default=None,
+        ge=1,
+        le=1_000_000,
+        description="The number of the version shown; refused with 409 if it is no longer "
+        "the current one.",
+    )
 
 
 class LanguageIn(RequestBody):
@@ -61,7 +79,18 @@ class AnswersIn(RequestBody):
     answers: dict[str, str | int | float]
 
 
-def _page_out(tablet: Tablet, page: questionnaires.Page) -> PageOut:
+def _consent_out(db: SessionDep, tablet: Tablet) -> dict[str, Any]:
+    text = consent_versions.shown(db, study_id=tablet.study.id, protocol=tablet.protocol)
+    standing = consent_versions.standing(db, tablet.participant, tablet.study)
+    return {
+        "version": text.label,
+        "number": text.number,
+        "text": text.text,
+        "again": standing.accepted is not None,
+    }
+
+
+def _page_out(db: SessionDep, tablet: Tablet, page: questionnaires.Page) -> PageOut:
     spec = tablet.protocol.questionnaires
     return PageOut(
         participant=tablet.participant.code,
@@ -74,9 +103,7 @@ def _page_out(tablet: Tablet, page: questionnaires.Page) -> PageOut:
         else [],
         instrument=page.instrument.model_dump(mode="json") if page.instrument else None,
         session=page.session,
-        consent={"version": spec.consent.version, "text": spec.consent.text}
-        if page.kind == "consent"
-        else None,
+        consent=_consent_out(db, tablet) if page.kind == "consent" else None,
         scales=[s.model_dump(mode="json") for s in spec.scales] if page.instrument else [],
     )
 
@@ -84,20 +111,32 @@ def _page_out(tablet: Tablet, page: questionnaires.Page) -> PageOut:
 @router.get("")
 def current_page(db: SessionDep, tablet: BearerTablet) -> PageOut:
     """Where the participant is in the flow."""
-    return _page_out(tablet, questionnaires.next_page(db, tablet.participant, tablet.protocol))
+    return _page_out(db, tablet, questionnaires.next_page(db, tablet.participant, tablet.protocol))
 
 
 @router.post("/consent")
 def consent(body: ConsentIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
-    """Give consent; returns the next page."""
+    """Give consent (or decline a new version of the text); returns the next page."""
+    if body.decline:
+        if body.accept:
+            raise InvalidInput("accept or decline, not both")
+        page = questionnaires.decline_consent(
+            db,
+            participant=tablet.participant,
+            protocol=tablet.protocol,
+            actor=participant_actor(tablet),
+            version=body.version,
+        )
+        return _page_out(db, tablet, page)
     result = questionnaires.accept_consent(
         db,
         participant=tablet.participant,
         protocol=tablet.protocol,
         accepted=body.accept,
         actor=participant_actor(tablet),
+        version=body.version,
     )
-    return _page_out(tablet, result.page)
+    return _page_out(db, tablet, result.page)
 
 
 @router.post("/language")
@@ -106,7 +145,7 @@ def language(body: LanguageIn, db: SessionDep, tablet: BearerTablet) -> PageOut:
     next page, in that language."""
     tablet_pages.choose(db, tablet, body.language)
     chosen = tablet.in_language_of_participant()
-    return _page_out(chosen, questionnaires.next_page(db, chosen.participant, chosen.protocol))
+    return _page_out(db, chosen, questionnaires.next_page(db, chosen.participant, chosen.protocol))
 
 
 @router.post("/questionnaires/{instrument}", responses={422: {"description": "Per-item errors"}})
@@ -122,4 +161,4 @@ def submit(instrument: str, body: AnswersIn, db: SessionDep, tablet: BearerTable
         answers={k: str(v) for k, v in body.answers.items()},
         actor=participant_actor(tablet),
     )
-    return _page_out(tablet, result.page)
+    return _page_out(db, tablet, result.page)

@@ -13,11 +13,15 @@ from app.cli import (
     admin,
     analysis,
     bridge,
+    consent,
     engine,
     exports,
     languages,
     mixed,
     population,
+    power,
+    prereg,
+    retention,
     robot,
     runtime,
     speech,
@@ -33,17 +37,21 @@ cli = typer.Typer(
     add_completion=False,
 )
 admin.register(cli)
+consent.register(cli)
 accounts.register(cli)
 runtime.register(cli)
 robot.register(cli)
 bridge.register(cli)
 analysis.register(cli)
 mixed.register(cli)
+power.register(cli)
+prereg.register(cli)
 exports.register(cli)
 engine.register(cli)
 population.register(cli)
 speech.register(cli)
 languages.register(cli)
+retention.register(cli)
 
 
 def main() -> None:

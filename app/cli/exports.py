@@ -7,14 +7,18 @@ file complete or not at all, and never over an existing file unless ``--force`` 
 
 from __future__ import annotations
 
+import hashlib
+import json
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from pydantic import SecretStr
 
 from analysis.exports import EXPORT_FORMATS, SUMS_FILE, sha256_file, write_all_exports, write_export
+from analysis.prereg import FORMAT
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
 from app.private_files import new_private_file, refuse_existing, refuse_link
@@ -51,6 +55,14 @@ def export(
             "for data shared outside the lab.",
         ),
     ] = False,
+    prereg: Annotated[
+        Path | None,
+        typer.Option(
+            "--prereg",
+            help="A prereg.json (from 'trustlab prereg'): the report says whether its analyses "
+            "are the registered ones (default: the study's newest registration, if any).",
+        ),
+    ] = None,
     as_json: JsonFlag = False,
 ) -> None:
     """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
@@ -61,6 +73,7 @@ def export(
     settings = Settings()
     key = pseudonyms.require_key(_secret(settings.pseudonym_key)) if pseudonymise else None
     targets = _targets(format, out)
+    registration = read_registration(prereg) if prereg is not None else None
     for target in targets:  # refuse before the (slow) export, and before writing any file
         refuse_link(target)
         if target.exists() and not force:
@@ -74,6 +87,10 @@ def export(
         study_id, sealed = found.id, is_sealed(found)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
+    if registration is not None:
+        dataset = replace(
+            dataset, registration=registration[0], registration_source=registration[1]
+        )
     staging = partial(new_private_file, replace=force)
     if format == ALL:
         out.mkdir(mode=FOLDER_MODE, parents=True, exist_ok=True)
@@ -113,6 +130,21 @@ def export(
         return
     for name, info in files.items():
         typer.echo(f"{name:<13} {info['path']}  sha256 {info['sha256'][:16]}…")
+
+
+def read_registration(path: Path) -> tuple[dict[str, Any], str]:
+    """A ``prereg.json`` and a note of where it came from (its path and SHA-256)."""
+    try:
+        content = path.read_bytes()
+        value = json.loads(content)
+    except OSError as error:
+        raise InvalidInput(f"--prereg {path}: {error.strerror or error}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise InvalidInput(f"--prereg {path}: not JSON") from None
+    if not isinstance(value, dict) or value.get("format") != FORMAT:
+        raise InvalidInput(f"--prereg {path}: not a prereg.json written by 'trustlab prereg'")
+    digest = hashlib.sha256(content).hexdigest()
+    return value, f"{path.name}, SHA-256 {digest[:16]}…"
 
 
 def _secret(value: SecretStr | None) -> str | None:

@@ -1,9 +1,9 @@
 """Withdrawal with erasure: everything a participant gave a study, removed in one transaction.
 
 What goes: every prompt and answer (with transcripts and recorded audio), session and run, learner
-state, questionnaire answer and submission (free text included), the room presence of the station
-they were at, their tablet token, their language and stratification values, and every personal
-detail of the audit events about them. What stays, and why:
+state, questionnaire answer and submission (free text included), consent record, the room
+presence of the station they were at, their tablet token, their language and stratification
+values, and every personal detail of the audit events about them. What stays, and why:
 
 - **The allocation row and a participant row under a pseudonym** (``~erased-…``), because the
   concealed sequence is checked slot by slot (app.services.verify): removing a revealed slot would
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -49,6 +50,7 @@ from app.tables import (
     Answer,
     AnswerAudio,
     AuditEvent,
+    ConsentRecord,
     Device,
     ErasureInProgress,
     LearnerState,
@@ -162,14 +164,59 @@ def erase_participant(
         raise InvalidInput("the reason is longer than 2000 characters")
     now = utcnow()
     earlier_copies = list(_earlier_copies(db, study, participant, code))
+    with opened_guards(db, study, [participant]):
+        removed = erase(db, study, participant, now=now, pseudonym=pseudonym)
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.erased",
+        study_id=study.id,
+        subject=pseudonym,
+        details={"removed": removed, "reason_given": bool(reason.strip())},
+    )
+    events.publish(db, topics=[study_topic(study.id)], type="participant_erased")
+    db.commit()
+    after_erasures(db)
+    return Erasure(
+        code=code,
+        study=study.name,
+        erased_at=now,
+        removed=removed,
+        earlier_copies=earlier_copies,
+    )
+
+
+@contextmanager
+def opened_guards(db: Session, study: Study, participants: list[Participant]) -> Iterator[None]:
+    """Inside the caller's transaction: open the append-only guards for these participants'
+    prompts and answers and their study's audit events, and close them again (the marker rows
+    are never committed)."""
+    for participant in participants:
+        db.add(ErasureInProgress(participant_id=participant.id, study_id=study.id))
+    db.flush()
+    yield
+    db.flush()
+    db.execute(
+        delete(ErasureInProgress).where(
+            ErasureInProgress.participant_id.in_([p.id for p in participants])
+        )
+    )
+
+
+def erase(
+    db: Session, study: Study, participant: Participant, *, now: datetime, pseudonym: str
+) -> dict[str, int]:
+    """Remove everything of one participant inside :func:`opened_guards` (no commit, no audit
+    event of its own); the rows removed per table."""
+    code = participant.code
     learner_ids = list(
         db.scalars(select(LearnerState.id).where(LearnerState.participant_id == participant.id))
     )
-    db.add(ErasureInProgress(participant_id=participant.id, study_id=study.id))
-    db.flush()
+    db.info.setdefault(_FORGET_KEY, []).extend(learner_ids)
     removed = _remove_data(db, participant)
-    _scrub_audit(db, study, code, pseudonym)
-    _scrub_devices(db, code)
+    scrub_audit(db, study, code, pseudonym, about={"erased": True})
+    scrub_devices(db, code)
+    participant = db.get_one(Participant, participant.id)
     if participant.status != ParticipantStatus.WITHDRAWN:
         participant.status = ParticipantStatus.WITHDRAWN
         participant.withdrawn_at = now
@@ -180,28 +227,19 @@ def erase_participant(
     participant.language = None
     participant.token_hash = None
     participant.token_generation += 1
-    audit.record(
-        db,
-        actor=actor,
-        action="participant.erased",
-        study_id=study.id,
-        subject=pseudonym,
-        details={"removed": removed, "reason_given": bool(reason.strip())},
-    )
-    db.execute(delete(ErasureInProgress).where(ErasureInProgress.participant_id == participant.id))
-    events.publish(db, topics=[study_topic(study.id)], type="participant_erased")
-    db.commit()
+    return removed
+
+
+_FORGET_KEY = "trustlab.erased_learners"
+
+
+def after_erasures(db: Session) -> None:
+    """After the erasures' transaction committed: forget their learners in the cache (row ids
+    can be reused once deleted, on SQLite) and empty SQLite's WAL."""
     cache = learner_cache.of(db)
-    for learner_id in learner_ids:  # row ids can be reused once deleted (SQLite)
+    for learner_id in db.info.pop(_FORGET_KEY, []):
         cache.forget(learner_id)
     _empty_sqlite_wal(db)
-    return Erasure(
-        code=code,
-        study=study.name,
-        erased_at=now,
-        removed=removed,
-        earlier_copies=earlier_copies,
-    )
 
 
 def _empty_sqlite_wal(db: Session) -> None:
@@ -227,6 +265,7 @@ def _remove_data(db: Session, participant: Participant) -> dict[str, int]:
         "learner": delete(LearnerState).where(LearnerState.participant_id == owned),
         "response": delete(Response).where(Response.participant_id == owned),
         "submission": delete(Submission).where(Submission.participant_id == owned),
+        "consent_record": delete(ConsentRecord).where(ConsentRecord.participant_id == owned),
         "room_presence": delete(RoomPresence).where(RoomPresence.station_id.in_(stations)),
     }
     removed = {}
@@ -243,7 +282,7 @@ def _remove_data(db: Session, participant: Participant) -> dict[str, int]:
     return {table: count for table, count in removed.items() if count}
 
 
-def _code_pattern(code: str) -> re.Pattern[str]:
+def code_pattern(code: str) -> re.Pattern[str]:
     """The code as a whole word: ``P01`` must not match inside ``P017``."""
     return re.compile(rf"(?<![A-Za-z0-9_-]){re.escape(code)}(?![A-Za-z0-9_-])")
 
@@ -261,10 +300,13 @@ def _replace_in(value: Any, pattern: re.Pattern[str], replacement: str) -> Any:
     return value
 
 
-def _scrub_audit(db: Session, study: Study, code: str, pseudonym: str) -> None:
+def scrub_audit(
+    db: Session, study: Study, code: str, pseudonym: str, *, about: dict[str, Any]
+) -> None:
     """Rewrite the study's audit events that name the participant: the pseudonym for the code;
-    no details at all for events about them (answers, edits, reasons are personal data)."""
-    pattern = _code_pattern(code)
+    ``about`` instead of the details of events about them (answers, edits, reasons are personal
+    data)."""
+    pattern = code_pattern(code)
     candidates = select(AuditEvent).where(
         AuditEvent.study_id == study.id,
         or_(
@@ -274,22 +316,22 @@ def _scrub_audit(db: Session, study: Study, code: str, pseudonym: str) -> None:
         ),
     )
     for event in db.scalars(candidates):
-        about = event.subject == code
-        names = about or pattern.search(event.actor) or pattern.search(str(event.details))
+        is_about = event.subject == code
+        names = is_about or pattern.search(event.actor) or pattern.search(str(event.details))
         if not names:
             continue
-        event.subject = pseudonym if about else pattern.sub(pseudonym, event.subject)
+        event.subject = pseudonym if is_about else pattern.sub(pseudonym, event.subject)
         event.actor = pattern.sub(pseudonym, event.actor)[:64]
-        if about:
-            event.details = {"erased": True}
+        if is_about:
+            event.details = about
         else:
             event.details = _replace_in(event.details, pattern, pseudonym)
     db.flush()
 
 
-def _scrub_devices(db: Session, code: str) -> None:
+def scrub_devices(db: Session, code: str) -> None:
     """A robot's last notice may name the participant ("waiting for P017 …"): drop it."""
-    pattern = _code_pattern(code)
+    pattern = code_pattern(code)
     for device in db.scalars(select(Device).where(Device.notice.is_not(None))):
         if device.notice and pattern.search(device.notice):
             device.notice = None

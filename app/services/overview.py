@@ -6,7 +6,9 @@ stays fast with a thousand participants. Warnings name what an experimenter shou
 - a session that has been running without an answer for a while (is the robot stuck?);
 - a session questionnaire still missing a while after its session ended;
 - a station with a participant but no usable device key, or whose devices have gone quiet
-  during a running session.
+  during a running session;
+- a participant who declined a new version of the consent text (staff decide whether to
+  withdraw them).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from datetime import datetime, timedelta
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.services import sites
+from app.services import consent, sites
 from app.services.audit import Actor
 from app.services.enrolment import condition_label
 from app.services.runtime import session_label
@@ -60,6 +62,8 @@ class ParticipantRow:
     questionnaires_done: int
     station: str | None
     last_activity: datetime | None
+    consent: str = ""
+    """What is due about the consent text ('' when nothing): re-consent needed, or declined."""
 
 
 @dataclass
@@ -135,6 +139,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
             select(Station.participant_id, Station.name).where(Station.participant_id.in_(in_study))
         ).all()
     )
+    consents = consent.standings(db, study)
     overview = StudyOverview(sessions_total=protocol.schedule.sessions)
     session_instruments = [i.key for i in protocol.instruments_at("session")]
     for participant, condition in participants:
@@ -169,10 +174,22 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
                 questionnaires_done=len(done),
                 station=station_of.get(participant.id),
                 last_activity=last,
+                consent=consents[participant.id].note
+                if participant.id in consents and participant.status != ParticipantStatus.WITHDRAWN
+                else "",
             )
         )
         if participant.status == ParticipantStatus.WITHDRAWN:
             continue
+        standing = consents.get(participant.id)
+        if standing is not None and standing.outdated and standing.declined == standing.current:
+            overview.warnings.append(
+                Attention(
+                    f"{participant.code} declined version {standing.declined} of the consent "
+                    "text: talk to them, and withdraw them if they do not agree",
+                    participant=participant.code,
+                )
+            )
         if running is not None and last is not None and now - last > STALLED_AFTER:
             overview.warnings.append(
                 Attention(

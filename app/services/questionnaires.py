@@ -4,7 +4,9 @@ The participant flow is data (DESIGN.md, after oTree): consent → each pre-stud
 "please wait for the experimenter" → after every session its questionnaire → after the last
 session the post-study instruments → thank you. :func:`next_page` computes the one page a
 participant should see from what is stored, so reloads, back buttons, second tabs and crashed
-tablets always land right.
+tablets always land right. When an admin adds a new version of the consent text and the protocol
+asks for it (``reconsent_before_next_session``), a participant who accepted an older one is shown
+the new one before anything else (app.services.consent).
 
 A submission is validated as a whole against the protocol's instrument (required items, ranges,
 options, lengths, unknown items) and then stored in one transaction: the long-format responses, the
@@ -22,21 +24,22 @@ its response needs no further query and no second transaction.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from sqlalchemy import CompoundSelect, bindparam, insert, null, select, union_all
+from sqlalchemy import CompoundSelect, bindparam, func, insert, literal, null, select, union_all
 from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.i18n.catalogues import Message
 from app.protocol import InstrumentSpec, ItemKind, ItemSpec, Protocol
-from app.services import audit, languages
+from app.services import audit, consent, languages
 from app.services.audit import Actor
 from app.services.stations import participant_topic, station_topic, study_topic
 from app.tables import (
+    ConsentRecord,
+    ConsentVersion,
     Participant,
     ParticipantStatus,
     Response,
@@ -92,21 +95,25 @@ class QuestionnaireInvalid(InvalidInput):
         }
 
 
-def _submitted(db: Session, participant: Participant) -> set[tuple[str, int | None]]:
-    rows = db.execute(
-        select(Submission.instrument, Submission.session).where(
-            Submission.participant_id == participant.id
-        )
-    )
-    return {(instrument, session) for instrument, session in rows}
-
-
 @dataclass
 class Progress:
-    """Where a participant stands: the pages they submitted and the sessions that are over."""
+    """Where a participant stands: the pages they submitted, the sessions that are over, and the
+    version of the consent text they last accepted beside the study's current one."""
 
     done: set[tuple[str, int | None]]
     closed: list[int]
+    consent_accepted: int | None = None
+    consent_current: int = 1
+
+    @property
+    def consent_outdated(self) -> bool:
+        """They accepted an older version of the consent text than the current one."""
+        return self.consent_accepted is not None and self.consent_accepted < self.consent_current
+
+
+_CURRENT_CONSENT = "#consent-current"
+_ACCEPTED_CONSENT = "#consent-accepted"
+"""Markers of the consent versions' rows in :data:`_PROGRESS` (never an instrument key)."""
 
 
 _PROGRESS: CompoundSelect[str | None, int | None] = union_all(
@@ -118,6 +125,14 @@ _PROGRESS: CompoundSelect[str | None, int | None] = union_all(
         StudySession.participant_id == bindparam("participant"),
         StudySession.status != SessionStatus.RUNNING,
     ),
+    # The study's current consent version and the latest the participant accepted.
+    select(literal(_CURRENT_CONSENT), func.max(ConsentVersion.version)).where(
+        ConsentVersion.study_id == bindparam("study")
+    ),
+    select(literal(_ACCEPTED_CONSENT), func.max(ConsentRecord.version)).where(
+        ConsentRecord.participant_id == bindparam("participant"),
+        ConsentRecord.accepted.is_(True),
+    ),
 )
 
 
@@ -125,12 +140,19 @@ def progress(db: Session, participant: Participant) -> Progress:
     """The participant's :class:`Progress` (one query)."""
     done: set[tuple[str, int | None]] = set()
     closed: list[int] = []
-    for instrument, session in db.execute(_PROGRESS, {"participant": participant.id}):
-        if instrument is not None:
+    where = Progress(done, closed)
+    rows = db.execute(_PROGRESS, {"participant": participant.id, "study": participant.study_id})
+    for instrument, session in rows:
+        if instrument == _CURRENT_CONSENT:
+            where.consent_current = session or 1
+        elif instrument == _ACCEPTED_CONSENT:
+            where.consent_accepted = session
+        elif instrument is not None:
             done.add((instrument, session))
         elif session is not None:
             closed.append(session)
-    return Progress(done, sorted(closed))
+    closed.sort()
+    return where
 
 
 def page_for(participant: Participant, protocol: Protocol, where: Progress) -> Page:
@@ -142,6 +164,8 @@ def page_for(participant: Participant, protocol: Protocol, where: Progress) -> P
         return (
             Page("language") if languages.needs_choice(participant, protocol) else Page("consent")
         )
+    if where.consent_outdated and protocol.questionnaires.consent.reconsent_before_next_session:
+        return Page("consent")  # the new version of the text, before anything else
     for instrument in protocol.instruments_at("pre"):
         if (instrument.key, None) not in done:
             return Page("questionnaire", instrument)
@@ -181,8 +205,15 @@ def position(protocol: Protocol, page: Page) -> tuple[int, int]:
 
 
 def session_blocker(db: Session, participant: Participant, protocol: Protocol, number: int) -> str:
-    """Why session ``number`` cannot start yet ('' when it can); see :func:`blocker_given`."""
-    return blocker_given(_submitted(db, participant), participant.code, protocol, number)
+    """Why session ``number`` cannot start yet ('' when it can); see :func:`blocker_given`,
+    and a new consent text the protocol wants accepted first."""
+    where = progress(db, participant)
+    blocker = blocker_given(where.done, participant.code, protocol, number)
+    if blocker or not protocol.questionnaires.consent.reconsent_before_next_session:
+        return blocker
+    return consent.reconsent_blocker(
+        participant.code, where.consent_current, where.consent_accepted
+    )
 
 
 def blocker_given(
@@ -506,26 +537,44 @@ def _refuse_if_locked(participant: Participant) -> None:
         raise Conflict(f"{participant.code} has withdrawn")
 
 
+class ConsentChanged(Conflict):
+    """The consent text changed while the participant was reading it: show them the new one."""
+
+
 def accept_consent(
-    db: Session, *, participant: Participant, protocol: Protocol, accepted: bool, actor: Actor
+    db: Session,
+    *,
+    participant: Participant,
+    protocol: Protocol,
+    accepted: bool,
+    actor: Actor,
+    version: int | None = None,
 ) -> SubmitResult:
-    """Record consent to the protocol's consent text; commits.
+    """Record consent to the study's current consent text; commits.
 
     ``protocol`` is the one the participant read (in their language): the record keeps the
-    text's version, its language and the SHA-256 of the exact words accepted."""
+    version, its label, the language and the SHA-256 of the exact words accepted, as the
+    consent page's answers (the latest acceptance) and as a consent record (every acceptance).
+    ``version``: the version number the participant was shown, when the client says; a newer
+    one added meanwhile is refused (:class:`ConsentChanged`), so nobody accepts words they did
+    not see. Accepting again after a new version was added is a re-consent."""
     participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     if not accepted:
         raise QuestionnaireInvalid({"accept": Message("Please tick the box to take part.")})
-    consent = protocol.questionnaires.consent
+    text = consent.shown(db, study_id=participant.study_id, protocol=protocol)
+    if version is not None and version != text.number:
+        raise ConsentChanged(f"the consent text changed (now version {text.number}): read it again")
     record = {
         "accepted": "yes",
-        "version": consent.version,
+        "version": text.label,
+        "consent_version": str(text.number),
         # Named apart from the participant's own `language` column in the wide export.
-        "consent_language": protocol.default_language,
-        "consent_sha256": hashlib.sha256(consent.text.encode()).hexdigest(),
+        "consent_language": text.language,
+        "consent_sha256": text.sha256,
     }
     where = progress(db, participant)
+    again = where.consent_accepted is not None and where.consent_accepted < text.number
     revision, changed = _store(
         db,
         participant=participant,
@@ -535,19 +584,85 @@ def accept_consent(
         actor=actor,
         revising=(CONSENT, None) in where.done,
     )
+    if where.consent_accepted != text.number:  # not a repeat of the same acceptance
+        _record_answer(db, participant, text, accepted=True)
     audit.record(
         db,
         actor=actor,
-        action="participant.consented",
+        action="participant.reconsented" if again else "participant.consented",
         study_id=participant.study_id,
         subject=participant.code,
-        details={k: record[k] for k in ("version", "consent_language", "consent_sha256")},
+        details={k: record[k] for k in ("version", "consent_language", "consent_sha256")}
+        | {"consent_version": text.number}
+        | ({"previous_version": where.consent_accepted} if again else {}),
     )
     _publish(db, participant, station, CONSENT, None)
     where.done.add((CONSENT, None))
+    where.consent_accepted = where.consent_current = text.number
     page = page_for(participant, protocol, where)
     db.commit()
     return SubmitResult(revision, changed, page)
+
+
+def decline_consent(
+    db: Session,
+    *,
+    participant: Participant,
+    protocol: Protocol,
+    actor: Actor,
+    version: int | None = None,
+) -> Page:
+    """Record that a participant asked to consent again declined the new text; commits.
+
+    Nothing else changes: staff see the refusal and may withdraw them (trustlab does not), and
+    the participant may still accept later. Only a participant who accepted an earlier version
+    can decline a later one; the first consent is given or not given, not declined."""
+    participant, station = _as_now(db, participant)
+    _refuse_if_locked(participant)
+    where = progress(db, participant)
+    if not where.consent_outdated:
+        raise Conflict(
+            f"{participant.code} has no new consent text to decline"
+            if where.consent_accepted is not None
+            else "consent comes first: there is no earlier consent to keep"
+        )
+    text = consent.shown(db, study_id=participant.study_id, protocol=protocol)
+    if version is not None and version != text.number:
+        raise ConsentChanged(f"the consent text changed (now version {text.number}): read it again")
+    _record_answer(db, participant, text, accepted=False)
+    audit.record(
+        db,
+        actor=actor,
+        action="participant.consent_declined",
+        study_id=participant.study_id,
+        subject=participant.code,
+        details={
+            "consent_version": text.number,
+            "version": text.label,
+            "consent_language": text.language,
+            "consent_sha256": text.sha256,
+            "accepted_version": where.consent_accepted,
+        },
+    )
+    _publish(db, participant, station, CONSENT, None)
+    page = page_for(participant, protocol, where)
+    db.commit()
+    return page
+
+
+def _record_answer(
+    db: Session, participant: Participant, text: consent.Shown, *, accepted: bool
+) -> None:
+    db.add(
+        ConsentRecord(
+            participant_id=participant.id,
+            version=text.number,
+            label=text.label,
+            language=text.language,
+            sha256=text.sha256,
+            accepted=accepted,
+        )
+    )
 
 
 def submit(

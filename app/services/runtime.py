@@ -42,6 +42,7 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import Protocol
 from app.services import (
     blinding,
+    consent,
     languages,
     learner_cache,
     learners,
@@ -178,10 +179,17 @@ class Expected:
 
 
 def session_gate(ctx: Context, number: int) -> str:
-    """Why session ``number`` cannot start yet ('' when it can): consent and questionnaires."""
+    """Why session ``number`` cannot start yet ('' when it can): consent, questionnaires, and a
+    new consent text the protocol wants accepted before the next session."""
     participant = ctx.participant
     done = step_store.submitted(ctx.cursor, participant_id=participant.id)
-    return questionnaires.blocker_given(done, participant.code, ctx.protocol, number)
+    blocker = questionnaires.blocker_given(done, participant.code, ctx.protocol, number)
+    if blocker or not ctx.protocol.questionnaires.consent.reconsent_before_next_session:
+        return blocker
+    current, accepted = step_store.consent_versions(
+        ctx.cursor, study_id=participant.study_id, participant_id=participant.id
+    )
+    return consent.reconsent_blocker(participant.code, current, accepted)
 
 
 def expected_next(db: Session, ctx: Context, progress: RunProgress | None = None) -> Expected:

@@ -325,6 +325,23 @@ def submitted(cursor: Cursor, *, participant_id: int) -> set[tuple[str, int | No
     }
 
 
+_CONSENT_VERSIONS = Statement(
+    """SELECT (SELECT max(version) FROM consent_version WHERE study_id = :s),
+    (SELECT max(version) FROM consent_record WHERE participant_id = :p AND accepted = :yes)"""
+)
+
+
+def consent_versions(
+    cursor: Cursor, *, study_id: int, participant_id: int
+) -> tuple[int, int | None]:
+    """The study's current consent version (1 while only the protocol's exists) and the latest
+    the participant accepted (None: not yet; app.services.consent.reconsent_blocker)."""
+    current, accepted = cursor.row(
+        _CONSENT_VERSIONS, {"s": study_id, "p": participant_id, "yes": True}
+    )
+    return int(current or 1), None if accepted is None else int(accepted)
+
+
 # ------------------------------------------------------------------------------------ learners
 
 

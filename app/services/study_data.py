@@ -25,7 +25,7 @@ from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
 from analysis.scoring import ScaleSpec
 from app.protocol import SITE_FACTOR, InstrumentSpec, ItemKind, Protocol
-from app.services import learners
+from app.services import learners, registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
 from app.services.studies import protocol_of
@@ -111,6 +111,12 @@ def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
             AnalysisItem("version", "Version of the consent text", "text"),
             AnalysisItem("consent_language", "Language of the consent text accepted", "text"),
             AnalysisItem("consent_sha256", "SHA-256 of the exact consent text accepted", "text"),
+            AnalysisItem(
+                "consent_version",
+                "Number of the consent text's version accepted (1: the protocol's own; the "
+                "latest, when accepted again after a change)",
+                "text",
+            ),
         ),
     )
     return (
@@ -415,6 +421,7 @@ def load_dataset(
     }
     if sites is not None:
         manifest["sites"] = sorted(sites)
+    registration, registration_source = registrations.latest(db, study)
     return StudyDataset(
         participants=participants,
         responses=responses,
@@ -424,4 +431,6 @@ def load_dataset(
         instruments=instruments,
         scales=scales_of(protocol),
         steps_withheld=withheld,
+        registration=registration,
+        registration_source=registration_source,
     )

@@ -2,9 +2,10 @@
 
 Data-protection law (the GDPR's article 15 and its equivalents) gives participants the right to
 a copy of what is held about them. :func:`participant_record` gathers it from every table that
-holds it: the enrolment, the consent record, every questionnaire answer, every question the robot
-asked with the answer and what was heard, audio recordings (described, and included when asked),
-and the audit entries about them. ``trustlab participant export`` writes it as JSON (complete,
+holds it: the enrolment, every answer to a version of the consent text (which version, its
+SHA-256, when), every questionnaire answer, every question the robot asked with the answer and
+what was heard, audio recordings (described, and included when asked), and the audit entries
+about them. ``trustlab participant export`` writes it as JSON (complete,
 for a machine) and HTML (readable, for the participant).
 
 In a blinded study that has not been unblinded, the condition is left out and marked sealed: the
@@ -20,7 +21,7 @@ from typing import Any
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
 
-from app.services import blinding, enrolment, studies
+from app.services import blinding, consent, enrolment, studies
 from app.services.audit import Actor
 from app.tables import (
     Answer,
@@ -143,6 +144,17 @@ def participant_record(
             "withdrawn_at": _when(participant.withdrawn_at),
             "withdrawal_reason": participant.withdrawal_reason or None,
         },
+        "consent": [
+            {
+                "version": record.version,
+                "label": record.label,
+                "answer": "accepted" if record.accepted else "declined",
+                "language": record.language,
+                "sha256": record.sha256,
+                "at": _when(record.answered_at),
+            }
+            for record in consent.records(db, participant)
+        ],
         "questionnaires": list(questionnaires.values()),
         "robot_steps": steps,
         "audit_log": [

@@ -16,7 +16,9 @@
   replacements replace a withdrawn participant of the same stratum and take their condition, and
   the groups stay within half the largest block of each other per stratum (an erased
   participant's slot counts: it stays, as a withdrawal);
-- **erasures**: nothing but the allocation slot remains of an erased participant.
+- **erasures**: nothing but the allocation slot remains of an erased participant;
+- **consent**: every version of the consent text matches its SHA-256, and every participant's
+  consent record names a version and that version's hash in the record's language.
 """
 
 from __future__ import annotations
@@ -30,12 +32,13 @@ from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
 from app.randomisation import entry_at
-from app.services import languages, learners, replies
+from app.services import consent, languages, learners, replies
 from app.services.runtime import FAMILIARISATION, first_session_number, runs_in, session_label
 from app.services.studies import get_study, protocol_of
 from app.tables import (
     Allocation,
     Answer,
+    ConsentRecord,
     LearnerState,
     Participant,
     ParticipantStatus,
@@ -529,12 +532,51 @@ def _check_erased(data: _Study, report: VerifyReport) -> None:
             )
 
 
+def _check_consent(db: Session, data: _Study, report: VerifyReport) -> None:
+    """Every version of the consent text hashes to its stored SHA-256, and every consent
+    record names a version and the hash of that version's words in its language (a record
+    from before hashes were kept has none to compare)."""
+    versions = {v.number: v for v in consent.versions(db, data.study)}
+    for each in versions.values():
+        for language, text in each.texts.items():
+            if consent.digest(text) != each.sha256.get(language):
+                report.findings.append(
+                    Finding(
+                        "consent",
+                        None,
+                        f"version {each.number}'s {language} text does not match its SHA-256",
+                    )
+                )
+    records = db.scalars(
+        select(ConsentRecord)
+        .where(ConsentRecord.participant_id.in_(list(data.participants)))
+        .order_by(ConsentRecord.id)
+    )
+    for record in records:
+        version = versions.get(record.version)
+        code = data.code(record.participant_id)
+        if version is None:
+            report.findings.append(
+                Finding("consent", code, f"answered version {record.version}, which is unknown")
+            )
+        elif record.sha256 and version.sha256.get(record.language) != record.sha256:
+            report.findings.append(
+                Finding(
+                    "consent",
+                    code,
+                    f"the words of version {record.version} answered in {record.language} are "
+                    "not the version's",
+                )
+            )
+
+
 def verify_study(db: Session, *, study_name: str) -> VerifyReport:
     """Run every check on one study."""
     study = get_study(db, study_name)
     data = _Study(db, study)
     report = VerifyReport(study=study.name, participants=len(data.participants))
     _check_allocation(data, report)
+    _check_consent(db, data, report)
     _check_timeline(data, report)
     _check_steps(data, report)
     _check_learners(data, report)

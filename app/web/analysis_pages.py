@@ -21,7 +21,8 @@ from app.services import audit, blinding, pseudonyms, sites, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
 from app.services.mixed_view import mixed_view
-from app.web.templating import render
+from app.services.power_view import PlanForm, plan_view, prefilled
+from app.web.templating import is_htmx, render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
@@ -46,10 +47,11 @@ def analysis_page(
     actor = sites.narrowed(Actor.of_user(user), site, study)
     dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
     try:
-        view = analysis_view(analyse_study(dataset, ss_type=ss))  # type: ignore[arg-type]
+        result = analyse_study(dataset, ss_type=ss)  # type: ignore[arg-type]
+        view = analysis_view(result)
         error = ""
     except AnalysisError as exc:
-        view, error = None, str(exc)
+        result, view, error = None, None, str(exc)
     return render(
         request,
         "analysis.html",
@@ -57,6 +59,7 @@ def analysis_page(
             "study": study,
             "view": view,
             "error": error,
+            "plan": plan_view(*prefilled(result, error)),
             "formats": EXPORT_FORMATS.values(),
             "manifest": dataset.manifest,
             "step_logs": STEP_LOG_EXPORTS,
@@ -107,6 +110,32 @@ def mixed_models_page(
         "analysis_mixed.html",
         {"study": study, "view": view, "error": error, "site": site.strip()},
         block="mixed_models",
+    )
+
+
+@router.get("/studies/{name}/analysis/power")
+def power_plan_page(request: Request, db: SessionDep, user: AnalystUser, name: str) -> Response:
+    """Power, N or detectable effect for the next study: the page, or its answer for htmx."""
+    # The fields are read from the query as text by the view, so a bad one is refused in one
+    # line naming it (422, the page showing the words), never pydantic's list of errors.
+    study = studies.get_study(db, name)
+    form = PlanForm.from_query(request.query_params)
+    basis = ""
+    if form is None or not is_htmx(request):  # the whole page says where its values came from
+        dataset = study_data.load_dataset(db, study=study, for_staff=True)
+        try:
+            result, problem = analyse_study(dataset), ""
+        except AnalysisError as exc:
+            result, problem = None, str(exc)
+        initial, basis = prefilled(result, problem)
+        form = form or initial
+    plan = plan_view(form, basis)
+    return render(
+        request,
+        "analysis_power.html",
+        {"study": study, "plan": plan, "error": plan.error},
+        block="power_answer",
+        status_code=422 if plan.error else 200,
     )
 
 

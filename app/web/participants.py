@@ -17,6 +17,7 @@ from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n.languages import native_name
 from app.services import (
     blinding,
+    consent,
     enrolment,
     languages,
     questionnaires,
@@ -86,6 +87,8 @@ def _participant_page(
             "language_locked": languages.has_started(db, participant),
             "is_admin": user.role == Role.ADMIN,
             "language_error": language_error,
+            "consent_records": consent.records(db, participant),
+            "consent_standing": consent.standing(db, participant, study),
         },
         status_code=status_code,
     )

@@ -1,4 +1,5 @@
-"""Study pages: the list, one study with its participants, enrolment and withdrawal."""
+"""Study pages: the list, one study with its participants, enrolment and withdrawal, and its
+consent text's versions (an admin adds one from the study page)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from fastapi import Form, Request
 from fastapi.responses import Response
 
 from app.deps import (
+    AdminUser,
     CurrentUser,
     ExperimenterUser,
     FormFields,
@@ -17,7 +19,16 @@ from app.deps import (
 )
 from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n.languages import native_name
-from app.services import blinding, enrolment, erasure, overview, sites, studies
+from app.services import (
+    blinding,
+    consent,
+    enrolment,
+    erasure,
+    overview,
+    retention,
+    sites,
+    studies,
+)
 from app.services.audit import Actor
 from app.tables import ParticipantStatus, Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
@@ -25,6 +36,7 @@ from app.web.templating import is_htmx, redirect_with_notice, render
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 STRATUM_FIELD_PREFIX = "stratum_"
+CONSENT_TEXT_PREFIX = "text_"
 
 
 @router.get("/")
@@ -60,6 +72,8 @@ def _study_page(
     form_error: str = "",
     form_values: dict[str, str] | None = None,
     revealed: str = "",
+    consent_error: str = "",
+    consent_values: dict[str, str] | None = None,
     status_code: int = 200,
 ) -> Response:
     study = studies.get_study(db, name)
@@ -71,6 +85,7 @@ def _study_page(
             "study": study,
             "protocol": protocol,
             "overview": overview.study_overview(db, study=study, actor=Actor.of_user(user)),
+            "retention_due": retention.deadline(study),
             "shows_conditions": blinding.shows_conditions(study, Actor.of_user(user)),
             "neutral_groups": list(
                 dict.fromkeys(blinding.condition_labels(study, Actor.of_user(user)).values())
@@ -88,6 +103,10 @@ def _study_page(
             "site_limit": sites.describe(Actor.of_user(user).sites)
             if Actor.of_user(user).sites is not None
             else "",
+            "consent_versions": consent.versions(db, study),
+            "consent_error": consent_error,
+            "consent_values": consent_values or {},
+            "consent_prefix": CONSENT_TEXT_PREFIX,
         },
         block="participant_table"
         if request.query_params.get("block") == "participant_table"
@@ -216,3 +235,43 @@ def withdraw(
         db, study_name=name, code=code, actor=actor, secret=settings.secret, reason=reason
     )
     return render(request, "erased.html", {"study": studies.get_study(db, name), "result": result})
+
+
+@router.post("/admin/studies/{name}/consent")
+def add_consent_version(
+    request: Request, db: SessionDep, admin: AdminUser, name: str, fields: FormFields
+) -> Response:
+    """Add the next version of the consent text (confirmed on the form; audited)."""
+    studies.get_study(db, name)  # an unknown study is a 404, not a form error
+    texts = {
+        key.removeprefix(CONSENT_TEXT_PREFIX): value
+        for key, value in fields.items()
+        if key.startswith(CONSENT_TEXT_PREFIX)
+    }
+    try:
+        if fields.get("confirm") != "yes":
+            raise InvalidInput("tick the box to confirm the new text; nothing was added")
+        added = consent.add_version(
+            db,
+            study_name=name,
+            texts=texts,
+            actor=Actor.of_user(admin),
+            label=fields.get("label", ""),
+            reason=fields.get("reason", ""),
+        )
+    except (InvalidInput, Conflict) as exc:
+        db.rollback()
+        return _study_page(
+            request,
+            db,
+            admin,
+            name,
+            consent_error=exc.message,
+            consent_values=dict(fields),
+            status_code=exc.status_code,
+        )
+    return redirect_with_notice(
+        request,
+        f"/studies/{name}",
+        f"Added version {added.number} ({added.label}) of the consent text.",
+    )

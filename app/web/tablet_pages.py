@@ -23,7 +23,7 @@ from app.i18n.languages import native_name
 from app.inputs import SessionNumber
 from app.protocol import InstrumentSpec
 from app.security import same
-from app.services import languages, questionnaires
+from app.services import consent, languages, questionnaires
 from app.services.audit import Actor
 from app.tables import ActorKind
 from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
@@ -115,25 +115,32 @@ def _check_form_token(tablet: Tablet, settings: SettingsDep, submitted: str) -> 
 
 def _consent(
     request: Request,
+    db: SessionDep,
     tablet: Tablet,
     settings: SettingsDep,
     *,
     error: str = "",
     status_code: int = 200,
 ) -> Response:
-    consent = tablet.protocol.questionnaires.consent
+    text = consent.shown(db, study_id=tablet.study.id, protocol=tablet.protocol)
+    standing = consent.standing(db, tablet.participant, tablet.study)
+    again = standing.accepted is not None  # a new version, after an earlier acceptance
     return _no_store(
         render(
             request,
             "tablet_consent.html",
             {
                 **_context(request, tablet, settings),
-                "paragraphs": [p.strip() for p in consent.text.split("\n\n") if p.strip()],
+                "paragraphs": [p.strip() for p in text.text.split("\n\n") if p.strip()],
+                "version": text.number,
+                "again": again,
+                "declined": standing.declined == text.number,
                 "rules": tablet.protocol.study.rules,
                 "error": _catalogue(tablet).say(error) if error else "",
-                "position": questionnaires.position(
-                    tablet.protocol, questionnaires.Page("consent")
-                ),
+                # Asked again between sessions, the consent is a sitting of one page.
+                "position": (1, 1)
+                if again
+                else questionnaires.position(tablet.protocol, questionnaires.Page("consent")),
             },
             status_code=status_code,
         )
@@ -148,7 +155,7 @@ def consent_page(
     current = _current_or_redirect(db, tablet, "consent")
     if isinstance(current, Response):
         return current
-    return _consent(request, tablet, settings)
+    return _consent(request, db, tablet, settings)
 
 
 @router.post("/tablet/consent")
@@ -159,19 +166,36 @@ def give_consent(
     settings: SettingsDep,
     csrf_token: Annotated[str, Form(max_length=200)] = "",
     accept: Annotated[str, Form(max_length=10)] = "",
+    decline: Annotated[str, Form(max_length=10)] = "",
+    version: Annotated[int | None, Form(ge=1, le=1_000_000)] = None,
 ) -> Response:
-    """Record consent (with the text's version)."""
+    """Record consent (with the text's version), or a refusal of a new version."""
     _check_form_token(tablet, settings, csrf_token)
+    actor = participant_actor(tablet)
     try:
-        questionnaires.accept_consent(
-            db,
-            participant=tablet.participant,
-            protocol=tablet.protocol,
-            accepted=accept == "yes",
-            actor=participant_actor(tablet),
-        )
+        if decline == "yes":
+            questionnaires.decline_consent(
+                db,
+                participant=tablet.participant,
+                protocol=tablet.protocol,
+                actor=actor,
+                version=version,
+            )
+        else:
+            questionnaires.accept_consent(
+                db,
+                participant=tablet.participant,
+                protocol=tablet.protocol,
+                accepted=accept == "yes",
+                actor=actor,
+                version=version,
+            )
     except questionnaires.QuestionnaireInvalid as exc:
-        return _consent(request, tablet, settings, error=exc.errors["accept"], status_code=422)
+        db.rollback()
+        return _consent(request, db, tablet, settings, error=exc.errors["accept"], status_code=422)
+    except questionnaires.ConsentChanged:  # show the new words; nothing was recorded
+        db.rollback()
+        return _consent(request, db, tablet, settings, status_code=409)
     return RedirectResponse("/tablet", status_code=303)
 
 

@@ -57,5 +57,4 @@ def downgrade() -> None:
     if op.get_bind().dialect.name == "postgresql":
         op.execute("DROP FUNCTION IF EXISTS trustlab_append_only_unless_erasing()")
     op.drop_table(ERASURE_MARKER)
-    with op.batch_alter_table("participant") as batch:
-        batch.drop_column("erased_at")
+    op.drop_column("participant", "erased_at")

@@ -1,7 +1,7 @@
 """Sites: the place each participant belongs to, and the sites a staff account is limited to.
 
 Revision ID: 0019
-Revises: 0016
+Revises: 0018
 Create Date: 2026-12-06
 
 - ``participant.site``: one of the study's ``[sites] names`` (NULL in a study without sites).
@@ -20,7 +20,7 @@ from alembic import op
 from sqlalchemy.dialects.postgresql import JSONB
 
 revision: str = "0019"
-down_revision: str | None = "0016"
+down_revision: str | None = "0018"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

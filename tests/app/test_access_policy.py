@@ -223,6 +223,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     },
     ("GET", "/studies/{name}/analysis"): get("/studies/ghost/analysis"),
     ("GET", "/studies/{name}/analysis/mixed"): get("/studies/ghost/analysis/mixed"),
+    ("GET", "/studies/{name}/analysis/power"): get("/studies/ghost/analysis/power"),
     ("GET", "/studies/{name}/exports/{export}"): get("/studies/rt/exports/nope"),
     ("POST", "/api/v1/studies"): send("POST", "/api/v1/studies", json={}),
     ("POST", "/api/v1/studies/{name}/status"): send(
@@ -266,6 +267,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/admin/studies/{name}/unblind"): get("/admin/studies/ghost/unblind"),
     ("POST", "/admin/studies/{name}/unblind"): send(
         "POST", "/admin/studies/ghost/unblind", data={}
+    ),
+    ("POST", "/admin/studies/{name}/consent"): send(
+        "POST", "/admin/studies/ghost/consent", data={"confirm": "yes"}
     ),
     ("GET", "/admin/audit"): get("/admin/audit"),
     ("GET", "/admin/audit.csv"): get("/admin/audit.csv?action=none"),

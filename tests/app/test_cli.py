@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import subprocess
@@ -261,3 +262,59 @@ def test_help_texts_name_defaults_and_no_issue_numbers() -> None:
         shown = runner.invoke(cli, [*words.split(), "--help"], env={"COLUMNS": "200"})
         assert shown.exit_code == 0, words
         assert not re.search(r"\bissues? \d", shown.stdout, re.IGNORECASE), words
+
+
+def test_study_consent_adds_a_version_and_refuses_bad_files(
+    database_url: str, tmp_path: Path
+) -> None:
+    """``study consent``: a new version from a file, printed with its hashes; an unknown study,
+    an empty, unchanged or untranslated text, or a stray key is one line, nothing added."""
+    protocol = tmp_path / "sv.toml"
+    protocol.write_text((REPO_ROOT / "app/protocols/fast_adaptation_trust_sv.toml").read_text())
+    assert run(database_url, "study", "create", "--protocol", str(protocol), "--name", "sv")[0] == 0
+    new = tmp_path / "consent.toml"
+
+    def add(text: str, *extra: str) -> tuple[int, str, str]:
+        new.write_text(text)
+        return run(database_url, "study", "consent", "--study", "sv", "--file", str(new), *extra)
+
+    refusals = {
+        'text = "New."\n': "translations.sv.text: missing in 'sv': every language of the "
+        "study needs the text",
+        'text = " "\n[translations.sv]\ntext = "Ny."\n': "text: empty in 'en': give the text",
+        'txt = "New."\n': f"{new}: unknown key 'txt'; a consent file has version, text and "
+        "[translations.<language>] text",
+        'text = "New.\n': f"{new}: not valid TOML",
+    }
+    for content, message in refusals.items():
+        code, _, err = add(content)
+        assert code == 2 and err.startswith(f"error: {message}"), err
+    new.write_text('text = "New."')
+    code, _, err = run(database_url, "study", "consent", "--study", "ghost", "--file", str(new))
+    assert (code, err.strip()) == (1, "error: no study named 'ghost'; known studies: sv")
+
+    both = 'version = "2.0"\ntext = "New."\n[translations.sv]\ntext = "Ny."\n'
+    code, out, _ = add(both, "--reason", "amendment approved", "--json")
+    assert code == 0
+    assert json.loads(out) == {
+        "study": "sv",
+        "version": 2,
+        "label": "2.0",
+        "sha256": {
+            "en": hashlib.sha256(b"New.").hexdigest(),
+            "sv": hashlib.sha256(b"Ny.").hexdigest(),
+        },
+    }
+    code, _, err = add(both)
+    assert (code, err.strip()) == (
+        2,
+        "error: unchanged: the text is version 2's (2.0) in every language; nothing added",
+    )
+    code, _, err = add(both.replace("Ny.", "Ny text."))  # a label is one version's only
+    assert (code, err.strip()) == (
+        2,
+        "error: version: '2.0' is version 2's label already; give another",
+    )
+    code, out, _ = add(both.replace("Ny.", "Ny text.").replace('version = "2.0"\n', ""))
+    assert code == 0
+    assert out.startswith("added version 3 (3) of 'sv''s consent text\n  en: sha256 ")

@@ -314,3 +314,106 @@ def _insert_without_foreign_keys(database: Database, statement: str) -> None:
         raw.commit()
     finally:
         raw.close()
+
+
+def test_0017_keeps_earlier_consents_as_version_1(blank_database_url: str) -> None:
+    """Participants who consented before 0017 get a version-1 consent record from their consent
+    page's answers; going back is refused while a study has a later version of the text."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0016")
+    now = datetime.now(UTC)
+    with database.engine.begin() as connection:
+        tables = MetaData()
+        tables.reflect(connection, only=["study", "participant", "submission", "response"])
+        study_id = connection.execute(
+            tables.tables["study"]
+            .insert()
+            .values(
+                name="old",
+                title="old",
+                status="open",
+                protocol=default_protocol().protocol.model_dump(mode="json"),
+                protocol_source="",
+                protocol_sha256="0" * 64,
+                allocation_seed="0" * 64,
+                created_at=now,
+                created_by="tests",
+            )
+        ).inserted_primary_key[0]
+        participant = tables.tables["participant"]
+        for code in ("P001", "P002"):
+            connection.execute(
+                participant.insert().values(
+                    study_id=study_id,
+                    code=code,
+                    stratum="",
+                    strata={},
+                    status="active",
+                    enrolled_at=now,
+                    enrolled_by="tests",
+                    withdrawal_reason="",
+                )
+            )
+        consented = connection.execute(
+            select(participant.c.id).where(participant.c.code == "P001")
+        ).scalar_one()
+        connection.execute(
+            tables.tables["submission"].insert(),
+            [
+                {
+                    "participant_id": consented,
+                    "instrument": "consent",
+                    "submitted_at": now,
+                    "revision": 1,
+                }
+            ],
+        )
+        stored = {"accepted": "yes", "version": "1.0", "consent_language": "en"}
+        stored["consent_sha256"] = "a" * 64
+        connection.execute(
+            tables.tables["response"].insert(),
+            [
+                {
+                    "participant_id": consented,
+                    "instrument": "consent",
+                    "item": item,
+                    "value": value,
+                    "answered_at": now,
+                }
+                for item, value in stored.items()
+            ],
+        )
+    schema.upgrade(database)
+    with database.engine.begin() as connection:
+        record = Table("consent_record", MetaData(), autoload_with=connection)
+        rows = connection.execute(
+            select(
+                record.c.participant_id,
+                record.c.version,
+                record.c.label,
+                record.c.language,
+                record.c.sha256,
+                record.c.accepted,
+            )
+        ).all()
+        assert [tuple(row) for row in rows] == [(consented, 1, "1.0", "en", "a" * 64, True)]
+        versions = Table("consent_version", MetaData(), autoload_with=connection)
+        connection.execute(
+            versions.insert().values(
+                study_id=study_id,
+                version=2,
+                label="2",
+                texts={"en": "new"},
+                sha256={"en": "b" * 64},
+                created_at=now,
+                created_by="tests",
+                reason="",
+            )
+        )
+    with pytest.raises(Conflict, match="would delete 1 later consent version"):
+        schema.downgrade(database, "0016")
+    with database.engine.begin() as connection:
+        connection.execute(text("DELETE FROM consent_version"))
+    schema.downgrade(database, "0016")
+    assert "consent_record" not in inspect(database.engine).get_table_names()
+    database.dispose()

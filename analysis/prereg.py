@@ -1,0 +1,375 @@
+"""A pre-registration of a study's analyses, and the check that the report ran what it registered.
+
+Before the first participant, a PI registers (e.g. on OSF) what will be measured, how it will be
+analysed, with what α, whom the analysis leaves out and why N is what it is. trustlab knows all
+of it: the frozen protocol (and its SHA-256), the measures it defines, the models the report
+fits, the exclusion rules :func:`analysis.study.analyse_study` applies, and a power analysis
+(:mod:`analysis.power`). :func:`build_registration` writes them down as one JSON-ready dict;
+:func:`registration_markdown` and :func:`registration_html` render it for people.
+
+The *plan* part of a registration (:func:`analysis_plan`: protocol hash, measures, models, α,
+sums of squares, exclusions) is the part a report can check: :func:`check_registration`
+computes the same plan from the analysis it reports and lists every difference, so the report
+says "as registered" or names each deviation. The plan is derived from the same constants the
+analysis code uses, so a change to trustlab's analysis shows up as a deviation too.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from analysis.dataset import StudyDataset
+from analysis.study import StudyAnalysis
+
+__all__ = [
+    "ALPHA",
+    "FORMAT",
+    "MODELS",
+    "RegistrationCheck",
+    "analysis_plan",
+    "build_registration",
+    "check_registration",
+    "plan_of",
+    "planned_measures",
+    "registered_plan",
+    "registration_html",
+    "registration_markdown",
+]
+
+FORMAT = "trustlab-prereg/1"
+"""The registration's format name (``prereg.json``'s ``format``)."""
+
+ALPHA = 0.05
+"""The level trustlab's reports test at: p < .05 is called significant, Mauchly's test at .05
+decides the Greenhouse–Geisser correction, post-hoc tests are Holm-corrected to .05."""
+
+MODELS = (
+    "mixed ANOVA: condition (between) × session (within) on each per-session measure; "
+    "sphericity by Mauchly's test, Greenhouse–Geisser corrected df and p when it is violated; "
+    "effect sizes partial and generalised η²",
+    "post-hoc tests: sessions within each condition (paired t) and conditions within each "
+    "session (independent t, Welch's with unequal groups), Holm-corrected within each family",
+    "linear mixed model: value ~ condition * session + (1 | participant), REML, type III F "
+    "tests with Satterthwaite df (all participants, incomplete ones too)",
+    "ordinal mixed model (cumulative logit, random intercept) for single Likert items",
+)
+"""The models the report fits, as the report's methods describe them."""
+
+
+def analysis_plan(
+    *,
+    protocol_sha256: str,
+    measures: Sequence[Mapping[str, Any]],
+    ss_type: int,
+    confidence: float,
+    excluded_statuses: Sequence[str],
+    alpha: float = ALPHA,
+) -> dict[str, Any]:
+    """The checkable part of a registration: what a report must have run to be "as registered".
+
+    Parameters
+    ----------
+    measures : sequence of mapping
+        ``{"key", "label", "reverse_keyed"}`` of each per-session measure, in report order.
+    """
+    return {
+        "protocol_sha256": protocol_sha256,
+        "measures": [
+            {
+                "key": str(m["key"]),
+                "label": str(m["label"]),
+                "reverse_keyed": bool(m["reverse_keyed"]),
+            }
+            for m in measures
+        ],
+        "primary_measure": str(measures[0]["key"]) if measures else None,
+        "models": list(MODELS),
+        "alpha": alpha,
+        "ss_type": ss_type,
+        "confidence": confidence,
+        "exclusions": {
+            "statuses": sorted(excluded_statuses),
+            "rules": [
+                "participants whose status is "
+                + (" or ".join(sorted(excluded_statuses)) or "(none)")
+                + " are left out of every analysis and listed with the reason",
+                "the mixed ANOVA of a measure keeps participants with a value in every session "
+                "(complete cases); the others are listed with the reason",
+                "the mixed models keep every participant with at least one value",
+                "reverse-keyed items are reverse-scored before any analysis",
+            ],
+        },
+    }
+
+
+def planned_measures(dataset: StudyDataset) -> list[dict[str, Any]]:
+    """Every measure the report will analyse per session, as :func:`analysis.study.analyse_study`
+    picks them (Likert and numeric items of per-session instruments, then the scales scored
+    from them), whether or not anyone has answered yet: a registration comes before the data."""
+    per_session = [spec for spec in dataset.instruments if spec.per_session]
+    items = [
+        {"key": item.key, "label": item.text, "reverse_keyed": item.reverse}
+        for spec in per_session
+        for item in spec.items
+        if item.kind in ("likert", "numeric")
+    ]
+    names = {spec.name for spec in per_session}
+    scales = [
+        {"key": scale.name, "label": scale.label or scale.name, "reverse_keyed": False}
+        for scale in dataset.scales
+        if scale.instrument in names
+    ]
+    return items + scales
+
+
+def registered_plan(
+    dataset: StudyDataset, *, ss_type: int = 3, confidence: float = 0.95
+) -> dict[str, Any]:
+    """The plan to register for ``dataset``'s study (its protocol's measures, with or without
+    data), with the analysis settings the report uses by default."""
+    return analysis_plan(
+        protocol_sha256=str(dataset.manifest.get("protocol_sha256", "")),
+        measures=planned_measures(dataset),
+        ss_type=ss_type,
+        confidence=confidence,
+        excluded_statuses=sorted(dataset.excluded_statuses),
+    )
+
+
+def plan_of(result: StudyAnalysis) -> dict[str, Any]:
+    """The plan the analysis ``result`` carried out (to compare with a registered one)."""
+    return analysis_plan(
+        protocol_sha256=str(result.dataset.manifest.get("protocol_sha256", "")),
+        measures=[
+            {"key": o.key, "label": o.label, "reverse_keyed": o.reverse_keyed}
+            for o in result.outcomes
+        ],
+        ss_type=result.ss_type,
+        confidence=result.confidence,
+        excluded_statuses=sorted(result.dataset.excluded_statuses),
+    )
+
+
+def build_registration(
+    *,
+    study: Mapping[str, Any],
+    protocol_source: str,
+    plan: Mapping[str, Any],
+    hypotheses: Sequence[str],
+    power: Mapping[str, Any] | None,
+    software: Mapping[str, str],
+    seeds: Mapping[str, Any],
+    created_at: str,
+) -> dict[str, Any]:
+    """The whole registration (``prereg.json``), JSON-ready."""
+    return {
+        "format": FORMAT,
+        "created_at": created_at,
+        "study": dict(study),
+        "protocol": {"sha256": plan["protocol_sha256"], "source": protocol_source},
+        "hypotheses": list(hypotheses),
+        "analysis_plan": dict(plan),
+        "power_analysis": dict(power) if power is not None else None,
+        "software": dict(software),
+        "seeds": dict(seeds),
+    }
+
+
+@dataclass(frozen=True)
+class RegistrationCheck:
+    """How an analysis compares with its registration.
+
+    Attributes
+    ----------
+    deviations : list of str
+        One sentence per difference; empty when the analysis is as registered.
+    registered_at : str
+    source : str
+        Where the registration came from (a file and its SHA-256, or the audit log).
+    """
+
+    deviations: list[str]
+    registered_at: str
+    source: str
+
+    @property
+    def as_registered(self) -> bool:
+        return not self.deviations
+
+
+def check_registration(
+    registration: Mapping[str, Any], result: StudyAnalysis, *, source: str = ""
+) -> RegistrationCheck:
+    """Compare the registered plan with the one ``result`` carried out: protocol hash,
+    measures, models, α, sums of squares, confidence level and exclusion rules."""
+    registered = registration.get("analysis_plan") or {}
+    actual = plan_of(result)
+    deviations = []
+    if registered.get("protocol_sha256") != actual["protocol_sha256"]:
+        deviations.append(
+            f"protocol: registered SHA-256 {str(registered.get('protocol_sha256'))[:12]}…, "
+            f"the study's is {actual['protocol_sha256'][:12]}… (the protocol changed)"
+        )
+    keys = [m["key"] for m in registered.get("measures", [])]
+    ran = [m["key"] for m in actual["measures"]]
+    missing = [k for k in keys if k not in ran]
+    added = [k for k in ran if k not in keys]
+    if missing:
+        deviations.append(f"measures registered but not analysed: {', '.join(missing)}")
+    if added:
+        deviations.append(f"measures analysed but not registered: {', '.join(added)}")
+    if registered.get("primary_measure") != actual["primary_measure"]:
+        deviations.append(
+            f"primary measure: registered {registered.get('primary_measure')}, "
+            f"reported first {actual['primary_measure']}"
+        )
+    for model in registered.get("models", []):
+        if model not in actual["models"]:
+            deviations.append(f"model registered but not fitted: {model}")
+    for model in actual["models"]:
+        if model not in registered.get("models", []):
+            deviations.append(f"model fitted but not registered: {model}")
+    for name, what in (
+        ("alpha", "α"),
+        ("ss_type", "type of sums of squares"),
+        ("confidence", "confidence level"),
+    ):
+        if registered.get(name) != actual[name]:
+            deviations.append(f"{what}: registered {registered.get(name)}, used {actual[name]}")
+    if registered.get("exclusions") != actual["exclusions"]:
+        deviations.append(
+            "exclusion rules: registered "
+            + json.dumps(registered.get("exclusions"), ensure_ascii=False)
+            + ", applied "
+            + json.dumps(actual["exclusions"], ensure_ascii=False)
+        )
+    return RegistrationCheck(deviations, str(registration.get("created_at", "")), source)
+
+
+# ------------------------------------------------------------------------------ rendering
+
+
+def _power_lines(power: Mapping[str, Any] | None) -> list[str]:
+    if not power:
+        return ["No power analysis was registered."]
+    design = power.get("design", {})
+    lines = [
+        f"Question: {power.get('question')}; effect: {design.get('effect')} "
+        f"({design.get('groups')} groups × {design.get('sessions')} sessions), "
+        f"convention {design.get('convention')}.",
+        f"Inputs: f = {_num(power.get('f'))} (partial η² = {_num(power.get('eta2'))}), "
+        f"ρ = {_num(design.get('rho'))}, ε = {_num(design.get('epsilon'))}, "
+        f"α = {design.get('alpha')}"
+        + (
+            f", target power {power.get('target_power')}"
+            if power.get("target_power") is not None
+            else ""
+        )
+        + ".",
+        f"Answer: N = {power.get('n_total')} in total, power {_num(power.get('power'))} "
+        f"(λ = {_num(power.get('lambda'))}, df = {_num(power.get('df1'))}, "
+        f"{_num(power.get('df2'))}, critical F = {_num(power.get('f_critical'))}).",
+    ]
+    if power.get("pilot"):
+        pilot = power["pilot"]
+        lines.append(
+            f"Inputs estimated from the pilot {pilot.get('source')!r} ({pilot.get('dv')}, "
+            f"n per group {pilot.get('n_per_group')}; bootstrap "
+            f"{pilot.get('bootstrap', {}).get('replicates')} resamples, seed "
+            f"{pilot.get('bootstrap', {}).get('seed')})."
+        )
+    if power.get("simulation"):
+        sim = power["simulation"]
+        lines.append(
+            f"Simulated power of the mixed model at N = {sim.get('n_total')}: "
+            f"{_num(sim.get('power'))} [{_num(sim.get('ci_low'))}, {_num(sim.get('ci_high'))}] "
+            f"({sim.get('replicates')} datasets, seed {sim.get('seed')})."
+        )
+    return lines
+
+
+def _num(value: Any) -> str:
+    if value is None:
+        return "—"
+    return f"{value:.4g}" if isinstance(value, int | float) else str(value)
+
+
+def _sections(registration: Mapping[str, Any]) -> list[tuple[str, list[str], str | None]]:
+    """(heading, paragraphs or items, preformatted text) of each part, for both renderings."""
+    plan = registration["analysis_plan"]
+    study = registration["study"]
+    measures = [
+        f"{m['key']}: {m['label']}"
+        + (" (reverse-keyed)" if m["reverse_keyed"] else "")
+        + (" — primary" if m["key"] == plan["primary_measure"] else "")
+        for m in plan["measures"]
+    ]
+    return [
+        (
+            "Study",
+            [
+                f"{study.get('title')} (trustlab study {study.get('name')!r}), registered "
+                f"{registration['created_at']}.",
+                f"Protocol SHA-256: {registration['protocol']['sha256']} (the protocol as "
+                "trustlab stores and runs it, in full below).",
+            ],
+            None,
+        ),
+        ("Hypotheses", list(registration["hypotheses"]), None),
+        ("Measures", measures, None),
+        (
+            "Planned analyses",
+            [
+                *plan["models"],
+                f"α = {plan['alpha']}; type {plan['ss_type']} sums of squares; "
+                f"{plan['confidence']:.0%} confidence intervals.",
+            ],
+            None,
+        ),
+        ("Exclusion rules", list(plan["exclusions"]["rules"]), None),
+        ("Sample size and power", _power_lines(registration.get("power_analysis")), None),
+        (
+            "Software and seeds",
+            [f"{name} {version}" for name, version in registration["software"].items()]
+            + [f"seed {name}: {value}" for name, value in registration["seeds"].items()],
+            None,
+        ),
+        ("Protocol", [], registration["protocol"]["source"]),
+    ]
+
+
+def registration_markdown(registration: Mapping[str, Any]) -> str:
+    """The registration as Markdown (to paste into an OSF form)."""
+    title = registration["study"].get("title")
+    parts = [f"# Pre-registration: {title}", ""]
+    for heading, items, pre in _sections(registration):
+        parts += [f"## {heading}", ""]
+        parts += [f"- {item}" for item in items]
+        if pre is not None:
+            parts += ["```toml", pre.rstrip("\n"), "```"]
+        parts.append("")
+    return "\n".join(parts)
+
+
+def registration_html(registration: Mapping[str, Any]) -> str:
+    """The registration as one self-contained HTML page."""
+    title = html.escape(f"Pre-registration: {registration['study'].get('title')}")
+    body = [f"<h1>{title}</h1>"]
+    for heading, items, pre in _sections(registration):
+        body.append(f"<h2>{html.escape(heading)}</h2>")
+        if items:
+            body.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items) + "</ul>")
+        if pre is not None:
+            body.append(f"<pre>{html.escape(pre)}</pre>")
+    return (
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
+        f"<title>{title}</title>\n<style>body{{font-family:system-ui,sans-serif;max-width:"
+        "900px;margin:0 auto;padding:1.5rem;line-height:1.45}pre{background:#f6f6f6;"
+        "padding:.8rem;overflow-x:auto;font-size:.82rem}</style>\n</head>\n<body>\n"
+        + "\n".join(body)
+        + "\n</body>\n</html>\n"
+    )

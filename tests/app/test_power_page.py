@@ -1,0 +1,151 @@
+"""The analysis page's "Plan the next study": prefilled from the study where it can be, the
+answer of ``trustlab power`` with λ and df, the power curve, and one-line refusals (422)."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from urllib.parse import unquote
+
+import pytest
+from markupsafe import escape
+
+from analysis.power import PowerDesign, n_for_power, power_for_n
+from analysis.power_pilot import estimate_pilot
+from analysis.study import analyse_study
+from app.db import Database
+from app.services import studies, study_data
+from app.services.power_view import PlanForm, answer_plan
+from app.tables import Role
+from app.web.templating import REFUSAL_HEADER
+from bench.seed import seed_study
+from tests.conftest import UserClientFactory, sqlite_only
+
+HTMX = {"HX-Request": "true"}
+PAPER_SPSS = {
+    "effect": "interaction",
+    "groups": "2",
+    "sessions": "4",
+    "size": "eta2",
+    "value": ".204",
+    "convention": "spss",
+    "rho": "",
+    "question": "power",
+    "n": "24",
+}
+"""The seed paper's interaction, partial η² = .204 read "as in SPSS", at its N = 24."""
+
+
+def _field(page: str, name: str) -> str:
+    found = re.search(rf'name="{name}"[^>]* value="([^"]*)"', page)
+    assert found, name
+    return html.unescape(found.group(1))
+
+
+def _figure(page: str) -> dict:
+    found = re.search(r"data-figure-payload='([^']*)'", page)
+    assert found
+    return json.loads(html.unescape(found.group(1)))
+
+
+@sqlite_only("rendering a form and its answer: the data are read as every analysis page reads them")
+def test_the_analysis_page_plans_from_the_studys_own_data(
+    database: Database, user_client: UserClientFactory
+) -> None:
+    seed_study(database, name="pilot", participants=10, seed=4)
+    with database.read_session() as db:
+        dataset = study_data.load_dataset(db, study=studies.get_study(db, "pilot"))
+    outcome = analyse_study(dataset).outcomes[0]
+    pilot = estimate_pilot(
+        outcome.data,
+        dv="value",
+        within="session",
+        between="condition",
+        subject="participant",
+        replicates=0,
+    )
+    page = user_client(Role.ANALYST).get("/studies/pilot/analysis")
+    assert page.status_code == 200
+    text = page.text
+    assert "Plan the next study" in text
+    assert "Prefilled from this study&#39;s own data: 10 complete participants" in text
+    assert f"on {outcome.key} (" in text
+    assert float(_field(text, "rho")) == pytest.approx(pilot.estimates["rho"], abs=5e-4)
+    assert float(_field(text, "value")) == pytest.approx(pilot.f("interaction"), abs=5e-4)
+    assert (_field(text, "groups"), _field(text, "sessions"), _field(text, "n")) == ("2", "4", "10")
+    design = PowerDesign(
+        "interaction", 2, 4, float(_field(text, "rho")), epsilon=float(_field(text, "epsilon"))
+    )
+    expected = n_for_power(design, f=float(_field(text, "value")), target=0.8)
+    assert f"N = {expected.n_total} ({expected.n_total // 2} per group) reaches power" in text
+    figure = _figure(text)
+    assert figure["kind"] == "power_curve" and expected.n_total in figure["n"]
+    assert "<script>" not in text  # the curve is data, drawn by static/js/figures.js
+
+
+@sqlite_only("rendering a form and its answer; the study is only looked up")
+def test_an_answer_for_htmx_and_the_same_as_a_whole_page(
+    database: Database, user_client: UserClientFactory
+) -> None:
+    seed_study(database, name="tiny", participants=2, seed=5)
+    analyst = user_client(Role.ANALYST)
+    answer = analyst.get("/studies/tiny/analysis/power", params=PAPER_SPSS, headers=HTMX)
+    assert answer.status_code == 200
+    text = answer.text
+    assert text.lstrip().startswith('<div id="power-answer"') and "<html" not in text
+    # G*Power 3.1, "as in SPSS": λ = f² · df2 = .204/.796 · 66 = 16.915, power .933
+    # (the same figures test_cli_power.py checks for the command line).
+    assert "Power 0.933 to detect the group × session interaction with N = 24." in text
+    assert "<td>16.9146</td>" in text and "<td>3.000, 66.000</td>" in text
+    assert "trustlab power --effect interaction --groups 2 --sessions 4 --eta2 .204" in text
+    whole = analyst.get("/studies/tiny/analysis/power", params=PAPER_SPSS)
+    assert whole.status_code == 200 and "<html" in whole.text
+    assert "Power 0.933 to detect" in whole.text and _field(whole.text, "value") == ".204"
+    # Too few participants to estimate from: the page says why and starts from the paper's design.
+    assert "Not prefilled from this study: a pilot needs " in whole.text
+
+
+BAD_INPUT = [
+    ({"rho": "1.2"}, "rho (the correlation among repeated measures) must be between"),
+    ({"rho": "abc"}, "rho: 'abc' is not a number"),
+    ({"epsilon": "0.2"}, "epsilon must be between 1/(m − 1)"),
+    ({"value": "-0.1", "size": "f"}, "the effect size f must be 0 or more"),
+    ({"question": "n", "target": "1.5"}, "the target power must be between 0 and 1"),
+    ({"groups": "2.5"}, "groups: a whole number from 1 to 50"),
+]
+
+
+@sqlite_only("refused before the data are read")
+def test_bad_input_is_one_line_in_the_page_with_422(
+    study_name: str, user_client: UserClientFactory
+) -> None:
+    analyst = user_client(Role.ANALYST)
+    for change, words in BAD_INPUT:
+        params = {**PAPER_SPSS, "convention": "gpower", "rho": "0.5", **change}
+        for headers in ({}, HTMX):
+            refused = analyst.get(
+                f"/studies/{study_name}/analysis/power", params=params, headers=headers
+            )
+            assert refused.status_code == 422, change
+            message = unquote(refused.headers[REFUSAL_HEADER])
+            assert message.startswith(words.split(" (")[0]) and words in message
+            assert "\n" not in message and "Traceback" not in refused.text
+            assert f'<p class="error" role="alert">{escape(message)}</p>' in refused.text
+            assert ("<html" in refused.text) is not bool(headers)
+
+
+def test_the_page_and_the_command_line_give_the_same_answer() -> None:
+    form = PlanForm(effect="within", value="0.2", rho="0.6", epsilon=".333", question="power")
+    answer = answer_plan(form)
+    direct = power_for_n(
+        PowerDesign("within", 2, 4, 0.6, epsilon=1 / 3), f=0.2, n_total=24
+    ).to_dict()
+    assert answer.result == direct
+    assert answer.command == (
+        "trustlab power --effect within --groups 2 --sessions 4 --f 0.2 --rho 0.6 "
+        "--epsilon .333 --n 24"
+    )
+    detect = answer_plan(PlanForm(question="effect", value="not read"))
+    assert detect.result["question"] == "detectable effect"
+    assert "--f" not in detect.command and "--target-power 0.8" in detect.command
