@@ -9,6 +9,7 @@ import io
 import json
 import re
 import zipfile
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -289,7 +290,7 @@ def test_enrolment_at_a_site_refuses_clearly_and_stratifies_by_site(
 
 @SQLITE
 def test_a_site_filtered_export_has_the_site_column_and_its_codebook_entry(
-    world: dict[str, Any],
+    world: dict[str, Any], database_url: str, tmp_path: Path
 ) -> None:
     pi, analyst = world["admin"], world["analyst"]
     rows = list(csv.DictReader(io.StringIO(pi.get("/studies/multi/exports/long-csv").text)))
@@ -303,6 +304,23 @@ def test_a_site_filtered_export_has_the_site_column_and_its_codebook_entry(
     site_rows = {r["file"]: r["label"] for r in codebook if r["column"] == "site"}
     assert set(site_rows) == {"wide", "long", "steps"}
     assert all("Site the participant was enrolled at" in label for label in site_rows.values())
+    from tests.app.test_cli import run
+
+    code, out, _ = run(
+        database_url,
+        "export",
+        "--study",
+        "multi",
+        "--format",
+        "long-csv",
+        "--out",
+        str(tmp_path / "uppsala.csv"),
+        "--site",
+        THEIRS,
+    )
+    assert code == 0, out
+    exported = list(csv.DictReader((tmp_path / "uppsala.csv").open()))
+    assert {r["site"] for r in exported} == {THEIRS}
     other = analyst.get("/studies/multi/analysis?site=uppsala")
     assert other.status_code == 403 and "limited to site stockholm" in other.text
     unknown = pi.get("/studies/multi/dashboard.json?site=malmo")
