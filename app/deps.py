@@ -339,7 +339,9 @@ async def station_in_scope(request: Request, db: SessionDep, user: CurrentUser) 
     (app.services.sites). Unlimited accounts pass without a read."""
     name = request.path_params.get("name")
     actor = Actor.of_user(user)
-    if not isinstance(name, str) or actor.sites is None:
+    # Only experimenters reach these routes limited (admins never are; an analyst meets the
+    # route's own 403 first, as the access policy says).
+    if not isinstance(name, str) or actor.sites is None or actor.role != Role.EXPERIMENTER:
         return
 
     def lookup(read: Session) -> bool:

@@ -242,6 +242,8 @@ def test_another_sites_participant_and_station_do_not_exist_for_a_limited_accoun
         assert {p.status for p in rows} == {ParticipantStatus.ACTIVE}
         assert all(p.erased_at is None and p.locked_at is None for p in rows)
         assert {p.code for p in rows} == {theirs, unseated}
+    # a limited analyst meets the station routes' own refusal first, as the access policy says
+    assert world["analyst"].get("/stations/lab-upp").status_code == 403
     # the PI sees and may act on both sites
     assert world["admin"].get(f"/studies/multi/participants/{theirs}").status_code == 200
 
