@@ -142,14 +142,14 @@ def analyse_mixed_models(
             raise InvalidInputError(
                 f"no per-session measure {unknown}; have {[o.key for o in result.outcomes]}"
             )
-    languages = _languages(result)
+    attributes = _covariates(result)
     outcomes = []
     for outcome in chosen:
         if progress is not None:
             progress(outcome.key)
         outcomes.append(
             _outcome_models(
-                outcome, measures, measures_problem, random_slope, result.confidence, languages
+                outcome, measures, measures_problem, random_slope, result.confidence, attributes
             )
         )
     return StudyMixedModels(
@@ -161,20 +161,25 @@ def analyse_mixed_models(
 
 
 LANGUAGE = "language"
+SITE = "site"
+COVARIATES = (LANGUAGE, SITE)
+"""Participant attributes the linear mixed models adjust for (sum-coded fixed effects) when the
+analysed participants have more than one level: the language of a study run in several, and
+the site of a multi-site study."""
 
 
-def _languages(result: StudyAnalysis) -> pd.Series | None:
-    """Each analysed participant's language, when the study ran in more than one: the linear
-    mixed models then adjust for it (a covariate); None otherwise."""
+def _covariates(result: StudyAnalysis) -> dict[str, pd.Series]:
+    """Each analysed participant's language and site, for those of :data:`COVARIATES` with two
+    or more levels among them (a study run in several languages, at several sites)."""
     participants = result.dataset.participants
-    if LANGUAGE not in participants.columns:
-        return None
     analysed = participants[participants["participant"].isin(result.participants["participant"])]
-    if analysed[LANGUAGE].nunique(dropna=True) < 2:
-        return None
-    return pd.Series(
-        analysed[LANGUAGE].to_numpy(), index=analysed["participant"].to_numpy(), name=LANGUAGE
-    )
+    found = {}
+    for column in COVARIATES:
+        if column in participants.columns and analysed[column].nunique(dropna=True) >= 2:
+            found[column] = pd.Series(
+                analysed[column].to_numpy(), index=analysed["participant"].to_numpy(), name=column
+            )
+    return found
 
 
 def _measures(result: StudyAnalysis) -> tuple[pd.DataFrame, str]:
@@ -202,15 +207,15 @@ def _outcome_models(
     measures_problem: str,
     random_slope: bool,
     confidence: float,
-    languages: pd.Series | None = None,
+    attributes: dict[str, pd.Series] | None = None,
 ) -> OutcomeMixedModels:
-    dv = outcome.key if outcome.key not in (*_FACTORS, LANGUAGE) else "value"
+    dv = outcome.key if outcome.key not in (*_FACTORS, *COVARIATES) else "value"
     data = outcome.data.rename(columns={"value": dv})
     covariates: tuple[str, ...] = ()
-    if languages is not None:
-        data = data.assign(**{LANGUAGE: data["participant"].map(languages).to_numpy()})
-        if data[LANGUAGE].dropna().nunique() > 1 and not data[LANGUAGE].isna().any():
-            covariates = (LANGUAGE,)
+    for column, values in (attributes or {}).items():
+        data = data.assign(**{column: data["participant"].map(values).to_numpy()})
+        if data[column].dropna().nunique() > 1 and not data[column].isna().any():
+            covariates += (column,)
     lmm = ordinal = adaptation = None
     lmm_problem = ordinal_problem = adaptation_problem = ""
     try:

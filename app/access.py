@@ -139,6 +139,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/admin/users/{username}/role"): ADMINS,
     ("POST", "/admin/users/{username}/password"): ADMINS,
     ("POST", "/admin/users/{username}/unlock"): ADMINS,
+    ("POST", "/admin/users/{username}/sites"): ADMINS,
     ("GET", "/admin/studies/new"): ADMINS,
     ("POST", "/admin/studies"): ADMINS,
     ("POST", "/admin/studies/{name}/status"): ADMINS,

@@ -48,19 +48,20 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Annotated, Any, Literal, TypeVar
 
-from fastapi import APIRouter, Depends, Request, Response
-from sqlalchemy import event
+from fastapi import APIRouter, Depends, Query, Request, Response
+from sqlalchemy import event, select
 from sqlalchemy.engine import Connection
 from sqlalchemy.orm import ORMExecuteState, Session, SessionTransaction
 from starlette.concurrency import run_in_threadpool
 
 from app.db import WRITE_OPTION, Database
-from app.errors import NotAuthenticated, PermissionDenied
+from app.errors import NotAuthenticated, NotFound, PermissionDenied
 from app.security import same
-from app.services import users
+from app.services import sites, users
+from app.services.audit import Actor
 from app.settings import Settings
 from app.sql import WROTE_KEY, SecondWrite
-from app.tables import LoginSession, Role, User
+from app.tables import LoginSession, Role, Station, User
 
 T = TypeVar("T")
 
@@ -330,6 +331,32 @@ def bearer_key(request: Request) -> str:
     """The key of an ``Authorization: Bearer …`` header ('' when absent)."""
     scheme, _, key = request.headers.get("authorization", "").partition(" ")
     return key.strip() if scheme.lower() == "bearer" else ""
+
+
+async def station_in_scope(request: Request, db: SessionDep, user: CurrentUser) -> None:
+    """Every staff route of a station (``/stations/{name}…``) depends on this: for an account
+    limited to some sites, a station whose seated participant is of another site does not exist
+    (app.services.sites). Unlimited accounts pass without a read."""
+    name = request.path_params.get("name")
+    actor = Actor.of_user(user)
+    # Only experimenters reach these routes limited (admins never are; an analyst meets the
+    # route's own 403 first, as the access policy says).
+    if not isinstance(name, str) or actor.sites is None or actor.role != Role.EXPERIMENTER:
+        return
+
+    def lookup(read: Session) -> bool:
+        station = read.scalar(select(Station).where(Station.name == name))
+        return station is not None and sites.station_hidden(read, station, actor)
+
+    if await run_in_threadpool(identify, db, lookup):
+        raise NotFound(f"no station named {name!r}")
+
+
+SiteFilter = Annotated[
+    str,
+    Query(max_length=40, description="One of the study's sites: only its participants."),
+]
+"""A page's ``?site=`` filter (app.services.sites.narrowed checks it)."""
 
 
 AdminUser = Annotated[User, Depends(require(Role.ADMIN))]

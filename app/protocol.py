@@ -336,6 +336,34 @@ class AllocationSpec(_Strict):
     )
 
 
+SITE_FACTOR = "site"
+"""The stratification factor a study's site becomes with ``[sites] stratify = true``."""
+
+
+class SitesSpec(_Strict):
+    """The places a multi-site study enrols at (app/services/sites.py): every participant belongs
+    to one, staff accounts may be limited to some, and allocation may be stratified by them."""
+
+    names: list[Key] = Field(
+        min_length=1,
+        max_length=50,
+        description="Each site's name (lower snake case, e.g. stockholm), as accounts and "
+        "exports name it.",
+    )
+    labels: dict[str, Text] = Field(
+        default_factory=dict, description="Optional: a site's name as pages show it."
+    )
+    stratify: bool = Field(
+        default=False,
+        description="Randomise within each site (the site becomes the stratification factor "
+        "'site', beside allocation.stratify_by).",
+    )
+
+    def label(self, name: str) -> str:
+        """How pages show the site ``name``."""
+        return self.labels.get(name, name)
+
+
 WithdrawalOption = Literal["keep", "erase"]
 _BOTH_WITHDRAWAL_OPTIONS: list[WithdrawalOption] = ["keep", "erase"]
 
@@ -491,6 +519,9 @@ class Protocol(_Strict):
     allocation: AllocationSpec = Field(default_factory=AllocationSpec)
     withdrawal: WithdrawalSpec = Field(default_factory=WithdrawalSpec)
     retention: RetentionSpec = Field(default_factory=RetentionSpec)
+    sites: SitesSpec | None = Field(
+        default=None, description="The sites of a multi-site study (none: a single place)."
+    )
     questionnaires: QuestionnairesSpec
     room: RoomSpec | None = Field(
         default=None, description="The escape room's floor plan (app/room.py); default layout."
@@ -821,6 +852,27 @@ def _check_allocation(protocol: Protocol) -> list[Problem]:
     return problems
 
 
+def _check_sites(protocol: Protocol) -> list[Problem]:
+    sites = protocol.sites
+    if sites is None:
+        return []
+    problems = _unique(sites.names, "sites.names", "site")
+    problems += [
+        Problem(f"sites.labels.{name}", "not listed in sites.names")
+        for name in sites.labels
+        if name not in sites.names
+    ]
+    if SITE_FACTOR in protocol.allocation.stratify_by:
+        problems.append(
+            Problem(
+                "allocation.stratify_by",
+                "a study with [sites] stratifies by site with [sites] stratify = true: leave "
+                "'site' out of stratify_by",
+            )
+        )
+    return problems
+
+
 def _check_instruments(questionnaires: QuestionnairesSpec) -> list[Problem]:
     problems = _unique([s.name for s in questionnaires.scales], "questionnaires.scales", "scale")
     problems += _unique(
@@ -923,6 +975,7 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
     problems += _check_speech(protocol)
     problems += _check_languages(protocol)
     problems += _check_allocation(protocol)
+    problems += _check_sites(protocol)
     problems += _check_instruments(protocol.questionnaires)
     if protocol.room is not None:
         categories = [c.name for c in protocol.categories]

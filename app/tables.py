@@ -132,6 +132,9 @@ class User(Base):
     is_active: Mapped[bool] = mapped_column(default=True)
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     last_login_at: Mapped[datetime | None]
+    sites: Mapped[list[str] | None] = mapped_column(JSONDocument)
+    """The sites whose participants this account may see (app.services.sites); None: all.
+    Admins always see all."""
 
 
 class LoginSession(Base):
@@ -208,6 +211,9 @@ class Participant(Base):
     token_generation: Mapped[int] = mapped_column(default=0, server_default="0")
     language: Mapped[str | None] = mapped_column(String(16))
     """One of the study's languages; None: not chosen yet, the study's first applies."""
+    site: Mapped[str | None] = mapped_column(String(40))
+    """One of the study's ``[sites]``; None in a study without sites. Kept after an erasure (a
+    place, not a person): the slot still counts at its site."""
     erased_at: Mapped[datetime | None]
     """Set when the participant's data was erased (app.services.erasure): the row stays, under a
     pseudonym, only so that their allocation slot keeps the sequence whole."""

@@ -42,6 +42,7 @@ from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.protocol import default_protocol  # noqa: E402
 from app.services import enrolment, questionnaires, studies  # noqa: E402
+from app.services.audit import Actor  # noqa: E402
 from tests.conftest import TRUST_ANSWERS  # noqa: E402
 from tests.e2e import room_driver as drive  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402
@@ -77,7 +78,7 @@ def _frame_rate(page: Page, seconds: float, *, walking: bool) -> float:
 def _fill_session_questionnaire(database: Database, code: str, session: int) -> None:
     with database.writing() as db:
         study = studies.get_study(db, STUDY)
-        participant = enrolment.get_participant(db, study, code)
+        participant = enrolment.get_participant(db, study, code, actor=Actor.system())
         questionnaires.submit(
             db,
             participant=participant,

@@ -17,7 +17,7 @@ from analysis.exports.tables import (
     WideColumn,
     steps_columns,
     wide_columns,
-    with_language,
+    with_attributes,
 )
 from analysis.instruments import InstrumentSpec, ItemSpec
 from analysis.scoring import ScaleSpec
@@ -142,6 +142,7 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
         "condition": ("Experimental condition", "string", "nominal", conditions, ""),
         "status": ("Participant status at export", "string", "nominal", "", ""),
         "language": (LANGUAGE_LABEL, "string", "nominal", "", ""),
+        "site": (SITE_LABEL, "string", "nominal", "", ""),
     }
     out = []
     for column in columns:
@@ -171,11 +172,13 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
 
 
 LANGUAGE_LABEL = "Language the participant took part in (ISO 639 code)"
+SITE_LABEL = "Site the participant was enrolled at (the protocol's [sites] names)"
 
 _LONG = {
     "participant": ("Participant code", "string"),
     "condition": ("Experimental condition", "string"),
     "language": (LANGUAGE_LABEL, "string"),
+    "site": (SITE_LABEL, "string"),
     "instrument": ("Instrument key", "string"),
     "session": ("Session number (empty for once-only instruments)", "integer"),
     "item": ("Item key (see the wide file's codebook rows for the wording)", "string"),
@@ -190,6 +193,7 @@ _STEPS = {
     "participant": ("Participant code", "string"),
     "condition": ("Experimental condition", "string"),
     "language": (LANGUAGE_LABEL, "string"),
+    "site": (SITE_LABEL, "string"),
     "category": ("Mental-activity category of the question", "string"),
     "session": ("Session number", "integer"),
     "run": ("Run within the session", "integer"),
@@ -249,7 +253,7 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
     participant = (_participant_label(dataset), "string")
     rows += [
         _plain_entry("long", c, *(participant if c == "participant" else _LONG[c]))
-        for c in with_language(LONG_COLUMNS, dataset)
+        for c in with_attributes(LONG_COLUMNS, dataset)
     ]
     rows += [
         _plain_entry("steps", c, *(participant if c == "participant" else _STEPS[c]))

@@ -31,7 +31,7 @@ __all__ = [
     "steps_table",
     "wide_columns",
     "wide_table",
-    "with_language",
+    "with_attributes",
 ]
 
 LONG_COLUMNS = ("participant", "condition", "instrument", "session", "item", "value", "scored")
@@ -61,25 +61,28 @@ the recogniser heard, its confidence and which recogniser it was. They follow th
 of the preferred question in the steps table."""
 
 LANGUAGE = "language"
-"""A participant attribute that also goes into every long and steps row, right after the
-condition, when the dataset has it (trustlab's exports always do): a multi-language study is
-analysed by language, and a row should say which words the participant was given."""
+SITE = "site"
+ROW_ATTRIBUTES = (LANGUAGE, SITE)
+"""Participant attributes that also go into every long and steps row, right after the
+condition, when the dataset has them: the language (trustlab's exports always have it: a
+multi-language study is analysed by language, and a row should say which words the participant
+was given) and the site of a multi-site study (analysed by site, or filtered to one)."""
 
 
 def steps_columns(dataset: StudyDataset) -> tuple[str, ...]:
     """The steps table's columns before the per-arm probabilities, for this dataset."""
-    base = with_language(STEP_EXPORT_BASE_COLUMNS, dataset)
+    base = with_attributes(STEP_EXPORT_BASE_COLUMNS, dataset)
     if all(column in dataset.steps.columns for column in ANSWER_COLUMNS):
         base = (*base, *ANSWER_COLUMNS)
     return base
 
 
-def with_language(columns: tuple[str, ...], dataset: StudyDataset) -> tuple[str, ...]:
-    """``columns`` with ``language`` after ``condition`` when the participants carry one."""
-    if LANGUAGE not in dataset.attribute_columns:
-        return columns
+def with_attributes(columns: tuple[str, ...], dataset: StudyDataset) -> tuple[str, ...]:
+    """``columns`` with ``language`` and ``site`` after ``condition``, each when the
+    participants carry it (:data:`ROW_ATTRIBUTES`)."""
+    present = tuple(a for a in ROW_ATTRIBUTES if a in dataset.attribute_columns)
     at = columns.index("condition") + 1
-    return (*columns[:at], LANGUAGE, *columns[at:])
+    return (*columns[:at], *present, *columns[at:])
 
 
 def _per_participant(dataset: StudyDataset, column: str) -> pd.Series:
@@ -158,7 +161,7 @@ def long_table(dataset: StudyDataset) -> pd.DataFrame:
     """Every stored answer, raw and scored: one row per participant × instrument × session × item.
 
     Columns :data:`LONG_COLUMNS` (with ``language`` after ``condition`` when the participants
-    have one: :func:`with_language`). ``scored`` applies the reverse key (e.g. ``trust_5``: 6 − x)
+    have one: :func:`with_attributes`). ``scored`` applies the reverse key (e.g. ``trust_5``: 6 − x)
     and is empty for categorical and free-text items. Rows are ordered by participant (as in
     the participants table), then session (once-only instruments first), then instrument and
     item in questionnaire order.
@@ -185,9 +188,10 @@ def long_table(dataset: StudyDataset) -> pd.DataFrame:
     order = np.lexsort((item_rank.to_numpy(), session, participant_rank))
     out = scored.iloc[order].reset_index(drop=True)
     out["condition"] = out["participant"].map(condition).to_numpy()
-    columns = with_language(LONG_COLUMNS, dataset)
-    if LANGUAGE in columns:
-        out[LANGUAGE] = out["participant"].map(_per_participant(dataset, LANGUAGE)).to_numpy()
+    columns = with_attributes(LONG_COLUMNS, dataset)
+    for attribute in ROW_ATTRIBUTES:
+        if attribute in columns:
+            out[attribute] = out["participant"].map(_per_participant(dataset, attribute)).to_numpy()
     return out[list(columns)]
 
 
@@ -316,8 +320,12 @@ def steps_table(dataset: StudyDataset) -> pd.DataFrame:
         after = probability_matrix(steps["probs_after"].to_numpy()[rows], "probs_after")
         blocks.append((rows, before, after))
     n_arms = max(before.shape[1] for _, before, _ in blocks)
-    if LANGUAGE in base:
-        out.insert(2, LANGUAGE, steps["participant"].map(_per_participant(dataset, LANGUAGE)))
+    at = 2
+    for attribute in ROW_ATTRIBUTES:
+        if attribute in base:
+            per = _per_participant(dataset, attribute)
+            out.insert(at, attribute, steps["participant"].map(per))
+            at += 1
     p_before = np.full((len(steps), n_arms), np.nan)
     p_after = np.full((len(steps), n_arms), np.nan)
     for rows, before, after in blocks:

@@ -71,6 +71,12 @@ class EnrolmentRequest(RequestBody):
         description="One of the study's languages; omitted: the study's first, or the "
         "participant chooses on the tablet when the protocol lets them.",
     )
+    site: str | None = Field(
+        default=None,
+        max_length=40,
+        examples=["uppsala"],
+        description="One of the study's sites: required when it declares any, refused otherwise.",
+    )
 
 
 class Enrolled(BaseModel):
@@ -83,6 +89,7 @@ class Enrolled(BaseModel):
     language: str | None = Field(
         default=None, description="The participant's language (None: chosen on the tablet)."
     )
+    site: str | None = Field(default=None, description="The participant's site, if any.")
 
 
 class ParticipantOut(BaseModel):
@@ -97,6 +104,9 @@ class ParticipantOut(BaseModel):
     locked: bool = False
     language: str | None = Field(
         default=None, description="The participant's language (None: not chosen yet)."
+    )
+    site: str | None = Field(
+        default=None, description="The participant's site (None in a study without sites)."
     )
 
 

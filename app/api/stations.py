@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 
-from fastapi import Request, Response, status
+from fastapi import Depends, Request, Response, status
 from sqlalchemy import select
 
 from app.api import station_ops
@@ -28,13 +28,22 @@ from app.api.runtime_schemas import (
 )
 from app.api.schemas import TabletLink
 from app.api.station_ops import device_out
-from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
+from app.deps import (
+    AdminUser,
+    ExperimenterUser,
+    OneHopRouter,
+    SessionDep,
+    SettingsDep,
+    station_in_scope,
+)
 from app.inputs import RowId
-from app.services import enrolment, runtime, stations, studies, tablet_tokens
+from app.services import enrolment, runtime, sites, stations, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Device, Participant, Station, Study
 
-router = OneHopRouter(prefix="/stations", tags=["stations"])
+router = OneHopRouter(
+    prefix="/stations", tags=["stations"], dependencies=[Depends(station_in_scope)]
+)
 devices_router = OneHopRouter(prefix="/devices", tags=["stations"])
 
 
@@ -71,7 +80,9 @@ def _station_out(db: SessionDep, station_name: str) -> StationOut:
 @router.get("")
 def list_stations(db: SessionDep, user: ExperimenterUser) -> list[StationOut]:
     """Every station, who is assigned and its devices."""
-    return _stations_out(db, stations.list_stations(db))
+    return _stations_out(
+        db, sites.visible_stations(db, stations.list_stations(db), Actor.of_user(user))
+    )
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
@@ -94,7 +105,7 @@ def assign(name: str, body: Assignment, db: SessionDep, user: ExperimenterUser) 
     now on, as on the console (its room client then keeps the study's room between
     participants)."""
     study = studies.get_study(db, body.study)
-    participant = enrolment.get_participant(db, study, body.code)
+    participant = enrolment.get_participant(db, study, body.code, actor=Actor.of_user(user))
     stations.assign_participant(
         db,
         station_name=name,

@@ -23,7 +23,15 @@ from app.api.schemas import (
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import blinding, enrolment, erasure, questionnaires, studies, tablet_tokens
+from app.services import (
+    blinding,
+    enrolment,
+    erasure,
+    questionnaires,
+    sites,
+    studies,
+    tablet_tokens,
+)
 from app.services.audit import Actor
 from app.tables import Participant, Study, StudyStatus
 
@@ -57,6 +65,7 @@ def _participant(study: Study, participant: Participant, actor: Actor) -> Partic
         withdrawn_at=participant.withdrawn_at,
         locked=participant.locked_at is not None,
         language=participant.language,
+        site=participant.site,
     )
 
 
@@ -126,7 +135,9 @@ def list_participants(name: str, db: SessionDep, user: CurrentUser) -> list[Part
     """Participants in enrolment order."""
     study = studies.get_study(db, name)
     actor = Actor.of_user(user)
-    return [_participant(study, p, actor) for p in enrolment.list_participants(db, study)]
+    return [
+        _participant(study, p, actor) for p in enrolment.list_participants(db, study, actor=actor)
+    ]
 
 
 @router.post("/{name}/participants", status_code=status.HTTP_201_CREATED)
@@ -140,16 +151,22 @@ def enrol(name: str, body: EnrolmentRequest, db: SessionDep, user: ExperimenterU
         code=body.code,
         strata=body.strata,
         language=body.language,
+        site=body.site,
     )
     study = studies.get_study(db, name)
     replaced = result.allocation.replaces_participant_id
-    replaced_code = db.scalar(select(Participant.code).where(Participant.id == replaced))
+    # A dropout replaced is of the same stratum, so of the same site when sites stratify; when
+    # they do not, it may be another site's participant: then unnamed for a site-limited actor.
+    replaced_code = db.scalar(
+        select(Participant.code).where(Participant.id == replaced, sites.visible(actor))
+    )
     return Enrolled(
         code=result.participant.code,
         condition=enrolment.condition_label(study, result.condition, actor=actor),
         stratum=result.participant.stratum,
         replaces=replaced_code,
         language=result.participant.language,
+        site=result.participant.site,
     )
 
 
@@ -204,7 +221,9 @@ def get_link(
     user: ExperimenterUser,
 ) -> TabletLink:
     """The participant's current tablet link (null when none is issued)."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user)
+    )
     return _link(request, tablet_tokens.participant_token(settings.secret, participant), "t")
 
 
@@ -218,7 +237,9 @@ def issue_link(
     user: ExperimenterUser,
 ) -> TabletLink:
     """Issue (or reissue) the participant's tablet link; earlier links stop working."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user), for_update=True
+    )
     token = tablet_tokens.issue_participant_token(
         db, participant=participant, secret=settings.secret, actor=Actor.of_user(user)
     )
@@ -228,7 +249,9 @@ def issue_link(
 @router.delete("/{name}/participants/{code}/link")
 def revoke_link(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> TabletLink:
     """Revoke the participant's tablet link."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user), for_update=True
+    )
     tablet_tokens.revoke_participant_token(db, participant=participant, actor=Actor.of_user(user))
     return TabletLink(token=None, url=None)
 
@@ -238,7 +261,9 @@ def lock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> Partic
     """Lock the participant's answers for analysis: the tablet's submissions are refused (409),
     new questionnaires and consent as well as revisions, until unlocked."""
     study = studies.get_study(db, name)
-    participant = enrolment.get_participant(db, study, code, for_update=True)
+    participant = enrolment.get_participant(
+        db, study, code, actor=Actor.of_user(user), for_update=True
+    )
     questionnaires.set_locked(db, participant=participant, locked=True, actor=Actor.of_user(user))
     return _participant(study, participant, Actor.of_user(user))
 
@@ -247,6 +272,8 @@ def lock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> Partic
 def unlock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> ParticipantOut:
     """Unlock the participant's answers: new submissions and revisions are accepted again."""
     study = studies.get_study(db, name)
-    participant = enrolment.get_participant(db, study, code, for_update=True)
+    participant = enrolment.get_participant(
+        db, study, code, actor=Actor.of_user(user), for_update=True
+    )
     questionnaires.set_locked(db, participant=participant, locked=False, actor=Actor.of_user(user))
     return _participant(study, participant, Actor.of_user(user))

@@ -19,7 +19,7 @@ import typer
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.db import Database
 from app.errors import InvalidInput
-from app.services import accounts, users
+from app.services import accounts, sites, users
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import Role
@@ -98,6 +98,7 @@ def user_list(as_json: JsonFlag = False) -> None:
                         "active": a.is_active,
                         "locked_until": a.locked_until.isoformat() if a.locked_until else None,
                         "last_login_at": a.last_login_at.isoformat() if a.last_login_at else None,
+                        "sites": a.sites,
                     }
                     for a in rows
                 ]
@@ -109,7 +110,8 @@ def user_list(as_json: JsonFlag = False) -> None:
         if a.locked_until:
             status += f", locked until {a.locked_until:%H:%M} UTC"
         last = f"{a.last_login_at:%Y-%m-%d %H:%M} UTC" if a.last_login_at else "never signed in"
-        typer.echo(f"{a.username:<24} {a.role:<13} {status:<32} {last}")
+        limit = f"  ({sites.describe(a.sites)} only)" if a.sites is not None else ""
+        typer.echo(f"{a.username:<24} {a.role:<13} {status:<32} {last}{limit}")
 
 
 @user_cli.command("disable")
@@ -162,3 +164,27 @@ def user_unlock(username: NameArgument) -> None:
         )
     else:
         typer.echo(f"{username.lower()!r} had no recent failed sign-ins; nothing to unlock")
+
+
+@user_cli.command("sites")
+def user_sites(
+    username: NameArgument,
+    site: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--site",
+            help="A site the account is limited to (repeatable; a site some study declares).",
+        ),
+    ] = None,
+    every: Annotated[
+        bool, typer.Option("--all", help="Lift the limit: the account sees every site.")
+    ] = False,
+) -> None:
+    """Limit an experimenter's or analyst's account to some sites' participants, or lift it."""
+    if every == bool(site):
+        raise InvalidInput("give the sites (--site NAME, repeatable) or --all, not both")
+    with _database().writing() as db:
+        user = sites.set_user_sites(
+            db, username=username, sites=None if every else site, actor=Actor.command_line()
+        )
+        typer.echo(f"{user.username!r} now sees {sites.describe(user.sites)}")

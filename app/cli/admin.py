@@ -275,7 +275,7 @@ def study_list(as_json: JsonFlag = False) -> None:
                 "title": s.title,
                 "status": s.status,
                 "created_at": s.created_at.isoformat(),
-                "enrolment": studies.enrolment_counts(db, s),
+                "enrolment": studies.enrolment_counts(db, s, actor=Actor.command_line()),
             }
             for s in studies.list_studies(db)
         ]
@@ -336,7 +336,8 @@ def participant_enroll(
         list[str] | None, typer.Option(help="Stratification factor as key=value (repeatable).")
     ] = None,
     code: Annotated[
-        str | None, typer.Option(help="Participant code (default P001, P002…).")
+        str | None,
+        typer.Option(help="Participant code (default P001, P002…; at a site SITE-001…)."),
     ] = None,
     language: Annotated[
         str | None,
@@ -344,6 +345,10 @@ def participant_enroll(
             help="One of the study's languages (default: its first, or chosen on the tablet "
             "when the protocol lets participants choose)."
         ),
+    ] = None,
+    site: Annotated[
+        str | None,
+        typer.Option(help="The participant's site: one of the study's [sites] (required there)."),
     ] = None,
     as_json: JsonFlag = False,
 ) -> None:
@@ -358,6 +363,7 @@ def participant_enroll(
             code=code,
             strata=_parse_strata(stratum or []),
             language=language,
+            site=site,
         )
         # Not the entry's place in the allocation sequence: it is concealed while the study
         # enrols (app.services.blinding.allocation_disclosed).
@@ -365,13 +371,15 @@ def participant_enroll(
             "code": result.participant.code,
             "condition": result.condition,
             "language": result.participant.language,
+            "site": result.participant.site,
         }
     if as_json:
         emit_json(payload)
     else:
         spoken = payload["language"] or "chosen on the tablet"
+        where = f" at {payload['site']}" if payload["site"] else ""
         typer.echo(
-            f"enrolled {payload['code']} in {study!r}: condition {payload['condition']}, "
+            f"enrolled {payload['code']} in {study!r}{where}: condition {payload['condition']}, "
             f"language {spoken}"
         )
 
@@ -396,7 +404,9 @@ def participant_language(
         found = studies.get_study(db, study)
         languages.set_language(
             db,
-            participant=enrolment.get_participant(db, found, code, for_update=True),
+            participant=enrolment.get_participant(
+                db, found, code, actor=Actor.command_line(), for_update=True
+            ),
             protocol=studies.protocol_of(found),
             study_name=study,
             language=language,

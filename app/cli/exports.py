@@ -22,7 +22,7 @@ from analysis.prereg import FORMAT
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
 from app.private_files import new_private_file, refuse_existing, refuse_link
-from app.services import audit, pseudonyms, studies, study_data
+from app.services import audit, pseudonyms, sites, studies, study_data
 from app.services.audit import Actor
 from app.services.blinding import is_sealed
 from app.settings import Settings
@@ -63,6 +63,10 @@ def export(
             "are the registered ones (default: the study's newest registration, if any).",
         ),
     ] = None,
+    site: Annotated[
+        str | None,
+        typer.Option(help="Only this site's participants (a study with [sites]; default: all)."),
+    ] = None,
     as_json: JsonFlag = False,
 ) -> None:
     """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
@@ -83,7 +87,8 @@ def export(
     require_current_schema(database)
     with database.read_session() as db:
         found = studies.get_study(db, study)
-        dataset = study_data.load_dataset(db, study=found)
+        only = sites.narrowed(Actor.command_line(), site or "", found).sites
+        dataset = study_data.load_dataset(db, study=found, sites=only)
         study_id, sealed = found.id, is_sealed(found)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
@@ -116,6 +121,7 @@ def export(
                 "data_sha256": dataset.manifest["data_sha256"],
                 "for_unblinded_use": sealed,
                 "pseudonymised": key is not None,
+                "sites": None if only is None else sorted(only),
             },
         )
         db.commit()

@@ -40,6 +40,8 @@ class Account:
     last_login_at: datetime | None
     locked_until: datetime | None
     """Until when failed sign-ins lock it out (app.services.login_throttle), or None."""
+    sites: list[str] | None = None
+    """The sites the account is limited to (app.services.sites); None: every site."""
 
 
 def _account(db: Session, user: User) -> Account:
@@ -50,6 +52,7 @@ def _account(db: Session, user: User) -> Account:
         user.created_at,
         user.last_login_at,
         login_throttle.locked_until(db, username=user.username),
+        user.sites,
     )
 
 
@@ -130,12 +133,17 @@ def set_role(db: Session, *, username: str, role: Role | str, actor: Actor) -> s
     if new_role != Role.ADMIN:
         _keep_an_admin(user, admins, "demoted")
     user.role = new_role
+    details: dict[str, object] = {"from": old_role, "to": new_role.value}
+    if new_role == Role.ADMIN and user.sites is not None:
+        # Admins see every site (app.services.sites): a limit kept would only mislead.
+        details["sites_cleared"] = user.sites
+        user.sites = None
     audit.record(
         db,
         actor=actor,
         action="user.role_changed",
         subject=user.username,
-        details={"from": old_role, "to": new_role.value},
+        details=details,
     )
     db.commit()
     return old_role

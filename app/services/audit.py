@@ -18,11 +18,18 @@ class Actor:
     kind: ActorKind
     name: str
     role: Role | None = None
+    sites: frozenset[str] | None = None
+    """The only sites whose participants this actor may see and act on (app.services.sites);
+    None: every site."""
 
     @classmethod
     def of_user(cls, user: User) -> Actor:
-        """A signed-in dashboard user."""
-        return cls(ActorKind.USER, user.username, Role(user.role))
+        """A signed-in dashboard user, limited to their account's sites unless an admin."""
+        role = Role(user.role)
+        limited = user.sites is not None and role != Role.ADMIN
+        return cls(
+            ActorKind.USER, user.username, role, frozenset(user.sites or ()) if limited else None
+        )
 
     @classmethod
     def command_line(cls) -> Actor:

@@ -28,7 +28,7 @@ from typing import Any, TypeAlias
 
 import numpy as np
 import pydantic_core
-from sqlalchemy import Float, Select, and_, case, cast, func, select
+from sqlalchemy import Float, Select, and_, case, cast, func, select, true
 from sqlalchemy.orm import Session
 
 from analysis.descriptives import t_interval
@@ -106,15 +106,19 @@ class Plan:
     adaptation_query: Query
     learners: bool = True
     """Whether the adaptation curves may be drawn (False while the study is blinded)."""
+    sites: tuple[str, ...] | None = None
+    """The only sites whose participants are counted (app.services.sites); None: all."""
 
     @property
     def key(self) -> PlanKey:
         """What the result depends on besides the data (see :func:`data_key`)."""
-        return self.study_id, tuple(sorted(self.labels.items())), self.learners
+        return self.study_id, tuple(sorted(self.labels.items())), self.learners, self.sites
 
 
-PlanKey: TypeAlias = tuple[int, tuple[tuple[str, str], ...], bool]
-_plans: dict[tuple[int, str, str, tuple[tuple[str, str], ...], bool], Plan] = {}
+PlanKey: TypeAlias = tuple[int, tuple[tuple[str, str], ...], bool, tuple[str, ...] | None]
+_plans: dict[
+    tuple[int, str, str, tuple[tuple[str, str], ...], bool, tuple[str, ...] | None], Plan
+] = {}
 _plans_guard = threading.Lock()
 MAX_PLANS = 256
 
@@ -124,10 +128,18 @@ def plan_for(study: Study, actor: Actor) -> Plan:
     protocol = protocol_of(study)
     labels = condition_labels(study, actor)
     learners = shows_learners(study)
-    cache_key = (study.id, study.protocol_sha256, study.name, tuple(labels.items()), learners)
+    sites = None if actor.sites is None else tuple(sorted(actor.sites))
+    cache_key = (
+        study.id,
+        study.protocol_sha256,
+        study.name,
+        tuple(labels.items()),
+        learners,
+        sites,
+    )
     plan = _plans.get(cache_key)
     if plan is None:
-        plan = _make_plan(study.id, study.name, protocol, labels, learners=learners)
+        plan = _make_plan(study.id, study.name, protocol, labels, learners=learners, sites=sites)
         with _plans_guard:
             if len(_plans) >= MAX_PLANS:
                 _plans.clear()
@@ -136,7 +148,13 @@ def plan_for(study: Study, actor: Actor) -> Plan:
 
 
 def _make_plan(
-    study_id: int, name: str, protocol: Protocol, labels: dict[str, str], *, learners: bool
+    study_id: int,
+    name: str,
+    protocol: Protocol,
+    labels: dict[str, str],
+    *,
+    learners: bool,
+    sites: tuple[str, ...] | None = None,
 ) -> Plan:
     items = session_items(protocol)
     measures = tuple(
@@ -155,29 +173,34 @@ def _make_plan(
         labels=dict(labels),
         measures=measures,
         categories=tuple(c.name for c in protocol.categories if c.preferred is not None),
-        trust_query=_trust_query(study_id, items),
-        adaptation_query=_adaptation_query(study_id),
+        trust_query=_trust_query(study_id, items, sites),
+        adaptation_query=_adaptation_query(study_id, sites),
         learners=learners,
+        sites=sites,
     )
 
 
 def data_key(study: Study, actor: Actor) -> PlanKey:
     """What :func:`dashboard_data` depends on besides the data: the study, the labels the
-    actor may see (blinded roles get neutral ones) and whether the learners may be shown."""
+    actor may see (blinded roles get neutral ones), whether the learners may be shown and the
+    sites counted."""
     return plan_for(study, actor).key
 
 
 # ------------------------------------------------------------------------------------ SQL
 
 
-def _participants(study_id: int) -> Any:
+def _participants(study_id: int, sites: tuple[str, ...] | None) -> Any:
     return and_(
         Participant.study_id == study_id,
         Participant.status != ParticipantStatus.WITHDRAWN,
+        true() if sites is None else Participant.site.in_(sites),
     )
 
 
-def _trust_query(study_id: int, items: Sequence[SessionItem]) -> Query:
+def _trust_query(
+    study_id: int, items: Sequence[SessionItem], sites: tuple[str, ...] | None
+) -> Query:
     """condition, session, item, count, sum and sum of squares of every session item's raw
     answers."""
     value = cast(Response.value, Float)
@@ -193,7 +216,7 @@ def _trust_query(study_id: int, items: Sequence[SessionItem]) -> Query:
         .join(Participant, Participant.id == Response.participant_id)
         .join(Allocation, Allocation.participant_id == Participant.id)
         .where(
-            _participants(study_id),
+            _participants(study_id, sites),
             Response.session.is_not(None),
             Response.item.in_([i.item.key for i in items]),
             Response.instrument.in_(sorted({i.instrument for i in items})),
@@ -202,7 +225,7 @@ def _trust_query(study_id: int, items: Sequence[SessionItem]) -> Query:
     )
 
 
-def _adaptation_query(study_id: int) -> Query:
+def _adaptation_query(study_id: int, sites: tuple[str, ...] | None) -> Query:
     """Per condition × category × learner version after an answer: count, sum and sum of squares
     of p(preferred) after the answer, and of p(preferred) before it when the answer was the
     learner's first (iteration 0), in one pass over the answered adapting prompts."""
@@ -222,7 +245,7 @@ def _adaptation_query(study_id: int) -> Query:
         .join(Prompt, Prompt.id == Answer.prompt_id)
         .join(Participant, Participant.id == Answer.participant_id)
         .join(Allocation, Allocation.participant_id == Participant.id)
-        .where(_participants(study_id), Prompt.adapts.is_(True))
+        .where(_participants(study_id, sites), Prompt.adapts.is_(True))
         .group_by(Allocation.condition, Prompt.category, Answer.learner_version)
     )
 

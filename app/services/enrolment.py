@@ -17,11 +17,11 @@ from sqlalchemy import exists, func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, aliased
 
-from app.errors import Conflict, InvalidInput, NotFound
+from app.errors import Conflict, InvalidInput
 from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
-from app.protocol import AllocationSpec, Protocol
+from app.protocol import SITE_FACTOR, AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
-from app.services import audit, blinding, languages, learners
+from app.services import audit, blinding, languages, learners, sites
 from app.services.audit import Actor
 from app.services.studies import enrolment_counts, get_study, protocol_of
 from app.tables import (
@@ -59,7 +59,7 @@ def condition_label(study: Study, condition_id: str, *, actor: Actor) -> str:
 def counts_by_label(db: Session, study: Study, *, actor: Actor) -> dict[str, dict[str, int]]:
     """Participants per status under each label ``actor`` may see, in the order to list them
     (app.services.blinding.condition_labels); conditions sharing a neutral label are pooled."""
-    counts = enrolment_counts(db, study)
+    counts = enrolment_counts(db, study, actor=actor)
     labels = blinding.condition_labels(study, actor)
     pooled: dict[str, dict[str, int]] = {}
     for condition_id, label in labels.items():
@@ -96,10 +96,17 @@ def _validate_strata(spec: AllocationSpec, strata: Mapping[str, str]) -> dict[st
     return clean
 
 
-def _next_code(db: Session, study: Study) -> str:
-    number = (db.scalar(select(func.count()).where(Participant.study_id == study.id)) or 0) + 1
+def _next_code(db: Session, study: Study, site: str | None) -> str:
+    """``P001``, ``P002``…; at a site, numbered per site after its name (``uppsala-001``), so a
+    code tells where the participant is and says nothing of how many the other sites have."""
+    query = select(func.count()).where(Participant.study_id == study.id)
+    prefix = "P"
+    if site is not None:
+        query = query.where(Participant.site == site)
+        prefix = f"{site[:24]}-"
+    number = (db.scalar(query) or 0) + 1
     while True:
-        code = f"P{number:03d}"
+        code = f"{prefix}{number:03d}"
         if not _code_taken(db, study, code):
             return code
         number += 1
@@ -199,21 +206,29 @@ def enroll_participant(
     strata: Mapping[str, str] | None = None,
     checkpoint_dir: Path | None = None,
     language: str | None = None,
+    site: str | None = None,
 ) -> Enrolment:
     """Enrol a participant and reveal their allocation; commits.
 
     ``language``: one of the study's languages; without it the participant gets the study's
     first, or chooses on the tablet when the protocol lets them (app.services.languages).
+    ``site``: one of the study's sites, required when it declares any, and one the actor's
+    account may see (app.services.sites); with ``[sites] stratify`` it is also the stratum's
+    ``site`` factor.
 
-    Raises NotFound for an unknown study, Conflict for a closed study or a taken code, and
-    InvalidInput for a malformed code, a language the study does not offer or strata that do
-    not match the protocol.
+    Raises NotFound for an unknown study, Conflict for a closed study or a taken code,
+    PermissionDenied for a site the actor's account is not limited to, and InvalidInput for a
+    malformed code, a language the study does not offer, a site it does not declare or strata
+    that do not match the protocol.
     """
     study = get_study(db, study_name, for_update=True)
     if study.status != StudyStatus.OPEN:
         raise Conflict(f"study {study.name!r} is closed to enrolment; an admin can reopen it")
     protocol = protocol_of(study)
     clean_strata = _validate_strata(protocol.allocation, strata or {})
+    site = sites.enrolment_site(protocol, site, actor=actor, study=study)
+    if site is not None and protocol.sites is not None and protocol.sites.stratify:
+        clean_strata[SITE_FACTOR] = site
     if language is not None:
         languages.offered(protocol, language, study_name=study.name)
     elif not languages.chooses_on_tablet(protocol):
@@ -225,11 +240,12 @@ def enroll_participant(
             raise Conflict(f"participant code {code!r} is already used in study {study.name!r}")
     participant = Participant(
         study_id=study.id,
-        code=code or _next_code(db, study),
+        code=code or _next_code(db, study, site),
         stratum=stratum_key(clean_strata),
         strata=clean_strata,
         enrolled_by=actor.name,
         language=language,
+        site=site,
     )
     db.add(participant)
     db.flush()
@@ -243,7 +259,11 @@ def enroll_participant(
         action="participant.enrolled",
         study_id=study.id,
         subject=participant.code,
-        details={"stratum": participant.stratum, "language": participant.language},
+        details={
+            "stratum": participant.stratum,
+            "language": participant.language,
+            "site": participant.site,
+        },
     )
     audit.record(
         db,
@@ -269,15 +289,18 @@ def enroll_participant(
 
 
 def get_participant(
-    db: Session, study: Study, code: str, *, for_update: bool = False
+    db: Session, study: Study, code: str, *, actor: Actor, for_update: bool = False
 ) -> Participant:
-    """A participant of the study by code; NotFound otherwise."""
-    query = select(Participant).where(Participant.study_id == study.id, Participant.code == code)
+    """A participant of the study by code; NotFound otherwise, and for a participant of a site
+    ``actor`` may not see (app.services.sites: as if there were none)."""
+    query = select(Participant).where(
+        Participant.study_id == study.id, Participant.code == code, sites.visible(actor)
+    )
     if for_update:
         query = query.with_for_update()
     participant = db.scalar(query)
     if participant is None:
-        raise NotFound(f"study {study.name!r} has no participant {code!r}")
+        raise sites.not_found(study, code)
     return participant
 
 
@@ -313,7 +336,7 @@ def withdraw_participant(
     when the protocol erases everyone who withdraws (app.services.erasure does that)."""
     study = get_study(db, study_name)
     require_withdrawal_option(study, KEEP)
-    participant = get_participant(db, study, code, for_update=True)
+    participant = get_participant(db, study, code, actor=actor, for_update=True)
     if participant.status == ParticipantStatus.WITHDRAWN:
         raise Conflict(f"participant {code!r} is already withdrawn")
     participant.status = ParticipantStatus.WITHDRAWN
@@ -331,12 +354,16 @@ def withdraw_participant(
     return participant
 
 
-def list_participants(db: Session, study: Study) -> list[Participant]:
-    """Every participant of the study in enrolment order, allocations loaded; erased ones are
-    left out (their rows only hold allocation slots)."""
+def list_participants(db: Session, study: Study, *, actor: Actor) -> list[Participant]:
+    """Every participant of the study ``actor`` may see, in enrolment order, allocations loaded;
+    erased ones are left out (their rows only hold allocation slots)."""
     query = (
         select(Participant)
-        .where(Participant.study_id == study.id, Participant.erased_at.is_(None))
+        .where(
+            Participant.study_id == study.id,
+            Participant.erased_at.is_(None),
+            sites.visible(actor),
+        )
         .order_by(Participant.enrolled_at, Participant.id)
     )
     return list(db.scalars(query))

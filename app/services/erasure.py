@@ -41,7 +41,7 @@ from sqlalchemy.orm import Session
 from app import events
 from app.db import WalCheckpointer
 from app.errors import Conflict, InvalidInput, NotFound
-from app.services import audit, learner_cache, pseudonyms
+from app.services import audit, learner_cache, pseudonyms, sites
 from app.services.audit import Actor
 from app.services.enrolment import ERASE, get_participant, require_withdrawal_option
 from app.services.stations import study_topic
@@ -143,11 +143,13 @@ def erase_participant(
     require_withdrawal_option(study, ERASE)
     pseudonym = erased_code(secret, study, code)
     try:
-        participant = get_participant(db, study, code, for_update=True)
+        participant = get_participant(db, study, code, actor=actor, for_update=True)
     except NotFound:
         earlier = db.scalar(
             select(Participant.erased_at).where(
-                Participant.study_id == study.id, Participant.code == pseudonym
+                Participant.study_id == study.id,
+                Participant.code == pseudonym,
+                sites.visible(actor),
             )
         )
         if earlier is not None:

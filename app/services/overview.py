@@ -19,7 +19,7 @@ from datetime import datetime, timedelta
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.services import consent
+from app.services import consent, sites
 from app.services.audit import Actor
 from app.services.enrolment import condition_label
 from app.services.runtime import session_label
@@ -52,6 +52,8 @@ class ParticipantRow:
     group: str
     status: str
     stratum: str
+    site: str | None
+    """The participant's site (None in a study without sites)."""
     language: str | None
     """The participant's language (None: not chosen yet on the tablet)."""
     locked: bool
@@ -95,11 +97,13 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
     """Progress of every participant, group sizes and warnings."""
     protocol = protocol_of(study)
     now = utcnow()
-    in_study = select(Participant.id).where(Participant.study_id == study.id)
+    # Only the participants of the sites the actor may see (app.services.sites), everywhere.
+    mine = (Participant.study_id == study.id) & sites.visible(actor)
+    in_study = select(Participant.id).where(mine)
     participants = db.execute(
         select(Participant, Allocation.condition)
         .join(Allocation, Allocation.participant_id == Participant.id)
-        .where(Participant.study_id == study.id)
+        .where(mine)
         .order_by(Participant.enrolled_at, Participant.id)
     ).all()
     sessions: dict[int, list[StudySession]] = {}
@@ -162,6 +166,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
                 group=group,
                 status=participant.status,
                 stratum=participant.stratum,
+                site=participant.site,
                 language=participant.language,
                 locked=participant.locked_at is not None,
                 sessions_done=len(closed),
@@ -205,16 +210,16 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
                         participant=participant.code,
                     )
                 )
-    overview.warnings += _station_warnings(db, study, now)
+    overview.warnings += _station_warnings(db, study, now, actor)
     return overview
 
 
-def _station_warnings(db: Session, study: Study, now: datetime) -> list[Attention]:
+def _station_warnings(db: Session, study: Study, now: datetime, actor: Actor) -> list[Attention]:
     warnings = []
     rows = db.execute(
         select(Station, Participant)
         .join(Participant, Participant.id == Station.participant_id)
-        .where(Participant.study_id == study.id)
+        .where(Participant.study_id == study.id, sites.visible(actor))
     ).all()
     for station, participant in rows:
         devices = list(

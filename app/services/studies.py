@@ -200,14 +200,17 @@ def count_studies(db: Session) -> int:
     return db.scalar(select(func.count()).select_from(Study)) or 0
 
 
-def enrolment_counts(db: Session, study: Study) -> dict[str, dict[str, int]]:
-    """Participants per condition and status: ``{condition: {status: n}}``."""
-    rows = db.execute(
+def enrolment_counts(db: Session, study: Study, *, actor: Actor) -> dict[str, dict[str, int]]:
+    """Participants per condition and status: ``{condition: {status: n}}``, of the sites
+    ``actor`` may see (app.services.sites)."""
+    query = (
         select(Allocation.condition, Participant.status, func.count())
         .join(Participant, Participant.id == Allocation.participant_id)
         .where(Allocation.study_id == study.id)
-        .group_by(Allocation.condition, Participant.status)
-    ).all()
+    )
+    if actor.sites is not None:
+        query = query.where(Participant.site.in_(sorted(actor.sites)))
+    rows = db.execute(query.group_by(Allocation.condition, Participant.status)).all()
     counts: dict[str, dict[str, int]] = {
         c.id: dict.fromkeys(ParticipantStatus, 0) for c in protocol_of(study).conditions
     }

@@ -15,7 +15,7 @@ from importlib import metadata
 from typing import Any
 
 import pandas as pd
-from sqlalchemy import select
+from sqlalchemy import ColumnElement, select
 from sqlalchemy.orm import Session
 
 from analysis.dataset import ProtocolSummary, StudyDataset, empty_steps
@@ -24,7 +24,7 @@ from analysis.instruments import InstrumentSpec as AnalysisInstrument
 from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
 from analysis.scoring import ScaleSpec
-from app.protocol import InstrumentSpec, ItemKind, Protocol
+from app.protocol import SITE_FACTOR, InstrumentSpec, ItemKind, Protocol
 from app.services import learners, registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
@@ -165,6 +165,9 @@ def scales_of(protocol: Protocol) -> tuple[ScaleSpec, ...]:
 def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
     """What the report's methods paragraph needs to know about the protocol."""
     with_preferred = [c for c in protocol.categories if c.preferred is not None]
+    factors = list(protocol.allocation.stratify_by)
+    if protocol.sites is not None and protocol.sites.stratify:
+        factors.append(SITE_FACTOR)
     summary: ProtocolSummary = {
         # The study's own title, not the protocol's: a pilot and the main study share a protocol.
         "study": study.title,
@@ -176,11 +179,7 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
         "familiarisation_runs": 1 if protocol.schedule.familiarisation_run else 0,
         "allocation": "permuted blocks of "
         + " and ".join(str(s) for s in protocol.allocation.block_sizes)
-        + (
-            f", stratified by {', '.join(protocol.allocation.stratify_by)}"
-            if protocol.allocation.stratify_by
-            else ""
-        ),
+        + (f", stratified by {', '.join(factors)}" if factors else ""),
         "feedback": f"yes → {protocol.reward.yes:g}, no → {protocol.reward.no:g}",
         "version": study.protocol_sha256,
         "reply_levels": [level.name for level in protocol.replies.levels],
@@ -227,19 +226,31 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
     return summary
 
 
-def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame:
+def _of_sites(study: Study, sites: frozenset[str] | None) -> ColumnElement[bool]:
+    """The study's participants, of ``sites`` only when given (app.services.sites)."""
+    where = Participant.study_id == study.id
+    return where if sites is None else where & Participant.site.in_(sorted(sites))
+
+
+def _participants(
+    db: Session, study: Study, protocol: Protocol, sites: frozenset[str] | None
+) -> pd.DataFrame:
     rows = db.execute(
         select(
             Participant.code,
             Allocation.condition,
             Participant.status,
             Participant.language,
+            Participant.site,
             Participant.strata,
         )
         .join(Allocation, Allocation.participant_id == Participant.id)
-        .where(Participant.study_id == study.id, Participant.erased_at.is_(None))
+        .where(_of_sites(study, sites), Participant.erased_at.is_(None))
         .order_by(Participant.enrolled_at, Participant.id)
     ).all()
+    # A multi-site study's site is a participant attribute like the language: the exports put it
+    # in every row (analysis.exports.tables), and the mixed models can adjust for it.
+    site_column = [SITE_FACTOR] if protocol.sites is not None else []
     frame = pd.DataFrame(
         [
             {
@@ -248,15 +259,17 @@ def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame
                 "status": status,
                 # Not chosen yet (the tablet asks first): the language the study would use.
                 "language": language or protocol.default_language,
+                **({SITE_FACTOR: site} if site_column else {}),
                 **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
             }
-            for code, condition, status, language, strata in rows
+            for code, condition, status, language, site, strata in rows
         ],
         columns=[
             "participant",
             "condition",
             "status",
             "language",
+            *site_column,
             *protocol.allocation.stratify_by,
         ],
     )
@@ -264,7 +277,10 @@ def _participants(db: Session, study: Study, protocol: Protocol) -> pd.DataFrame
 
 
 def _responses(
-    db: Session, study: Study, instruments: tuple[AnalysisInstrument, ...]
+    db: Session,
+    study: Study,
+    instruments: tuple[AnalysisInstrument, ...],
+    sites: frozenset[str] | None,
 ) -> pd.DataFrame:
     numeric = {
         (spec.name, item.key)
@@ -277,7 +293,7 @@ def _responses(
             Participant.code, Response.instrument, Response.session, Response.item, Response.value
         )
         .join(Participant, Participant.id == Response.participant_id)
-        .where(Participant.study_id == study.id)
+        .where(_of_sites(study, sites))
         .order_by(Participant.id, Response.instrument, Response.session, Response.id)
     ).all()
     frame = pd.DataFrame(rows, columns=["participant", "instrument", "session", "item", "value"])
@@ -292,7 +308,9 @@ def _responses(
     return frame
 
 
-def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
+def _steps(
+    db: Session, study: Study, categories: set[str], sites: frozenset[str] | None
+) -> pd.DataFrame:
     rows = db.execute(
         select(
             Participant.code,
@@ -319,7 +337,7 @@ def _steps(db: Session, study: Study, categories: set[str]) -> pd.DataFrame:
         .join(Participant, Participant.id == Answer.participant_id)
         .join(Allocation, Allocation.participant_id == Participant.id)
         .where(
-            Participant.study_id == study.id,
+            _of_sites(study, sites),
             Prompt.adapts.is_(True),
             Prompt.category.in_(categories),
         )
@@ -363,17 +381,21 @@ def _data_sha256(*frames: pd.DataFrame) -> str:
     return digest.hexdigest()
 
 
-def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> StudyDataset:
+def load_dataset(
+    db: Session, *, study: Study, for_staff: bool = False, sites: frozenset[str] | None = None
+) -> StudyDataset:
     """The whole study as the analysis package expects it, with real condition ids (exports are
     for analysts and admins). ``for_staff``: for a signed-in person, so while the study is
-    blinded the step log is withheld (app.services.blinding); the command line passes False."""
+    blinded the step log is withheld (app.services.blinding); the command line passes False.
+    ``sites``: only these sites' participants (a site-limited account's, or a page's site
+    filter: app.services.sites); the manifest then names them."""
     protocol = protocol_of(study)
     instruments = instruments_of(protocol)
     summary = protocol_summary(study, protocol)
-    participants = _participants(db, study, protocol)
-    responses = _responses(db, study, instruments)
+    participants = _participants(db, study, protocol, sites)
+    responses = _responses(db, study, instruments, sites)
     withheld = LEARNERS_SEALED if for_staff and not shows_learners(study) else ""
-    steps = empty_steps() if withheld else _steps(db, study, set(summary["categories"]))
+    steps = empty_steps() if withheld else _steps(db, study, set(summary["categories"]), sites)
     digests = db.scalars(
         select(LearnerState.checkpoint_sha256)
         .join(Participant, Participant.id == LearnerState.participant_id)
@@ -397,6 +419,8 @@ def load_dataset(db: Session, *, study: Study, for_staff: bool = False) -> Study
         "learners": json.loads(json.dumps(protocol.learners.model_dump(mode="json"))),
         "software": _software(),
     }
+    if sites is not None:
+        manifest["sites"] = sorted(sites)
     registration, registration_source = registrations.latest(db, study)
     return StudyDataset(
         participants=participants,

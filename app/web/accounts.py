@@ -17,7 +17,7 @@ from fastapi.responses import Response
 
 from app.deps import AdminUser, CurrentLogin, DatabaseDep, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput, PermissionDenied, TooManyAttempts, TrustlabError
-from app.services import accounts, users
+from app.services import accounts, sites, users
 from app.services.audit import Actor
 from app.tables import Role
 from app.web.templating import redirect_with_notice, render
@@ -34,7 +34,12 @@ def _account_page(
     return render(
         request,
         "admin_user.html",
-        {"account": accounts.get_account(db, username), "roles": list(Role), "error": error},
+        {
+            "account": accounts.get_account(db, username),
+            "roles": list(Role),
+            "error": error,
+            "declared_sites": sites.declared_anywhere(db),
+        },
         status_code=status_code,
     )
 
@@ -104,6 +109,28 @@ def set_role(
     if username.lower() == admin.username and role != Role.ADMIN:
         return redirect_with_notice(request, "/", notice)  # no longer allowed on admin pages
     return _done(request, username, notice)
+
+
+@router.post("/admin/users/{username}/sites")
+def set_sites(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    username: str,
+    site: Annotated[list[str] | None, Form(max_length=40)] = None,
+    every: Annotated[bool, Form()] = False,
+) -> Response:
+    """Limit an experimenter's or analyst's account to some sites, or lift the limit."""
+    try:
+        user = sites.set_user_sites(
+            db,
+            username=username,
+            sites=None if every else (site or []),
+            actor=Actor.of_user(admin),
+        )
+    except (Conflict, InvalidInput, PermissionDenied) as exc:
+        return _refused(request, db, username, exc)
+    return _done(request, username, f"{user.username} now sees {sites.describe(user.sites)}.")
 
 
 def _password_page(

@@ -14,10 +14,10 @@ from analysis.errors import AnalysisError
 from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
 from analysis.mixed_models import analyse_mixed_models
 from analysis.study import analyse_study
-from app.deps import AnalystUser, OneHopRouter, SessionDep
+from app.deps import AnalystUser, OneHopRouter, SessionDep, SiteFilter
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
-from app.services import audit, blinding, pseudonyms, studies, study_data
+from app.services import audit, blinding, pseudonyms, sites, studies, study_data
 from app.services.analysis_view import analysis_view
 from app.services.audit import Actor
 from app.services.mixed_view import mixed_view
@@ -32,13 +32,20 @@ STEP_LOG_EXPORTS = frozenset({"steps-csv", "adaptation-csv"})
 
 @router.get("/studies/{name}/analysis")
 def analysis_page(
-    request: Request, db: SessionDep, user: AnalystUser, name: str, ss: Count = 3
+    request: Request,
+    db: SessionDep,
+    user: AnalystUser,
+    name: str,
+    ss: Count = 3,
+    site: SiteFilter = "",
 ) -> Response:
-    """The mixed ANOVA of every per-session measure, computed now from the stored data."""
+    """The mixed ANOVA of every per-session measure, computed now from the stored data
+    (``?site=``: one site's participants only)."""
     if ss not in (2, 3):
         raise InvalidInput("ss: the sums of squares are of type 3 (default) or 2")
     study = studies.get_study(db, name)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True)
+    actor = sites.narrowed(Actor.of_user(user), site, study)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
     try:
         result = analyse_study(dataset, ss_type=ss)  # type: ignore[arg-type]
         view = analysis_view(result)
@@ -58,6 +65,9 @@ def analysis_page(
             "step_logs": STEP_LOG_EXPORTS,
             "steps_withheld": dataset.steps_withheld,
             "pseudonyms": request.app.state.settings.pseudonym_key is not None,
+            "site": site.strip(),
+            "site_choices": sites.choices(studies.protocol_of(study), Actor.of_user(user)),
+            "study_sites": sites.names(studies.protocol_of(study)),
         },
     )
 
@@ -70,10 +80,12 @@ def mixed_models_page(
     name: str,
     measure: str = "",
     slope: bool = False,
+    site: SiteFilter = "",
 ) -> Response:
     """One measure's mixed models (fitted now): the whole page, or its section for htmx."""
     study = studies.get_study(db, name)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True)
+    actor = sites.narrowed(Actor.of_user(user), site, study)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
     view, error = None, ""
     try:
         result = analyse_study(dataset)
@@ -96,7 +108,7 @@ def mixed_models_page(
     return render(
         request,
         "analysis_mixed.html",
-        {"study": study, "view": view, "error": error},
+        {"study": study, "view": view, "error": error, "site": site.strip()},
         block="mixed_models",
     )
 
@@ -129,13 +141,20 @@ def power_plan_page(request: Request, db: SessionDep, user: AnalystUser, name: s
 
 @router.get("/studies/{name}/exports/{export}")
 def download(
-    request: Request, db: SessionDep, user: AnalystUser, name: str, export: str
+    request: Request,
+    db: SessionDep,
+    user: AnalystUser,
+    name: str,
+    export: str,
+    site: SiteFilter = "",
 ) -> Response:
-    """One export file, built now from the stored data (the download is audited)."""
+    """One export file, built now from the stored data (the download is audited); only the
+    participants of the sites the user sees (``?site=``: of that one)."""
     spec = EXPORT_FORMATS.get(export)
     if spec is None:
         raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
     study = studies.get_study(db, name)
+    actor = sites.narrowed(Actor.of_user(user), site, study)
     if export in STEP_LOG_EXPORTS and not blinding.shows_learners(study):
         raise Conflict(f"no step log yet: {blinding.LEARNERS_SEALED}")  # before reading it all
     pseudonymise = request.query_params.get("pseudonymise") in ("1", "true", "yes")
@@ -143,7 +162,7 @@ def download(
     if pseudonymise:
         configured = request.app.state.settings.pseudonym_key
         key = pseudonyms.require_key(configured.get_secret_value() if configured else None)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study.name)
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
@@ -160,6 +179,7 @@ def download(
                 "sha256": digest,
                 "data_sha256": dataset.manifest["data_sha256"],
                 "pseudonymised": key is not None,
+                "sites": None if actor.sites is None else sorted(actor.sites),
             },
         )
         writer.commit()

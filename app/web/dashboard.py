@@ -10,8 +10,8 @@ from starlette.concurrency import run_in_threadpool
 
 from analysis.population import source_label
 from app.db import Database
-from app.deps import CurrentUser, SessionDep, StreamingUser
-from app.services import blinding, dashboard, learners, stations, studies
+from app.deps import CurrentUser, SessionDep, SiteFilter, StreamingUser
+from app.services import blinding, dashboard, learners, sites, stations, studies
 from app.services.audit import Actor
 from app.services.freshness import FreshnessCache
 from app.web.templating import render
@@ -20,10 +20,15 @@ router = APIRouter(tags=["pages"], include_in_schema=False)
 
 
 @router.get("/studies/{name}/dashboard")
-def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: str) -> Response:
-    """The page; its figures come from the JSON below and refresh on every change."""
+def dashboard_page(
+    request: Request, db: SessionDep, user: CurrentUser, name: str, site: SiteFilter = ""
+) -> Response:
+    """The page; its figures come from the JSON below and refresh on every change
+    (``?site=``: one site's participants only)."""
     study = studies.get_study(db, name)
     protocol = studies.protocol_of(study)
+    actor = Actor.of_user(user)
+    sites.narrowed(actor, site, study)  # refuses a site the study lacks or the user may not see
     shown = blinding.shows_learners(study)
     # As enrolment resolves them (it does not read settings.checkpoint_dir either).
     priors = learners.priors_in_use(protocol) if shown else []
@@ -41,12 +46,16 @@ def dashboard_page(request: Request, db: SessionDep, user: CurrentUser, name: st
             "population": population,
             "uniform_start": uniform,
             "population_source": source_label(population["source"]) if population else "",
+            "site": site.strip(),
+            "site_choices": sites.choices(protocol, actor),
         },
     )
 
 
 @router.get("/studies/{name}/dashboard.json")
-async def dashboard_data(request: Request, user: StreamingUser, name: str) -> Response:
+async def dashboard_data(
+    request: Request, user: StreamingUser, name: str, site: SiteFilter = ""
+) -> Response:
     """The figures' data (Plotly payloads), blinded for roles that may not see conditions.
 
     Dashboards share one computation, and its encoded body, whenever it includes every change of
@@ -61,7 +70,8 @@ async def dashboard_data(request: Request, user: StreamingUser, name: str) -> Re
 
     def plan_now() -> dashboard.Plan:
         with database.read_session() as db:
-            return dashboard.plan_for(studies.get_study(db, name), actor)
+            study = studies.get_study(db, name)
+            return dashboard.plan_for(study, sites.narrowed(actor, site, study))
 
     async with database.admission():
         plan = await run_in_threadpool(plan_now)

@@ -62,7 +62,7 @@ def _participant_page(
     status_code: int = 200,
 ) -> Response:
     study = studies.get_study(db, name)
-    participant = enrolment.get_participant(db, study, code)
+    participant = enrolment.get_participant(db, study, code, actor=Actor.of_user(user))
     protocol = studies.protocol_of(study)
     can_act = user.role in (Role.ADMIN, Role.EXPERIMENTER)
     token = tablet_tokens.participant_token(settings.secret, participant) if can_act else None
@@ -110,7 +110,9 @@ def set_language(
     try:
         languages.set_language(
             db,
-            participant=enrolment.get_participant(db, study, code, for_update=True),
+            participant=enrolment.get_participant(
+                db, study, code, actor=Actor.of_user(user), for_update=True
+            ),
             protocol=studies.protocol_of(study),
             study_name=name,
             language=language,
@@ -145,7 +147,9 @@ def issue_link(
     code: str,
 ) -> Response:
     """Issue (or reissue) the tablet link; earlier links stop working."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user), for_update=True
+    )
     tablet_tokens.issue_participant_token(
         db, participant=participant, secret=settings.secret, actor=Actor.of_user(user)
     )
@@ -159,7 +163,9 @@ def revoke_link(
     request: Request, db: SessionDep, user: ExperimenterUser, name: str, code: str
 ) -> Response:
     """Revoke the tablet link."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user), for_update=True
+    )
     tablet_tokens.revoke_participant_token(db, participant=participant, actor=Actor.of_user(user))
     return redirect_with_notice(request, _page_url(name, code), f"{code}'s tablet link revoked.")
 
@@ -169,7 +175,9 @@ def lock(
     request: Request, db: SessionDep, user: ExperimenterUser, name: str, code: str
 ) -> Response:
     """Lock the participant's answers (no more edits)."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user), for_update=True
+    )
     questionnaires.set_locked(db, participant=participant, locked=True, actor=Actor.of_user(user))
     return redirect_with_notice(request, _page_url(name, code), f"{code}'s answers are locked.")
 
@@ -179,6 +187,8 @@ def unlock(
     request: Request, db: SessionDep, user: ExperimenterUser, name: str, code: str
 ) -> Response:
     """Allow edits again."""
-    participant = enrolment.get_participant(db, studies.get_study(db, name), code, for_update=True)
+    participant = enrolment.get_participant(
+        db, studies.get_study(db, name), code, actor=Actor.of_user(user), for_update=True
+    )
     questionnaires.set_locked(db, participant=participant, locked=False, actor=Actor.of_user(user))
     return redirect_with_notice(request, _page_url(name, code), f"{code}'s answers are unlocked.")

@@ -13,13 +13,20 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from fastapi import Form, Request
+from fastapi import Depends, Form, Request
 from fastapi.responses import Response
 from sqlalchemy import select
 
 from app.api import station_ops
 from app.api.runtime_schemas import AnswerRequest, PromptRequest
-from app.deps import AdminUser, ExperimenterUser, OneHopRouter, SessionDep, SettingsDep
+from app.deps import (
+    AdminUser,
+    ExperimenterUser,
+    OneHopRouter,
+    SessionDep,
+    SettingsDep,
+    station_in_scope,
+)
 from app.errors import Conflict, InvalidInput, NotFound, TrustlabError
 from app.inputs import RowId
 from app.services import (
@@ -28,6 +35,7 @@ from app.services import (
     learners,
     room_presence,
     runtime,
+    sites,
     stations,
     studies,
     tablet_tokens,
@@ -47,14 +55,20 @@ from app.tables import (
 from app.web.qr import qr_svg
 from app.web.templating import redirect_with_notice, render
 
-router = OneHopRouter(tags=["pages"], include_in_schema=False)
+# A site-limited account meets a station seating another site's participant as if it did not
+# exist (app.services.sites), on every route of a named station.
+router = OneHopRouter(
+    tags=["pages"], include_in_schema=False, dependencies=[Depends(station_in_scope)]
+)
 
 
 def _stations_context(
     request: Request, db: SessionDep, settings: SettingsDep, user: User, *, archived: bool = False
 ) -> dict[str, Any]:
     base = str(request.base_url).rstrip("/")
-    found = stations.list_stations(db, archived=archived)
+    found = sites.visible_stations(
+        db, stations.list_stations(db, archived=archived), Actor.of_user(user)
+    )
     ids = [station.id for station in found]
     seated = {
         station_id: (participant, study)
@@ -232,13 +246,14 @@ class SeatingQuestion:
     code: str
 
 
-def _active_codes(db: SessionDep, study: Study) -> list[str]:
+def _active_codes(db: SessionDep, study: Study, actor: Actor) -> list[str]:
     return list(
         db.scalars(
             select(Participant.code)
             .where(
                 Participant.study_id == study.id,
                 Participant.status == ParticipantStatus.ACTIVE,
+                sites.visible(actor),
             )
             .order_by(Participant.code)
         )
@@ -282,7 +297,7 @@ def _console(
             "devices": devices,
             "station_study": station_study,
             "study_choices": choices,
-            "codes": _active_codes(db, station_study) if station_study else [],
+            "codes": _active_codes(db, station_study, Actor.of_user(user)) if station_study else [],
             "question": question,
             "bars": _probabilities(db, participant) if participant and learners_shown else [],
             "learners_shown": learners_shown,
@@ -386,19 +401,26 @@ def choose_study(
     return _act(request, db, user, name, action)
 
 
-def _participant_to_seat(db: SessionDep, study: Study, code: str) -> tuple[Participant, list[str]]:
+def _participant_to_seat(
+    db: SessionDep, study: Study, code: str, actor: Actor
+) -> tuple[Participant, list[str]]:
     """The participant a typed code names, and why to ask first when it is not this study's.
 
     A code the station's study does not know but another study in use does is most often a
     typo'd console or a returning participant of the other study: offered, never taken silently.
     """
     try:
-        return enrolment.get_participant(db, study, code), []
+        return enrolment.get_participant(db, study, code, actor=actor), []
     except NotFound:
         others = db.scalars(
             select(Participant)
             .join(Study, Study.id == Participant.study_id)
-            .where(Participant.code == code, Study.archived_at.is_(None), Study.id != study.id)
+            .where(
+                Participant.code == code,
+                Study.archived_at.is_(None),
+                Study.id != study.id,
+                sites.visible(actor),
+            )
             .order_by(Study.created_at.desc())
         ).all()
         if len(others) != 1:
@@ -424,7 +446,7 @@ def assign(
         if not study:
             raise InvalidInput("choose the study this station runs, then type the code")
         chosen = studies.get_study(db, study)
-        participant, reasons = _participant_to_seat(db, chosen, code)
+        participant, reasons = _participant_to_seat(db, chosen, code, Actor.of_user(user))
         reasons += stations.seating_questions(db, station=station, participant=participant)
         if reasons and not confirmed:
             return SeatingQuestion(reasons, chosen.name, participant.code)

@@ -17,9 +17,18 @@ from app.deps import (
     SessionDep,
     SettingsDep,
 )
-from app.errors import Conflict, InvalidInput
+from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n.languages import native_name
-from app.services import blinding, consent, enrolment, erasure, overview, retention, studies
+from app.services import (
+    blinding,
+    consent,
+    enrolment,
+    erasure,
+    overview,
+    retention,
+    sites,
+    studies,
+)
 from app.services.audit import Actor
 from app.tables import ParticipantStatus, Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
@@ -90,6 +99,10 @@ def _study_page(
             "revealed": revealed,
             "stratum_prefix": STRATUM_FIELD_PREFIX,
             "language_names": {code: native_name(code) for code in protocol.study.languages},
+            "site_choices": sites.choices(protocol, Actor.of_user(user)),
+            "site_limit": sites.describe(Actor.of_user(user).sites)
+            if Actor.of_user(user).sites is not None
+            else "",
             "consent_versions": consent.versions(db, study),
             "consent_error": consent_error,
             "consent_values": consent_values or {},
@@ -127,8 +140,9 @@ def enrol(
             code=fields.get("code", "").strip() or None,
             strata=strata,
             language=fields.get("language", "").strip() or None,
+            site=fields.get("site", "").strip() or None,
         )
-    except (InvalidInput, Conflict) as exc:
+    except (InvalidInput, Conflict, PermissionDenied) as exc:
         db.rollback()
         return _study_page(
             request,
@@ -152,12 +166,13 @@ def withdraw_form(
 ) -> Response:
     """Ask what to do with the data (the protocol's options) and for confirmation before
     withdrawing a participant, or before erasing someone already withdrawn."""
-    return _withdraw_page(request, db, name, code)
+    return _withdraw_page(request, db, user, name, code)
 
 
 def _withdraw_page(
     request: Request,
     db: SessionDep,
+    user: User,
     name: str,
     code: str,
     *,
@@ -165,7 +180,7 @@ def _withdraw_page(
     status_code: int = 200,
 ) -> Response:
     study = studies.get_study(db, name)
-    participant = enrolment.get_participant(db, study, code)
+    participant = enrolment.get_participant(db, study, code, actor=Actor.of_user(user))
     options = enrolment.withdrawal_options(study)
     if participant.status == ParticipantStatus.WITHDRAWN:
         options = tuple(o for o in options if o == enrolment.ERASE)
@@ -210,6 +225,7 @@ def withdraw(
         return _withdraw_page(
             request,
             db,
+            user,
             name,
             code,
             form_error=f"Type {code} to confirm that everything they gave is to be erased.",

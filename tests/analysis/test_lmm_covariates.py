@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from analysis.errors import InvalidInputError
+from analysis.exports.tables import long_table
 from analysis.lmm import linear_mixed_models
 from analysis.mixed_models import analyse_mixed_models
 from analysis.study import analyse_study
@@ -98,3 +99,39 @@ def test_a_study_run_in_several_languages_adjusts_its_mixed_models_for_language(
     plain = analyse_mixed_models(analyse_study(one), keys=["trust_1"], random_slope=False)
     single = plain.outcome("trust_1").lmm
     assert single is not None and "language" not in set(single.intercept.tests["Source"])
+
+
+def test_a_multi_site_study_adjusts_its_mixed_models_for_site_and_exports_it() -> None:
+    """The site is a participant attribute like the language: the linear mixed models add it
+    as a sum-coded fixed effect when the analysed participants come from several sites, and the
+    long table carries it in every row."""
+    study = synthetic_study(24, seed=3)  # conditions alternate: sites by pairs, not confounded
+    several = dataclasses.replace(
+        study,
+        participants=study.participants.assign(language="en", site=["kth", "kth", "uu", "uu"] * 6),
+    )
+    fitted = analyse_mixed_models(analyse_study(several), keys=["trust_1"], random_slope=False)
+    lmm = fitted.outcome("trust_1").lmm
+    assert lmm is not None and "site" in set(lmm.intercept.tests["Source"])
+    assert "language" not in set(lmm.intercept.tests["Source"])  # one language: no term
+    long = long_table(several)
+    assert list(long.columns[:4]) == ["participant", "condition", "language", "site"]
+    sites = dict(
+        zip(several.participants["participant"], several.participants["site"], strict=True)
+    )
+    assert (long["site"] == long["participant"].map(sites)).all()
+    # the same model from the exported long file, as `trustlab mixed --covariate site` fits it
+    scored = long[long["item"] == "trust_1"].rename(columns={"scored": "trust_1"})
+    refit = linear_mixed_models(
+        scored,
+        dv="trust_1",
+        within="session",
+        between="condition",
+        subject="participant",
+        random_slope=False,
+        covariates=("site",),
+    )
+    site_test = refit.intercept.tests.set_index("Source").loc["site"]
+    assert site_test["F"] == pytest.approx(
+        lmm.intercept.tests.set_index("Source").loc["site"]["F"], rel=1e-6
+    )

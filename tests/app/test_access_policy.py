@@ -251,6 +251,7 @@ PROBES: dict[tuple[str, str], Probe] = {
             ("role", {"role": "analyst"}),
             ("password", {"password": "ghost password", "confirm": "ghost password"}),
             ("unlock", {}),
+            ("sites", {"every": "true"}),
         )
     },
     ("GET", "/account"): get("/account"),

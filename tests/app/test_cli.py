@@ -145,7 +145,7 @@ def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) ->
     assert code == 0
     payload = json.loads(out)
     # not its place in the sequence (issue 35)
-    assert set(payload) == {"code", "condition", "language"}
+    assert set(payload) == {"code", "condition", "language", "site"}
     assert payload["code"] == "P001" and payload["condition"] in {"C1", "C2"}
     code, _, err = run(database_url, "participant", "enroll", "--study", "lab")
     assert (code, err.strip()) == (

@@ -150,7 +150,7 @@ def _participant(db: object, study: str, code: str) -> tuple[object, object]:
     from app.services import enrolment
 
     found = studies.get_study(db, study)  # type: ignore[arg-type]
-    return enrolment.get_participant(db, found, code), found  # type: ignore[arg-type]
+    return enrolment.get_participant(db, found, code, actor=Actor.system()), found  # type: ignore[arg-type]
 
 
 def test_the_study_page_adds_a_version_after_confirmation(

@@ -242,7 +242,7 @@ def test_the_language_stays_once_a_session_has_started_unless_an_admin_overrides
     lab.answer(first["step_id"], "no")
     with lab.database.writing() as db:
         study = studies.get_study(db, lab.study)
-        participant = enrolment.get_participant(db, study, "S1")
+        participant = enrolment.get_participant(db, study, "S1", actor=Actor.system())
         protocol = studies.protocol_of(study)
         common: dict[str, Any] = {
             "participant": participant,
@@ -358,7 +358,10 @@ def test_a_participant_chooses_swedish_and_the_tablet_speaks_it(
     assert "Språket är redan valt." in again.text
     with lab.database.read_session() as db:
         stored = questionnaires.stored_answers(
-            db, enrolment.get_participant(db, studies.get_study(db, "sv"), "S2"), "consent", None
+            db,
+            enrolment.get_participant(db, studies.get_study(db, "sv"), "S2", actor=Actor.system()),
+            "consent",
+            None,
         )
     swedish = parse_protocol(_swedish_text()).protocol.in_language("sv")
     assert stored["consent_language"] == "sv"

@@ -12,6 +12,7 @@ from typer.testing import CliRunner, Result
 
 from app.cli import cli
 from app.services import enrolment, questionnaires, studies
+from app.services.audit import Actor
 from app.tables import AuditEvent
 from tests.conftest import Lab, create_blinded_study, sqlite_only
 
@@ -40,7 +41,9 @@ def test_everything_stored_about_one_participant_and_nothing_about_others(
     page = (tmp_path / "sar" / f"{mine}.html").read_text()
     assert record["participant"] == mine and record["enrolment"]["condition"] in ("C1", "C2")
     with lab.database.read_session() as db:
-        participant = enrolment.get_participant(db, studies.get_study(db, lab.study), mine)
+        participant = enrolment.get_participant(
+            db, studies.get_study(db, lab.study), mine, actor=Actor.system()
+        )
         stored = questionnaires.stored_answers(db, participant, "tipi", None)
     tipi = next(q for q in record["questionnaires"] if q["instrument"] == "tipi")
     assert tipi["answers"] == stored

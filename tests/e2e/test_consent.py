@@ -14,6 +14,7 @@ from sqlalchemy import select
 from app.db import Database
 from app.protocol import parse_protocol
 from app.services import enrolment, stations, studies
+from app.services.audit import Actor
 from app.tables import ConsentRecord
 from tests.conftest import EXP3_ONLY, PRE_STUDY_ANSWERS, protocol_text
 from tests.e2e.conftest import sign_in_page
@@ -39,7 +40,9 @@ def test_a_participant_accepts_a_new_consent_text_before_the_next_session(
     with database.writing() as db:
         stations.create_station(db, name="consent-test", actor=SYSTEM)
     with database.writing() as db:
-        participant = enrolment.get_participant(db, studies.get_study(db, "amended"), "C1")
+        participant = enrolment.get_participant(
+            db, studies.get_study(db, "amended"), "C1", actor=Actor.system()
+        )
         stations.assign_participant(
             db, station_name="consent-test", participant=participant, actor=SYSTEM
         )

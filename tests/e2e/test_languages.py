@@ -111,7 +111,9 @@ def test_a_swedish_participant_on_the_tablet_and_in_the_room(
     with database.writing() as db:
         key = stations.issue_device_key(db, station_name="rum-1", label="rum", actor=SYSTEM).key
     with database.writing() as db:
-        seated = enrolment.get_participant(db, studies.get_study(db, "sv"), "S1")
+        seated = enrolment.get_participant(
+            db, studies.get_study(db, "sv"), "S1", actor=Actor.system()
+        )
         stations.assign_participant(db, station_name="rum-1", participant=seated, actor=SYSTEM)
     room = context.new_page()
     room.goto(f"{live_server.url}/stations/rum-1/room?voice=off")

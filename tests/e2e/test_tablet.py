@@ -89,7 +89,9 @@ def test_a_participant_completes_every_instrument(
     with database.writing() as db:
         stations.create_station(db, name="tablet-test", actor=SYSTEM)
     with database.writing() as db:
-        participant = enrolment.get_participant(db, studies.get_study(db, exp3_study), "T1")
+        participant = enrolment.get_participant(
+            db, studies.get_study(db, exp3_study), "T1", actor=Actor.system()
+        )
         stations.assign_participant(
             db, station_name="tablet-test", participant=participant, actor=SYSTEM
         )

@@ -1,0 +1,206 @@
+"""Sites: several places sharing one server, each seeing only its own participants.
+
+Like REDCap's data access groups:
+
+- a study's protocol may declare its sites (``[sites] names``); every participant of such a study
+  is enrolled at one of them (``participant.site``), and with ``[sites] stratify = true`` the site
+  is a stratification factor (``site``), so each site's allocation is balanced on its own;
+- an experimenter's or analyst's account may be limited to some sites (``user.sites``). For that
+  account, a participant anywhere else — and every participant of a study without sites — does not
+  exist: lists, counts, the dashboard, analyses and exports leave them out, and naming one (a
+  participant page, seating, withdrawal, erasure, the API) answers 404 as for an unknown code;
+- admins (the PI) and accounts without a limit see every site.
+
+The limit travels with the :class:`~app.services.audit.Actor` (``actor.sites``), so every service
+that shows or changes participants filters with :func:`visible` in SQL or checks with
+:func:`require_visible`; pages narrowing a view to one site (the dashboard's and the analysis's
+site filter) pass a narrowed actor (:func:`narrowed`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+
+from sqlalchemy import ColumnElement, select, true
+from sqlalchemy.orm import Session
+
+from app.errors import Conflict, InvalidInput, NotFound, PermissionDenied
+from app.protocol import Protocol
+from app.services import audit, users
+from app.services.audit import Actor
+from app.services.studies import list_studies, protocol_of
+from app.tables import Participant, Role, Station, Study, User
+
+
+def visible(actor: Actor) -> ColumnElement[bool]:
+    """A WHERE clause keeping the participants ``actor`` may see (all when unlimited)."""
+    if actor.sites is None:
+        return true()
+    return Participant.site.in_(sorted(actor.sites))
+
+
+def sees(actor: Actor, participant: Participant) -> bool:
+    """Whether ``actor`` may see this participant."""
+    return actor.sites is None or participant.site in actor.sites
+
+
+def not_found(study: Study, code: str) -> NotFound:
+    """The refusal for a participant the caller may not see: the one an unknown code gets."""
+    return NotFound(f"study {study.name!r} has no participant {code!r}")
+
+
+def require_visible(actor: Actor, participant: Participant, study: Study) -> Participant:
+    """``participant`` itself, or the NotFound an unknown code gets when ``actor`` may not see
+    them."""
+    if not sees(actor, participant):
+        raise not_found(study, participant.code)
+    return participant
+
+
+def names(protocol: Protocol) -> list[str]:
+    """The study's sites in the protocol's order (empty without ``[sites]``)."""
+    return list(protocol.sites.names) if protocol.sites is not None else []
+
+
+def choices(protocol: Protocol, actor: Actor) -> list[tuple[str, str]]:
+    """(site, label) the actor may enrol at or filter by, in the protocol's order."""
+    if protocol.sites is None:
+        return []
+    return [
+        (name, protocol.sites.label(name))
+        for name in protocol.sites.names
+        if actor.sites is None or name in actor.sites
+    ]
+
+
+def _limit_words(sites: Iterable[str]) -> str:
+    listed = sorted(sites)
+    return f"site{'' if len(listed) == 1 else 's'} {', '.join(listed)}"
+
+
+def enrolment_site(
+    protocol: Protocol, site: str | None, *, actor: Actor, study: Study
+) -> str | None:
+    """The site a new participant is enrolled at, checked: one of the study's sites, and one of
+    the actor's. None for a study without sites (only accounts for every site enrol there)."""
+    site = (site or "").strip() or None
+    declared = names(protocol)
+    if not declared:
+        if site is not None:
+            raise InvalidInput(f"study {study.name!r} has no sites: leave the site out")
+        if actor.sites is not None:
+            raise PermissionDenied(
+                f"your account is limited to {_limit_words(actor.sites)} and study "
+                f"{study.name!r} has no sites: an account for every site enrols here"
+            )
+        return None
+    if site is None:
+        raise InvalidInput(
+            f"study {study.name!r} enrols each participant at a site: give one of "
+            f"{', '.join(declared)}"
+        )
+    if site not in declared:
+        raise InvalidInput(
+            f"site {site!r} is not a site of study {study.name!r}: {', '.join(declared)}"
+        )
+    if actor.sites is not None and site not in actor.sites:
+        raise PermissionDenied(
+            f"your account is limited to {_limit_words(actor.sites)}: it cannot enrol at {site!r}"
+        )
+    return site
+
+
+def narrowed(actor: Actor, site: str, study: Study) -> Actor:
+    """``actor`` seeing only ``site`` (a page's site filter); ``actor`` itself when ``site`` is
+    empty. Refused for a site the study does not declare or the actor may not see."""
+    site = site.strip()
+    if not site:
+        return actor
+    declared = names(protocol_of(study))
+    if site not in declared:
+        offered = ", ".join(declared) if declared else "none: it is a single-site study"
+        raise InvalidInput(
+            f"site: study {study.name!r} has no site {site!r} (its sites: {offered})"
+        )
+    if actor.sites is not None and site not in actor.sites:
+        raise PermissionDenied(f"your account is limited to {_limit_words(actor.sites)}")
+    return dataclasses.replace(actor, sites=frozenset({site}))
+
+
+def station_hidden(db: Session, station: Station, actor: Actor) -> bool:
+    """Whether the participant seated at ``station`` is one ``actor`` may not see: the station
+    is then, for them, as if it did not exist."""
+    if actor.sites is None or station.participant_id is None:
+        return False
+    site = db.scalar(select(Participant.site).where(Participant.id == station.participant_id))
+    return site not in actor.sites
+
+
+def visible_stations(db: Session, found: list[Station], actor: Actor) -> list[Station]:
+    """``found`` without the stations whose seated participant ``actor`` may not see."""
+    if actor.sites is None:
+        return found
+    seated = dict(
+        db.execute(
+            select(Station.id, Participant.site)
+            .join(Participant, Participant.id == Station.participant_id)
+            .where(Station.id.in_([station.id for station in found]))
+        ).all()
+    )
+    return [s for s in found if s.id not in seated or seated[s.id] in actor.sites]
+
+
+def declared_anywhere(db: Session) -> dict[str, list[str]]:
+    """Each site any study declares (archived ones too) → the studies declaring it."""
+    found: dict[str, list[str]] = {}
+    for study in list_studies(db):
+        for name in names(protocol_of(study)):
+            found.setdefault(name, []).append(study.name)
+    return dict(sorted(found.items()))
+
+
+def set_user_sites(
+    db: Session, *, username: str, sites: Iterable[str] | None, actor: Actor
+) -> User:
+    """Limit an experimenter's or analyst's account to ``sites`` (None: every site); commits.
+
+    Refused for an admin (admins see every site), for an empty list, and for a site no study
+    declares: a typo would leave the account seeing nobody, silently.
+    """
+    user = users.named(db, username, for_update=True)
+    clean: list[str] | None = None
+    if sites is not None:
+        if user.role == Role.ADMIN:
+            raise Conflict(
+                f"{user.username!r} is an admin and admins see every site: limit an "
+                "experimenter's or analyst's account"
+            )
+        clean = sorted({site.strip() for site in sites if site.strip()})
+        if not clean:
+            raise InvalidInput("give at least one site (or every site: --all)")
+        declared = declared_anywhere(db)
+        unknown = [site for site in clean if site not in declared]
+        if unknown:
+            known = ", ".join(declared) if declared else "none yet: create the study first"
+            raise InvalidInput(
+                f"no study declares {_limit_words(unknown)} (sites declared: {known})"
+            )
+    if user.sites == clean:
+        raise Conflict(f"{user.username!r} already sees {describe(clean)}")
+    before = user.sites
+    user.sites = clean
+    audit.record(
+        db,
+        actor=actor,
+        action="user.sites_changed",
+        subject=user.username,
+        details={"from": before, "to": clean},
+    )
+    db.commit()
+    return user
+
+
+def describe(sites: Iterable[str] | None) -> str:
+    """An account's limit in words: ``every site`` or ``sites a, b``."""
+    return "every site" if sites is None else _limit_words(sites)

@@ -1,0 +1,403 @@
+"""Sites (app/services/sites.py): participants belong to a site, allocation can be stratified by
+site, and an account limited to some sites never sees another site's participants — swept over
+every staff route of the access policy, like the blinding sweep (tests/app/test_blinding.py)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from sqlalchemy import select
+
+from analysis.exports import EXPORT_FORMATS
+from app.access import POLICY, Principal
+from app.db import Database
+from app.errors import Conflict, InvalidInput
+from app.protocol import ProtocolError, parse_protocol
+from app.services import sites, studies, verify
+from app.services.audit import Actor
+from app.tables import AuditEvent, Participant, ParticipantStatus, Role, User
+from tests.conftest import (
+    EXP3_ONLY,
+    Lab,
+    UserClientFactory,
+    client_of,
+    fill_pre_study,
+    protocol_text,
+    sqlite_only,
+    tablet_client,
+)
+
+SITES = '[sites]\nnames = ["stockholm", "uppsala"]\nstratify = true\n\n[sites.labels]\n'
+SITES += 'stockholm = "Stockholm (KTH)"\n\n[room]\n'
+MINE, THEIRS = "stockholm", "uppsala"
+THEIR_MARK = "uppsala-0"
+"""What every code of the other site starts with (automatic codes at a site: SITE-001…)."""
+
+SQLITE = sqlite_only("the filtering is one plain IN clause; migration 0019 is tested on both")
+
+
+def sites_protocol(**replacements: str) -> str:
+    return protocol_text(**EXP3_ONLY, **{"\n[room]\n": "\n" + SITES, **replacements})
+
+
+def create_sites_study(database: Database, name: str = "multi", **replacements: str) -> str:
+    with database.writing() as db:
+        studies.create_study(
+            db,
+            name=name,
+            loaded=parse_protocol(sites_protocol(**replacements)),
+            actor=Actor.system(),
+        )
+    return name
+
+
+def limit(database: Database, username: str, *names: str) -> None:
+    with database.writing() as db:
+        sites.set_user_sites(db, username=username, sites=list(names), actor=Actor.system())
+
+
+def _station(admin: TestClient, client: TestClient, name: str) -> TestClient:
+    assert admin.post("/api/v1/stations", json={"name": name}).status_code == 201
+    key = admin.post(f"/api/v1/stations/{name}/devices", json={"label": name}).json()["key"]
+    return client_of(client, headers={"Authorization": f"Bearer {key}"})
+
+
+def _enrol(staff: TestClient, site: str, code: str | None = None) -> str:
+    enrolled = staff.post("/api/v1/studies/multi/participants", json={"site": site, "code": code})
+    assert enrolled.status_code == 201, enrolled.text
+    assert enrolled.json()["site"] == site
+    return str(enrolled.json()["code"])
+
+
+@pytest.fixture
+def world(
+    app: FastAPI, client: TestClient, database: Database, user_client: UserClientFactory
+) -> dict[str, Any]:
+    """Study 'multi' at two sites. Stockholm: one participant seated at 'lab-sto' mid-session.
+    Uppsala: two participants, one seated at 'lab-upp' with answers and a questionnaire, and
+    an experimenter 'sto' and an analyst 'sto-analyst' limited to Stockholm."""
+    create_sites_study(database)
+    admin = user_client(Role.ADMIN, "pi")
+    everyone = user_client(Role.EXPERIMENTER, "both")
+    labs = {}
+    for site, station in ((MINE, "lab-sto"), (THEIRS, "lab-upp")):
+        robot = _station(admin, client, station)
+        labs[site] = Lab(app, database, "multi", station, "", everyone, robot, {})
+    codes: dict[str, list[str]] = {MINE: [], THEIRS: []}
+    for site in (MINE, THEIRS, THEIRS):
+        codes[site].append(_enrol(everyone, site))
+    for site in (MINE, THEIRS):
+        lab, code = labs[site], codes[site][0]
+        seated = everyone.put(
+            f"/api/v1/stations/{lab.station}/participant", json={"study": "multi", "code": code}
+        )
+        assert seated.status_code == 200, seated.text
+        lab.tablets[code] = tablet_client(app, lab, code)
+        fill_pre_study(lab.tablets[code])
+        lab.start_session()  # familiarisation
+        lab.run_session()
+        lab.start_session()
+        lab.run_session()
+        lab.experimenter.post(f"/api/v1/stations/{lab.station}/sessions/current/end")
+        lab.fill_pending_questionnaires()
+    mine = user_client(Role.EXPERIMENTER, "sto")
+    analyst = user_client(Role.ANALYST, "sto-analyst")
+    limit(database, "sto", MINE)
+    limit(database, "sto-analyst", MINE)
+    return {"admin": admin, "mine": mine, "analyst": analyst, "codes": codes, "labs": labs}
+
+
+def _staff_reads(role: Principal) -> list[str]:
+    """Every page and read the access policy lets ``role`` fetch (a new route is swept without
+    changing this test); event streams carry types only, tablet links need a token."""
+    paths = []
+    for (method, path), allowed in sorted(POLICY.items()):
+        if method != "GET" or role not in allowed or Principal.ANONYMOUS in allowed:
+            continue
+        if path.endswith("/events"):
+            continue
+        paths.append(path)
+    return paths
+
+
+def _fill(path: str, *, station: str, code: str, export: str = "long-csv") -> str:
+    return (
+        path.replace(
+            "{name}", station if path.startswith(("/stations", "/api/v1/stations")) else "multi"
+        )
+        .replace("{code}", code)
+        .replace("{export}", export)
+    )
+
+
+def _texts(response: Any) -> list[str]:
+    """The response's text, and every member's of a zip file."""
+    if response.content[:2] == b"PK":
+        with zipfile.ZipFile(io.BytesIO(response.content)) as archive:
+            return [archive.read(n).decode("utf-8", "replace") for n in archive.namelist()]
+    return [response.content.decode("utf-8", "replace")]
+
+
+@SQLITE
+def test_a_site_limited_account_never_sees_another_sites_participants(
+    world: dict[str, Any],
+) -> None:
+    mine_code = world["codes"][MINE][0]
+    leaks: dict[str, str] = {}
+    for role, staff in (
+        (Principal.EXPERIMENTER, world["mine"]),
+        (Principal.ANALYST, world["analyst"]),
+    ):
+        for path in _staff_reads(role):
+            exports = list(EXPORT_FORMATS) if "{export}" in path else ["long-csv"]
+            for export in exports:
+                url = _fill(path, station="lab-sto", code=mine_code, export=export)
+                response = staff.get(url)
+                if response.status_code == 409 and export in ("steps-csv", "adaptation-csv"):
+                    continue  # pragma: no cover - the study is not blinded
+                assert response.status_code < 400, f"{role} {url}: {response.status_code}"
+                if any(THEIR_MARK in text for text in _texts(response)):
+                    leaks[f"{role} {url}"] = "an Uppsala code"
+    assert leaks == {}, json.dumps(leaks, indent=1)
+
+    experimenter = world["mine"]
+    # counts: only Stockholm's one participant
+    summary = experimenter.get("/api/v1/studies/multi").json()
+    assert sum(g["active"] + g["withdrawn"] + g["completed"] for g in summary["enrolment"]) == 1
+    listed = experimenter.get("/api/v1/studies/multi/participants").json()
+    assert [p["code"] for p in listed] == [mine_code]
+    assert [s["name"] for s in experimenter.get("/api/v1/stations").json()] == ["lab-sto"]
+    # the dashboard's data is Stockholm's alone: the PI's, filtered to Stockholm
+    pi = world["admin"]
+    assert (
+        experimenter.get("/studies/multi/dashboard.json").json()
+        == pi.get("/studies/multi/dashboard.json?site=stockholm").json()
+    )
+    # and the analysis counts Stockholm's participants only
+    analysed = re.compile(r"(\d+ participants? analysed)")
+    own = analysed.findall(world["analyst"].get("/studies/multi/analysis").text)
+    assert own == analysed.findall(pi.get("/studies/multi/analysis?site=stockholm").text)
+    assert own != analysed.findall(pi.get("/studies/multi/analysis").text)
+    everyone = pi.get("/studies/multi/dashboard.json").json()
+    assert everyone["answers"] > experimenter.get("/studies/multi/dashboard.json").json()["answers"]
+
+
+@SQLITE
+def test_another_sites_participant_and_station_do_not_exist_for_a_limited_account(
+    world: dict[str, Any], database: Database
+) -> None:
+    """Every staff route naming a participant of another site, or a station seating one,
+    answers 404 as for an unknown one, and changes nothing."""
+    theirs, unseated = world["codes"][THEIRS]
+    staff = world["mine"]
+    bodies: dict[str, Any] = {
+        "/api/v1/studies/{name}/participants/{code}/withdraw": {"json": {"reason": "x"}},
+        "/api/v1/studies/{name}/participants/{code}/erase": {"json": {"confirm": unseated}},
+        "/studies/{name}/participants/{code}/withdraw": {
+            "data": {"data": "erase", "confirm_code": unseated}
+        },
+        "/studies/{name}/participants/{code}/language": {"data": {"language": "en"}},
+        "/api/v1/stations/{name}/participant": {"json": {"study": "multi", "code": theirs}},
+        "/api/v1/stations/{name}/prompts": {"json": {"category": "conation"}},
+        "/api/v1/stations/{name}/steps/{step_id}/answer": {
+            "json": {"answer": "yes", "idempotency_key": "k"}
+        },
+        "/stations/{name}/assign": {"data": {"study": "multi", "code": theirs}},
+        "/stations/{name}/study": {"data": {"study": "multi"}},
+        "/stations/{name}/woz/prompt": {"data": {"category": "conation"}},
+        "/stations/{name}/woz/answer": {
+            "data": {"step_id": "1", "answer": "yes", "idempotency_key": "k"}
+        },
+    }
+    swept = []
+    for (method, path), allowed in sorted(POLICY.items()):
+        if Principal.EXPERIMENTER not in allowed or Principal.ANONYMOUS in allowed:
+            continue
+        if path.endswith("/events") or not ("{code}" in path or "/stations/{name}" in path):
+            continue
+        url = _fill(path, station="lab-upp", code=unseated).replace("{step_id}", "1")
+        options = bodies.get(path, {"data": {}} if not path.startswith("/api") else {})
+        response = staff.request(method if method != "WS" else "GET", url, **options)
+        assert response.status_code == 404, f"{method} {url}: {response.status_code}"
+        assert THEIR_MARK not in response.text.replace(unseated, ""), url
+        swept.append((method, path))
+    assert ("POST", "/api/v1/studies/{name}/participants/{code}/erase") in swept
+    assert ("POST", "/stations/{name}/session/start") in swept
+    # seating another site's participant at one's own station is refused too
+    seat = staff.put(
+        "/api/v1/stations/lab-sto/participant", json={"study": "multi", "code": theirs}
+    )
+    assert seat.status_code == 404
+    with database.read_session() as db:
+        rows = db.scalars(select(Participant).where(Participant.site == THEIRS)).all()
+        assert {p.status for p in rows} == {ParticipantStatus.ACTIVE}
+        assert all(p.erased_at is None and p.locked_at is None for p in rows)
+        assert {p.code for p in rows} == {theirs, unseated}
+    # a limited analyst meets the station routes' own refusal first, as the access policy says
+    assert world["analyst"].get("/stations/lab-upp").status_code == 403
+    # the PI sees and may act on both sites
+    assert world["admin"].get(f"/studies/multi/participants/{theirs}").status_code == 200
+
+
+@SQLITE
+def test_enrolment_at_a_site_refuses_clearly_and_stratifies_by_site(
+    world: dict[str, Any], database: Database, database_url: str
+) -> None:
+    from tests.app.test_cli import run
+
+    staff, everyone = world["mine"], world["labs"][MINE].experimenter
+    refusals = [
+        (everyone, {}, 422, "enrols each participant at a site: give one of stockholm, uppsala"),
+        (
+            everyone,
+            {"site": "malmo"},
+            422,
+            "site 'malmo' is not a site of study 'multi': stockholm, uppsala",
+        ),
+        (staff, {"site": THEIRS}, 403, "limited to site stockholm: it cannot enrol at 'uppsala'"),
+    ]
+    with database.read_session() as db:
+        before = len(db.scalars(select(Participant)).all())
+    for who, body, status, words in refusals:
+        refused = who.post("/api/v1/studies/multi/participants", json=body)
+        assert refused.status_code == status and words in refused.json()["detail"], refused.text
+    page = staff.post("/studies/multi/participants", data={"site": THEIRS})
+    assert page.status_code == 403 and "cannot enrol at" in page.text
+    with database.read_session() as db:
+        assert len(db.scalars(select(Participant)).all()) == before  # nothing half-done
+    code, _, err = run(database_url, "participant", "enroll", "--study", "multi")
+    assert code != 0 and "give one of stockholm, uppsala" in err
+    code, out, _ = run(database_url, "participant", "enroll", "--study", "multi", "--site", THEIRS)
+    assert code == 0 and out.startswith("enrolled uppsala-003 in 'multi' at uppsala: condition")
+    for _ in range(5):
+        _enrol(staff, MINE)
+    assert "Stockholm (KTH)" in staff.get("/studies/multi").text  # the site's label
+    with database.read_session() as db:
+        rows = db.scalars(select(Participant).where(Participant.study_id.is_not(None))).all()
+        assert {p.stratum for p in rows} == {"site=stockholm", "site=uppsala"}
+        assert all(p.strata == {"site": p.site} for p in rows)
+        assert [p.code for p in rows if p.site == MINE][:2] == ["stockholm-001", "stockholm-002"]
+        report = verify.verify_study(db, study_name="multi")
+        assert report.ok, report
+
+
+@SQLITE
+def test_a_site_filtered_export_has_the_site_column_and_its_codebook_entry(
+    world: dict[str, Any], database_url: str, tmp_path: Path
+) -> None:
+    pi, analyst = world["admin"], world["analyst"]
+    rows = list(csv.DictReader(io.StringIO(pi.get("/studies/multi/exports/long-csv").text)))
+    assert list(rows[0])[:4] == ["participant", "condition", "language", "site"]
+    assert {r["site"] for r in rows} == {MINE, THEIRS}
+    assert {r["participant"].split("-")[0] for r in rows} == {r["site"] for r in rows}
+    own = analyst.get("/studies/multi/exports/long-csv").text
+    assert own == pi.get("/studies/multi/exports/long-csv?site=stockholm").text
+    assert {r["site"] for r in csv.DictReader(io.StringIO(own))} == {MINE}
+    codebook = list(csv.DictReader(io.StringIO(pi.get("/studies/multi/exports/codebook-csv").text)))
+    site_rows = {r["file"]: r["label"] for r in codebook if r["column"] == "site"}
+    assert set(site_rows) == {"wide", "long", "steps"}
+    assert all("Site the participant was enrolled at" in label for label in site_rows.values())
+    from tests.app.test_cli import run
+
+    code, out, _ = run(
+        database_url,
+        "export",
+        "--study",
+        "multi",
+        "--format",
+        "long-csv",
+        "--out",
+        str(tmp_path / "uppsala.csv"),
+        "--site",
+        THEIRS,
+    )
+    assert code == 0, out
+    exported = list(csv.DictReader((tmp_path / "uppsala.csv").open()))
+    assert {r["site"] for r in exported} == {THEIRS}
+    other = analyst.get("/studies/multi/analysis?site=uppsala")
+    assert other.status_code == 403 and "limited to site stockholm" in other.text
+    unknown = pi.get("/studies/multi/dashboard.json?site=malmo")
+    assert unknown.status_code == 422 and "has no site &#39;malmo&#39;" in unknown.text
+
+
+@SQLITE
+def test_limiting_an_account_refuses_what_would_silently_hide_everyone(
+    world: dict[str, Any], database: Database, database_url: str
+) -> None:
+    from tests.app.test_cli import run
+
+    with database.writing() as db:
+        with pytest.raises(InvalidInput, match="no study declares site malmo"):
+            sites.set_user_sites(db, username="both", sites=["malmo"], actor=Actor.system())
+        db.rollback()
+        with pytest.raises(Conflict, match="admins see every site"):
+            sites.set_user_sites(db, username="pi", sites=[MINE], actor=Actor.system())
+        db.rollback()
+    code, _, err = run(database_url, "user", "sites", "both", "--site", "malmo")
+    assert code != 0 and "no study declares site malmo (sites declared: stockholm, uppsala)" in err
+    code, _, err = run(database_url, "user", "sites", "both")
+    assert code != 0 and "give the sites (--site NAME, repeatable) or --all" in err
+    code, out, _ = run(database_url, "user", "sites", "both", "--site", THEIRS, "--site", MINE)
+    assert code == 0 and out.strip() == "'both' now sees sites stockholm, uppsala"
+    code, out, _ = run(database_url, "user", "sites", "sto", "--all")
+    assert code == 0 and out.strip() == "'sto' now sees every site"
+    with database.read_session() as db:
+        users = {u.username: u.sites for u in db.scalars(select(User))}
+        assert users["both"] == [MINE, THEIRS] and users["sto"] is None
+        changes = db.scalars(select(AuditEvent).where(AuditEvent.action == "user.sites_changed"))
+        assert [e.subject for e in changes][-2:] == ["both", "sto"]
+    # the account page sets it too, and the PI's page says what it does
+    pi = world["admin"]
+    page = pi.get("/admin/users/sto-analyst").text
+    assert "only the participants of <strong>stockholm</strong>" in page
+    done = pi.post("/admin/users/sto-analyst/sites", data={"every": "true"}, follow_redirects=False)
+    assert done.status_code == 303
+    assert "every site" in pi.get("/admin/users/sto-analyst").text
+    # a limited account in a study without sites sees nobody there and may not enrol
+    with database.writing() as db:
+        studies.create_study(
+            db,
+            name="plain",
+            loaded=parse_protocol(protocol_text(**EXP3_ONLY)),
+            actor=Actor.system(),
+        )
+    assert pi.post("/api/v1/studies/plain/participants", json={}).status_code == 201
+    # 'both' sees both sites: still a limit, and this study has none of them
+    both = world["labs"][MINE].experimenter
+    refused = both.post("/api/v1/studies/plain/participants", json={})
+    assert refused.status_code == 403 and "has no sites" in refused.json()["detail"]
+    assert both.get("/api/v1/studies/plain/participants").json() == []
+    assert len(world["mine"].get("/api/v1/studies/plain/participants").json()) == 1  # now --all
+
+
+def test_a_protocol_declares_sites_cleanly() -> None:
+    def problems(**replacements: str) -> str:
+        with pytest.raises(ProtocolError) as bad:
+            parse_protocol(sites_protocol(**replacements))
+        return str(bad.value)
+
+    names = 'names = ["stockholm", "uppsala"]'
+    assert "sites.names[1]: String should match pattern" in problems(
+        **{names: 'names = ["stockholm", "Uppsala"]'}
+    )
+    message = problems(
+        **{
+            names: 'names = ["stockholm", "uppsala", "stockholm"]',
+            "stratify_by = []": 'stratify_by = ["site"]',
+            'stockholm = "Stockholm (KTH)"': 'malmo = "Malmö"',
+        }
+    )
+    assert "sites.names[2]: duplicate site 'stockholm'" in message
+    assert "allocation.stratify_by: a study with [sites] stratifies by site" in message
+    assert "sites.labels.malmo: not listed in sites.names" in message
+    protocol = parse_protocol(sites_protocol()).protocol
+    assert protocol.sites is not None and protocol.sites.label("uppsala") == "uppsala"
