@@ -19,7 +19,7 @@ import plotly.graph_objects as go
 
 from analysis.errors import InvalidInputError
 from analysis.power import PowerDesign, n_for_power
-from analysis.power_simulation import SimulatedPower
+from analysis.power_simulation import SIMULATED_MODEL_NAMES, SimulatedPower
 
 __all__ = ["curve_totals", "power_curve_figure", "power_curve_payload", "write_power_curve"]
 
@@ -121,6 +121,7 @@ def power_curve_figure(
     k = design.groups
     low = max(k + 1, min(n_values) - k)
     dense = np.arange(low, max(n_values) + k + 1)
+    fitted = SIMULATED_MODEL_NAMES[simulated[0].kind if simulated else "lmm"]
     figure = go.Figure()
     figure.add_trace(
         go.Scatter(
@@ -135,7 +136,7 @@ def power_curve_figure(
             x=n_values,
             y=[s.power for s in simulated],
             mode="markers",
-            name="mixed model, simulated (95 % Wilson interval)",
+            name=f"{fitted}, simulated (95 % Wilson interval)",
             error_y={
                 "type": "data",
                 "symmetric": False,

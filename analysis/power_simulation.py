@@ -35,12 +35,27 @@ from analysis.reml import RemlDesign
 from analysis.satterthwaite import f_test_df, varpar_covariance
 
 __all__ = [
+    "SIMULATED_MODELS",
+    "SIMULATED_MODEL_NAMES",
     "SimulatedPower",
+    "check_simulation_size",
+    "curve_seed",
     "effect_pattern",
     "simulate_power",
     "simulate_power_curve",
     "wilson_interval",
 ]
+
+
+SIMULATED_MODELS: dict[str, str] = {
+    "lmm": "rating ~ condition * session + (1 | participant), REML, Satterthwaite df",
+    "ordinal": "rating ~ condition * session, proportional odds (cumulative logit), Wald chi2 "
+    "with participant-clustered SEs; data from a random-intercept latent logistic model",
+}
+"""The models whose power is simulated (``trustlab power --model``), as each result names it."""
+
+SIMULATED_MODEL_NAMES: dict[str, str] = {"lmm": "mixed model", "ordinal": "ordinal model"}
+"""Short names of :data:`SIMULATED_MODELS` for sentences and legends."""
 
 
 def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -91,8 +106,11 @@ class SimulatedPower:
     power, ci_low, ci_high : float
         rejections / replicates and its 95 % Wilson interval.
     mean_df2 : float
-        The mean Satterthwaite denominator df (for comparison with the ANOVA's).
+        The mean Satterthwaite denominator df (for comparison with the ANOVA's); NaN for the
+        ordinal model's χ² tests.
     seed : int
+    kind : {"lmm", "ordinal"}
+        The model fitted to each dataset (:data:`SIMULATED_MODELS`).
     """
 
     effect: str
@@ -105,6 +123,7 @@ class SimulatedPower:
     ci_high: float
     mean_df2: float
     seed: int
+    kind: str = "lmm"
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -118,8 +137,26 @@ class SimulatedPower:
             "ci_high": self.ci_high,
             "mean_df2": self.mean_df2,
             "seed": self.seed,
-            "model": "rating ~ condition * session + (1 | participant), REML, Satterthwaite df",
+            "model": SIMULATED_MODELS[self.kind],
+            "kind": self.kind,
         }
+
+
+def check_simulation_size(n_total: int, groups: int, replicates: int) -> None:
+    """Refuse (one line) a simulation without datasets or with unequal or tiny groups."""
+    if replicates < 1:
+        raise InvalidInputError(f"--simulate needs 1 or more datasets, got {replicates}")
+    if n_total % groups or n_total // groups < 2:
+        raise InvalidInputError(
+            f"the simulation needs equal groups of 2 or more: N = {n_total} is not a multiple "
+            f"of {groups} of at least {2 * groups}"
+        )
+
+
+def curve_seed(seed: int, n_total: int) -> int:
+    """The seed of one N of a power curve, derived from ``seed`` and N, so adding an N to the
+    curve does not change the others."""
+    return int(np.random.SeedSequence([seed, n_total]).generate_state(1)[0])
 
 
 def _design_matrix(
@@ -190,13 +227,7 @@ def simulate_power(
         )
     if not sd > 0:
         raise InvalidInputError(f"the SD of one rating must be positive, got {sd:g}")
-    if replicates < 1:
-        raise InvalidInputError(f"--simulate needs 1 or more datasets, got {replicates}")
-    if n_total % k or n_total // k < 2:
-        raise InvalidInputError(
-            f"the simulation needs equal groups of 2 or more: N = {n_total} is not a multiple "
-            f"of {k} of at least {2 * k}"
-        )
+    check_simulation_size(n_total, k, replicates)
     per_group = n_total // k
     x, terms = _design_matrix(k, m, per_group)
     z = np.ones((len(x), 1))
@@ -271,7 +302,7 @@ def simulate_power_curve(
             rho=rho,
             n_total=n,
             replicates=replicates,
-            seed=int(np.random.SeedSequence([seed, n]).generate_state(1)[0]),
+            seed=curve_seed(seed, n),
             alpha=alpha,
             progress=progress,
         )

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from analysis.dataset import StudyDataset
+from analysis.power_simulation import SIMULATED_MODEL_NAMES
 from analysis.study import StudyAnalysis
 
 __all__ = [
@@ -284,8 +285,9 @@ def _power_lines(power: Mapping[str, Any] | None) -> list[str]:
         )
     if power.get("simulation"):
         sim = power["simulation"]
+        fitted = SIMULATED_MODEL_NAMES.get(sim.get("kind", "lmm"), "mixed model")
         lines.append(
-            f"Simulated power of the mixed model at N = {sim.get('n_total')}: "
+            f"Simulated power of the {fitted} at N = {sim.get('n_total')}: "
             f"{_num(sim.get('power'))} [{_num(sim.get('ci_low'))}, {_num(sim.get('ci_high'))}] "
             f"({sim.get('replicates')} datasets, seed {sim.get('seed')})."
         )

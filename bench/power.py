@@ -1,13 +1,15 @@
-"""Benchmark: analytic power questions and simulation-based power of the mixed model.
+"""Benchmark: analytic power questions and simulation-based power of the mixed and ordinal models.
 
 Run from the repository root::
 
     OMP_NUM_THREADS=1 nice -n 10 .venv/bin/python bench/power.py
-    .venv/bin/python bench/power.py --datasets 200 --repeats 50
+    .venv/bin/python bench/power.py --datasets 200 --repeats 50 --ordinal-datasets 100
 
 Targets: simulation-based power for the random-intercept model with 1,000 simulated datasets at
 N = 24 × 4 sessions ≤ 60 s on the 2-core machine; analytic power ≤ 50 ms per question (power
 for N, N for a target power, detectable effect; the median and the worst of ``--repeats``).
+The ordinal model (no target: recorded) is timed with ``--ordinal-datasets`` (default 200) at
+the same N, five categories with equally spaced thresholds, the interaction with latent f = .2.
 Prints one line per figure; results go to docs/performance.md ("## Power"). Never used as a
 test assertion.
 """
@@ -32,6 +34,7 @@ from analysis.power import (  # noqa: E402
     n_for_power,
     power_for_n,
 )
+from analysis.power_ordinal import latent_model, simulate_ordinal_power  # noqa: E402
 from analysis.power_simulation import effect_pattern, simulate_power  # noqa: E402
 
 ANALYTIC_TARGET = 0.050
@@ -59,6 +62,7 @@ def main() -> None:
     """Time the analytic questions and the simulation; print the figures."""
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--datasets", type=int, default=1000)
+    parser.add_argument("--ordinal-datasets", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--seed", type=int, default=2026)
     args = parser.parse_args()
@@ -92,6 +96,23 @@ def main() -> None:
         f"{verdict}; power {result.power:.3f} [{result.ci_low:.3f}, {result.ci_high:.3f}], "
         f"analytic {analytic:.3f}, failures {result.failures}"
     )
+    if args.ordinal_datasets:
+        population = latent_model(effect_pattern("interaction", 0.2, 2, 4), rho=0.5)
+        start = time.perf_counter()
+        ordinal = simulate_ordinal_power(
+            "interaction",
+            population=population,
+            n_total=24,
+            replicates=args.ordinal_datasets,
+            seed=args.seed,
+        )
+        elapsed = time.perf_counter() - start
+        print(
+            f"ordinal simulation {args.ordinal_datasets} datasets, N = 24 × 4, 5 categories: "
+            f"{elapsed:.1f} s ({elapsed / args.ordinal_datasets * 1000:.0f} ms each); power "
+            f"{ordinal.power:.3f} [{ordinal.ci_low:.3f}, {ordinal.ci_high:.3f}], "
+            f"failures {ordinal.failures}"
+        )
 
 
 if __name__ == "__main__":

@@ -35,8 +35,21 @@ from analysis.power import (
     n_for_power,
     power_for_n,
 )
+from analysis.power_ordinal import (
+    DEFAULT_CATEGORIES,
+    LatentOrdinalModel,
+    latent_model,
+    observed_proportions,
+    pilot_latent_model,
+    simulate_ordinal_power_curve,
+)
 from analysis.power_pilot import PILOT_QUANTITIES, PilotEstimate, estimate_pilot
-from analysis.power_simulation import SimulatedPower, effect_pattern, simulate_power_curve
+from analysis.power_simulation import (
+    SIMULATED_MODELS,
+    SimulatedPower,
+    effect_pattern,
+    simulate_power_curve,
+)
 from app.cli.analysis import bad_input, read_csv_file
 
 __all__ = ["parse_means", "power_command", "register", "render_answer"]
@@ -133,7 +146,24 @@ def power_command(
         typer.Option(
             "--simulate",
             help="Also simulate this many datasets at the N asked or found and fit each with "
-            "the random-intercept mixed model (power with a Monte-Carlo interval).",
+            "the --model (power with a Monte-Carlo interval).",
+        ),
+    ] = None,
+    model: Annotated[
+        str,
+        typer.Option(
+            "--model",
+            help="With --simulate: the model fitted to each dataset: lmm (the random-intercept "
+            "linear mixed model) or ordinal (the proportional-odds model of one Likert item, "
+            "datasets from a latent logistic model with a random intercept).",
+        ),
+    ] = "lmm",
+    categories: Annotated[
+        int | None,
+        typer.Option(
+            "--categories",
+            help="With --model ordinal and no --pilot: rating categories K (default 5), "
+            "thresholds equally spaced on the latent scale.",
         ),
     ] = None,
     curve: Annotated[
@@ -151,9 +181,13 @@ def power_command(
     """Power, sample size or detectable effect of the mixed ANOVA's between, within or
     interaction test (G*Power 3.1's formulas), from effect sizes or a pilot."""
     estimate: PilotEstimate | None = None
+    pilot_data: tuple[pd.DataFrame, dict[str, str]] | None = None
+    population: LatentOrdinalModel | None = None
     try:
+        _check_model_options(model, simulate, categories, pilot)
         if pilot is not None:
             data, columns = read_pilot(pilot, dv, within=within, between=between, subject=subject)
+            pilot_data = (data, columns)
             estimate = estimate_pilot(
                 data,
                 dv=columns["dv"],
@@ -195,6 +229,10 @@ def power_command(
         simulated: list[SimulatedPower] = []
         if simulate is not None:
             table, spread = _simulation_model(answer, estimate, means, sd)
+            if model == "ordinal":
+                population = _ordinal_population(
+                    answer, estimate, pilot_data, table, spread, categories
+                )
             n_values = _curve_n(answer) if curve is not None else [answer.n_total]
             with tqdm(
                 total=simulate * len(n_values),
@@ -203,17 +241,28 @@ def power_command(
                 file=sys.stderr,
                 leave=False,
             ) as bar:
-                simulated = simulate_power_curve(
-                    answer.design.effect,
-                    means=table,
-                    sd=spread,
-                    rho=answer.design.rho if answer.design.rho is not None else float("nan"),
-                    n_values=n_values,
-                    replicates=simulate,
-                    seed=seed,
-                    alpha=answer.design.alpha,
-                    progress=lambda: bar.update(1),
-                )
+                if population is not None:
+                    simulated = simulate_ordinal_power_curve(
+                        answer.design.effect,
+                        population=population,
+                        n_values=n_values,
+                        replicates=simulate,
+                        seed=seed,
+                        alpha=answer.design.alpha,
+                        progress=lambda: bar.update(1),
+                    )
+                else:
+                    simulated = simulate_power_curve(
+                        answer.design.effect,
+                        means=table,
+                        sd=spread,
+                        rho=answer.design.rho if answer.design.rho is not None else float("nan"),
+                        n_values=n_values,
+                        replicates=simulate,
+                        seed=seed,
+                        alpha=answer.design.alpha,
+                        progress=lambda: bar.update(1),
+                    )
             if curve is not None:
                 from analysis.power_figures import power_curve_figure, write_power_curve
 
@@ -232,6 +281,13 @@ def power_command(
             payload["pilot"]["source"] = pilot
             payload["pilot_range"] = {k: v.to_dict() for k, v in bracket.items()}
         if simulated:
+            payload["simulated_model"] = {
+                "kind": model,
+                "description": SIMULATED_MODELS[model],
+                "population": population.to_dict()
+                if population is not None
+                else {"cell_means": table.tolist(), "sd": spread, "rho": answer.design.rho},
+            }
             payload["simulation"] = at_n.to_dict() if at_n else None
             payload["curve"] = [s.to_dict() for s in simulated] if curve is not None else None
             payload["curve_file"] = str(curve) if curve is not None else None
@@ -241,7 +297,7 @@ def power_command(
         if estimate is not None:
             text = render_pilot(estimate, pilot or "", bracket) + "\n\n" + text
         if simulated:
-            text += "\n\n" + render_simulation(simulated, at_n, curve)
+            text += "\n\n" + render_simulation(simulated, at_n, curve, population)
         typer.echo(text)
 
 
@@ -269,6 +325,65 @@ def _simulation_model(
     return effect_pattern(effect, answer.f, design.groups, design.sessions), 1.0
 
 
+def _check_model_options(
+    model: str, simulate: int | None, categories: int | None, pilot: str | None
+) -> None:
+    """One line for a --model or --categories that cannot apply."""
+    if model not in SIMULATED_MODELS:
+        raise InvalidInputError(
+            f"--model must be one of {', '.join(SIMULATED_MODELS)}, not {model!r}"
+        )
+    if model != "lmm" and simulate is None:
+        raise InvalidInputError(f"--model {model} chooses the simulated model: add --simulate R")
+    if categories is not None and model != "ordinal":
+        raise InvalidInputError("--categories goes with --model ordinal")
+    if categories is not None and pilot is not None:
+        raise InvalidInputError(
+            "--categories or --pilot: with a pilot, its ratings give the categories"
+        )
+
+
+def _ordinal_population(
+    answer: PowerAnswer,
+    estimate: PilotEstimate | None,
+    pilot_data: tuple[pd.DataFrame, dict[str, str]] | None,
+    table: np.ndarray,
+    spread: float,
+    categories: int | None,
+) -> LatentOrdinalModel:
+    """The latent population of the ordinal datasets: the pilot's fitted ordinal model when the
+    answer's f is the pilot's, else the cell pattern :func:`_simulation_model` chose (in SD
+    units, read on the latent scale) with the pilot's category proportions or equally spaced
+    thresholds."""
+    design = answer.design
+    rho = float(design.rho if design.rho is not None else float("nan"))
+    pattern = (table - table.mean()) / spread
+    if estimate is not None and pilot_data is not None:
+        data, columns = pilot_data
+        if answer.f == estimate.f(design.effect):
+            population = pilot_latent_model(data, **columns, rho=rho)
+            if population.cell_means.shape != (design.groups, design.sessions):
+                raise InvalidInputError(
+                    f"the pilot's ordinal model has {population.cell_means.shape[0]} group(s) × "
+                    f"{population.cell_means.shape[1]} session(s); --groups {design.groups} "
+                    f"--sessions {design.sessions} say otherwise"
+                )
+            return population
+        ratings = pd.to_numeric(data[columns["dv"]], errors="coerce").to_numpy(float)
+        return latent_model(
+            pattern,
+            rho=rho,
+            proportions=observed_proportions(ratings, columns["dv"]),
+            source=f"the {design.effect} pattern with f = {answer.f:.3g}",
+        )
+    return latent_model(
+        pattern,
+        rho=rho,
+        categories=DEFAULT_CATEGORIES if categories is None else categories,
+        source=f"the {design.effect} pattern with f = {answer.f:.3g}",
+    )
+
+
 def _curve_n(answer: PowerAnswer) -> list[int]:
     """Six totals, multiples of k, from about half to twice the N asked or found."""
     k = answer.design.groups
@@ -278,14 +393,33 @@ def _curve_n(answer: PowerAnswer) -> list[int]:
     return [n for n in values if n // k >= 2 and n % k == 0]
 
 
+_MODEL_WORDS = {
+    "lmm": "the mixed model (random intercept, REML, Satterthwaite df)",
+    "ordinal": "the ordinal model (proportional odds, Wald χ², participant-clustered SEs)",
+}
+
+
 def render_simulation(
-    simulated: list[SimulatedPower], at_n: SimulatedPower | None, curve: Path | None
+    simulated: list[SimulatedPower],
+    at_n: SimulatedPower | None,
+    curve: Path | None,
+    population: LatentOrdinalModel | None = None,
 ) -> str:
     """The simulated power (and the curve's points) in words."""
     lines = []
+    if population is not None:
+        shares = "/".join(f"{p * 100:.0f}" for p in population.category_proportions())
+        sizes = population.effect_sizes()
+        lines.append(
+            f"Ordinal datasets drawn from {population.source}; latent rho "
+            f"{format_number(population.rho, 3)}; expected category shares {shares} %; latent "
+            f"f: between {format_number(sizes['between'], 3)}, within "
+            f"{format_number(sizes['within'], 3)}, interaction "
+            f"{format_number(sizes['interaction'], 3)}"
+        )
     if at_n is not None:
         lines.append(
-            f"Simulated power of the mixed model (random intercept, REML, Satterthwaite df) at "
+            f"Simulated power of {_MODEL_WORDS[at_n.kind]} at "
             f"N = {at_n.n_total}: {format_number(at_n.power, 3)} "
             f"[{format_number(at_n.ci_low, 3)}, {format_number(at_n.ci_high, 3)}] "
             f"(95 % Wilson; {at_n.rejections} of {at_n.replicates} datasets, seed {at_n.seed}"

@@ -221,6 +221,47 @@ def test_simulate_adds_the_mixed_models_power_and_a_curve(cli: typer.Typer, tmp_
     assert "plotly" in curve.read_text()[:200_000].lower()
     again = run(cli, *args, "--simulate", "6", "--seed", "9", "--json")
     assert json.loads(again.stdout)["simulation"] == simulation
+    assert payload["simulated_model"]["kind"] == simulation["kind"] == "lmm"
+
+
+def test_simulate_the_ordinal_model_of_one_item(cli: typer.Typer) -> None:
+    args = ["--effect", "between", *PAPER, "--f", "0.4", "--rho", "0.5", "--n", "12"]
+    ordinal = ["--simulate", "4", "--seed", "9", "--model", "ordinal", "--categories", "4"]
+    result = run(cli, *args, *ordinal, "--json")
+    assert result.exit_code == 0, result.stderr
+    payload = json.loads(result.stdout)
+    assert payload["simulated_model"]["kind"] == "ordinal"
+    population = payload["simulated_model"]["population"]
+    assert population["categories"] == 4 and "equally spaced" in population["source"]
+    assert population["f_latent"]["between"] == pytest.approx(0.4)
+    simulation = payload["simulation"]
+    assert simulation["kind"] == "ordinal" and simulation["replicates"] == 4
+    assert simulation["mean_df2"] is None  # a χ² test has no denominator df
+    assert payload["power"] == json.loads(run(cli, *args, "--json").stdout)["power"]
+    text = run(cli, *args, *ordinal).stdout
+    assert "Simulated power of the ordinal model" in text and "Ordinal datasets drawn" in text
+
+
+def test_ordinal_simulation_from_a_likert_pilot(cli: typer.Typer, tmp_path: Path) -> None:
+    data = pd.read_csv(DROPOUTS)
+    data["trust"] = data["trust"].round().clip(1, 5).astype("Int64")  # one 5-point item
+    likert = tmp_path / "likert.csv"
+    data.to_csv(likert, index=False)
+    pilot = ["--pilot", str(likert), "--dv", "trust", "--replicates", "20"]
+    ordinal = ["--n", "24", "--simulate", "3", "--model", "ordinal", "--json"]
+    fitted = run(cli, "--effect", "interaction", *pilot, *ordinal)
+    assert fitted.exit_code == 0, fitted.stderr
+    population = json.loads(fitted.stdout)["simulated_model"]["population"]
+    assert "pilot's fitted ordinal model" in population["source"]
+    assert population["categories"] == data["trust"].nunique()
+    given = run(cli, "--effect", "interaction", *pilot, "--f", "0.3", *ordinal)
+    population = json.loads(given.stdout)["simulated_model"]["population"]
+    assert "pilot's category proportions" in population["source"]
+    shares = data["trust"].value_counts(normalize=True).sort_index().to_numpy()
+    assert population["category_proportions"] == pytest.approx(shares, abs=0.02)
+    scale_mean = run(cli, "--effect", "interaction", *PILOT, *ordinal)
+    assert scale_mean.exit_code == EXIT_BAD_INPUT
+    assert "needs one rating item" in scale_mean.stderr and scale_mean.stderr.count("\n") == 1
 
 
 @pytest.mark.parametrize(
@@ -228,11 +269,16 @@ def test_simulate_adds_the_mixed_models_power_and_a_curve(cli: typer.Typer, tmp_
     [
         (["--curve", "x.html", "--rho", ".5"], "add --simulate"),
         (["--simulate", "5", "--convention", "spss"], "--convention gpower"),
+        (["--simulate", "3", "--rho", ".5", "--model", "ordinal", "--categories", "2"], "3 to 11"),
+        (["--rho", ".5", "--model", "ordinal"], "add --simulate R"),
+        (["--simulate", "3", "--rho", ".5", "--categories", "5"], "with --model ordinal"),
+        (["--simulate", "3", "--rho", ".5", "--model", "probit"], "lmm, ordinal"),
     ],
 )
 def test_simulation_refusals(cli: typer.Typer, extra: list[str], words: str) -> None:
     result = run(cli, "--effect", "within", *PAPER, "--eta2", ".1", "--n", "12", *extra)
     assert result.exit_code == EXIT_BAD_INPUT and words in result.stderr
+    assert result.stderr.count("\n") == 1
 
 
 def _run_on(database_url: str, *args: str) -> Result:
