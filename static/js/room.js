@@ -545,13 +545,15 @@ async function loadRoom() {
     }, 2000);
     return;
   }
+  const body = await response.json().catch(() => ({}));
   room.loading = false;
+  // Checked after the last await: the station's hello may have refused this key (a key of another
+  // station) while the body was still being read, and its room must not be drawn then.
   if (room.key !== key || room.scene) return; // answered for a key (or a room) no longer in use
   if (response.status === 401) {
     refuse("The room was closed: this key is unknown or has been revoked. Ask an admin for a new key on the Stations page.");
     return;
   }
-  const body = await response.json().catch(() => ({}));
   if (response.status === 409) {
     showNotice("No study here yet", "This station runs no study yet: the experimenter seats a participant on its console first.", { forget: true });
     return; // a participant_assigned push loads it
@@ -812,6 +814,10 @@ window.trustlabRoom = {
   },
   get ready() {
     return Boolean(room.scene && room.state && room.socket && room.socket.online);
+  },
+  /** Whether the room's description is still being fetched or read. */
+  get loading() {
+    return Boolean(room.loading);
   },
   /** How the room listens: "server", "browser", or null (not yet, or not at all). */
   get listener() {
