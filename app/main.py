@@ -106,9 +106,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         _abandon_unfinished_sign_ins(database)
         database.start_background_work()
         activity.start()
-        collector.freeze_startup_objects()
+        if settings.freeze_heap_at_start:
+            collector.freeze_startup_objects()
         yield
-        collector.thaw()
+        if settings.freeze_heap_at_start:
+            collector.thaw()
         database.finish_requests()  # its robot work notes devices for the activity's last flush
         activity.stop()
         database.stop_background_work()

@@ -75,6 +75,16 @@ class Settings(BaseSettings):
         default="FULL",
         description="PRAGMA synchronous for SQLite: FULL survives power loss, NORMAL only crashes.",
     )
+    freeze_heap_at_start: bool = Field(
+        default=True,
+        description=(
+            "Once the server has started, move every object then alive out of the garbage "
+            "collector's full collections, which would otherwise pause requests "
+            "(app/collector.py). Off only where one process starts and stops many applications, "
+            "as the tests do: each start's collection walks the whole heap (about 0.3 s with the "
+            "models loaded)."
+        ),
+    )
     websocket_heartbeat_seconds: float = Field(
         default=15.0, gt=0, description="How often robot WebSockets are pinged."
     )
