@@ -156,9 +156,7 @@ def test_unknown_download_and_roles(seeded: str, user_client: UserClientFactory)
 
 
 @pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # files: test_every_download
-def test_export_command(
-    seeded: str, database: Database, database_url: str, tmp_path: Path
-) -> None:
+def test_export_command(seeded: str, database: Database, database_url: str, tmp_path: Path) -> None:
     runner = CliRunner()
     env = {"TRUSTLAB_DATABASE_URL": database_url}
     one = runner.invoke(
