@@ -58,8 +58,8 @@ from analysis.power import EFFECTS, effect_sizes_from_means
 from analysis.power_simulation import (
     SimulatedPower,
     check_simulation_size,
+    count_rejections,
     curve_seed,
-    wilson_interval,
 )
 
 __all__ = [
@@ -341,34 +341,24 @@ def simulate_ordinal_power(
     subjects = pd.Series(np.repeat(np.arange(n_total), m))
     mu = np.repeat(means, per_group, axis=0).ravel()  # participant by participant
     thresholds = np.asarray(population.thresholds, dtype=float)
-    rng = np.random.default_rng(seed)
-    rejections = failures = 0
-    for _ in range(replicates):
+
+    def test_one(rng: np.random.Generator) -> tuple[float, float]:
         latent = (
             mu
             + np.repeat(rng.normal(0, population.participant_sd, n_total), m)
             + rng.logistic(0, 1, len(mu))
         )
         ratings = np.searchsorted(thresholds, latent) + 1  # Y* ≤ θ_1 → 1, …
-        p = _ordinal_test(ratings, exog, subjects, tested)
-        if np.isfinite(p):
-            rejections += int(p < alpha)
-        else:
-            failures += 1
-        if progress is not None:
-            progress()
-    low, high = wilson_interval(rejections, replicates)
-    return SimulatedPower(
+        return _ordinal_test(ratings, exog, subjects, tested), float("nan")  # χ²: no df2
+
+    return count_rejections(
+        test_one,
         effect=effect,
         n_total=n_total,
         replicates=replicates,
-        rejections=rejections,
-        failures=failures,
-        power=rejections / replicates,
-        ci_low=low,
-        ci_high=high,
-        mean_df2=float("nan"),
         seed=seed,
+        alpha=alpha,
+        progress=progress,
         kind="ordinal",
     )
 

@@ -234,16 +234,48 @@ def simulate_power(
     subjects = np.repeat(np.arange(n_total), m)
     mu = np.repeat(table, per_group, axis=0).ravel()  # participant by participant
     contrast = np.eye(x.shape[1])[terms[effect]]
-    rng = np.random.default_rng(seed)
     sd_u, sd_e = sd * np.sqrt(rho), sd * np.sqrt(1 - rho)
+
+    def test_one(rng: np.random.Generator) -> tuple[float, float]:
+        y = mu + np.repeat(rng.normal(0, sd_u, n_total), m) + rng.normal(0, sd_e, len(mu))
+        return _mixed_model_test(y, x, z, subjects, contrast)
+
+    return count_rejections(
+        test_one,
+        effect=effect,
+        n_total=n_total,
+        replicates=replicates,
+        seed=seed,
+        alpha=alpha,
+        progress=progress,
+        kind="lmm",
+    )
+
+
+def count_rejections(
+    test_one: Callable[[np.random.Generator], tuple[float, float]],
+    *,
+    effect: str,
+    n_total: int,
+    replicates: int,
+    seed: int,
+    alpha: float,
+    progress: Callable[[], None] | None,
+    kind: str,
+) -> SimulatedPower:
+    """The Monte-Carlo loop both simulated models share: ``test_one(rng)`` draws one dataset and
+    tests it, returning (p, denominator df); a NaN p is a fit that gave no test, counted as not
+    rejecting and reported as a failure. One generator, seeded once, serves every dataset, so a
+    seed reproduces the whole run."""
+    rng = np.random.default_rng(seed)
     rejections = failures = 0
     df2s: list[float] = []
     for _ in range(replicates):
-        y = mu + np.repeat(rng.normal(0, sd_u, n_total), m) + rng.normal(0, sd_e, len(mu))
-        p, df2 = _mixed_model_test(y, x, z, subjects, contrast)
+        p, df2 = test_one(rng)
         if np.isfinite(p):
             rejections += int(p < alpha)
-            df2s.append(df2)
+            if np.isfinite(df2):
+                df2s.append(df2)
         else:
             failures += 1
         if progress is not None:
@@ -260,6 +292,7 @@ def simulate_power(
         ci_high=high,
         mean_df2=float(np.mean(df2s)) if df2s else float("nan"),
         seed=seed,
+        kind=kind,
     )
 
 
