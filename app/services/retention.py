@@ -187,7 +187,12 @@ def _apply(
         subject=study.name,
         details={"participants": len(participants), "rows": done},
     )
-    events.publish(db, topics=[study_topic(study.id)], type="participant_erased")
+    # The study's live pages only redraw; the type still names what happened.
+    events.publish(
+        db,
+        topics=[study_topic(study.id)],
+        type="participant_erased" if then == "erase" else "participants_anonymised",
+    )
     return {"participants": len(participants), **done}
 
 

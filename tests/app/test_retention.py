@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import pytest
 from sqlalchemy import func, select
@@ -42,6 +43,20 @@ def _close(lab: Lab) -> datetime:
         return study.closed_at
 
 
+@pytest.fixture
+def published(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The types of the events published from now on (retention's: for the study's live pages)."""
+    types: list[str] = []
+    publish = retention.events.publish
+
+    def recording(*args: Any, **kwargs: Any) -> None:
+        types.append(kwargs["type"])
+        publish(*args, **kwargs)
+
+    monkeypatch.setattr(retention.events, "publish", recording)
+    return types
+
+
 def _run(lab: Lab, now: datetime, *, dry_run: bool = False) -> retention.StudyRetention:
     with lab.database.writing() as db:
         (state,) = retention.run(
@@ -51,7 +66,7 @@ def _run(lab: Lab, now: datetime, *, dry_run: bool = False) -> retention.StudyRe
 
 
 def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
-    lab: Lab, database_url: str, tmp_path: Path
+    lab: Lab, database_url: str, tmp_path: Path, published: list[str]
 ) -> None:
     lab.study = personal_data_study(lab.database, **_with_retention("1 year"))
     enrol_with_data(lab, "ANON-ME-1")
@@ -70,9 +85,11 @@ def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
     with lab.database.read_session() as db:
         assert db.scalar(select(func.count()).where(Participant.code == "ANON-ME-1")) == 1
 
+    published.clear()
     done = _run(lab, closed + timedelta(days=366))
 
     assert done.done["participants"] == 2 and done.done["transcript"] == 6
+    assert published == ["participants_anonymised"]  # nobody was erased
     content = dump_database(lab.database, lab.app.state.database)
     for code in ("ANON-ME-1", "ANON-ME-2"):
         assert mentions(content, code) == [], code
@@ -106,12 +123,16 @@ def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
 
 
 @sqlite_only("the erasure itself is checked on both databases in test_erasure")
-def test_erasing_when_due_removes_everyone_and_keeps_the_slots(lab: Lab) -> None:
+def test_erasing_when_due_removes_everyone_and_keeps_the_slots(
+    lab: Lab, published: list[str]
+) -> None:
     lab.study = personal_data_study(lab.database, **_with_retention("P6M", "erase"))
     enrol_with_data(lab, "ERASE-DUE")
     closed = _close(lab)
+    published.clear()
     done = _run(lab, closed + timedelta(days=200))
     assert done.done["participants"] == 1 and done.done["answer"] == 3
+    assert published == ["participant_erased"]
     assert mentions(dump_database(lab.database, lab.app.state.database), "ERASE-DUE") == []
     with lab.database.read_session() as db:
         slot = db.scalar(select(Participant))
