@@ -71,6 +71,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/api/v1/studies/{name}"): USERS,
     ("GET", "/api/v1/studies/{name}/protocol"): USERS,
     ("GET", "/api/v1/studies/{name}/participants"): USERS,
+    ("GET", "/api/v1/studies/{name}/participants/{code}"): USERS,
     ("GET", "/studies/{name}"): USERS,
     ("GET", "/studies/{name}/dashboard"): USERS,
     ("GET", "/studies/{name}/dashboard.json"): USERS,

@@ -92,6 +92,27 @@ class Enrolled(BaseModel):
     site: str | None = Field(default=None, description="The participant's site, if any.")
 
 
+class ConsentStandingOut(BaseModel):
+    """Where a participant stands with the study's consent text (docs/data-protection.md)."""
+
+    current_version: int = Field(description="The study's current consent version.")
+    accepted_version: int | None = Field(
+        description="The latest version they accepted (None: they have not consented yet)."
+    )
+    declined_version: int | None = Field(
+        description="The latest version they declined, when later than the one they accepted."
+    )
+    reconsent_needed: bool = Field(
+        description="They accepted an older version than the current one."
+    )
+    before_next_session: bool = Field(
+        description=(
+            "The protocol has them consent again before their next session "
+            "(`reconsent_before_next_session`): until they do, no session starts for them."
+        )
+    )
+
+
 class ParticipantOut(BaseModel):
     """A participant as listed."""
 
@@ -107,6 +128,9 @@ class ParticipantOut(BaseModel):
     )
     site: str | None = Field(
         default=None, description="The participant's site (None in a study without sites)."
+    )
+    consent: ConsentStandingOut | None = Field(
+        default=None, description="Where they stand with the consent text (None: erased)."
     )
 
 

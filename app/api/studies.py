@@ -6,9 +6,11 @@ from typing import Any
 
 from fastapi import APIRouter, Request, status
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from app.api.schemas import (
     ConditionCount,
+    ConsentStandingOut,
     Enrolled,
     EnrolmentRequest,
     ErasureOut,
@@ -25,6 +27,7 @@ from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol
 from app.services import (
     blinding,
+    consent,
     enrolment,
     erasure,
     questionnaires,
@@ -55,7 +58,27 @@ def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
     )
 
 
-def _participant(study: Study, participant: Participant, actor: Actor) -> ParticipantOut:
+def _consent(standing: consent.Standing | None) -> ConsentStandingOut | None:
+    if standing is None:
+        return None
+    return ConsentStandingOut(
+        current_version=standing.current,
+        accepted_version=standing.accepted,
+        declined_version=standing.declined,
+        reconsent_needed=standing.outdated,
+        before_next_session=standing.outdated and standing.required,
+    )
+
+
+def _participant(
+    db: Session,
+    study: Study,
+    participant: Participant,
+    actor: Actor,
+    standing: consent.Standing | None = None,
+) -> ParticipantOut:
+    if standing is None and participant.erased_at is None:
+        standing = consent.standing(db, participant, study)
     return ParticipantOut(
         code=participant.code,
         condition=enrolment.condition_label(study, participant.allocation.condition, actor=actor),
@@ -66,6 +89,7 @@ def _participant(study: Study, participant: Participant, actor: Actor) -> Partic
         locked=participant.locked_at is not None,
         language=participant.language,
         site=participant.site,
+        consent=_consent(standing),
     )
 
 
@@ -135,9 +159,31 @@ def list_participants(name: str, db: SessionDep, user: CurrentUser) -> list[Part
     """Participants in enrolment order."""
     study = studies.get_study(db, name)
     actor = Actor.of_user(user)
+    standings = consent.standings(db, study)  # one query for everyone
+    current = consent.current_number(db, study.id)
+    required = studies.protocol_of(study).questionnaires.consent.reconsent_before_next_session
     return [
-        _participant(study, p, actor) for p in enrolment.list_participants(db, study, actor=actor)
+        _participant(
+            db,
+            study,
+            p,
+            actor,
+            None
+            if p.erased_at is not None
+            else standings.get(p.id, consent.Standing(current, None, None, required)),
+        )
+        for p in enrolment.list_participants(db, study, actor=actor)
     ]
+
+
+@router.get("/{name}/participants/{code}")
+def get_participant(name: str, code: str, db: SessionDep, user: CurrentUser) -> ParticipantOut:
+    """One participant: status, condition (sealed while blinded), language, site and where
+    they stand with the consent text (re-consent needed, and whether it holds their next
+    session back)."""
+    study = studies.get_study(db, name)
+    actor = Actor.of_user(user)
+    return _participant(db, study, enrolment.get_participant(db, study, code, actor=actor), actor)
 
 
 @router.post("/{name}/participants", status_code=status.HTTP_201_CREATED)
@@ -179,7 +225,7 @@ def withdraw(
     participant = enrolment.withdraw_participant(
         db, study_name=name, code=code, actor=actor, reason=body.reason
     )
-    return _participant(studies.get_study(db, name), participant, actor)
+    return _participant(db, studies.get_study(db, name), participant, actor)
 
 
 @router.post("/{name}/participants/{code}/erase")
@@ -265,7 +311,7 @@ def lock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> Partic
         db, study, code, actor=Actor.of_user(user), for_update=True
     )
     questionnaires.set_locked(db, participant=participant, locked=True, actor=Actor.of_user(user))
-    return _participant(study, participant, Actor.of_user(user))
+    return _participant(db, study, participant, Actor.of_user(user))
 
 
 @router.post("/{name}/participants/{code}/unlock")
@@ -276,4 +322,4 @@ def unlock(name: str, code: str, db: SessionDep, user: ExperimenterUser) -> Part
         db, study, code, actor=Actor.of_user(user), for_update=True
     )
     questionnaires.set_locked(db, participant=participant, locked=False, actor=Actor.of_user(user))
-    return _participant(study, participant, Actor.of_user(user))
+    return _participant(db, study, participant, Actor.of_user(user))

@@ -124,6 +124,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/api/v1/studies/{name}"): get("/api/v1/studies/rt"),
     ("GET", "/api/v1/studies/{name}/protocol"): get("/api/v1/studies/rt/protocol"),
     ("GET", "/api/v1/studies/{name}/participants"): get("/api/v1/studies/rt/participants"),
+    ("GET", "/api/v1/studies/{name}/participants/{code}"): get(
+        "/api/v1/studies/rt/participants/P001"
+    ),
     ("GET", "/studies/{name}"): get("/studies/rt"),
     ("GET", "/studies/{name}/dashboard"): get("/studies/rt/dashboard"),
     ("GET", "/studies/{name}/dashboard.json"): get("/studies/rt/dashboard.json"),

@@ -89,10 +89,15 @@ def test_a_new_version_is_accepted_before_the_next_session(
     study_page = admin.get(f"/studies/{lab.study}").text
     assert "declined consent version 2" in study_page
     assert f"{code} declined version 2 of the consent text" in study_page
-    assert (
-        "withdrawn"
-        not in lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants/{code}").text
-    )
+    one = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants/{code}").json()
+    assert one["status"] != "withdrawn"
+    assert one["consent"] == {
+        "current_version": 2,
+        "accepted_version": 1,
+        "declined_version": 2,
+        "reconsent_needed": True,
+        "before_next_session": True,
+    }
 
     accepted = tablet.post("/api/v1/tablet/consent", json={"accept": True, "version": 2})
     assert accepted.status_code == 200 and accepted.json()["kind"] == "wait"
@@ -131,12 +136,27 @@ def test_without_reconsent_the_flag_only_informs(app: FastAPI, lab: Lab) -> None
     lab.run_session()
     page = lab.experimenter.get(f"/studies/{lab.study}").text
     assert "re-consent needed (accepted version 1 of 2)" in page
+    listed = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants").json()
+    assert [p["consent"] for p in listed] == [
+        {
+            "current_version": 2,
+            "accepted_version": 1,
+            "declined_version": None,
+            "reconsent_needed": True,
+            "before_next_session": False,  # the protocol only flags them
+        }
+    ]
     # Someone enrolled now consents to the current version, in the words they were shown.
     second = lab.enrol_and_assign(questionnaires=False)
     tablet = tablet_client(app, lab, second)
     shown = tablet.get("/api/v1/tablet").json()["consent"]
     assert shown == {"version": "1.1", "number": 2, "text": NEW_TEXT, "again": False}
+    before = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants/{second}").json()
+    assert before["consent"]["accepted_version"] is None  # not consented yet
+    assert before["consent"]["reconsent_needed"] is False
     assert tablet.post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
+    after = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants/{second}").json()
+    assert after["consent"]["accepted_version"] == 2
     with lab.database.read_session() as db:
         assert consent.standing(db, *_participant(db, lab.study, second)).note == ""
         record = subject_access.participant_record(db, study_name=lab.study, code=second)
