@@ -99,6 +99,8 @@ def test_an_answer_for_htmx_and_the_same_as_a_whole_page(
     assert "Power 0.933 to detect the group × session interaction with N = 24." in text
     assert "<td>16.9146</td>" in text and "<td>3.000, 66.000</td>" in text
     assert "trustlab power --effect interaction --groups 2 --sessions 4 --eta2 .204" in text
+    # the simulated models, the ordinal one included, are named with their flags
+    assert "<code>--simulate 1000 --model ordinal</code>" in text
     whole = analyst.get("/studies/tiny/analysis/power", params=PAPER_SPSS)
     assert whole.status_code == 200 and "<html" in whole.text
     assert "Power 0.933 to detect" in whole.text and _field(whole.text, "value") == ".204"
