@@ -100,7 +100,8 @@ def test_experimenter_runs_a_session_and_watches_it_live(
     page.screenshot(path=str(artifacts / "05-console-after.png"), full_page=True)
     # The dashboard in the other tab redraws by itself (server-sent events), no reload.
     dashboard.bring_to_front()
-    expect(dashboard.locator("#dashboard")).to_have_attribute("data-answers", "3", timeout=5000)
+    # The page has no timer: only the server's event makes it fetch (the default wait bounds it).
+    expect(dashboard.locator("#dashboard")).to_have_attribute("data-answers", "3")
     expect(dashboard.locator("#adaptation .main-svg").first).to_be_visible()
     dashboard.screenshot(path=str(artifacts / "06-dashboard.png"), full_page=True)
     context.close()
@@ -164,7 +165,7 @@ def test_a_dashboard_on_one_worker_updates_from_an_answer_posted_to_another(
                 json={"answer": "yes", "idempotency_key": "adapting-1"},
             )
             # Posted to the second server; the first server's page learns of it via NOTIFY.
-            expect(page.locator("#dashboard")).to_have_attribute("data-answers", "1", timeout=3000)
+            expect(page.locator("#dashboard")).to_have_attribute("data-answers", "1")
             page.screenshot(path=str(artifacts / "dashboard-other-worker.png"), full_page=True)
             context.close()
     finally:
