@@ -140,7 +140,9 @@ def test_a_dropped_connection_is_still_resumed() -> None:
     async def main() -> tuple[list[int], dict[str, Any]]:
         async with scripted_server(script) as (url, attempts):
             async with StationSocket(url, "tlk_key", **_fast()) as socket:
-                event = await socket.next_event(timeout=2.0)
+                event = await socket.next_event(
+                    timeout=30.0
+                )  # bounds a wait that ends at the reconnect
                 assert await socket.request("state") == {}
             return attempts, event
 
