@@ -22,6 +22,10 @@ class FakeRobot:
         self.script = script
         self.connects = 0
         self.refuse_connects = refuse_connects
+        self.away = threading.Event()
+        """While set, connecting fails (the robot is lost and stays away)."""
+        self.away_after_drop = False
+        """A drop while saying (``Script.drop_says``) sets :attr:`away`."""
         self.cues: queue.Queue[Cue] = queue.Queue()
         self.listening = threading.Event()
         """Set while :meth:`listen` waits for :attr:`release` (when ``hold`` is set)."""
@@ -36,6 +40,8 @@ class FakeRobot:
             if self.refuse_connects > 0:
                 self.refuse_connects -= 1
                 raise RobotUnreachable("the fake robot refused the connection")
+            if self.away.is_set():
+                raise RobotLost("the fake robot is still away")
             self.connects += 1
             self._connected = True
 
@@ -46,6 +52,12 @@ class FakeRobot:
 
     def say(self, text: str, gesture: str | None = None) -> None:
         self._check()
+        if self.script.say_drops():
+            with self._lock:
+                self._connected = False
+                if self.away_after_drop:
+                    self.away.set()
+            raise RobotLost("the fake robot dropped the connection while speaking")
         self.script.record_said(text, gesture)
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:

@@ -145,6 +145,67 @@ def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: s
     assert_verify_clean(seated)
 
 
+def test_a_reply_cut_off_by_a_lost_robot_is_said_once_it_is_back(seated: Lab, url: str) -> None:
+    """The answer is stored, the robot drops while saying the reply: once it is back it says
+    the reply (not the question again), and the answer stays stored once."""
+    script = Script()
+    script.add("yes")
+    script.drop_says = {2}  # the question, then the reply: dropped
+    robot = FakeRobot(script)
+    with RunningBridge(robot, url, seated.station, seated.key) as bridge:
+        step = ask_now(seated)
+        said = script.wait_said(2, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+    [answer] = stored_answers(seated)
+    assert (answer.prompt_id, answer.transcript) == (step["step_id"], "yes")
+    assert [line.text for line in said] == [step["question"], answer.reply]
+    assert robot.connects == 2 and len(script.vocabularies) == 1  # not asked or heard again
+    assert any("dropped the connection while speaking" in line for line in bridge.lines)
+    assert any("saying the reply the robot was cut off in" in line for line in bridge.lines)
+    assert_verify_clean(seated)
+
+
+def test_a_reply_cut_off_after_the_study_moved_on_is_told_to_the_console(
+    seated: Lab, url: str
+) -> None:
+    """The robot drops while saying a reply and stays away while the console asks the next
+    question: once back, it does not say the stale reply; the console is told what the
+    participant did not hear, until the next reply is said."""
+    script = Script()
+    script.add("yes")
+    script.drop_says = {2}
+    robot = FakeRobot(script)
+    robot.away_after_drop = True
+    with RunningBridge(robot, url, seated.station, seated.key):
+        first = ask_now(seated, "conation")
+        wait_for(lambda: (_notice(seated)[0] or "").startswith("lost the robot"))
+        second = ask_now(seated, "affection")
+        robot.hold = True
+        robot.away.clear()
+        wait_for(lambda: "moved on" in (_notice(seated)[0] or ""))
+        notice, attention = _notice(seated)
+        [answer] = stored_answers(seated)
+        assert attention and notice is not None
+        assert f"P001's answer to “{first['question']}”" in notice
+        assert f"the reply “{answer.reply}” was recorded but not heard" in notice
+        assert robot.listening.wait(BOUND)  # the next question is asked
+        script.add("no")
+        robot.release.set()
+        said = script.wait_said(3, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+    first_answer, second_answer = stored_answers(seated)
+    assert (first_answer.prompt_id, second_answer.prompt_id) == (
+        first["step_id"],
+        second["step_id"],
+    )
+    assert [line.text for line in said] == [
+        first["question"],
+        second["question"],
+        second_answer.reply,
+    ]
+    assert_verify_clean(seated)
+
+
 def test_a_bridge_killed_mid_answer_and_restarted_answers_once(seated: Lab, url: str) -> None:
     first = Script()
     first.add(Silence())

@@ -108,3 +108,31 @@ def test_a_dropped_robot_connection_is_survived(kind: Kind, gesturing: Lab, url:
     assert any("reconnecting" in line for line in bridge.lines)
     assert any("is back" in line for line in bridge.lines)
     assert_verify_clean(gesturing)
+
+
+def test_a_furhat_lost_while_replying_says_the_reply_once_back(gesturing: Lab, url: str) -> None:
+    """Furhat's Remote API drops the request to say the reply (the answer is already stored):
+    the bridge reconnects and the robot says the reply, with its gesture; nothing is asked,
+    heard or stored again."""
+    kind = KINDS["furhat"]()
+    script = Script()
+    script.add(Words("yes", 0.9))
+    script.drop_says = {2}
+    with (
+        kind.stand_in(script) as stand_in,
+        RunningBridge(kind.robot(stand_in), url, gesturing.station, gesturing.key) as bridge,
+    ):
+        step = ask_now(gesturing, "conation")
+        said = script.wait_said(2, BOUND)
+    [answer] = stored_answers(gesturing)
+    assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
+    gesture = kind.gesture(GESTURES[answer.confidence])
+    assert [(line.text, line.gesture) for line in said] == [
+        (step["question"], None),
+        (answer.reply, gesture),
+    ]
+    assert (
+        len(stand_in.queries("/furhat/say")) == 3 and len(stand_in.queries("/furhat/listen")) == 1
+    )
+    assert any("reconnecting" in line for line in bridge.lines)
+    assert_verify_clean(gesturing)

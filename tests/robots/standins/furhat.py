@@ -3,7 +3,8 @@
 It serves what the adapter uses, with the shapes of the vendor client's models (``Status``
 ``{success, message}``, ``Voice`` ``{name, language}``, ``User`` ``{id, location, rotation}``):
 
-- ``POST /furhat/say?text=&blocking=`` records the line (with the gesture started just before);
+- ``POST /furhat/say?text=&blocking=`` records the line (with the gesture started just before),
+  or drops that connection unsaid when the script says so (``Script.drop_says``);
 - ``POST /furhat/gesture?name=&blocking=`` records the gesture; an unknown name is refused;
 - ``GET /furhat/listen?language=`` takes the participant's next reply: words as the message
   (the Remote API carries no confidence), silence as ``SILENCE`` (or :attr:`silence_message`), and
@@ -115,6 +116,8 @@ class FurhatStandIn:
     def _say(self, query: dict[str, str]) -> Any:
         with self._changed:
             gesture, self._pending_gesture = self._pending_gesture, None
+        if self.script.say_drops():
+            return None
         self.script.record_said(query.get("text", ""), gesture)
         return _status(True, "")
 

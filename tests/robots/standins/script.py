@@ -58,6 +58,10 @@ class Script:
     """``time.perf_counter()`` of each line in :attr:`said` (bench/bridge.py's latencies)."""
     heard_at: list[float] = field(default_factory=list)
     """``time.perf_counter()`` of each :class:`Words` handed to the recogniser."""
+    drop_says: set[int] = field(default_factory=set)
+    """Which requests to say a line (1 for the first, counting dropped ones) drop the robot's
+    connection instead of saying it (a robot lost while it speaks)."""
+    says: int = 0
     _changed: threading.Condition = field(default_factory=threading.Condition)
 
     def add(self, *replies: Reply | str) -> None:
@@ -72,6 +76,13 @@ class Script:
             if isinstance(reply, Words):
                 self.heard_at.append(time.perf_counter())
             return reply
+
+    def say_drops(self) -> bool:
+        """Count a request to say a line; True when it is one of :attr:`drop_says`: the stand-in
+        then drops the connection and nothing is said."""
+        with self._changed:
+            self.says += 1
+            return self.says in self.drop_says
 
     def record_said(self, text: str, gesture: str | None = None) -> None:
         with self._changed:
