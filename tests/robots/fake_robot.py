@@ -21,11 +21,13 @@ class FakeRobot:
     def __init__(self, script: Script, *, refuse_connects: int = 0) -> None:
         self.script = script
         self.connects = 0
+        self.attempts = 0
+        """Calls of :meth:`connect`, refused ones included (``connects``: the ones that worked)."""
         self.refuse_connects = refuse_connects
         self.away = threading.Event()
         """While set, connecting fails (the robot is lost and stays away)."""
         self.away_after_drop = False
-        """A drop while saying (``Script.drop_says``) sets :attr:`away`."""
+        """A drop (while listening, or saying: ``Script.drop_says``) sets :attr:`away`."""
         self.cues: queue.Queue[Cue] = queue.Queue()
         self.listening = threading.Event()
         """Set while :meth:`listen` waits for :attr:`release` (when ``hold`` is set)."""
@@ -37,6 +39,7 @@ class FakeRobot:
 
     def connect(self) -> None:
         with self._lock:
+            self.attempts += 1
             if self.refuse_connects > 0:
                 self.refuse_connects -= 1
                 raise RobotUnreachable("the fake robot refused the connection")
@@ -72,6 +75,8 @@ class FakeRobot:
         if isinstance(reply, Drop):
             with self._lock:
                 self._connected = False
+                if self.away_after_drop:
+                    self.away.set()
             raise RobotLost("the fake robot dropped the connection")
         if isinstance(reply, Silence):
             return None

@@ -133,9 +133,24 @@ def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: s
     script = Script()
     script.add(Drop(), "yep")
     robot = FakeRobot(script)
+    robot.away_after_drop = True
     with RunningBridge(robot, url, seated.station, seated.key) as bridge:
         step = ask_now(seated)
+        wait_for(lambda: robot.away.is_set() and _notice(seated)[0] is not None)
+        away = _notice(seated)  # the bridge keeps trying while the robot stays away
+        wait_for(lambda: robot.attempts >= 3)  # at start, then twice refused while away
+        assert _notice(seated) == away
+        console = seated.experimenter.get(f"/stations/{seated.station}").text
+        assert 'class="attention device-notice" role="alert"><strong>pepper</strong>' in console
+        assert "lost the robot (the fake robot dropped the connection); reconnecting" in console
+        robot.away.clear()
         said = script.wait_said(3, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+        assert "device-notice" not in seated.experimenter.get(f"/stations/{seated.station}").text
+    assert away == (
+        "lost the robot (the fake robot dropped the connection); reconnecting",
+        True,
+    )
     assert [line.text for line in said[:2]] == [step["question"], step["question"]]
     [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.transcript) == (step["step_id"], "yep")
