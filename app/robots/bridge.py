@@ -1,7 +1,8 @@
 """The loop that joins a robot to a station: the robot asks, listens, and says the reply.
 
-A bridge is a robot client like any other (the station WebSocket, first-message auth, idempotency
-keys), so the server needs nothing special for it. What it adds is the robot's side:
+A bridge is a robot client like any other (the station WebSocket authenticated by its
+``Authorization: Bearer`` header, as docs/robot-integration.md §5 prefers; idempotency keys), so
+the server needs nothing special for it. What it adds is the robot's side:
 
 - a question is asked when the trigger says so: the participant stepping into a zone (the room's
   presence), the robot's own cue, or only the operator console's "ask now" (a Wizard-of-Oz prompt,
