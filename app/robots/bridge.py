@@ -44,7 +44,15 @@ from app.client import (
     StationSocket,
     backoff_delays,
 )
-from app.robots.robot import Heard, Robot, RobotError, RobotLost, RobotUnreachable
+from app.robots.robot import (
+    Colour,
+    Heard,
+    Robot,
+    RobotError,
+    RobotLost,
+    RobotUnreachable,
+    colour_of,
+)
 from app.speech.vocabulary import Vocabulary
 
 T = TypeVar("T")
@@ -123,6 +131,7 @@ class _Unsaid:
     participant: str | None
     reply: str
     gesture: str | None
+    leds: Colour | None
 
 
 @dataclass
@@ -426,19 +435,30 @@ class Bridge:
             except SERVER_AWAY as exc:
                 self._log(f"Bridge: lost the server ({exc or type(exc).__name__}); retrying.")
                 await asyncio.sleep(next(delays))
-        await self._say_reply(prompt, out.reply, speech.gestures.get(out.confidence))
+        await self._say_reply(prompt, out.reply, out.confidence, speech)
         self._log(f"Robot replies ({out.confidence}): {out.reply}")
 
-    async def _say_reply(self, prompt: PromptOut, reply: str, gesture: str | None) -> None:
-        """Say a recorded answer's reply; kept until said, so that a robot lost while saying it
-        says it once it is back (:meth:`_say_unsaid`)."""
+    async def _say_reply(
+        self, prompt: PromptOut, reply: str, level: str | None, speech: SpeechOut
+    ) -> None:
+        """Say a recorded answer's reply, with the protocol's gesture and LED colour for its
+        level (if any); kept until said, so that a robot lost while saying it says it once it is
+        back (:meth:`_say_unsaid`)."""
         seated = (self._socket.state or {}).get("participant")
-        unsaid = _Unsaid(prompt.step_id, prompt.question, seated, reply, gesture)
+        leds = speech.leds.get(level or "")
+        unsaid = _Unsaid(
+            prompt.step_id,
+            prompt.question,
+            seated,
+            reply,
+            speech.gestures.get(level or ""),
+            colour_of(leds) if leds else None,
+        )
         await self._say_kept(unsaid)
 
     async def _say_kept(self, unsaid: _Unsaid) -> None:
         self._unsaid[unsaid.step_id] = unsaid
-        await self._robot(self.robot.say, unsaid.reply, unsaid.gesture)
+        await self._robot(self.robot.say, unsaid.reply, unsaid.gesture, unsaid.leds)
         self._unsaid.pop(unsaid.step_id, None)
         if self._missed_reply_shown:
             self._missed_reply_shown = False
@@ -485,7 +505,7 @@ class Bridge:
         if recorded is None:
             return False
         reply, level = recorded
-        await self._say_reply(prompt, reply, speech.gestures.get(level or ""))
+        await self._say_reply(prompt, reply, level, speech)
         self._log(f"Robot replies to the console's answer: {reply}")
         return True
 

@@ -8,8 +8,8 @@ import queue
 import threading
 from collections.abc import Sequence
 
-from app.robots.robot import Cue, Heard, RobotLost, RobotUnreachable
-from tests.robots.standins.script import Drop, Script, Silence, Words
+from app.robots.robot import Colour, Cue, Heard, RobotLost, RobotUnreachable
+from tests.robots.standins.script import Drop, Script, Silence, Words, hex_colour
 
 
 class FakeRobot:
@@ -53,7 +53,7 @@ class FakeRobot:
             if not self._connected:
                 raise RobotLost("the fake robot is not connected")
 
-    def say(self, text: str, gesture: str | None = None) -> None:
+    def say(self, text: str, gesture: str | None = None, leds: Colour | None = None) -> None:
         self._check()
         if self.script.say_drops():
             with self._lock:
@@ -61,7 +61,7 @@ class FakeRobot:
                 if self.away_after_drop:
                     self.away.set()
             raise RobotLost("the fake robot dropped the connection while speaking")
-        self.script.record_said(text, gesture)
+        self.script.record_said(text, gesture, hex_colour(*leds) if leds else None)
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         self._check()

@@ -10,13 +10,15 @@ import socket
 from datetime import datetime, timedelta
 from typing import Any
 
+import pytest
 from sqlalchemy import delete, select, update
 from websockets.sync.client import ClientConnection, connect
 
 from app import events
+from app.protocol import ProtocolError, parse_protocol
 from app.services import stations
 from app.tables import Device, DeviceSocket, utcnow
-from tests.conftest import Lab
+from tests.conftest import Lab, protocol_text
 from tests.robots.harness import BOUND, console_badge, wait_for
 
 SOCKET = "/api/v1/station/ws"
@@ -33,6 +35,22 @@ def test_the_speech_settings_are_the_study_s(lab: Lab) -> None:
     assert speech["yes"] == ["yes", "yeah", "yep", "sure"]
     assert speech["no"] == ["no", "nope", "no way"]
     assert (speech["attempts"], speech["min_confidence"], speech["gestures"]) == (3, 0.4, {})
+    assert speech["leds"] == {}  # off by default
+
+
+def test_led_colours_are_checked_at_study_creation() -> None:
+    """A reply level's LED colour is #rrggbb, for a level the protocol has."""
+    good = protocol_text(**{"[reward]": '[speech.leds]\nhigh = "#00FF00"\n\n[reward]'})
+    assert parse_protocol(good).protocol.speech.leds == {"high": "#00FF00"}
+    for leds, where in (
+        ('nearly = "#00ff00"', "speech.leds.nearly"),
+        ('high = "green"', "speech.leds.high"),
+        ('high = "#00ff0"', "speech.leds.high"),
+    ):
+        text = protocol_text(**{"[reward]": f"[speech.leds]\n{leds}\n\n[reward]"})
+        with pytest.raises(ProtocolError) as refused:
+            parse_protocol(text)
+        assert where in str(refused.value), str(refused.value)
 
 
 def test_a_notice_shows_on_the_console_until_cleared(lab: Lab) -> None:

@@ -38,10 +38,17 @@ Reply = Words | Silence | Drop
 
 @dataclass(frozen=True)
 class Said:
-    """A line the robot was told to say, with the gesture that went with it (if any)."""
+    """A line the robot was told to say, with the gesture that went with it (if any) and the
+    colour its LEDs showed while it was said (``#rrggbb``; None: the robot's own)."""
 
     text: str
     gesture: str | None = None
+    leds: str | None = None
+
+
+def hex_colour(red: float, green: float, blue: float) -> str:
+    """``#rrggbb`` of 0-255 parts (as a stand-in records a colour)."""
+    return "#" + "".join(f"{round(part):02x}" for part in (red, green, blue))
 
 
 @dataclass
@@ -84,9 +91,9 @@ class Script:
             self.says += 1
             return self.says in self.drop_says
 
-    def record_said(self, text: str, gesture: str | None = None) -> None:
+    def record_said(self, text: str, gesture: str | None = None, leds: str | None = None) -> None:
         with self._changed:
-            self.said.append(Said(text, gesture))
+            self.said.append(Said(text, gesture, leds))
             self.said_at.append(time.perf_counter())
             self._changed.notify_all()
 
