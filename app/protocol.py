@@ -47,6 +47,8 @@ Key = Annotated[str, StringConstraints(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 
 ConditionId = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_-]{0,31}$")]
 Text = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=2000)]
+Colour = Annotated[str, StringConstraints(pattern=r"^#[0-9a-fA-F]{6}$")]
+"""An LED colour as ``#rrggbb``."""
 
 DEFAULT_PROTOCOL = "fast_adaptation_trust.toml"
 """The seed paper's protocol, shipped in app/protocols/."""
@@ -296,6 +298,11 @@ class SpeechSpec(_Strict):
         default_factory=dict,
         description="A gesture per reply level name, made with the reply (robot-specific names; "
         "none by default).",
+    )
+    leds: dict[Key, Colour] = Field(
+        default_factory=dict,
+        description="An LED colour (#rrggbb) per reply level name, shown while the reply is said "
+        "(NAOqi: the eyes; Furhat: its LED ring; ROS 2: a ColorRGBA topic); none by default.",
     )
     max_answer_seconds: float = Field(
         default=15.0,
@@ -800,14 +807,15 @@ def _check_speech(protocol: Protocol) -> list[Problem]:
             )
         )
     levels = [level.name for level in protocol.replies.levels]
-    for name in speech.gestures:
-        if name not in levels:
-            problems.append(
-                Problem(
-                    f"speech.gestures.{name}",
-                    f"no reply level {name!r}; levels: {', '.join(levels)}",
+    for field_name, named in (("gestures", speech.gestures), ("leds", speech.leds)):
+        for name in named:
+            if name not in levels:
+                problems.append(
+                    Problem(
+                        f"speech.{field_name}.{name}",
+                        f"no reply level {name!r}; levels: {', '.join(levels)}",
+                    )
                 )
-            )
     return problems
 
 

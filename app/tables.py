@@ -344,6 +344,8 @@ class Device(Base):
     created_by: Mapped[str] = mapped_column(String(64), default="")
     revoked_at: Mapped[datetime | None]
     last_seen_at: Mapped[datetime | None]
+    # When a WebSocket of this device last opened, and when one last closed (history only:
+    # whether one is open now is :attr:`connected`, from :class:`DeviceSocket`).
     connected_at: Mapped[datetime | None]
     disconnected_at: Mapped[datetime | None]
     # What the client last told the operator console (a robot bridge: "lost the robot,
@@ -353,13 +355,29 @@ class Device(Base):
     notice_at: Mapped[datetime | None]
 
     station: Mapped[Station] = relationship(lazy="joined", innerjoin=True)
+    sockets: Mapped[list[DeviceSocket]] = relationship(lazy="selectin", viewonly=True)
 
     @property
     def connected(self) -> bool:
-        """Whether a WebSocket of this device is open (as its last connect/disconnect says)."""
-        return self.connected_at is not None and (
-            self.disconnected_at is None or self.disconnected_at < self.connected_at
-        )
+        """Whether a WebSocket of this device is open now, on any worker: one of its sockets
+        has a row that has not expired. Two sockets may overlap (a bridge that reconnects
+        while its old, half-open socket has not timed out yet): closing one leaves the other."""
+        now = utcnow()
+        return any(socket.expires_at > now for socket in self.sockets)
+
+
+class DeviceSocket(Base):
+    """One open station WebSocket of a device (app/api/station_ws.py): inserted when it opens,
+    deleted when it closes, its expiry pushed on at each heartbeat. A worker process that dies
+    cannot delete its rows: they expire a few heartbeats later, so the console never shows a
+    socket of a dead process as connected for long."""
+
+    __tablename__ = "device_socket"
+
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    device_id: Mapped[int] = mapped_column(ForeignKey("device.id"), index=True)
+    opened_at: Mapped[datetime] = mapped_column(default=utcnow)
+    expires_at: Mapped[datetime]
 
 
 class RoomPresence(Base):

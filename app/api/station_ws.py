@@ -36,13 +36,15 @@ import asyncio
 import contextlib
 import json
 import logging
+import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import timedelta
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 from sqlalchemy.exc import DataError, OperationalError
-from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from app.api import station_ops
@@ -54,7 +56,6 @@ from app.events import Event
 from app.http import refused_value_message
 from app.inputs import MAX_DIGITS, Count, RowId
 from app.services import stations
-from app.services.step_store import DeviceSeat
 
 log = logging.getLogger(__name__)
 
@@ -207,6 +208,8 @@ class _Connection:
         self.heartbeat = heartbeat
         self._send_lock = asyncio.Lock()
         self._heard = asyncio.get_running_loop().time()
+        self.socket_id = uuid.uuid4().hex
+        """This socket's row in ``device_socket`` (the console counts a device's open sockets)."""
 
     async def send(self, message: dict[str, Any]) -> None:
         async with self._send_lock:
@@ -224,6 +227,25 @@ class _Connection:
             op=lambda db, device: station_ops.state(db, station=device.seat),
         )
         return out.model_dump(mode="json")
+
+    async def record_socket(self, change: Callable[..., None]) -> None:
+        """Record that this socket opened, is alive or closed (``change``: one of
+        :func:`stations.socket_opened`, ``socket_alive``, ``socket_closed``), for the console's
+        connected badge. By the device's id, not its key: a socket whose key was revoked meanwhile
+        still has its row removed. A database that is away is not the client's problem: the row
+        comes back at the next heartbeat, or lapses."""
+        options: dict[str, Any] = {"device_id": self.device.id, "socket_id": self.socket_id}
+        if change is not stations.socket_closed:
+            options["lasts"] = timedelta(seconds=self.heartbeat * (MISSED_HEARTBEATS + 1))
+
+        def work() -> None:
+            with self.database.write_session() as db:
+                change(db, **options)
+                db.commit()
+
+        with contextlib.suppress(OperationalError):
+            async with self.database.admission():
+                await self.database.run_unit_of_work(work, write=True)
 
     async def close_revoked(self) -> None:
         """Close the connection of a key that is no longer valid (code 4401)."""
@@ -376,6 +398,7 @@ class _Connection:
             if not await self.key_still_valid():
                 await self.close_revoked()
                 return
+            await self.record_socket(stations.socket_alive)
             await self.send({"type": "ping"})
 
     async def serve(self) -> None:
@@ -457,25 +480,14 @@ async def station_socket(websocket: WebSocket) -> None:
     if device is None:
         return
     connection = _Connection(websocket, database, device, heartbeat)
-    await _mark(websocket, device.key, connected=True)
+    await connection.record_socket(stations.socket_opened)
     try:
         with contextlib.suppress(WebSocketDisconnect):
             await connection.serve()
-    finally:
-        await _mark(websocket, device.key, connected=False)
+    finally:  # shielded: a server shutting down cancels the handler, not this record
+        await asyncio.shield(connection.record_socket(stations.socket_closed))
 
 
 def _close_reason(text: str) -> str:
     """A close frame's reason: at most 123 bytes of UTF-8 (RFC 6455, 5.5)."""
     return text.encode()[:123].decode(errors="ignore")
-
-
-async def _mark(websocket: WebSocket, key: str, *, connected: bool) -> None:
-    """Remember whether the device is connected (shown on the stations page)."""
-
-    def mark(db: Session, device: DeviceSeat) -> None:
-        stations.mark_connection(db, device_id=device.device_id, connected=connected)
-        db.commit()
-
-    with contextlib.suppress(TrustlabError, OperationalError):
-        await as_device(websocket.app, key, write=True, op=mark)

@@ -155,6 +155,12 @@ def naoqi(
             "head sensors)."
         ),
     ] = None,
+    led_group: Annotated[
+        str,
+        typer.Option(
+            help="ALLeds group that shows the protocol's reply colours ('' leaves the LEDs alone)."
+        ),
+    ] = "FaceLeds",
 ) -> None:
     """A Pepper or NAO, through NAOqi (qi)."""
     adapter = _vendor("naoqi", "NAOqi")
@@ -169,6 +175,7 @@ def naoqi(
         volume=volume,
         animated=animated,
         cue_events=tuple(cue_event) if cue_event else adapter.HEAD_SENSORS,
+        led_group=led_group or None,
     )
     _run(adapter.NaoqiRobot(options), _settings(url, station, key, trigger, speaks))
 
@@ -223,6 +230,12 @@ def rosbridge(
     cue_topic: Annotated[
         str, typer.Option(help="std_msgs/String topic of the robot's cue to ask.")
     ] = "/trustlab/cue",
+    led_topic: Annotated[
+        str,
+        typer.Option(
+            help="std_msgs/ColorRGBA topic for the protocol's reply colours ('' sends none)."
+        ),
+    ] = "/trustlab/led",
 ) -> None:
     """A ROS 2 robot, through rosbridge_server's WebSocket (roslibpy)."""
     adapter = _vendor("rosbridge", "ROS 2")
@@ -236,6 +249,7 @@ def rosbridge(
         listen_topic=listen_topic,
         heard_topic=heard_topic,
         cue_topic=cue_topic,
+        led_topic=led_topic or None,
         require_cue_topic=trigger == Trigger.ROBOT,
     )
     _run(adapter.RosbridgeRobot(options), _settings(url, station, key, trigger, speaks))

@@ -1,7 +1,8 @@
 """The loop that joins a robot to a station: the robot asks, listens, and says the reply.
 
-A bridge is a robot client like any other (the station WebSocket, first-message auth, idempotency
-keys), so the server needs nothing special for it. What it adds is the robot's side:
+A bridge is a robot client like any other (the station WebSocket authenticated by its
+``Authorization: Bearer`` header, as docs/robot-integration.md §5 prefers; idempotency keys), so
+the server needs nothing special for it. What it adds is the robot's side:
 
 - a question is asked when the trigger says so: the participant stepping into a zone (the room's
   presence), the robot's own cue, or only the operator console's "ask now" (a Wizard-of-Oz prompt,
@@ -11,7 +12,9 @@ keys), so the server needs nothing special for it. What it adds is the robot's s
   answer, and the robot says the reply to whichever answer is recorded;
 - an answer is sent with the recogniser's words and confidence, under one idempotency key however
   often it is retried, and the reply is said only once the server has recorded it: an answer the
-  participant heard acknowledged is never lost, and none is sent twice;
+  participant heard acknowledged is never lost, and none is sent twice; a reply the robot was
+  cut off in (lost while saying it) is said once the robot is back, before anything else, or,
+  if the study has moved on meanwhile, told to the console;
 - losing the robot or the server is told to the console (or shown there as the device
   disconnected), and the bridge reconnects and asks the open question again.
 
@@ -41,7 +44,15 @@ from app.client import (
     StationSocket,
     backoff_delays,
 )
-from app.robots.robot import Heard, Robot, RobotError, RobotLost, RobotUnreachable
+from app.robots.robot import (
+    Colour,
+    Heard,
+    Robot,
+    RobotError,
+    RobotLost,
+    RobotUnreachable,
+    colour_of,
+)
 from app.speech.vocabulary import Vocabulary
 
 T = TypeVar("T")
@@ -111,6 +122,18 @@ class _Handle:
     step_id: int
 
 
+@dataclass(frozen=True)
+class _Unsaid:
+    """A recorded answer's reply the robot has not finished saying (it was lost meanwhile)."""
+
+    step_id: int
+    question: str
+    participant: str | None
+    reply: str
+    gesture: str | None
+    leds: Colour | None
+
+
 @dataclass
 class _Answered:
     """What the bridge knows of steps answered while it listened (Wizard-of-Oz answers)."""
@@ -166,6 +189,10 @@ class Bridge:
         self._work: asyncio.Queue[_Ask | _Handle] = asyncio.Queue()
         self._asked: set[int] = set()
         self._answered = _Answered()
+        self._unsaid: dict[int, _Unsaid] = {}
+        """Replies recorded but not yet said in full: said once the robot is back (before
+        anything else), or told to the console if the study has moved on meanwhile."""
+        self._missed_reply_shown = False
         self._stopping = asyncio.Event()
         self._robot_back = asyncio.Lock()
         self._rng = random.Random()
@@ -285,40 +312,50 @@ class Bridge:
     async def _do_work(self) -> None:
         delays = backoff_delays(self.settings.retry_delay, self.settings.max_retry_delay, self._rng)
         while True:
-            item = await self._work.get()
+            unsaid = next(iter(self._unsaid.values()), None)
+            item = _Handle(unsaid.step_id) if unsaid else await self._work.get()
             prompt: PromptOut | None = None
             try:
+                if unsaid is not None:
+                    await self._say_unsaid(unsaid)
+                    continue
                 prompt = await self._prompt_for(item)
                 if prompt is not None:
                     await self._ask(prompt)
             except RobotLost as lost:
                 await self._reconnect_robot(lost)
-                self._work.put_nowait(item if prompt is None else _Handle(prompt.step_id))
+                if unsaid is None and prompt is not None and prompt.step_id in self._unsaid:
+                    continue  # answered, its reply cut off: said first (above), not asked again
+                if unsaid is None:
+                    self._work.put_nowait(item if prompt is None else _Handle(prompt.step_id))
             except DeviceKeyRefused:
                 raise
             except ApiError as exc:
                 if exc.status < SERVER_ERROR:
                     self._log(f"Bridge: the server refused: {exc.detail}")
                     continue
-                await self._retry_later(item, prompt, exc.detail, next(delays))
+                await self._retry_later(None if unsaid else item, prompt, exc.detail, next(delays))
             except SERVER_AWAY as exc:
-                await self._retry_later(item, prompt, str(exc) or type(exc).__name__, next(delays))
+                why = str(exc) or type(exc).__name__
+                await self._retry_later(None if unsaid else item, prompt, why, next(delays))
             else:
                 delays = backoff_delays(
                     self.settings.retry_delay, self.settings.max_retry_delay, self._rng
                 )
 
     async def _retry_later(
-        self, item: _Ask | _Handle, prompt: PromptOut | None, why: str, delay: float
+        self, item: _Ask | _Handle | None, prompt: PromptOut | None, why: str, delay: float
     ) -> None:
         """The server could not be reached or was busy: the question is asked once it answers
-        (a prompt already drawn is asked as it is; nothing is drawn twice)."""
+        (a prompt already drawn is asked as it is; nothing is drawn twice). ``item`` None: an
+        unsaid reply, which stays first in line anyway."""
         self._log(f"Bridge: lost the server ({why}); trying again.")
         if prompt is not None:
             self._asked.discard(prompt.step_id)
             item = _Handle(prompt.step_id)
         await asyncio.sleep(delay)
-        self._work.put_nowait(item)
+        if item is not None:
+            self._work.put_nowait(item)
 
     async def _prompt_for(self, item: _Ask | _Handle) -> PromptOut | None:
         """The open step to ask, or None when there is nothing (left) to ask."""
@@ -356,12 +393,12 @@ class Bridge:
         self._log(f"Robot asks (step {prompt.step_id}): {prompt.question}")
         heard: Heard | None = None
         for attempt in range(1, speech.attempts + 1):
-            if await self._say_recorded_reply(prompt.step_id, speech):
+            if await self._say_recorded_reply(prompt, speech):
                 return
             heard = await self._robot(self.robot.listen, vocabulary.phrases, speech.listen_seconds)
             answer = vocabulary.classify(heard)
             self._log(f"Robot heard: {describe_heard(heard)} -> {answer or 'unclear'}")
-            if await self._say_recorded_reply(prompt.step_id, speech):
+            if await self._say_recorded_reply(prompt, speech):
                 return  # answered on the console meanwhile: that answer stands
             if answer is not None:
                 await self._send(prompt, answer, heard, speech)
@@ -388,7 +425,7 @@ class Bridge:
                 break
             except ApiError as exc:
                 if exc.status == CONFLICT and await self._say_recorded_reply(
-                    prompt.step_id, speech, wait=True
+                    prompt, speech, wait=True
                 ):
                     return  # someone else's answer was recorded first: say its reply
                 if exc.status < SERVER_ERROR:
@@ -398,13 +435,65 @@ class Bridge:
             except SERVER_AWAY as exc:
                 self._log(f"Bridge: lost the server ({exc or type(exc).__name__}); retrying.")
                 await asyncio.sleep(next(delays))
-        await self._robot(self.robot.say, out.reply, speech.gestures.get(out.confidence))
+        await self._say_reply(prompt, out.reply, out.confidence, speech)
         self._log(f"Robot replies ({out.confidence}): {out.reply}")
 
+    async def _say_reply(
+        self, prompt: PromptOut, reply: str, level: str | None, speech: SpeechOut
+    ) -> None:
+        """Say a recorded answer's reply, with the protocol's gesture and LED colour for its
+        level (if any); kept until said, so that a robot lost while saying it says it once it is
+        back (:meth:`_say_unsaid`)."""
+        seated = (self._socket.state or {}).get("participant")
+        leds = speech.leds.get(level or "")
+        unsaid = _Unsaid(
+            prompt.step_id,
+            prompt.question,
+            seated,
+            reply,
+            speech.gestures.get(level or ""),
+            colour_of(leds) if leds else None,
+        )
+        await self._say_kept(unsaid)
+
+    async def _say_kept(self, unsaid: _Unsaid) -> None:
+        self._unsaid[unsaid.step_id] = unsaid
+        await self._robot(self.robot.say, unsaid.reply, unsaid.gesture, unsaid.leds)
+        self._unsaid.pop(unsaid.step_id, None)
+        if self._missed_reply_shown:
+            self._missed_reply_shown = False
+            await self._notice(None)
+
+    async def _say_unsaid(self, unsaid: _Unsaid) -> None:
+        """The robot was lost while saying this reply and is back: say it now, unless the study
+        has moved on meanwhile (another question asked or answered, another participant seated);
+        then the console is told what the participant did not hear."""
+        state = await self._fresh_state()
+        later_asked = any(int(p["step_id"]) != unsaid.step_id for p in state["open_prompts"])
+        async with self._answered.changed:
+            later_answered = any(step > unsaid.step_id for step in self._answered.replies)
+        moved_on = later_asked or later_answered or state.get("participant") != unsaid.participant
+        if not moved_on:
+            self._log(f"Bridge: saying the reply the robot was cut off in (step {unsaid.step_id}).")
+            await self._say_kept(unsaid)
+            self._log(f"Robot replies: {unsaid.reply}")
+            return
+        self._unsaid.pop(unsaid.step_id, None)
+        line = (
+            f"the robot was lost while replying to {unsaid.participant or 'the participant'}'s "
+            f"answer to "
+            f"“{unsaid.question}” and the study has moved on: the reply “{unsaid.reply}” "
+            "was recorded but not heard"
+        )
+        await self._notice(line[:300], attention=True)
+        self._missed_reply_shown = True
+        self._log(f"Bridge: {line}.")
+
     async def _say_recorded_reply(
-        self, step_id: int, speech: SpeechOut, *, wait: bool = False
+        self, prompt: PromptOut, speech: SpeechOut, *, wait: bool = False
     ) -> bool:
         """If this step has been answered by someone else (the console), say that reply."""
+        step_id = prompt.step_id
         async with self._answered.changed:
             if wait and step_id not in self._answered.replies:
                 with contextlib.suppress(TimeoutError):
@@ -416,7 +505,7 @@ class Bridge:
         if recorded is None:
             return False
         reply, level = recorded
-        await self._robot(self.robot.say, reply, speech.gestures.get(level or ""))
+        await self._say_reply(prompt, reply, level, speech)
         self._log(f"Robot replies to the console's answer: {reply}")
         return True
 
@@ -430,7 +519,7 @@ class Bridge:
             f"{speech.attempts} tries (last heard: {describe_heard(heard)}): give a "
             "Wizard-of-Oz answer on this console",
         )
-        await self._say_recorded_reply(prompt.step_id, speech)
+        await self._say_recorded_reply(prompt, speech)
 
     async def _cannot_speak(self, prompt: PromptOut) -> None:
         """The participant's language is not the robot's: nothing is said (a question in the

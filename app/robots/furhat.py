@@ -33,7 +33,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from app.robots.robot import Cue, Heard, RobotError, RobotLost, RobotUnreachable
+from app.robots.robot import Colour, Cue, Heard, RobotError, RobotLost, RobotUnreachable
 
 log = logging.getLogger(__name__)
 
@@ -112,17 +112,23 @@ class FurhatRobot:
         self._closed.clear()
         self._connected_once = True
 
-    def say(self, text: str, gesture: str | None = None) -> None:
+    def say(self, text: str, gesture: str | None = None, leds: Colour | None = None) -> None:
         """Say ``text`` and return when it has been said; ``gesture`` (a Furhat gesture name such
         as ``Nod``, ``Smile`` or ``BrowRaise``) starts just before, so it plays while speaking. A
-        gesture the robot refuses is logged and left out: the line matters, the gesture does not."""
+        gesture the robot refuses is logged and left out: the line matters, the gesture does not.
+        ``leds``: the LED ring shows that colour (``POST /furhat/led``) while the line is said,
+        and is switched off afterwards (the Remote API cannot read the colour it had)."""
         api = self._connected()
         if gesture:
             self._gesture(api, gesture)
+        if leds is not None:
+            self._led(api, leds)
         seconds = self.options.request_seconds + len(text) / SLOWEST_SPEECH
         status = self._request(api.say, "saying a line", seconds, text=text, blocking=True)
         if status.success is False:
             raise RobotLost(f"{self.description} did not say the line: {status.message}")
+        if leds is not None:
+            self._led(api, (0, 0, 0))
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         """Listen once for at most ``seconds``: the robot's words with
@@ -280,6 +286,16 @@ class FurhatRobot:
             reason = status.message or "no reason given"
         if status is None or status.success is False:
             log.warning("%s did not do gesture %r (%s)", self.description, gesture, reason)
+
+    def _led(self, api: Any, colour: Colour) -> None:
+        """Set the LED ring; a colour the robot refuses is logged and left out, as a gesture."""
+        red, green, blue = colour
+        seconds = self.options.request_seconds
+        status = self._request(
+            api.set_led, "setting the LEDs", seconds, red=red, green=green, blue=blue
+        )
+        if status.success is False:
+            log.warning("%s did not set its LEDs (%s)", self.description, status.message)
 
     def _stop_listening(self, api: Any) -> None:
         """Ask the robot to end the current listen (its answer then comes back to :meth:`listen`,

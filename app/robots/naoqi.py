@@ -2,7 +2,8 @@
 
 The robot speaks with ALTextToSpeech, listens with ALSpeechRecognition restricted to the
 protocol's phrases (the result arrives as the ALMemory event ``WordRecognized``), and its cue to
-ask is a touch of one of its tactile sensors (ALMemory touch events).
+ask is a touch of one of its tactile sensors (ALMemory touch events). A reply's LED colour, where
+the protocol sets one, goes to an ALLeds group (``fadeRGB`` before the line, ``reset`` after).
 
 Everything goes through qi's futures with a bound (:attr:`NaoqiOptions.call_seconds`): a robot
 that stops answering turns into :class:`RobotLost` instead of a hung bridge, and a session that
@@ -22,7 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from app.robots.robot import Cue, Heard, RobotError, RobotLost, RobotUnreachable
+from app.robots.robot import Colour, Cue, Heard, RobotError, RobotLost, RobotUnreachable
 
 HEAD_SENSORS = ("FrontTactilTouched", "MiddleTactilTouched", "RearTactilTouched")
 """The three head sensors NAO and Pepper share: the default cue to ask."""
@@ -84,6 +85,10 @@ class NaoqiOptions:
 
     cue_events: tuple[str, ...] = HEAD_SENSORS
     """The ALMemory touch events that count as the participant's cue to ask."""
+
+    led_group: str | None = "FaceLeds"
+    """The ALLeds group that shows the protocol's colour for a reply's level (``FaceLeds``: the
+    eyes of NAO and Pepper; ``ChestLeds``, ``AllLeds``, ...); None: LEDs are left alone."""
 
     call_seconds: float = 10.0
     """The most a connection or a single call may take before the robot counts as not answering."""
@@ -282,6 +287,12 @@ class NaoqiRobot:
                 advice = " (turn animated speech off)" if name == "ALAnimatedSpeech" else ""
                 raise failure(f"{self.description} has no {name} service{advice}")
             self._services[name] = future.value(0)
+        if self.options.led_group is not None:  # optional: a robot without ALLeds still talks
+            future = self._session.service("ALLeds", _async=True)
+            if _finished(future, self.options.call_seconds) and not future.hasError(0):
+                self._services["ALLeds"] = future.value(0)
+            else:
+                future.cancel()
 
     def _prepare_voice(self, failure: type[RobotError]) -> None:
         options = self.options
@@ -339,14 +350,23 @@ class NaoqiRobot:
 
     # -- the bridge's calls ----------------------------------------------------------------
 
-    def say(self, text: str, gesture: str | None = None) -> None:
+    def say(self, text: str, gesture: str | None = None, leds: Colour | None = None) -> None:
         seconds = self.options.call_seconds + SECONDS_PER_CHARACTER * len(text)
+        group = self.options.led_group
+        with self._changed:
+            show = leds is not None and group is not None and "ALLeds" in self._services
+        if show:
+            assert leds is not None
+            red, green, blue = leds
+            self._call("ALLeds", "fadeRGB", group, (red << 16) | (green << 8) | blue, 0.0)
         if gesture and self.options.animated:
             configuration = {"bodyLanguageMode": "disabled"}
             annotated = annotate(text, gesture)
             self._call("ALAnimatedSpeech", "say", annotated, configuration, seconds=seconds)
         else:
             self._call("ALTextToSpeech", "say", text, seconds=seconds)
+        if show:
+            self._call("ALLeds", "reset", group)  # back to the robot's own colours
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         self._call("ALSpeechRecognition", "pause", True)

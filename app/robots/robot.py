@@ -15,7 +15,16 @@ from typing import Protocol
 
 from app.speech.vocabulary import Heard
 
-__all__ = ["Cue", "Heard", "Robot", "RobotError", "RobotLost", "RobotUnreachable"]
+__all__ = ["Colour", "Cue", "Heard", "Robot", "RobotError", "RobotLost", "RobotUnreachable"]
+
+Colour = tuple[int, int, int]
+"""An LED colour: red, green, blue, each 0-255."""
+
+
+def colour_of(hex_colour: str) -> Colour:
+    """``#rrggbb`` (the protocol's form) as red, green and blue."""
+    value = int(hex_colour.removeprefix("#"), 16)
+    return (value >> 16) & 0xFF, (value >> 8) & 0xFF, value & 0xFF
 
 
 class RobotError(Exception):
@@ -50,9 +59,10 @@ class Robot(Protocol):
         """Reach the robot and check it has what the bridge uses; raise :class:`RobotUnreachable`
         (at start) or :class:`RobotLost` (on a reconnection) with one line otherwise."""
 
-    def say(self, text: str, gesture: str | None = None) -> None:
+    def say(self, text: str, gesture: str | None = None, leds: Colour | None = None) -> None:
         """Say ``text`` with the robot's own text-to-speech and return when it has been said;
-        ``gesture`` (the protocol's, for the reply's level) goes with it when given."""
+        ``gesture`` (the protocol's, for the reply's level) goes with it when given, and so does
+        ``leds``: the robot's LEDs show that colour while it speaks, then go back to its own."""
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         """Listen for one of ``phrases`` with the robot's recogniser, at most ``seconds``; None

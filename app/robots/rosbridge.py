@@ -21,6 +21,11 @@ topic (default)           who       ``data`` of the String
                                     category, or a category's name
 ========================  ========  ========================================================
 
+One topic is not a String: ``/trustlab/led`` (``std_msgs/msg/ColorRGBA``, published by the bridge
+when the protocol gives a reply's level an LED colour) carries that colour (``r``, ``g``, ``b`` in
+0-1, ``a`` = 1) just before the reply is said, and ``a`` = 0 once it has been said: back to the
+robot's own colours.
+
 A robot that reports nothing on the heard topic is silence once ``seconds`` (plus
 ``listen_grace`` for the result to travel) are over. A cue that comes while the bridge is busy is
 kept for its next :meth:`~RosbridgeRobot.wait_cue` (only the latest one).
@@ -51,10 +56,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from app.robots.robot import Cue, Heard, RobotLost, RobotUnreachable
+from app.robots.robot import Colour, Cue, Heard, RobotLost, RobotUnreachable
 
 STRING = "std_msgs/msg/String"
 STRING_TYPES = {STRING, "std_msgs/String"}
+COLOUR = "std_msgs/msg/ColorRGBA"
 CLOSE_BOUND = 5.0
 """Seconds closing may take before the adapter lets the socket go (autobahn's own bound)."""
 
@@ -72,6 +78,8 @@ class RosbridgeOptions:
     said_topic: str = "/trustlab/said"
     gesture_topic: str | None = "/trustlab/gesture"
     """None: gestures are not sent."""
+    led_topic: str | None = "/trustlab/led"
+    """A ``std_msgs/msg/ColorRGBA`` topic for the reply's LED colour; None: none is sent."""
     listen_topic: str = "/trustlab/listen"
     heard_topic: str = "/trustlab/heard"
     cue_topic: str = "/trustlab/cue"
@@ -109,8 +117,8 @@ class RosbridgeRobot:
             raise error(f"{self.description}: {refusal}") from None
         self._reached_before = True
 
-    def say(self, text: str, gesture: str | None = None) -> None:
-        self._current().say(text, gesture)
+    def say(self, text: str, gesture: str | None = None, leds: Colour | None = None) -> None:
+        self._current().say(text, gesture, leds)
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         return self._current().listen(phrases, seconds)
@@ -185,7 +193,13 @@ class _Link:
         self._say = topic(self.options.say_topic)
         self._listen = topic(self.options.listen_topic)
         self._gesture = topic(self.options.gesture_topic) if self.options.gesture_topic else None
-        for advertised in (self._say, self._listen, self._gesture):
+        led_topic = self.options.led_topic
+        self._led = (
+            self._roslibpy.Topic(self._ros, led_topic, COLOUR, reconnect_on_close=False)
+            if led_topic
+            else None
+        )
+        for advertised in (self._say, self._listen, self._gesture, self._led):
             if advertised is not None:
                 advertised.advertise()
         # rosbridge handles a connection's operations in order, so the subscriptions are in place
@@ -228,12 +242,17 @@ class _Link:
             "(ros2 launch rosbridge_server rosbridge_websocket_launch.xml)"
         )
 
-    def say(self, text: str, gesture: str | None) -> None:
+    def say(self, text: str, gesture: str | None, leds: Colour | None) -> None:
         with self._changed:
             self._check("saying")
             self._said.clear()
         if gesture and self._gesture is not None:
             self._gesture.publish(self._roslibpy.Message({"data": gesture}))
+        shows = leds is not None and self._led is not None
+        if shows:
+            assert leds is not None
+            red, green, blue = (round(part / 255, 4) for part in leds)
+            self._publish_led({"r": red, "g": green, "b": blue, "a": 1.0})
         self._say.publish(self._roslibpy.Message({"data": text}))
         said = self._take(
             self._said, lambda line: line in ("", text), self.options.say_timeout, "saying"
@@ -243,6 +262,12 @@ class _Link:
                 f"{self.description}: the robot did not report {_quoted(text)} said on "
                 f"{self.options.said_topic} within {self.options.say_timeout:g} s"
             )
+        if shows:
+            self._publish_led({"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0})  # the robot's own again
+
+    def _publish_led(self, colour: dict[str, float]) -> None:
+        assert self._led is not None
+        self._led.publish(self._roslibpy.Message(colour))
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         with self._changed:

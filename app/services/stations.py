@@ -8,9 +8,10 @@ creation; only their SHA-256 is stored, so a leaked database does not leak worki
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import select, update
+from sqlalchemy import delete, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -23,6 +24,7 @@ from app.services.audit import Actor
 from app.sql import Cursor
 from app.tables import (
     Device,
+    DeviceSocket,
     Participant,
     ParticipantStatus,
     SessionStatus,
@@ -338,11 +340,35 @@ def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
     return station
 
 
-def mark_connection(db: Session, *, device_id: int, connected: bool) -> None:
-    """Record that a device's WebSocket opened or closed, so that its station's console shows it
-    at once (the caller commits)."""
-    column = Device.connected_at if connected else Device.disconnected_at
-    _update_device(db, device_id, DEVICE_CONNECTION, {column: utcnow()})
+def socket_opened(db: Session, *, device_id: int, socket_id: str, lasts: timedelta) -> None:
+    """Record that a WebSocket of this device opened (``socket_id``: the caller's name for it,
+    unique), open for ``lasts`` unless :func:`socket_alive` pushes that on; its station's console
+    shows it at once (the caller commits). Each socket has its own row, so that two sockets of
+    one key (a bridge reconnecting before its old socket timed out) are both counted."""
+    now = utcnow()
+    db.add(DeviceSocket(id=socket_id, device_id=device_id, opened_at=now, expires_at=now + lasts))
+    _update_device(db, device_id, DEVICE_CONNECTION, {Device.connected_at: now})
+
+
+def socket_alive(db: Session, *, device_id: int, socket_id: str, lasts: timedelta) -> None:
+    """Push on an open socket's expiry (at each heartbeat); its row comes back if it was lost
+    (the database was away when the socket opened). The caller commits."""
+    expires = utcnow() + lasts
+    found = db.execute(
+        update(DeviceSocket)
+        .where(DeviceSocket.id == socket_id)
+        .values(expires_at=expires)
+        .returning(DeviceSocket.id)
+    ).scalar_one_or_none()
+    if found is None:
+        socket_opened(db, device_id=device_id, socket_id=socket_id, lasts=lasts)
+
+
+def socket_closed(db: Session, *, device_id: int, socket_id: str) -> None:
+    """Record that a WebSocket of this device closed: the device stays connected while another
+    of its sockets is open (the caller commits)."""
+    db.execute(delete(DeviceSocket).where(DeviceSocket.id == socket_id))
+    _update_device(db, device_id, DEVICE_CONNECTION, {Device.disconnected_at: utcnow()})
 
 
 def set_notice(db: Session, *, device_id: int, text: str | None, attention: bool) -> None:

@@ -8,8 +8,8 @@ import queue
 import threading
 from collections.abc import Sequence
 
-from app.robots.robot import Cue, Heard, RobotLost, RobotUnreachable
-from tests.robots.standins.script import Drop, Script, Silence, Words
+from app.robots.robot import Colour, Cue, Heard, RobotLost, RobotUnreachable
+from tests.robots.standins.script import Drop, Script, Silence, Words, hex_colour
 
 
 class FakeRobot:
@@ -21,7 +21,13 @@ class FakeRobot:
     def __init__(self, script: Script, *, refuse_connects: int = 0) -> None:
         self.script = script
         self.connects = 0
+        self.attempts = 0
+        """Calls of :meth:`connect`, refused ones included (``connects``: the ones that worked)."""
         self.refuse_connects = refuse_connects
+        self.away = threading.Event()
+        """While set, connecting fails (the robot is lost and stays away)."""
+        self.away_after_drop = False
+        """A drop (while listening, or saying: ``Script.drop_says``) sets :attr:`away`."""
         self.cues: queue.Queue[Cue] = queue.Queue()
         self.listening = threading.Event()
         """Set while :meth:`listen` waits for :attr:`release` (when ``hold`` is set)."""
@@ -33,9 +39,12 @@ class FakeRobot:
 
     def connect(self) -> None:
         with self._lock:
+            self.attempts += 1
             if self.refuse_connects > 0:
                 self.refuse_connects -= 1
                 raise RobotUnreachable("the fake robot refused the connection")
+            if self.away.is_set():
+                raise RobotLost("the fake robot is still away")
             self.connects += 1
             self._connected = True
 
@@ -44,9 +53,15 @@ class FakeRobot:
             if not self._connected:
                 raise RobotLost("the fake robot is not connected")
 
-    def say(self, text: str, gesture: str | None = None) -> None:
+    def say(self, text: str, gesture: str | None = None, leds: Colour | None = None) -> None:
         self._check()
-        self.script.record_said(text, gesture)
+        if self.script.say_drops():
+            with self._lock:
+                self._connected = False
+                if self.away_after_drop:
+                    self.away.set()
+            raise RobotLost("the fake robot dropped the connection while speaking")
+        self.script.record_said(text, gesture, hex_colour(*leds) if leds else None)
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
         self._check()
@@ -60,6 +75,8 @@ class FakeRobot:
         if isinstance(reply, Drop):
             with self._lock:
                 self._connected = False
+                if self.away_after_drop:
+                    self.away.set()
             raise RobotLost("the fake robot dropped the connection")
         if isinstance(reply, Silence):
             return None

@@ -128,6 +128,16 @@ def stored_answers(lab: Lab) -> list[Answer]:
         return list(db.scalars(select(Answer).order_by(Answer.id)))
 
 
+def console_badge(lab: Lab, label: str = "pepper") -> str:
+    """What the station's console shows of the device key ``label``: "connected" or "not
+    connected"."""
+    console = lab.experimenter.get(f"/stations/{lab.station}").text
+    if f'{label}: <span class="badge open">connected</span>' in console:
+        return "connected"
+    assert f'{label}: <span class="badge">not connected</span>' in console, console
+    return "not connected"
+
+
 def wait_for(condition: Callable[[], bool]) -> None:
     """Poll what the bridge's thread brings about (bounded by :data:`BOUND`, not timed)."""
     for _ in range(int(BOUND / 0.02)):

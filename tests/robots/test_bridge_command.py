@@ -18,7 +18,7 @@ from app.cli import cli
 from app.services import verify
 from app.tables import Answer, Prompt
 from tests.conftest import Lab
-from tests.robots.harness import BOUND
+from tests.robots.harness import BOUND, console_badge, wait_for
 from tests.robots.standins.furhat import FurhatStandIn
 from tests.robots.standins.rosbridge import RosbridgeStandIn
 from tests.robots.standins.script import Script
@@ -135,6 +135,7 @@ def test_a_bridge_killed_mid_question_answers_once_after_restart(
         first = _bridge_process(url, lab, robot, log)
         try:
             _wait_for(lambda: "joined station lab-1" in log.read_text(), "joined", first, log)
+            assert console_badge(lab) == "connected"
             step = lab.experimenter.post(
                 f"/api/v1/stations/{lab.station}/prompts", json={"category": "conation"}
             ).json()
@@ -143,12 +144,14 @@ def test_a_bridge_killed_mid_question_answers_once_after_restart(
             first.wait(BOUND)
         finally:
             first.kill()
+        wait_for(lambda: console_badge(lab) == "not connected")  # its socket died with it
         assert _count(lab, Answer) == 0
         robot.listen_until_stopped = False
         script.add("yes")
         second = _bridge_process(url, lab, robot, log)
         try:
             said = script.wait_said(3, BOUND)
+            assert console_badge(lab) == "connected"
             second.send_signal(signal.SIGINT)
             assert second.wait(BOUND) == 0
         finally:

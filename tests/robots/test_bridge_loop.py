@@ -4,6 +4,9 @@ console's notices, each trigger, losing the robot, and the refusals at start."""
 
 from __future__ import annotations
 
+import asyncio
+import json
+import threading
 from importlib import resources
 from typing import Any
 
@@ -11,7 +14,8 @@ import httpx
 import pytest
 from sqlalchemy import select
 
-from app.client import RobotClient
+from app.api import station_ops
+from app.client import RobotClient, StationSocket
 from app.protocol import parse_protocol
 from app.robots.bridge import BridgeRefused, Trigger
 from app.robots.robot import Cue
@@ -129,9 +133,24 @@ def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: s
     script = Script()
     script.add(Drop(), "yep")
     robot = FakeRobot(script)
+    robot.away_after_drop = True
     with RunningBridge(robot, url, seated.station, seated.key) as bridge:
         step = ask_now(seated)
+        wait_for(lambda: robot.away.is_set() and _notice(seated)[0] is not None)
+        away = _notice(seated)  # the bridge keeps trying while the robot stays away
+        wait_for(lambda: robot.attempts >= 3)  # at start, then twice refused while away
+        assert _notice(seated) == away
+        console = seated.experimenter.get(f"/stations/{seated.station}").text
+        assert 'class="attention device-notice" role="alert"><strong>pepper</strong>' in console
+        assert "lost the robot (the fake robot dropped the connection); reconnecting" in console
+        robot.away.clear()
         said = script.wait_said(3, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+        assert "device-notice" not in seated.experimenter.get(f"/stations/{seated.station}").text
+    assert away == (
+        "lost the robot (the fake robot dropped the connection); reconnecting",
+        True,
+    )
     assert [line.text for line in said[:2]] == [step["question"], step["question"]]
     [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.transcript) == (step["step_id"], "yep")
@@ -142,6 +161,67 @@ def test_a_lost_robot_is_told_to_the_console_and_asked_again(seated: Lab, url: s
         for line in bridge.lines
     )
     assert _notice(seated) == (None, False)
+    assert_verify_clean(seated)
+
+
+def test_a_reply_cut_off_by_a_lost_robot_is_said_once_it_is_back(seated: Lab, url: str) -> None:
+    """The answer is stored, the robot drops while saying the reply: once it is back it says
+    the reply (not the question again), and the answer stays stored once."""
+    script = Script()
+    script.add("yes")
+    script.drop_says = {2}  # the question, then the reply: dropped
+    robot = FakeRobot(script)
+    with RunningBridge(robot, url, seated.station, seated.key) as bridge:
+        step = ask_now(seated)
+        said = script.wait_said(2, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+    [answer] = stored_answers(seated)
+    assert (answer.prompt_id, answer.transcript) == (step["step_id"], "yes")
+    assert [line.text for line in said] == [step["question"], answer.reply]
+    assert robot.connects == 2 and len(script.vocabularies) == 1  # not asked or heard again
+    assert any("dropped the connection while speaking" in line for line in bridge.lines)
+    assert any("saying the reply the robot was cut off in" in line for line in bridge.lines)
+    assert_verify_clean(seated)
+
+
+def test_a_reply_cut_off_after_the_study_moved_on_is_told_to_the_console(
+    seated: Lab, url: str
+) -> None:
+    """The robot drops while saying a reply and stays away while the console asks the next
+    question: once back, it does not say the stale reply; the console is told what the
+    participant did not hear, until the next reply is said."""
+    script = Script()
+    script.add("yes")
+    script.drop_says = {2}
+    robot = FakeRobot(script)
+    robot.away_after_drop = True
+    with RunningBridge(robot, url, seated.station, seated.key):
+        first = ask_now(seated, "conation")
+        wait_for(lambda: (_notice(seated)[0] or "").startswith("lost the robot"))
+        second = ask_now(seated, "affection")
+        robot.hold = True
+        robot.away.clear()
+        wait_for(lambda: "moved on" in (_notice(seated)[0] or ""))
+        notice, attention = _notice(seated)
+        [answer] = stored_answers(seated)
+        assert attention and notice is not None
+        assert f"P001's answer to “{first['question']}”" in notice
+        assert f"the reply “{answer.reply}” was recorded but not heard" in notice
+        assert robot.listening.wait(BOUND)  # the next question is asked
+        script.add("no")
+        robot.release.set()
+        said = script.wait_said(3, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+    first_answer, second_answer = stored_answers(seated)
+    assert (first_answer.prompt_id, second_answer.prompt_id) == (
+        first["step_id"],
+        second["step_id"],
+    )
+    assert [line.text for line in said] == [
+        first["question"],
+        second["question"],
+        second_answer.reply,
+    ]
     assert_verify_clean(seated)
 
 
@@ -221,6 +301,68 @@ def test_an_answer_heard_while_the_server_is_away_is_recorded_once(seated: Lab) 
     [answer] = stored_answers(seated)
     assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
     assert said[1].text == answer.reply
+    assert_verify_clean(seated)
+
+
+@SQLITE_ONLY
+def test_an_answer_stored_whose_response_is_lost_is_stored_and_replied_once(
+    seated: Lab, url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The server commits the answer, then the connection is cut before anything it sends
+    reaches the bridge (the result, the answer_recorded push): the bridge sends the answer again
+    after reconnecting, under the same idempotency key, so the server replays the stored one.
+    One answer stored, the reply said once. (A fresh key per retry fails the same-key check
+    only: the server keeps one answer per step and replays it for the same yes/no whatever the
+    key, so the step, not the key, is what keeps a retried answer from being stored twice.)"""
+    committed = threading.Event()
+    calls: list[str] = []
+    real_answer = station_ops.answer
+
+    def answer_then_note(db: Any, **arguments: Any) -> Any:
+        calls.append(arguments["body"].idempotency_key)
+        out = real_answer(db, **arguments)  # commits
+        committed.set()
+        return out
+
+    cut = {"done": False, "dropping": False}
+    real_connect = StationSocket._connect
+    real_dispatch = StationSocket._dispatch
+
+    async def connect_with_a_cut(self: StationSocket) -> None:
+        await real_connect(self)
+        cut["dropping"] = False  # a new connection: its frames arrive again
+        connection = self._connection
+        assert connection is not None
+        real_send = connection.send
+
+        async def send(message: Any, *args: Any, **kwargs: Any) -> None:
+            await real_send(message, *args, **kwargs)
+            if not cut["done"] and json.loads(message).get("type") == "answer":
+                cut["done"] = cut["dropping"] = True  # nothing from here on reaches the bridge
+                await asyncio.to_thread(committed.wait, BOUND)
+                connection.transport.abort()  # the network fails after the commit
+
+        connection.send = send  # type: ignore[method-assign]
+
+    async def dispatch(self: StationSocket, message: dict[str, Any]) -> None:
+        if not cut["dropping"]:
+            await real_dispatch(self, message)
+
+    monkeypatch.setattr(station_ops, "answer", answer_then_note)
+    monkeypatch.setattr(StationSocket, "_connect", connect_with_a_cut)
+    monkeypatch.setattr(StationSocket, "_dispatch", dispatch)
+    script = Script()
+    script.add("yes")
+    with RunningBridge(FakeRobot(script), url, seated.station, seated.key) as bridge:
+        step = ask_now(seated)
+        said = script.wait_said(2, BOUND)
+    assert cut["done"] and committed.is_set()
+    assert len(calls) == 2 and len(set(calls)) == 1  # sent again, under the same key
+    [answer] = stored_answers(seated)
+    assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
+    assert [line.text for line in said] == [step["question"], answer.reply]
+    assert len(script.said) == 2
+    assert not any("refused" in line for line in bridge.lines)
     assert_verify_clean(seated)
 
 

@@ -56,6 +56,47 @@ def gesturing(lab: Lab) -> Lab:
     return seated
 
 
+LEDS = {"low": "#ff0000", "medium_low": "#ff8000", "medium": "#0080ff", "high": "#00ff00"}
+
+
+@pytest.fixture
+def lit(lab: Lab) -> Lab:
+    """The lab with a study whose replies each light the robot's LEDs in the level's colour;
+    P001 seated, session 1."""
+    leds = "\n".join(f'{level} = "{colour}"' for level, colour in LEDS.items())
+    text = protocol_text(**EXP3_ONLY, **{"[reward]": f"[speech.leds]\n{leds}\n\n[reward]"})
+    with lab.database.writing() as db:
+        studies.create_study(db, name="leds", loaded=parse_protocol(text), actor=Actor.system())
+    seated = dataclasses.replace(lab, study="leds")
+    seated.enrol_and_assign("P001")
+    seated.start_session()
+    return seated
+
+
+def test_the_reply_s_level_lights_the_robot_s_leds(kind: Kind, lit: Lab, url: str) -> None:
+    """Each robot's LEDs (NAOqi's ALLeds group, Furhat's /furhat/led, the ROS ColorRGBA topic)
+    show the reply level's colour while the reply is said, and are the robot's own again
+    before the next question."""
+    script = Script()
+    script.add(Words("yes", 0.9), Words("no", 0.9))
+    with (
+        kind.stand_in(script) as stand_in,
+        RunningBridge(kind.robot(stand_in), url, lit.station, lit.key),
+    ):
+        first = ask_now(lit, "conation")
+        script.wait_said(2, BOUND)
+        second = ask_now(lit, "affection")
+        said = script.wait_said(4, BOUND)
+        wait_for(lambda: stand_in.led in (None, "#000000"))  # the robot's own colours again
+    answers = stored_answers(lit)
+    assert [(line.text, line.leds) for line in said] == [
+        (first["question"], None),
+        (answers[0].reply, LEDS[answers[0].confidence]),
+        (second["question"], None),
+        (answers[1].reply, LEDS[answers[1].confidence]),
+    ]
+
+
 def test_a_participant_answers_through_the_robot(kind: Kind, gesturing: Lab, url: str) -> None:
     script = Script()
     script.add(Silence(), Words("maybe", 0.95), Words("Yeah", 0.8), Words("no way", 0.7))
@@ -88,6 +129,7 @@ def test_a_participant_answers_through_the_robot(kind: Kind, gesturing: Lab, url
         (second["question"], None),
         (answers[1].reply, kind.gesture(GESTURES[answers[1].confidence])),
     ]
+    assert all(line.leds is None for line in said)  # no LED colours unless the protocol sets them
     assert_verify_clean(gesturing)
 
 
@@ -107,4 +149,32 @@ def test_a_dropped_robot_connection_is_survived(kind: Kind, gesturing: Lab, url:
     assert [line.text for line in said] == [step["question"], step["question"], answer.reply]
     assert any("reconnecting" in line for line in bridge.lines)
     assert any("is back" in line for line in bridge.lines)
+    assert_verify_clean(gesturing)
+
+
+def test_a_furhat_lost_while_replying_says_the_reply_once_back(gesturing: Lab, url: str) -> None:
+    """Furhat's Remote API drops the request to say the reply (the answer is already stored):
+    the bridge reconnects and the robot says the reply, with its gesture; nothing is asked,
+    heard or stored again."""
+    kind = KINDS["furhat"]()
+    script = Script()
+    script.add(Words("yes", 0.9))
+    script.drop_says = {2}
+    with (
+        kind.stand_in(script) as stand_in,
+        RunningBridge(kind.robot(stand_in), url, gesturing.station, gesturing.key) as bridge,
+    ):
+        step = ask_now(gesturing, "conation")
+        said = script.wait_said(2, BOUND)
+    [answer] = stored_answers(gesturing)
+    assert (answer.prompt_id, answer.answer, answer.transcript) == (step["step_id"], True, "yes")
+    gesture = kind.gesture(GESTURES[answer.confidence])
+    assert [(line.text, line.gesture) for line in said] == [
+        (step["question"], None),
+        (answer.reply, gesture),
+    ]
+    assert (
+        len(stand_in.queries("/furhat/say")) == 3 and len(stand_in.queries("/furhat/listen")) == 1
+    )
+    assert any("reconnecting" in line for line in bridge.lines)
     assert_verify_clean(gesturing)

@@ -4,14 +4,22 @@ steps into a trigger zone."""
 
 from __future__ import annotations
 
+import contextlib
+import json
+import socket
+from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import select
+import pytest
+from sqlalchemy import delete, select, update
+from websockets.sync.client import ClientConnection, connect
 
 from app import events
+from app.protocol import ProtocolError, parse_protocol
 from app.services import stations
-from app.tables import Device
-from tests.conftest import Lab
+from app.tables import Device, DeviceSocket, utcnow
+from tests.conftest import Lab, protocol_text
+from tests.robots.harness import BOUND, console_badge, wait_for
 
 SOCKET = "/api/v1/station/ws"
 ZONE = {"x": 1.9, "z": 4.8, "heading": 0.0}
@@ -27,6 +35,22 @@ def test_the_speech_settings_are_the_study_s(lab: Lab) -> None:
     assert speech["yes"] == ["yes", "yeah", "yep", "sure"]
     assert speech["no"] == ["no", "nope", "no way"]
     assert (speech["attempts"], speech["min_confidence"], speech["gestures"]) == (3, 0.4, {})
+    assert speech["leds"] == {}  # off by default
+
+
+def test_led_colours_are_checked_at_study_creation() -> None:
+    """A reply level's LED colour is #rrggbb, for a level the protocol has."""
+    good = protocol_text(**{"[reward]": '[speech.leds]\nhigh = "#00FF00"\n\n[reward]'})
+    assert parse_protocol(good).protocol.speech.leds == {"high": "#00FF00"}
+    for leds, where in (
+        ('nearly = "#00ff00"', "speech.leds.nearly"),
+        ('high = "green"', "speech.leds.high"),
+        ('high = "#00ff0"', "speech.leds.high"),
+    ):
+        text = protocol_text(**{"[reward]": f"[speech.leds]\n{leds}\n\n[reward]"})
+        with pytest.raises(ProtocolError) as refused:
+            parse_protocol(text)
+        assert where in str(refused.value), str(refused.value)
 
 
 def test_a_notice_shows_on_the_console_until_cleared(lab: Lab) -> None:
@@ -110,9 +134,87 @@ def test_a_connection_change_is_an_event_for_the_station_topic(lab: Lab) -> None
     with lab.database.write_session() as db:
         device = db.scalar(select(Device))
         assert device is not None
-        stations.mark_connection(db, device_id=device.id, connected=True)
+        stations.socket_opened(db, device_id=device.id, socket_id="s", lasts=timedelta(minutes=1))
+        stations.socket_closed(db, device_id=device.id, socket_id="s")
         queued = db.info[events.PENDING_KEY]
-        assert [(e.topic, e.type) for e in queued] == [
+        assert [(e.topic, e.type) for e in queued] == 2 * [
             (stations.station_topic_of(device.station_id), stations.DEVICE_CONNECTION)
         ]
         db.rollback()
+
+
+def _last_close(lab: Lab) -> datetime | None:
+    """When the server last recorded a close of the key's sockets (stamped at each close)."""
+    with lab.database.read_session() as db:
+        return db.scalar(select(Device.disconnected_at))
+
+
+def _close(lab: Lab, ws: ClientConnection, *, kill: bool = False) -> None:
+    """Close ``ws`` (``kill``: drop its TCP connection without a close frame, as a killed
+    process's socket goes) and wait (bounded) until the server has recorded it."""
+    before = _last_close(lab)
+    if kill:
+        ws.socket.shutdown(socket.SHUT_RDWR)
+        ws.socket.close()
+    else:
+        ws.close()
+    wait_for(lambda: _last_close(lab) != before)
+
+
+def _open(lab: Lab, url: str, sockets: contextlib.ExitStack) -> ClientConnection:
+    """A station socket over the network, as a bridge opens it."""
+    ws = sockets.enter_context(
+        connect(
+            url.replace("http", "ws", 1) + SOCKET,
+            additional_headers={"Authorization": f"Bearer {lab.key}"},
+        )
+    )
+    assert json.loads(ws.recv(timeout=BOUND))["type"] == "hello"
+    return ws
+
+
+def test_overlapping_sockets_of_one_key_are_counted(lab: Lab, url: str) -> None:
+    """A bridge that reconnects opens its new socket before its old, half-open one is closed:
+    the old one closing later leaves the device connected; so does the newer one closing
+    first; only when neither is open (closed, or killed) is it not connected."""
+    with contextlib.ExitStack() as sockets:
+        old = _open(lab, url, sockets)
+        new = _open(lab, url, sockets)
+        _close(lab, old, kill=True)  # after the reconnect
+        assert console_badge(lab) == "connected"
+        _close(lab, new)
+        assert console_badge(lab) == "not connected"
+
+        old = _open(lab, url, sockets)
+        new = _open(lab, url, sockets)
+        _close(lab, new)  # the newest closes while the other is still open
+        assert console_badge(lab) == "connected"
+        _close(lab, old, kill=True)
+        assert console_badge(lab) == "not connected"
+
+
+def test_a_socket_of_a_dead_worker_lapses(lab: Lab) -> None:
+    """A worker process that dies cannot delete its sockets' rows: each lapses at its expiry
+    (a few heartbeats on), unless a live socket pushes it on (at its heartbeat)."""
+    with lab.database.write_session() as db:
+        device = db.scalar(select(Device))
+        assert device is not None
+        lasts = timedelta(minutes=1)
+        stations.socket_opened(db, device_id=device.id, socket_id="dead", lasts=lasts)
+        stations.socket_opened(db, device_id=device.id, socket_id="alive", lasts=lasts)
+        db.commit()
+    assert console_badge(lab) == "connected"
+    with lab.database.write_session() as db:
+        db.execute(update(DeviceSocket).values(expires_at=utcnow() - timedelta(seconds=1)))
+        stations.socket_alive(db, device_id=device.id, socket_id="alive", lasts=lasts)
+        db.commit()
+    assert console_badge(lab) == "connected"
+    with lab.database.write_session() as db:
+        db.execute(update(DeviceSocket).values(expires_at=utcnow() - timedelta(seconds=1)))
+        db.commit()
+    assert console_badge(lab) == "not connected"
+    with lab.database.write_session() as db:  # a socket whose row the database lost comes back
+        db.execute(delete(DeviceSocket))
+        stations.socket_alive(db, device_id=device.id, socket_id="alive", lasts=lasts)
+        db.commit()
+    assert console_badge(lab) == "connected"

@@ -3,8 +3,11 @@
 It serves what the adapter uses, with the shapes of the vendor client's models (``Status``
 ``{success, message}``, ``Voice`` ``{name, language}``, ``User`` ``{id, location, rotation}``):
 
-- ``POST /furhat/say?text=&blocking=`` records the line (with the gesture started just before);
+- ``POST /furhat/say?text=&blocking=`` records the line (with the gesture started just before),
+  or drops that connection unsaid when the script says so (``Script.drop_says``);
 - ``POST /furhat/gesture?name=&blocking=`` records the gesture; an unknown name is refused;
+- ``POST /furhat/led?red=&green=&blue=`` sets the LED ring (a part not given is 0); a line is
+  recorded with the colour the ring shows while it is said;
 - ``GET /furhat/listen?language=`` takes the participant's next reply: words as the message
   (the Remote API carries no confidence), silence as ``SILENCE`` (or :attr:`silence_message`), and
   a drop closes that connection without an answer (the stand-in keeps serving, like a robot whose
@@ -26,7 +29,7 @@ from collections.abc import Callable
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from tests.robots.standins.script import Drop, Script, Silence, Words
+from tests.robots.standins.script import Drop, Script, Silence, Words, hex_colour
 
 VOICES = (("Matthew", "en-US"), ("Joanna", "en-US"), ("Hans", "de-DE"))
 GESTURES = ("Nod", "Shake", "Smile", "BigSmile", "BrowRaise", "BrowFrown", "Thoughtful", "Wink")
@@ -54,6 +57,9 @@ class FurhatStandIn:
         """Listens hear nothing and last until ``POST /furhat/listen/stop`` (a robot whose own
         listening time is longer than the bridge's)."""
         self.gestures: list[str] = []
+        self.led = "#000000"
+        """The LED ring's colour now (off at start)."""
+        self.led_changes: list[str] = []
         self.voice: str | None = None
         self.requests: list[tuple[str, str, dict[str, str]]] = []
         """Every request on a Remote API path: method, path and query, in order."""
@@ -115,7 +121,18 @@ class FurhatStandIn:
     def _say(self, query: dict[str, str]) -> Any:
         with self._changed:
             gesture, self._pending_gesture = self._pending_gesture, None
-        self.script.record_said(query.get("text", ""), gesture)
+        if self.script.say_drops():
+            return None
+        with self._changed:
+            leds = self.led if self.led != "#000000" else None
+        self.script.record_said(query.get("text", ""), gesture, leds)
+        return _status(True, "")
+
+    def _led(self, query: dict[str, str]) -> Any:
+        parts = [min(255, int(query.get(part) or 0)) for part in ("red", "green", "blue")]
+        with self._changed:  # a part not given is 0, as on the robot
+            self.led = hex_colour(*parts)
+            self.led_changes.append(self.led)
         return _status(True, "")
 
     def _gesture(self, query: dict[str, str]) -> Any:
@@ -177,6 +194,7 @@ class FurhatStandIn:
         return {
             ("POST", "/furhat/say"): self._say,
             ("POST", "/furhat/gesture"): self._gesture,
+            ("POST", "/furhat/led"): self._led,
             ("GET", "/furhat/listen"): self._listen,
             ("POST", "/furhat/listen/stop"): self._listen_stop,
             ("GET", "/furhat/voices"): self._voices,

@@ -6,7 +6,7 @@ to it as to a robot. ALTextToSpeech and ALAnimatedSpeech record what they are to
 plays the participant's next reply: words raise ALMemory's ``WordRecognized`` with
 ``[words, confidence]`` as NAOqi does, silence raises nothing, and a drop closes the whole
 session so the client sees the robot vanish. :meth:`NaoqiStandIn.touch_head` presses a head
-sensor.
+sensor. ALLeds keeps the colour of one group (``FaceLeds``), recorded with each line said.
 
 Authentication cannot be simulated: the Python binding offers no server-side authenticator, and a
 standalone session cannot listen on ``tcps://`` without SSL configuration it does not expose. The
@@ -25,13 +25,14 @@ from typing import Any
 
 import qi
 
-from tests.robots.standins.script import Drop, Script, Silence, Words
+from tests.robots.standins.script import Drop, Script, Silence, Words, hex_colour
 
 SERVICES = (
     "ALMemory",
     "ALTextToSpeech",
     "ALAnimatedSpeech",
     "ALSpeechRecognition",
+    "ALLeds",
 )
 """Everything the stand-in serves by default; pass fewer to play a robot without some."""
 
@@ -81,7 +82,7 @@ class StandInTextToSpeech:
 
     def say(self, text: str) -> None:
         self._stand_in.record("ALTextToSpeech.say", text)
-        self._stand_in.script.record_said(text)
+        self._stand_in.script.record_said(text, None, self._stand_in.led)
 
     def setLanguage(self, language: str) -> None:
         self._stand_in.record("ALTextToSpeech.setLanguage", language)
@@ -104,7 +105,25 @@ class StandInAnimatedSpeech:
         self._stand_in.record("ALAnimatedSpeech.say", *args)
         annotations = _ANNOTATION.findall(text)
         words = " ".join(_ANNOTATION.sub(" ", text).split())
-        self._stand_in.script.record_said(words, " ".join(annotations) or None)
+        self._stand_in.script.record_said(words, " ".join(annotations) or None, self._stand_in.led)
+
+
+class StandInLeds:
+    """ALLeds: ``fadeRGB(group, 0x00RRGGBB, seconds)`` colours a group, ``reset(group)`` gives it
+    back its default; the stand-in keeps the colour of :attr:`NaoqiStandIn.led_group`."""
+
+    def __init__(self, stand_in: NaoqiStandIn) -> None:
+        self._stand_in = stand_in
+
+    def fadeRGB(self, group: str, rgb: int, seconds: float) -> None:
+        self._stand_in.record("ALLeds.fadeRGB", group, rgb, seconds)
+        if group == self._stand_in.led_group:
+            self._stand_in.led = hex_colour((rgb >> 16) & 0xFF, (rgb >> 8) & 0xFF, rgb & 0xFF)
+
+    def reset(self, group: str) -> None:
+        self._stand_in.record("ALLeds.reset", group)
+        if group == self._stand_in.led_group:
+            self._stand_in.led = None
 
 
 class StandInSpeechRecognition:
@@ -138,6 +157,9 @@ class NaoqiStandIn:
         self.script = script or Script()
         self.services = tuple(services)
         self.memory = StandInMemory()
+        self.led_group = "FaceLeds"
+        self.led: str | None = None
+        """The colour of :attr:`led_group` (``#rrggbb``), None while it is the robot's own."""
         self.calls: list[tuple[object, ...]] = []
         self.raw_events: deque[object] = deque()
         self._session: Any = None
@@ -182,6 +204,7 @@ class NaoqiStandIn:
             "ALTextToSpeech": lambda: StandInTextToSpeech(self),
             "ALAnimatedSpeech": lambda: StandInAnimatedSpeech(self),
             "ALSpeechRecognition": lambda: StandInSpeechRecognition(self),
+            "ALLeds": lambda: StandInLeds(self),
         }
         for name in self.services:
             session.registerService(name, made[name]())

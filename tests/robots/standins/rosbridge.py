@@ -7,7 +7,8 @@ adapter's own client, roslibpy, talks to it unchanged. Like a robot node it subs
 gesture and listen topics and publishes on the said, heard and cue topics:
 
 - a line published on the say topic is recorded in the :class:`Script` (with the gesture published
-  just before it, if any) and answered on the said topic with the same text;
+  just before it, if any, and the colour the LED topic last set) and answered on the said topic
+  with the same text; a ColorRGBA on the LED topic sets that colour (``a`` = 0: the robot's own);
 - a request published on the listen topic takes the participant's next reply: words are published
   on the heard topic as ``{"id", "words", "confidence"}``, silence publishes nothing, and a drop
   aborts the TCP connection without a WebSocket close (a robot that vanishes);
@@ -32,10 +33,11 @@ from typing import Any
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 
-from tests.robots.standins.script import Drop, Script, Silence, Words
+from tests.robots.standins.script import Drop, Script, Silence, Words, hex_colour
 
 STRING = "std_msgs/msg/String"
 SAY, SAID, GESTURE = "/trustlab/say", "/trustlab/said", "/trustlab/gesture"
+LED = "/trustlab/led"
 LISTEN, HEARD, CUE = "/trustlab/listen", "/trustlab/heard", "/trustlab/cue"
 ROBOT_TOPICS = (SAY, SAID, GESTURE, LISTEN, HEARD, CUE)
 """The topics the robot node itself subscribes to or publishes on (the documented defaults)."""
@@ -72,6 +74,9 @@ class RosbridgeStandIn:
         self._subscribers: dict[str, set[ServerConnection]] = {}
         self._advertised: dict[str, str] = {}
         self._gesture: str | None = None
+        self.led: str | None = None
+        """The colour the LED topic last set (``#rrggbb``), None: the robot's own."""
+        self.led_messages: list[dict[str, float]] = []
         self._open = 0
         self._changed = threading.Condition()
 
@@ -137,17 +142,28 @@ class RosbridgeStandIn:
             self._advertised[topic] = message["type"]
         elif op == "unadvertise":
             self._advertised.pop(topic, None)
+        elif op == "publish" and topic == LED:
+            self._led_published(message["msg"])
         elif op == "publish":
             await self._published(connection, topic, message["msg"].get("data", ""))
         elif op == "call_service":
             await connection.send(json.dumps(self._service_response(message)))
+
+    def _led_published(self, colour: dict[str, float]) -> None:
+        """A ColorRGBA on the LED topic: the colour (parts 0-1) while ``a`` > 0, else the
+        robot's own."""
+        self.led_messages.append(dict(colour))
+        if colour.get("a", 0.0) > 0:
+            self.led = hex_colour(*(255 * colour.get(part, 0.0) for part in "rgb"))
+        else:
+            self.led = None
 
     async def _published(self, connection: ServerConnection, topic: str, data: str) -> None:
         """What the robot node does with a message from the bridge."""
         if topic == GESTURE:
             self._gesture = data
         elif topic == SAY:
-            self.script.record_said(data, self._gesture)
+            self.script.record_said(data, self._gesture, self.led)
             self._gesture = None
             if self.reports_said:
                 await self._publish(SAID, data)

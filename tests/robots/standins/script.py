@@ -38,10 +38,17 @@ Reply = Words | Silence | Drop
 
 @dataclass(frozen=True)
 class Said:
-    """A line the robot was told to say, with the gesture that went with it (if any)."""
+    """A line the robot was told to say, with the gesture that went with it (if any) and the
+    colour its LEDs showed while it was said (``#rrggbb``; None: the robot's own)."""
 
     text: str
     gesture: str | None = None
+    leds: str | None = None
+
+
+def hex_colour(red: float, green: float, blue: float) -> str:
+    """``#rrggbb`` of 0-255 parts (as a stand-in records a colour)."""
+    return "#" + "".join(f"{round(part):02x}" for part in (red, green, blue))
 
 
 @dataclass
@@ -58,6 +65,10 @@ class Script:
     """``time.perf_counter()`` of each line in :attr:`said` (bench/bridge.py's latencies)."""
     heard_at: list[float] = field(default_factory=list)
     """``time.perf_counter()`` of each :class:`Words` handed to the recogniser."""
+    drop_says: set[int] = field(default_factory=set)
+    """Which requests to say a line (1 for the first, counting dropped ones) drop the robot's
+    connection instead of saying it (a robot lost while it speaks)."""
+    says: int = 0
     _changed: threading.Condition = field(default_factory=threading.Condition)
 
     def add(self, *replies: Reply | str) -> None:
@@ -73,9 +84,16 @@ class Script:
                 self.heard_at.append(time.perf_counter())
             return reply
 
-    def record_said(self, text: str, gesture: str | None = None) -> None:
+    def say_drops(self) -> bool:
+        """Count a request to say a line; True when it is one of :attr:`drop_says`: the stand-in
+        then drops the connection and nothing is said."""
         with self._changed:
-            self.said.append(Said(text, gesture))
+            self.says += 1
+            return self.says in self.drop_says
+
+    def record_said(self, text: str, gesture: str | None = None, leds: str | None = None) -> None:
+        with self._changed:
+            self.said.append(Said(text, gesture, leds))
             self.said_at.append(time.perf_counter())
             self._changed.notify_all()
 
