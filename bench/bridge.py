@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -154,5 +155,16 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _standard_output_for_the_report_alone() -> None:
+    """Send what native libraries write to file descriptor 1 (the qi library logs there) to
+    stderr, and keep the real standard output for this script's own report: with ``--json`` it
+    must hold the JSON alone."""
+    sys.stdout.flush()
+    report = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)
+    sys.stdout = report
+
+
 if __name__ == "__main__":
+    _standard_output_for_the_report_alone()
     raise SystemExit(main())
