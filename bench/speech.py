@@ -47,9 +47,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app.speech.recognizer import SAMPLE_RATE, Recognition, Recognizer  # noqa: E402
+from app.speech.engines import ENGINES, make_recognizer  # noqa: E402
+from app.speech.pool import RecognitionLike, RecognizerLike, UtteranceLike  # noqa: E402
 from app.speech.vocabulary import Vocabulary  # noqa: E402
 from app.speech.wav import read_wav  # noqa: E402
+
+SAMPLE_RATE = 16000
 
 FRAME = SAMPLE_RATE // 50
 """20 ms of samples: the frame the room streams."""
@@ -125,6 +128,10 @@ class Outcome:
     cpu_ms: float
     """Processor time of the same stretch: the latency on an otherwise idle core."""
     endpoint_wait_ms: float | None
+    no_speech: float | None = None
+    """Whisper only: its no-speech probability (to re-decide from records)."""
+    words_probability: float | None = None
+    """Whisper only: the probability of the transcript's words (see app/speech/whisper.py)."""
 
 
 def espeak(text: str, voice: Voice, folder: Path) -> np.ndarray:
@@ -252,12 +259,12 @@ def with_noise(item: Clip, snr_db: float, babble: np.ndarray, seed: int) -> np.n
 
 
 def stream(
-    recognizer: Recognizer, item: Clip, samples: np.ndarray
-) -> tuple[Recognition, float, float, int]:
+    recognizer: RecognizerLike, item: Clip, samples: np.ndarray
+) -> tuple[RecognitionLike, float, float, int]:
     """Feed 20 ms frames; (recognition, ms from the last speech frame to the answer, the
     processor ms of that stretch, frames fed)."""
     pcm = np.clip(np.rint(samples * 32768), -32768, 32767).astype("<i2").tobytes()
-    utterance = recognizer.utterance()
+    utterance: UtteranceLike = recognizer.utterance()
     frames = len(pcm) // (2 * FRAME)
     started, cpu = time.perf_counter(), time.process_time()
     fed = frames
@@ -274,7 +281,7 @@ def stream(
 
 
 def run(
-    recognizer: Recognizer,
+    recognizer: RecognizerLike,
     clips: list[Clip],
     condition: str,
     seed: int,
@@ -296,11 +303,13 @@ def run(
                 expected=item.expected,
                 answer=recognition.answer,
                 transcript=recognition.transcript,
-                heard=recognition.heard,
+                heard=getattr(recognition, "heard", ""),
                 confidence=recognition.confidence,
                 latency_ms=latency,
                 cpu_ms=cpu,
                 endpoint_wait_ms=wait,
+                no_speech=getattr(recognition, "no_speech", None),
+                words_probability=getattr(recognition, "words_probability", None),
             )
         )
     return outcomes
@@ -434,6 +443,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--split", choices=SPLITS, default="all", help="all voices, or the tuning or held-out half"
     )
+    parser.add_argument(
+        "--engine", choices=sorted(ENGINES), default="whisper", help="the recogniser to measure"
+    )
+    parser.add_argument(
+        "--min-confidence", type=float, help="the operating point (default: the vocabulary's)"
+    )
+    parser.add_argument(
+        "--encoder-frames",
+        type=int,
+        help="whisper: the fewest 10 ms frames the encoder sees (default 3000: Whisper's 30 s)",
+    )
+    parser.add_argument("--beam", type=int, help="whisper: beam size (default 1: greedy)")
     parser.add_argument("--records", type=Path, help="write every outcome to this JSON-lines file")
     parser.add_argument(
         "--from-records",
@@ -448,7 +469,16 @@ def main(argv: list[str] | None = None) -> int:
         print("error: espeak-ng is not installed (Debian: apt-get install espeak-ng)")
         return 2
     vocabulary = Vocabulary()
-    recognizer = Recognizer(vocabulary)
+    if args.min_confidence is not None:
+        vocabulary = Vocabulary(min_confidence=args.min_confidence)
+    if args.engine == "whisper" and (args.encoder_frames or args.beam):
+        import app.speech.whisper as whisper
+
+        whisper.ENCODER_FRAMES = args.encoder_frames or whisper.ENCODER_FRAMES
+        whisper.BEAM_SIZE = args.beam or whisper.BEAM_SIZE
+    load_started = time.perf_counter()
+    recognizer = make_recognizer(vocabulary, args.engine, per_core=True)
+    load_seconds = time.perf_counter() - load_started
     voices = VOICES[: max(1, min(len(VOICES), args.voices))]
     with tempfile.TemporaryDirectory(prefix="trustlab-speech-bench-") as folder:
         clips = build_clips(voices, vocabulary, Path(folder), args.split)
@@ -457,7 +487,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{len(clips)} clips ({answers} yes/no, {len(clips) - answers} other), "
         f"{len({c.voice for c in clips if c.expected})} voices ({args.split}), "
-        f"{recognizer.engine}, {args.seeds} noise seeds"
+        f"{getattr(recognizer, 'engine', args.engine)}, {args.seeds} noise seeds; "
+        f"loaded in {load_seconds:.2f} s"
     )
     print(HEADER)
     conditions: list[tuple[str, float | None]] = [] if args.no_clean else [("clean", None)]
@@ -479,9 +510,17 @@ def main(argv: list[str] | None = None) -> int:
             summary.append(verdict(name, figures))
     for line in summary:
         print(line)
+    print(f"peak RSS {peak_rss_mb():.0f} MB")
     if records is not None:
         records.close()
     return 0
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory (Linux: ru_maxrss in KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 if __name__ == "__main__":
