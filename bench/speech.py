@@ -1,9 +1,10 @@
-"""How well the offline recogniser (app/speech/recognizer.py) takes yes/no answers in a noisy room.
+"""How well an offline recogniser (app/speech/engines.py: ``--engine whisper``, the default, or
+``--engine pocketsphinx``) takes yes/no answers in a noisy room.
 
 The labelled set is built here, in a temporary folder, with espeak-ng: every yes and no phrase of
 the default vocabulary plus out-of-grammar speech ("maybe", "I don't know", "the second key"…)
 and coughs and noise bursts, each said by several synthetic voices (accent, speed, pitch). Each
-clip is streamed in 20 ms frames through :class:`app.speech.recognizer.Utterance`, clean and with
+clip is streamed in 20 ms frames through the engine's ``Utterance``, clean and with
 room noise (pink and brown noise plus a babble of overlapping espeak sentences) mixed in at each
 SNR, over several noise seeds.
 
@@ -18,9 +19,14 @@ Reported per condition (mean ± standard deviation over the seeds):
   endpointer needs to call the end (≈ 0.6 s of silence by design): a live participant waits
   for both.
 
-    .venv/bin/python bench/speech.py                      # the full set (about 10 minutes)
+    .venv/bin/python bench/speech.py                      # the full set, Whisper
+    .venv/bin/python bench/speech.py --engine pocketsphinx
     .venv/bin/python bench/speech.py --voices 1 --snrs 10 --seeds 1    # a smoke run
     .venv/bin/python bench/speech.py --split held-out    # only the voices not used for tuning
+
+Figures are per core: Whisper's model is loaded with one CTranslate2 thread and one worker (run
+with ``OMP_NUM_THREADS=1``); the first line gives the model's load time, the last the process's
+peak resident memory.
 
 The recogniser's settings were chosen on the ``tuning`` half of the voices (even positions in
 :data:`VOICES`, and the even noise repeats); ``--split held-out`` reports on the other half alone,
@@ -455,6 +461,9 @@ def main(argv: list[str] | None = None) -> int:
         help="whisper: the fewest 10 ms frames the encoder sees (default 3000: Whisper's 30 s)",
     )
     parser.add_argument("--beam", type=int, help="whisper: beam size (default 1: greedy)")
+    parser.add_argument(
+        "--prompt", action="store_true", help="whisper: prime the decode with the phrases"
+    )
     parser.add_argument("--records", type=Path, help="write every outcome to this JSON-lines file")
     parser.add_argument(
         "--from-records",
@@ -471,11 +480,12 @@ def main(argv: list[str] | None = None) -> int:
     vocabulary = Vocabulary()
     if args.min_confidence is not None:
         vocabulary = Vocabulary(min_confidence=args.min_confidence)
-    if args.engine == "whisper" and (args.encoder_frames or args.beam):
+    if args.engine == "whisper" and (args.encoder_frames or args.beam or args.prompt):
         import app.speech.whisper as whisper
 
         whisper.ENCODER_FRAMES = args.encoder_frames or whisper.ENCODER_FRAMES
         whisper.BEAM_SIZE = args.beam or whisper.BEAM_SIZE
+        whisper.USE_PROMPT = args.prompt
     load_started = time.perf_counter()
     recognizer = make_recognizer(vocabulary, args.engine, per_core=True)
     load_seconds = time.perf_counter() - load_started

@@ -76,6 +76,10 @@ CHUNK_FRAMES = CHUNK_SAMPLES // HOP
 SOT = "<|startoftranscript|>"
 NO_TIMESTAMPS = "<|notimestamps|>"
 EOT = "<|endoftext|>"
+PREVIOUS = "<|startofprev|>"
+USE_PROMPT = False
+"""Whether the decode is primed with the vocabulary's phrases as "previous text" (off:
+docs/performance.md measured what it does to non-answers)."""
 
 
 def _mel_filters() -> np.ndarray:
@@ -174,6 +178,8 @@ class WhisperModel:
         self.tokens = (path / "vocabulary.txt").read_text(encoding="utf-8").split("\n")
         ids = {token: index for index, token in enumerate(self.tokens)}
         self.prompt = [ids[SOT], ids[NO_TIMESTAMPS]]
+        self._ids = ids
+        self._previous = ids[PREVIOUS]
         self.eot = ids[EOT]
         self._group, self._ending = self._spellings()
         self.load_seconds = time.perf_counter() - started
@@ -205,8 +211,30 @@ class WhisperModel:
                 pieces += bytes(_BYTES.get(ch, ord("?")) for ch in self.tokens[token])
         return pieces.decode("utf-8", errors="replace").strip()
 
+    def phrase_prompt(self, phrases: list[str]) -> list[int]:
+        """Tokens of the phrases written as sentences ("Yes. No way."), longest known piece
+        first, as Whisper's previous-text prompt (not necessarily the canonical BPE split)."""
+        space = next(ch for ch, b in _BYTES.items() if b == ord(" "))
+        text = "".join(f" {p[:1].upper()}{p[1:]}." for p in phrases).replace(" ", space)
+        tokens: list[int] = []
+        at = 0
+        while at < len(text):
+            for end in range(min(len(text), at + 16), at, -1):
+                token = self._ids.get(text[at:end])
+                if token is not None and token < self.eot:
+                    tokens.append(token)
+                    at = end
+                    break
+            else:
+                at += 1  # a character the vocabulary cannot spell: left out
+        return [self._previous, *tokens[-100:]]
+
     def transcribe(
-        self, audio: np.ndarray, beam_size: int | None = None, frames: int | None = None
+        self,
+        audio: np.ndarray,
+        beam_size: int | None = None,
+        frames: int | None = None,
+        prompt: list[int] | None = None,
     ) -> Transcript:
         """One decode of ``audio`` (floats at 16 kHz, under 30 s); ``frames``: how many 10 ms
         feature frames the encoder sees (default :func:`encoder_frames`)."""
@@ -216,9 +244,9 @@ class WhisperModel:
         features = log_mel(audio)[:, : frames or encoder_frames(audio.size)]
         result: Any = self.model.generate(
             ctranslate2.StorageView.from_array(np.ascontiguousarray(features[None])),
-            [self.prompt],
+            [[*(prompt or []), *self.prompt]],
             beam_size=beam_size,
-            max_length=len(self.prompt) + MAX_NEW_TOKENS,
+            max_length=len(prompt or []) + len(self.prompt) + MAX_NEW_TOKENS,
             return_scores=True,
             return_no_speech_prob=True,
             return_logits_vocab=beam_size == 1,
@@ -343,6 +371,7 @@ class Recognizer:
         self.vocabulary = vocabulary
         self.model = model or shared_model()
         self.engine = engine_name()
+        self.prompt = self.model.phrase_prompt(vocabulary.phrases) if USE_PROMPT else None
 
     def recognize(self, pcm: bytes) -> Recognition:
         """A whole utterance (16 kHz mono int16 LE) at once."""
@@ -400,7 +429,7 @@ class Utterance:
         try:
             speech = self._speech()
             if speech.size:
-                transcript = recognizer.model.transcribe(speech)
+                transcript = recognizer.model.transcribe(speech, prompt=recognizer.prompt)
                 words, confidence = recognizer.decide(transcript)
                 heard = Heard(words, confidence)
         finally:
