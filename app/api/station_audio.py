@@ -265,7 +265,7 @@ class _AudioConnection:
                 f"{speech.language!r}: take the answer by button"
             )
         vocabulary = Vocabulary.of(speech.yes, speech.no, speech.min_confidence)
-        recognizer = await run_in_threadpool(self.pool.get, vocabulary)
+        recognizer = await run_in_threadpool(self.pool.get, vocabulary, speech.engine)
         utterance = await run_in_threadpool(recognizer.utterance)
         self.listening = _Listening(
             request_id=message.id,

@@ -16,7 +16,8 @@ ROOM_LINES = ("Well done! Back to the start for the next run.",)
 says them in the participant's language."""
 
 RECOGNISED_LANGUAGES = frozenset({"en"})
-"""The languages the server's offline recogniser knows (pocketsphinx's shipped US-English model);
+"""The languages the server's offline recognisers know (Whisper tiny.en and pocketsphinx's
+US-English model are both English only);
 a participant in another language answers by button, or by the browser's recogniser where the
 protocol allows a cloud recogniser."""
 

@@ -1,11 +1,11 @@
-"""The server's offline recognisers, one per study vocabulary, loaded on first use.
+"""The server's offline recognisers, one per study engine and vocabulary, loaded on first use.
 
-A recogniser constrained to a protocol's yes/no phrases (app.speech.recognizer) takes a while to
-build (it loads an acoustic model and compiles a grammar), so the server keeps one per vocabulary
-and every station whose study shares the phrases shares it; each answer gets an utterance of its
-own. The recogniser module is imported only when a room first streams audio: a server whose rooms
-never listen does not pay for the model, and one without the engine installed says so in one line
-instead of failing to start.
+A recogniser for a protocol's yes/no phrases (app.speech.engines: Whisper by default, or
+pocketsphinx) takes a while to build (it loads a model), so the server keeps one per engine and
+vocabulary and every station whose study shares them shares it; each answer gets an utterance of
+its own. The engine's module is imported only when a room first streams audio: a server whose
+rooms never listen does not pay for the model, and one without the engine installed says so in
+one line instead of failing to start.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from typing import Protocol
 from app.errors import TrustlabError
 from app.speech.vocabulary import Vocabulary
 
-RECOGNIZER_MODULE = "app.speech.recognizer"
 SAMPLE_RATE = 16000
 """What every recogniser takes: 16 kHz mono 16-bit little-endian PCM (as the room streams)."""
 
@@ -52,7 +51,8 @@ class RecognizerLike(Protocol):
     def utterance(self) -> UtteranceLike: ...
 
 
-RecognizerFactory = Callable[[Vocabulary], RecognizerLike]
+RecognizerFactory = Callable[[Vocabulary, str], RecognizerLike]
+"""Builds the recogniser of (vocabulary, engine name)."""
 
 
 class RecognitionUnavailable(TrustlabError):
@@ -61,11 +61,12 @@ class RecognitionUnavailable(TrustlabError):
     status_code = 503
 
 
-def offline_recognizer(vocabulary: Vocabulary) -> RecognizerLike:
-    """The shipped offline recogniser for ``vocabulary`` (RecognitionUnavailable without it)."""
+def offline_recognizer(vocabulary: Vocabulary, engine: str = "whisper") -> RecognizerLike:
+    """The shipped offline recogniser of ``engine`` for ``vocabulary`` (RecognitionUnavailable
+    without it)."""
     try:
-        module = importlib.import_module(RECOGNIZER_MODULE)
-        recognizer: RecognizerLike = module.Recognizer(vocabulary)
+        engines = importlib.import_module("app.speech.engines")
+        recognizer: RecognizerLike = engines.make_recognizer(vocabulary, engine)
     except ImportError as exc:
         raise RecognitionUnavailable(
             f"offline speech recognition is unavailable on this server: {exc}"
@@ -78,18 +79,19 @@ def offline_recognizer(vocabulary: Vocabulary) -> RecognizerLike:
 
 
 class RecognizerPool:
-    """One recogniser per vocabulary, built on first use (thread-safe; build in a worker thread)."""
+    """One recogniser per engine and vocabulary, built on first use (thread-safe; build in a
+    worker thread)."""
 
     def __init__(self, make: RecognizerFactory = offline_recognizer) -> None:
         self._make = make
-        self._made: dict[Vocabulary, RecognizerLike] = {}
+        self._made: dict[tuple[str, Vocabulary], RecognizerLike] = {}
         self._lock = threading.Lock()
 
-    def get(self, vocabulary: Vocabulary) -> RecognizerLike:
-        """The recogniser of ``vocabulary``, built now if it is the first time."""
+    def get(self, vocabulary: Vocabulary, engine: str = "whisper") -> RecognizerLike:
+        """The ``engine`` recogniser of ``vocabulary``, built now if it is the first time."""
         with self._lock:
-            recognizer = self._made.get(vocabulary)
+            recognizer = self._made.get((engine, vocabulary))
             if recognizer is None:
-                recognizer = self._make(vocabulary)
-                self._made[vocabulary] = recognizer
+                recognizer = self._make(vocabulary, engine)
+                self._made[(engine, vocabulary)] = recognizer
             return recognizer

@@ -98,6 +98,7 @@ class ScriptedRecognizer:
 
     script: list[Heard] = field(default_factory=list)
     vocabularies: list[Vocabulary] = field(default_factory=list)
+    engines: list[str] = field(default_factory=list)
     loops_seen: list[bool] = field(default_factory=list)
     finished: list[ScriptedUtterance] = field(default_factory=list)
     abandoned: list[ScriptedUtterance] = field(default_factory=list)
@@ -110,8 +111,9 @@ class ScriptedRecognizer:
 def recognizer(lab: Lab) -> ScriptedRecognizer:
     scripted = ScriptedRecognizer()
 
-    def make(vocabulary: Vocabulary) -> ScriptedRecognizer:
+    def make(vocabulary: Vocabulary, engine: str) -> ScriptedRecognizer:
         scripted.vocabularies.append(vocabulary)
+        scripted.engines.append(engine)
         return scripted
 
     lab.app.state.recognizers = RecognizerPool(make)
@@ -189,8 +191,29 @@ def test_a_spoken_yes_is_recognised_on_the_server_and_recorded_once(
     assert recognizer.vocabularies == [
         Vocabulary.of(["yes", "yeah", "yep", "sure"], ["no", "nope", "no way"], 0.4)
     ]
+    assert recognizer.engines == ["whisper"]  # the default engine
     assert lab.robot.get("/api/v1/station").json()["open_prompts"] == []
     assert _recordings(lab) == 0
+
+
+def test_a_study_may_choose_pocketsphinx_and_each_engine_is_built_once(
+    lab: Lab, recognizer: ScriptedRecognizer
+) -> None:
+    chosen = _seated_in(lab, "sphinx", **{'# engine = "whisper"': 'engine = "pocketsphinx"'})
+    step = _open_step(chosen)
+    recognizer.script += [Heard("no", "nope", 0.8)]
+    with chosen.robot.websocket_connect(AUDIO) as ws:
+        _receive(ws, "hello")
+        ws.send_json({"type": "start", "id": 1, "step_id": step})
+        _receive(ws, "listening")
+        ws.send_json({"type": "cancel"})
+        _receive(ws, "cancelled")
+        ws.send_json({"type": "start", "id": 2, "step_id": step})
+        _receive(ws, "listening")
+        _speak(ws)
+        assert _receive(ws, "answer")["data"]["answer"] == "no"
+    assert recognizer.engines == ["pocketsphinx"]  # built once, shared by both listens
+    assert chosen.robot.get("/api/v1/station/speech").json()["engine"] == "pocketsphinx"
 
 
 def test_unclear_speech_and_silence_are_asked_again_and_nothing_is_stored(
@@ -334,7 +357,7 @@ def test_an_unknown_key_is_refused(lab: Lab) -> None:
 
 
 def test_without_an_offline_recogniser_the_room_is_told_in_one_line(lab: Lab) -> None:
-    def missing(vocabulary: Vocabulary) -> Any:
+    def missing(vocabulary: Vocabulary, engine: str) -> Any:
         raise RecognitionUnavailable("offline speech recognition is unavailable on this server")
 
     lab.app.state.recognizers = RecognizerPool(missing)
@@ -511,7 +534,7 @@ def test_the_offline_recogniser_hears_a_streamed_yes(lab: Lab, spoken_yes: bytes
             ws.send_bytes(spoken_yes[at : at + FRAME])
         answered = _receive(ws, "answer")
     assert answered["data"]["answer"] == "yes"
-    assert answered["heard"]["engine"].startswith("pocketsphinx")
+    assert answered["heard"]["engine"].startswith("whisper tiny.en")
     (stored,) = _answers(lab)
     assert (stored.answer, stored.modality, stored.transcript) == (True, "speech", "yes")
     assert stored.transcript_engine == answered["heard"]["engine"]

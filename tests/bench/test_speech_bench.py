@@ -1,5 +1,5 @@
-"""bench/speech.py runs end to end on a small set (one voice, one SNR, one seed) and prints its
-table; without espeak-ng it says so in one line and exits 2."""
+"""bench/speech.py runs end to end on a small set (one voice, one SNR, one seed; the default engine,
+Whisper) and prints its table; without espeak-ng it says so in one line and exits 2."""
 
 from __future__ import annotations
 
@@ -25,8 +25,9 @@ def test_the_speech_benchmark_prints_its_table_and_verdicts(tmp_path: Path) -> N
     assert done.returncode == 0, done.stderr
     lines = done.stdout.strip().splitlines()
     assert re.match(
-        r"\d+ clips \(7 yes/no, \d+ other\), 1 voices \(all\), pocketsphinx 5\.1\.1", lines[0]
+        r"\d+ clips \(7 yes/no, \d+ other\), 1 voices \(all\), whisper tiny\.en", lines[0]
     )
+    assert lines[-1].startswith("peak RSS ") and lines[-1].endswith(" MB")
     rows = [line for line in lines if line.startswith(("| clean", "| SNR 10"))]
     assert len(rows) == 2, done.stdout
     for row in rows:

