@@ -10,21 +10,31 @@ objective that training's selection uses (:func:`models.pretrain.filter_score`):
 ``Σ_i b_t(i) log π_t(i)`` after each answer, ``b_t`` the exact filter's belief. Numpy only, on
 the deployed learner (:class:`models.simulate.BatchMetaPolicy`), so it scores exactly what a
 study would run.
+
+The filter objective is nearly flat in the directions issue 36's targets measure: seeds of one
+recipe within .004 of each other spanned 0.5–2.8 × the filter's wrong rate. So the shipped
+checkpoints are chosen by :func:`select_by_targets`: a candidate qualifies when, on validation
+draws (:func:`target_validation`: the issue's scenarios, the selection seed, none of the bench's
+draws), it meets every target of issue 36 item 2; among the qualifiers the best filter objective
+wins; when none qualifies the shipped checkpoint stays. ``bench/robust.py`` on its own seeds is
+then the held-out check of the one chosen.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from models.checkpoints import Checkpoint, trained_feedback
+from models.feedback import FeedbackModel
 from models.inner_loops import sample_online_batch
 from models.learners.belief import BatchBelief
 from models.learners.mlp_policy import hidden_and_logits
 from models.pretrain_config import PretrainArgs
-from models.simulate import BatchMetaPolicy
+from models.simulate import BatchMetaPolicy, Scenario, simulate_adaptation
 
 SELECTION_SEED = 777_777
 """The validation draws' seed: no training run's own (``seed + 10_000`` for seeds below
@@ -95,22 +105,99 @@ def _log_probabilities(learner: BatchMetaPolicy) -> np.ndarray:
     return shifted - np.log(np.exp(shifted).sum(axis=-1, keepdims=True))
 
 
+VALIDATION_PARTICIPANTS = 20_000
+"""Participants per scenario of the target validation (the bench's figures are over 8 × 10,000)."""
+
+SLIP_SCENARIOS = {"5 % slips": 0.05, "10 % slips": 0.1}
+"""The slip rates issue 36 judges the wrong rate at, by the bench's scenario names."""
+
+CHANGE_AFTER = 6
+CHANGE_HAZARD = 0.02
+"""The issue's change of mind: after answer 6, with the hazard the bench's participants have."""
+
+
+def validation_scenarios(model: FeedbackModel) -> dict[str, Scenario]:
+    """Issue 36's scenarios, as ``bench/robust.py`` runs them, with the exact filter for
+    ``model`` (the one C2 was trained for) as the reference: consistent answers, 5 % and 10 %
+    slips, and a preference changed after answer 6. Only the draws differ from the bench's."""
+    scenarios = {"consistent yes/no": Scenario(feedback=FeedbackModel(), assumed=model)}
+    for title, slip in SLIP_SCENARIOS.items():
+        scenarios[title] = Scenario(feedback=FeedbackModel(slips=(slip,)), assumed=model)
+    scenarios[f"preference changed after answer {CHANGE_AFTER}"] = Scenario(
+        feedback=FeedbackModel(hazard=CHANGE_HAZARD), change_after=CHANGE_AFTER, assumed=model
+    )
+    return scenarios
+
+
+@dataclass(frozen=True)
+class TargetFigures:
+    """Issue 36 item 2's figures for one checkpoint on one set of draws.
+
+    ``wrong_ratio``: C2's confidently-wrong rate (≥ .95 on a question that is not the preferred
+    one) over the filter's, per slip scenario; ``answers_ratio``: C2's mean answers to .95 over
+    the filter's, per scenario without a change; ``recovered``: the share of participants whose
+    new preferred question C2 reaches .95 on after the change, and the filter's on the same
+    participants."""
+
+    wrong_ratio: dict[str, float]
+    answers_ratio: dict[str, float]
+    recovered: float
+    filter_recovered: float
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Issue 36 item 2's targets, as the bench judges them: the wrong rate at most
+    ``wrong_ratio`` × the filter's at every slip rate, answers at most ``answers_ratio`` × the
+    filter's, and at least ``recovered`` of participants recovering from a change (an absolute
+    share, as the issue states it; the filter for the same model recovers about .88 there)."""
+
+    wrong_ratio: float = 1.25
+    answers_ratio: float = 1.1
+    recovered: float = 0.85
+
+
+ISSUE_TARGETS = Targets()
+
+
+def shortfalls(figures: TargetFigures, targets: Targets = ISSUE_TARGETS) -> list[str]:
+    """The targets ``figures`` miss, each named with its figure (empty: it qualifies)."""
+    missed = [
+        f"wrong {ratio:.2f} × at {title}"
+        for title, ratio in figures.wrong_ratio.items()
+        if not ratio <= targets.wrong_ratio
+    ]
+    missed += [
+        f"answers {ratio:.3f} × at {title}"
+        for title, ratio in figures.answers_ratio.items()
+        if not ratio <= targets.answers_ratio
+    ]
+    if not figures.recovered >= targets.recovered:
+        missed.append(f"recovered {figures.recovered:.3f}")
+    return missed
+
+
+def _ratio(value: float, reference: float) -> float:
+    if reference > 0:
+        return value / reference
+    return 0.0 if value == 0 else math.inf
+
+
 def target_validation(
-    checkpoint: Checkpoint, participants: int = 20_000, seed: int = SELECTION_SEED
-) -> dict[str, float]:
-    """The issue's figures on participants of the training model itself (not the bench's
-    draws): C2's confidently-wrong rate and answers to .95 as ratios to the exact filter's,
-    with the model's slips and no change of mind; and the share that recovers from a change
-    after answer 6, C2's and the filter's. The filter objective barely tells seeds apart on
+    checkpoint: Checkpoint,
+    participants: int = VALIDATION_PARTICIPANTS,
+    seed: int = SELECTION_SEED,
+) -> TargetFigures:
+    """Issue 36 item 2's figures on validation draws (``seed``, none of the bench's): each of
+    :func:`validation_scenarios` run for C2 and for the exact filter for the model it was
+    trained for, on the same participants. The filter objective barely tells seeds apart on
     these (docs/engine.md, "C2 calibrated under slips"); these figures do."""
-    from dataclasses import replace
-
-    from models.simulate import Scenario, simulate_adaptation
-
     model = trained_feedback(checkpoint)
     tasks = validation_args(checkpoint, participants).tasks
-
-    def run(scenario: Scenario) -> dict[str, Any]:
+    wrong: dict[str, float] = {}
+    answers: dict[str, float] = {}
+    recovered = filter_recovered = 0.0
+    for title, scenario in validation_scenarios(model).items():
         learners = simulate_adaptation(
             tasks,
             participants=participants,
@@ -121,17 +208,39 @@ def target_validation(
             learners=("meta", "bayes"),
             scenario=scenario,
         )["learners"]
-        return dict(learners)
+        meta, reference = learners["meta"], learners["bayes"]
+        if scenario.change_after is not None:
+            recovered, filter_recovered = meta["recovered"], reference["recovered"]
+            continue
+        answers[title] = _ratio(meta["iterations_to_95"], reference["iterations_to_95"])
+        if title in SLIP_SCENARIOS:
+            wrong[title] = _ratio(meta["wrong_95"], reference["wrong_95"])
+    return TargetFigures(wrong, answers, float(recovered), float(filter_recovered))
 
-    slips = run(Scenario(feedback=replace(model, hazard=0.0), assumed=model))
-    change = run(Scenario(feedback=model, change_after=checkpoint.horizon // 2, assumed=model))
-    meta, reference = slips["meta"], slips["bayes"]
-    return {
-        "wrong_ratio": meta["wrong_95"] / max(reference["wrong_95"], 1e-12),
-        "answers_ratio": meta["iterations_to_95"] / reference["iterations_to_95"],
-        "recovered": change["meta"]["recovered"],
-        "filter_recovered": change["bayes"]["recovered"],
-    }
+
+@dataclass(frozen=True)
+class Candidate:
+    """One checkpoint up for selection: its filter objective on the fixed validation set and
+    its target figures on the validation draws."""
+
+    name: str
+    filter_score: float
+    figures: TargetFigures
+
+
+def select_by_targets(
+    candidates: Sequence[Candidate], targets: Targets = ISSUE_TARGETS
+) -> Candidate | None:
+    """The selection rule for the shipped checkpoints (docs/engine.md, "C2 calibrated under
+    slips"): a candidate qualifies when it meets every target on the validation draws
+    (:func:`shortfalls` is empty); among those the highest filter objective wins (the first on a
+    tie). None when none qualifies: then the shipped checkpoint stays."""
+    qualified = [
+        candidate for candidate in candidates if not shortfalls(candidate.figures, targets)
+    ]
+    if not qualified:
+        return None
+    return max(qualified, key=lambda candidate: candidate.filter_score)
 
 
 def best_by_validation(scores: list[Score]) -> Score:

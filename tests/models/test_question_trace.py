@@ -24,7 +24,7 @@ from models.checkpoints import (
 )
 from models.learners.meta_policy import MetaPolicyLearner
 from models.learners.mlp_policy import surprise
-from models.seed_selection import best_by_validation, filter_validation, target_validation
+from models.seed_selection import best_by_validation, filter_validation
 from models.simulate import BatchMetaPolicy
 
 ANSWERS = [(0, 1.0), (0, 0.0), (0, 0.0), (1, 1.0), (2, 0.0), (1, 1.0), (0, 1.0)]
@@ -269,10 +269,3 @@ def test_seed_selection_scores_every_candidate_on_the_same_participants() -> Non
     assert best.filter_score == max(first.filter_score, other.filter_score)
     with pytest.raises(ValueError, match="no checkpoints"):
         best_by_validation([])
-
-
-def test_target_validation_reports_the_issues_figures_against_the_filter() -> None:
-    figures = target_validation(_shipped(), participants=400, seed=3)
-    assert set(figures) == {"wrong_ratio", "answers_ratio", "recovered", "filter_recovered"}
-    assert 0.5 < figures["answers_ratio"] < 2 and figures["wrong_ratio"] >= 0
-    assert 0 <= figures["recovered"] <= 1 and 0 <= figures["filter_recovered"] <= 1
