@@ -114,3 +114,62 @@ class Endpointer:
         elif self.speech_started and not self.speech_ended:
             full = len(self._closing) == self._closing.maxlen
             self.speech_ended = full and sum(self._closing) <= END_SPEECH_FRAMES_ALLOWED
+
+
+class SpeechBuffer:
+    """One answer's audio, kept in memory as it streams in, with the endpointer that watches it.
+
+    Both engines' utterances (app.speech.whisper, app.speech.recognizer) hold one: they share
+    how audio is taken in, when speech started and ended, and which stretch is decoded; each
+    decides only how to decode that stretch. Once closed it takes no more audio, and
+    :meth:`padded_speech` is the last use of the audio (it is let go of at once)."""
+
+    def __init__(self, sample_rate: int = 16000) -> None:
+        self._endpointer = Endpointer(sample_rate)
+        self._frame_bytes = round(sample_rate * FRAME_SECONDS) * 2
+        self._audio = bytearray()
+        self.closed = False
+
+    @property
+    def speech_started(self) -> bool:
+        """Something that sounds like speech was heard."""
+        return self._endpointer.speech_started
+
+    @property
+    def speech_ended(self) -> bool:
+        """Speech was heard and then at least ~0.6 s of (near) silence: time to answer."""
+        return self._endpointer.speech_ended
+
+    def feed(self, pcm: bytes) -> None:
+        """More audio (mono int16 LE, any length)."""
+        if self.closed:
+            raise RuntimeError("this utterance is finished")
+        self._audio += pcm
+        self._endpointer.feed(pcm)
+
+    def close(self) -> None:
+        """Take no more audio (an utterance finishes once only)."""
+        if self.closed:
+            raise RuntimeError("this utterance is finished")
+        self.closed = True
+
+    def drop(self) -> bool:
+        """Close and forget the audio unheard; False if it was closed already."""
+        if self.closed:
+            return False
+        self.closed = True
+        self._audio = bytearray()
+        return True
+
+    def padded_speech(self, pad_seconds: float) -> tuple[int, bytes]:
+        """The speech the endpointer marked, with ``pad_seconds`` either side (soft onsets and
+        final consonants), as (its first byte's offset in the utterance, its bytes); (0, b"")
+        when no speech started. The buffer lets go of the audio."""
+        endpointer, audio = self._endpointer, self._audio
+        self._audio = bytearray()
+        if not endpointer.speech_started:
+            return 0, b""
+        pad = round(pad_seconds / FRAME_SECONDS)
+        first = max(0, endpointer.first_speech_frame - pad) * self._frame_bytes
+        last = (endpointer.last_speech_frame + 1 + pad) * self._frame_bytes
+        return first, bytes(audio[first : min(last, len(audio) - len(audio) % 2)])

