@@ -16,8 +16,8 @@ from typer.testing import CliRunner
 from app.cli import cli
 from app.speech.recognizer import SAMPLE_RATE, Recognition, Recognizer, UnknownWords, read_wav
 from app.speech.vocabulary import Vocabulary
+from tests.speech.recordings import DATA, SHIPPED_ANSWERS, quiet
 
-DATA = Path(__file__).parent / "data"
 FRAME_BYTES = SAMPLE_RATE // 50 * 2
 runner = CliRunner()
 
@@ -27,26 +27,9 @@ def recognizer() -> Recognizer:
     return Recognizer(Vocabulary())
 
 
-def quiet(seconds: float, seed: int = 0) -> bytes:
-    """Room-quiet audio (about -60 dBFS), as a microphone sends between words."""
-    noise = np.random.default_rng(seed).normal(0, 30, int(seconds * SAMPLE_RATE))
-    return noise.astype("<i2").tobytes()
-
-
 @pytest.mark.parametrize(
     ("name", "answer"),
-    [
-        ("yes", "yes"),
-        ("yeah", "yes"),
-        ("sure", "yes"),
-        ("no", "no"),
-        ("nope", "no"),
-        ("no_way", "no"),
-        ("maybe", None),
-        ("i_dont_know", None),
-        ("cough", None),
-        ("silence", None),
-    ],
+    SHIPPED_ANSWERS,
 )
 def test_each_shipped_recording_gives_its_answer(
     recognizer: Recognizer, name: str, answer: str | None

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import socket
 import threading
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,8 +16,8 @@ from app.speech.engines import make_recognizer
 from app.speech.vocabulary import Heard, Vocabulary
 from app.speech.wav import read_wav
 from app.speech.whisper import Recognizer, Transcript, answer_words, log_mel, shared_model
+from tests.speech.recordings import DATA, SHIPPED_ANSWERS, quiet
 
-DATA = Path(__file__).parent / "data"
 FRAME_BYTES = whisper.SAMPLE_RATE // 50 * 2
 
 
@@ -27,26 +26,9 @@ def recognizer() -> Recognizer:
     return Recognizer(Vocabulary())
 
 
-def quiet(seconds: float, seed: int = 0) -> bytes:
-    """Room-quiet audio (about -60 dBFS), as a microphone sends between words."""
-    noise = np.random.default_rng(seed).normal(0, 30, int(seconds * whisper.SAMPLE_RATE))
-    return noise.astype("<i2").tobytes()
-
-
 @pytest.mark.parametrize(
     ("name", "answer"),
-    [
-        ("yes", "yes"),
-        ("yeah", "yes"),
-        ("sure", "yes"),
-        ("no", "no"),
-        ("nope", "no"),
-        ("no_way", "no"),
-        ("maybe", None),
-        ("i_dont_know", None),
-        ("cough", None),
-        ("silence", None),
-    ],
+    SHIPPED_ANSWERS,
 )
 def test_each_shipped_recording_gives_its_answer(
     recognizer: Recognizer, name: str, answer: str | None
