@@ -285,6 +285,12 @@ class SpeechSpec(_Strict):
         "US-English model, an answer grammar checked by an open-vocabulary listener); both "
         "English only, both on the server (docs/performance.md compares them).",
     )
+    prompt_phrases: bool = Field(
+        default=True,
+        description="Whisper only: prime each decode with the phrases as the text said before "
+        "(more answers recognised, a few more non-answers taken for one; docs/performance.md "
+        "measured both); off: Whisper decodes unprimed.",
+    )
     min_confidence: float = Field(
         default=DEFAULT_MIN_CONFIDENCE,
         ge=0.0,

@@ -13,16 +13,22 @@ Reported per condition (mean ± standard deviation over the seeds):
 * **accuracy**: yes/no items recognised as their answer;
 * **wrong**: yes/no items recognised as the other answer (the error that misleads a learner);
 * **accepted**: out-of-grammar items and noises accepted as a yes or a no;
-* **latency**: from feeding the clip's last frame that contains speech to :meth:`finish`
-  returning, the frames after it fed as fast as they are processed until the endpointer says
-  the speech ended (median and p95 over all items). **endpoint wait** is the audio time the
-  endpointer needs to call the end (≈ 0.6 s of silence by design): a live participant waits
-  for both.
+* **latency**: from the endpointer calling the end of speech (the frame on which it does, fed)
+  to :meth:`finish` returning the answer (median and p95 over all items; for a clip whose end is
+  never called, from its last frame). **endpoint wait** is the audio time from the last speech
+  frame to that call (≈ 0.6 s of quiet by design): a live participant waits for both.
+  By default frames are fed as fast as they are processed, so an early decode (app/speech/
+  whisper.py: the stretch is decoded during the endpointer's wait) has no wait to overlap and
+  the latency is the whole decode; ``--real-time`` feeds the frames after the clip's silent lead
+  at the pace a microphone delivers them (one 20 ms frame per 20 ms), as a room does, which is
+  what a participant meets. **CPU** is the process's processor time from the last speech frame
+  to the answer (every thread: the decode's cost on one core).
 
     .venv/bin/python bench/speech.py                      # the full set, Whisper
     .venv/bin/python bench/speech.py --engine pocketsphinx
     .venv/bin/python bench/speech.py --voices 1 --snrs 10 --seeds 1    # a smoke run
     .venv/bin/python bench/speech.py --split held-out    # only the voices not used for tuning
+    .venv/bin/python bench/speech.py --real-time          # the latency a participant meets
 
 Figures are per core: Whisper's model is loaded with one CTranslate2 thread and one worker (run
 with ``OMP_NUM_THREADS=1``); the first line gives the model's load time, the last the process's
@@ -54,7 +60,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.speech.engines import ENGINES, make_recognizer  # noqa: E402
-from app.speech.pool import RecognitionLike, RecognizerLike, UtteranceLike  # noqa: E402
+from app.speech.pool import (  # noqa: E402
+    EngineSettings,
+    RecognitionLike,
+    RecognizerLike,
+    UtteranceLike,
+)
 from app.speech.vocabulary import Vocabulary  # noqa: E402
 from app.speech.wav import read_wav  # noqa: E402
 
@@ -264,25 +275,36 @@ def with_noise(item: Clip, snr_db: float, babble: np.ndarray, seed: int) -> np.n
     return item.samples + noise
 
 
+LEAD_FRAMES = round(LEAD_SECONDS * 50)
+"""The clip's silent lead, in frames: fed at once also in real time (nothing to decode yet)."""
+
+
 def stream(
-    recognizer: RecognizerLike, item: Clip, samples: np.ndarray
+    recognizer: RecognizerLike, item: Clip, samples: np.ndarray, real_time: bool = False
 ) -> tuple[RecognitionLike, float, float, int]:
-    """Feed 20 ms frames; (recognition, ms from the last speech frame to the answer, the
-    processor ms of that stretch, frames fed)."""
+    """Feed 20 ms frames (after the lead at a microphone's pace when ``real_time``);
+    (recognition, ms from the end being called to the answer, processor ms from the last speech
+    frame to the answer, frames fed)."""
     pcm = np.clip(np.rint(samples * 32768), -32768, 32767).astype("<i2").tobytes()
     utterance: UtteranceLike = recognizer.utterance()
     frames = len(pcm) // (2 * FRAME)
-    started, cpu = time.perf_counter(), time.process_time()
+    cpu = time.process_time()
     fed = frames
+    paced_from = time.perf_counter() - LEAD_FRAMES * 0.02
     for index in range(frames):
+        if real_time and index >= LEAD_FRAMES:
+            delay = paced_from + index * 0.02 - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
         if index == item.last_speech_frame:
-            started, cpu = time.perf_counter(), time.process_time()
+            cpu = time.process_time()
         utterance.feed(pcm[index * 2 * FRAME : (index + 1) * 2 * FRAME])
         if index > item.last_speech_frame and utterance.speech_ended:
             fed = index + 1
             break
+    called = time.perf_counter()
     recognition = utterance.finish()
-    elapsed, cpu = time.perf_counter() - started, time.process_time() - cpu
+    elapsed, cpu = time.perf_counter() - called, time.process_time() - cpu
     return recognition, elapsed * 1000, cpu * 1000, fed
 
 
@@ -292,12 +314,13 @@ def run(
     condition: str,
     seed: int,
     noise: tuple[float, np.ndarray] | None,
+    real_time: bool = False,
 ) -> list[Outcome]:
     """Every clip once, clean or with ``noise`` (SNR in dB, babble) drawn from ``seed``."""
     outcomes = []
     for item in clips:
         samples = item.samples if noise is None else with_noise(item, *noise, seed)
-        recognition, latency, cpu, fed = stream(recognizer, item, samples)
+        recognition, latency, cpu, fed = stream(recognizer, item, samples, real_time)
         ended = fed < samples.size // FRAME
         wait = (fed - 1 - item.last_speech_frame) * 20.0 if ended else None
         outcomes.append(
@@ -462,7 +485,17 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--beam", type=int, help="whisper: beam size (default 1: greedy)")
     parser.add_argument(
-        "--prompt", action="store_true", help="whisper: prime the decode with the phrases"
+        "--no-prompt", action="store_true", help="whisper: do not prime the decode with the phrases"
+    )
+    parser.add_argument(
+        "--real-time",
+        action="store_true",
+        help="feed each clip at a microphone's pace (the latency a participant meets)",
+    )
+    parser.add_argument(
+        "--no-early-decode",
+        action="store_true",
+        help="whisper: decode only once the end is called, not during the endpointer's wait",
     )
     parser.add_argument("--records", type=Path, help="write every outcome to this JSON-lines file")
     parser.add_argument(
@@ -480,14 +513,15 @@ def main(argv: list[str] | None = None) -> int:
     vocabulary = Vocabulary()
     if args.min_confidence is not None:
         vocabulary = Vocabulary(min_confidence=args.min_confidence)
-    if args.engine == "whisper" and (args.encoder_frames or args.beam or args.prompt):
+    if args.engine == "whisper" and (args.encoder_frames or args.beam or args.no_early_decode):
         import app.speech.whisper as whisper
 
         whisper.ENCODER_FRAMES = args.encoder_frames or whisper.ENCODER_FRAMES
         whisper.BEAM_SIZE = args.beam or whisper.BEAM_SIZE
-        whisper.USE_PROMPT = args.prompt
+        whisper.DECODE_DURING_WAIT = not args.no_early_decode
     load_started = time.perf_counter()
-    recognizer = make_recognizer(vocabulary, args.engine, per_core=True)
+    engine = EngineSettings(args.engine, prompt=not args.no_prompt)
+    recognizer = make_recognizer(vocabulary, engine, per_core=True)
     load_seconds = time.perf_counter() - load_started
     voices = VOICES[: max(1, min(len(VOICES), args.voices))]
     with tempfile.TemporaryDirectory(prefix="trustlab-speech-bench-") as folder:
@@ -500,6 +534,11 @@ def main(argv: list[str] | None = None) -> int:
         f"{getattr(recognizer, 'engine', args.engine)}, {args.seeds} noise seeds; "
         f"loaded in {load_seconds:.2f} s"
     )
+    if args.engine == "whisper":
+        early = "off" if args.no_early_decode else "on"
+        prompt = "off" if args.no_prompt else "on"
+        fed = "in real time" if args.real_time else "at once"
+        print(f"prompt {prompt}, early decode {early}, fed {fed}")
     print(HEADER)
     conditions: list[tuple[str, float | None]] = [] if args.no_clean else [("clean", None)]
     conditions += [(f"SNR {snr:g} dB", snr) for snr in args.snrs]
@@ -510,7 +549,7 @@ def main(argv: list[str] | None = None) -> int:
         seeds = [0] if snr is None else range(args.first_seed, args.first_seed + args.seeds)
         for seed in seeds:
             noise = None if snr is None else (snr, babble)
-            outcomes += run(recognizer, clips, name, seed, noise)
+            outcomes += run(recognizer, clips, name, seed, noise, args.real_time)
         row, figures = report(name, outcomes)
         print(row, flush=True)
         if records is not None:

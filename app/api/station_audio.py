@@ -58,7 +58,13 @@ from app.api.station_ws import (
 from app.errors import Conflict, NotAuthenticated, TrustlabError
 from app.inputs import RowId
 from app.services.step_store import DeviceSeat
-from app.speech.pool import SAMPLE_RATE, RecognitionLike, RecognizerPool, UtteranceLike
+from app.speech.pool import (
+    SAMPLE_RATE,
+    EngineSettings,
+    RecognitionLike,
+    RecognizerPool,
+    UtteranceLike,
+)
 from app.speech.vocabulary import Vocabulary
 
 log = logging.getLogger(__name__)
@@ -265,7 +271,8 @@ class _AudioConnection:
                 f"{speech.language!r}: take the answer by button"
             )
         vocabulary = Vocabulary.of(speech.yes, speech.no, speech.min_confidence)
-        recognizer = await run_in_threadpool(self.pool.get, vocabulary, speech.engine)
+        engine = EngineSettings.of(speech)
+        recognizer = await run_in_threadpool(self.pool.get, vocabulary, engine)
         utterance = await run_in_threadpool(recognizer.utterance)
         self.listening = _Listening(
             request_id=message.id,

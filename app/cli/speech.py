@@ -7,6 +7,7 @@ sure it is and how long it takes, before any participant comes in.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -30,8 +31,8 @@ def recognize(
         Path | None,
         typer.Option(
             "--protocol",
-            help="Use this protocol file's [speech] phrases, min_confidence and engine "
-            "(default: the default phrases).",
+            help="Use this protocol file's [speech] phrases, min_confidence, engine and "
+            "prompt_phrases (default: the default phrases).",
         ),
     ] = None,
     engine: Annotated[
@@ -41,25 +42,36 @@ def recognize(
             help="The recogniser: whisper or pocketsphinx (default: the protocol's, else whisper).",
         ),
     ] = None,
+    prompt_phrases: Annotated[
+        bool | None,
+        typer.Option(
+            "--prompt-phrases/--no-prompt-phrases",
+            help="Whisper: prime the decode with the phrases, or not (default: the protocol's, "
+            "else on).",
+        ),
+    ] = None,
     as_json: JsonFlag = False,
 ) -> None:
     """Recognise a yes or a no in FILE: answer, transcript, confidence and time taken."""
-    from app.speech.engines import DEFAULT_ENGINE, ENGINES, make_recognizer
+    from app.speech.engines import ENGINES, make_recognizer
+    from app.speech.pool import EngineSettings
     from app.speech.vocabulary import Vocabulary
     from app.speech.wav import read_wav
 
     vocabulary = Vocabulary()
-    chosen: str = DEFAULT_ENGINE
+    chosen = EngineSettings()
     if protocol is not None:
         from app.protocol import load_protocol_file
 
         spec = load_protocol_file(protocol).protocol.speech
         vocabulary = Vocabulary.of(spec.yes, spec.no, spec.min_confidence)
-        chosen = spec.engine
+        chosen = EngineSettings.of(spec)
     if engine is not None:
         if engine not in ENGINES:
             fail(f"unknown engine {engine!r}: one of {', '.join(ENGINES)}", 2)
-        chosen = engine
+        chosen = replace(chosen, name=engine)
+    if prompt_phrases is not None:
+        chosen = replace(chosen, prompt=prompt_phrases)
     try:
         pcm = read_wav(file)
     except ValueError as exc:
@@ -71,6 +83,7 @@ def recognize(
     result = recognizer.recognize(pcm)
     total = time.perf_counter() - started
     answer = result.answer or "unclear"
+    primed = chosen.name == "whisper" and chosen.prompt
     if as_json:
         emit_json(
             {
@@ -80,6 +93,7 @@ def recognize(
                 "heard": result.heard,
                 "confidence": round(result.confidence, 4),
                 "engine": result.engine,
+                "prompt_phrases": primed,
                 "load_seconds": round(load_seconds, 4),
                 "seconds": round(result.seconds, 4),
                 "total_seconds": round(total, 4),
@@ -91,7 +105,8 @@ def recognize(
     typer.echo(f"transcript: {result.transcript or '(silence)'}")
     typer.echo(f"heard:      {result.heard or '(nothing)'} (unconstrained, for comparison)")
     typer.echo(f"confidence: {result.confidence:.2f} (needs {vocabulary.min_confidence:g})")
-    typer.echo(f"engine:     {result.engine} (loaded in {load_seconds:.2f} s)")
+    primed_text = ", primed with the phrases" if primed else ""
+    typer.echo(f"engine:     {result.engine}{primed_text} (loaded in {load_seconds:.2f} s)")
     typer.echo(
         f"time:       {total * 1000:.0f} ms for {len(pcm) / 32000:.2f} s of audio, "
         f"final decode {result.seconds * 1000:.0f} ms"

@@ -75,6 +75,9 @@ class Endpointer:
         """Index of the first frame of the stretch that started speech (-1 before it)."""
         self.last_speech_frame = -1
         """Index (in :data:`FRAME_SECONDS` frames) of the last frame classified as speech."""
+        self.last_word_frame = -1
+        """Index of the last frame of a run of speech frames (two or more: a word, not a lone
+        loud frame of the room)."""
 
     def feed(self, pcm: bytes) -> None:
         """Classify every whole frame in ``pcm`` (a partial frame waits for the next call)."""
@@ -84,6 +87,8 @@ class Endpointer:
             speech = self._is_speech(data[start : start + self._frame_bytes])
             self._run = self._run + 1 if speech else 0
             word = self._run >= 2
+            if word:
+                self.last_word_frame = self.frames
             self._hangover = HANGOVER_FRAMES if word else max(0, self._hangover - 1)
             self._frame(speech, speech or self._hangover > 0)
         self._pending = data[whole:]
@@ -161,15 +166,44 @@ class SpeechBuffer:
         self._audio = bytearray()
         return True
 
+    def complete_stretch(self, pad_seconds: float) -> tuple[int, int] | None:
+        """Byte offsets (first, end) of the padded speech stretch as it stands, once all of it
+        has arrived (the padding after the last speech frame included), else None. While the
+        participant stays quiet it is the stretch :meth:`padded_speech` will give, so it can be
+        decoded during the endpointer's wait (:meth:`audio`); speech that resumes moves its end.
+        Audio is only ever appended, so equal offsets mean equal bytes."""
+        if self.closed or not self._endpointer.speech_started:
+            return None
+        first, end = self._bounds(pad_seconds)
+        return (first, end) if len(self._audio) >= end else None
+
+    def audio(self, first: int, end: int) -> bytes:
+        """A copy of the audio between two byte offsets (the buffer keeps it)."""
+        return bytes(self._audio[first:end])
+
     def padded_speech(self, pad_seconds: float) -> tuple[int, bytes]:
         """The speech the endpointer marked, with ``pad_seconds`` either side (soft onsets and
         final consonants), as (its first byte's offset in the utterance, its bytes); (0, b"")
         when no speech started. The buffer lets go of the audio."""
-        endpointer, audio = self._endpointer, self._audio
+        audio = self._audio
         self._audio = bytearray()
-        if not endpointer.speech_started:
+        if not self._endpointer.speech_started:
             return 0, b""
-        pad = round(pad_seconds / FRAME_SECONDS)
-        first = max(0, endpointer.first_speech_frame - pad) * self._frame_bytes
-        last = (endpointer.last_speech_frame + 1 + pad) * self._frame_bytes
+        first, last = self._bounds(pad_seconds)
         return first, bytes(audio[first : min(last, len(audio) - len(audio) % 2)])
+
+    def _bounds(self, pad_seconds: float) -> tuple[int, int]:
+        """Byte offsets of the padded speech stretch (its end may lie beyond the audio yet).
+
+        It ends after the last *word* (a run of speech frames), not after the last lone frame
+        the detector called speech: a knock or a peak of babble in the closing quiet is no part
+        of the answer, and would otherwise move the stretch and void a decode started early. A
+        final consonant heard as a lone frame right after the word is inside the padding."""
+        endpointer = self._endpointer
+        pad = round(pad_seconds / FRAME_SECONDS)
+        last_frame = endpointer.last_word_frame
+        if last_frame < endpointer.first_speech_frame:  # only lone frames: keep them all
+            last_frame = endpointer.last_speech_frame
+        first = max(0, endpointer.first_speech_frame - pad) * self._frame_bytes
+        last = (last_frame + 1 + pad) * self._frame_bytes
+        return first, last

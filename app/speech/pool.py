@@ -1,11 +1,11 @@
 """The server's offline recognisers, one per study engine and vocabulary, loaded on first use.
 
 A recogniser for a protocol's yes/no phrases (app.speech.engines: Whisper by default, or
-pocketsphinx) takes a while to build (it loads a model), so the server keeps one per engine and
-vocabulary and every station whose study shares them shares it; each answer gets an utterance of
-its own. The engine's module is imported only when a room first streams audio: a server whose
-rooms never listen does not pay for the model, and one without the engine installed says so in
-one line instead of failing to start.
+pocketsphinx) takes a while to build (it loads a model), so the server keeps one per engine
+settings and vocabulary and every station whose study shares them shares it; each answer gets an
+utterance of its own. The engine's module is imported only when a room first streams audio: a
+server whose rooms never listen does not pay for the model, and one without the engine installed
+says so in one line instead of failing to start.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from __future__ import annotations
 import importlib
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 from app.errors import TrustlabError
@@ -20,6 +21,33 @@ from app.speech.vocabulary import Vocabulary
 
 SAMPLE_RATE = 16000
 """What every recogniser takes: 16 kHz mono 16-bit little-endian PCM (as the room streams)."""
+
+
+DEFAULT_ENGINE = "whisper"
+
+
+@dataclass(frozen=True)
+class EngineSettings:
+    """Which offline recogniser takes a study's answers, and how: the protocol's ``[speech]
+    engine`` and ``prompt_phrases`` (two studies that differ in either need two recognisers)."""
+
+    name: str = DEFAULT_ENGINE
+    prompt: bool = True
+    """Whisper only: prime each decode with the phrases (pocketsphinx's grammar has them)."""
+
+    @classmethod
+    def of(cls, speech: SpeechSettings) -> EngineSettings:
+        """The settings of a protocol's ``[speech]`` table (or anything shaped like it)."""
+        return cls(name=speech.engine, prompt=speech.prompt_phrases)
+
+
+class SpeechSettings(Protocol):
+    """The part of a protocol's ``[speech]`` table that chooses the recogniser."""
+
+    @property
+    def engine(self) -> str: ...
+    @property
+    def prompt_phrases(self) -> bool: ...
 
 
 class RecognitionLike(Protocol):
@@ -51,8 +79,8 @@ class RecognizerLike(Protocol):
     def utterance(self) -> UtteranceLike: ...
 
 
-RecognizerFactory = Callable[[Vocabulary, str], RecognizerLike]
-"""Builds the recogniser of (vocabulary, engine name)."""
+RecognizerFactory = Callable[[Vocabulary, EngineSettings], RecognizerLike]
+"""Builds the recogniser of (vocabulary, engine settings)."""
 
 
 class RecognitionUnavailable(TrustlabError):
@@ -61,7 +89,9 @@ class RecognitionUnavailable(TrustlabError):
     status_code = 503
 
 
-def offline_recognizer(vocabulary: Vocabulary, engine: str = "whisper") -> RecognizerLike:
+def offline_recognizer(
+    vocabulary: Vocabulary, engine: EngineSettings = EngineSettings()
+) -> RecognizerLike:
     """The shipped offline recogniser of ``engine`` for ``vocabulary`` (RecognitionUnavailable
     without it)."""
     try:
@@ -79,15 +109,17 @@ def offline_recognizer(vocabulary: Vocabulary, engine: str = "whisper") -> Recog
 
 
 class RecognizerPool:
-    """One recogniser per engine and vocabulary, built on first use (thread-safe; build in a
-    worker thread)."""
+    """One recogniser per engine settings and vocabulary, built on first use (thread-safe; build
+    in a worker thread)."""
 
     def __init__(self, make: RecognizerFactory = offline_recognizer) -> None:
         self._make = make
-        self._made: dict[tuple[str, Vocabulary], RecognizerLike] = {}
+        self._made: dict[tuple[EngineSettings, Vocabulary], RecognizerLike] = {}
         self._lock = threading.Lock()
 
-    def get(self, vocabulary: Vocabulary, engine: str = "whisper") -> RecognizerLike:
+    def get(
+        self, vocabulary: Vocabulary, engine: EngineSettings = EngineSettings()
+    ) -> RecognizerLike:
         """The ``engine`` recogniser of ``vocabulary``, built now if it is the first time."""
         with self._lock:
             recognizer = self._made.get((engine, vocabulary))

@@ -7,9 +7,20 @@ alone: no hub client is imported, so nothing is looked up or downloaded, and the
 leaves the process.
 
 Only the speech is decoded: the endpointer (app.speech.endpoint) marks where speech started and
-last was, and :meth:`Utterance.finish` turns that stretch plus :data:`PAD_SECONDS` either side
-into Whisper's log-mel features (computed here with numpy, as Whisper computes them) and decodes
-it once — greedy or a small beam, no temperature fallback, no timestamps, no prompt.
+last was, and that stretch plus :data:`PAD_SECONDS` either side becomes Whisper's log-mel features
+(computed here with numpy, as Whisper computes them), decoded once — greedy, no temperature
+fallback, no timestamps — optionally primed with the vocabulary's phrases as the "previous text"
+(the protocol's ``[speech] prompt_phrases``; docs/performance.md measured what it gains and what
+it costs).
+
+**The decode starts during the endpointer's wait.** The endpointer calls the end of speech after
+about 0.6 s of quiet, but the stretch to decode is complete once :data:`PAD_SECONDS` of quiet
+have followed the last speech frame. :meth:`Utterance.feed` then hands that stretch to the model's
+decode workers at once, and :meth:`Utterance.finish` takes that result if the stretch is still the
+same (the participant stayed quiet); if speech resumed, the stretch has moved and it is decoded
+again. Audio is only appended, so the same offsets are the same audio and the same transcript:
+the early decode changes when an answer is known, never what it is. The encoder's half second of
+one core (the whole of the latency) thus mostly overlaps the wait a participant pays anyway.
 
 The transcript counts strictly: normalised (case, punctuation, fillers such as "um" set aside),
 it must *be* a phrase of the vocabulary; anything else is unclear. Whisper's own signals reject
@@ -29,6 +40,7 @@ from __future__ import annotations
 import re
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib.metadata import version
@@ -75,9 +87,9 @@ SOT = "<|startoftranscript|>"
 NO_TIMESTAMPS = "<|notimestamps|>"
 EOT = "<|endoftext|>"
 PREVIOUS = "<|startofprev|>"
-USE_PROMPT = False
-"""Whether the decode is primed with the vocabulary's phrases as "previous text" (off:
-docs/performance.md measured what it does to non-answers)."""
+DECODE_DURING_WAIT = True
+"""Whether an utterance starts decoding its stretch before the endpointer calls the end (see the
+module's docstring; ``bench/speech.py --no-early-decode`` measures without)."""
 
 
 def _mel_filters() -> np.ndarray:
@@ -180,7 +192,13 @@ class WhisperModel:
         self._previous = ids[PREVIOUS]
         self.eot = ids[EOT]
         self._group, self._ending = self._spellings()
+        self._workers = ThreadPoolExecutor(inter_threads, thread_name_prefix="whisper-decode")
         self.load_seconds = time.perf_counter() - started
+
+    def submit(self, audio: np.ndarray, prompt: list[int] | None) -> Future[Transcript]:
+        """:meth:`transcribe` on one of the model's decode threads (one per CTranslate2 worker,
+        so a decode started early never waits behind the caller's own thread)."""
+        return self._workers.submit(self.transcribe, audio, prompt=prompt)
 
     def _spellings(self) -> tuple[np.ndarray, np.ndarray]:
         """Per token up to the end of text: a group number shared by the tokens that spell the
@@ -363,13 +381,17 @@ class Recognition:
 class Recognizer:
     """Recognises yes/no answers among a vocabulary's phrases (thread-safe; reuse it)."""
 
-    def __init__(self, vocabulary: Vocabulary, model: WhisperModel | None = None) -> None:
+    def __init__(
+        self, vocabulary: Vocabulary, model: WhisperModel | None = None, *, prompt: bool = True
+    ) -> None:
+        """``prompt``: prime every decode with the vocabulary's phrases (the protocol's
+        ``[speech] prompt_phrases``)."""
         if not vocabulary.phrases:
             raise ValueError("the vocabulary has no phrases")
         self.vocabulary = vocabulary
         self.model = model or shared_model()
         self.engine = engine_name()
-        self.prompt = self.model.phrase_prompt(vocabulary.phrases) if USE_PROMPT else None
+        self.prompt = self.model.phrase_prompt(vocabulary.phrases) if prompt else None
 
     def recognize(self, pcm: bytes) -> Recognition:
         """A whole utterance (16 kHz mono int16 LE) at once."""
@@ -390,11 +412,14 @@ class Recognizer:
 
 
 class Utterance:
-    """One participant's answer, streamed in (:meth:`feed`) and decoded on :meth:`finish`."""
+    """One participant's answer, streamed in (:meth:`feed`), decoded as soon as its speech
+    stretch is complete, and decided on :meth:`finish`."""
 
     def __init__(self, recognizer: Recognizer) -> None:
         self._recognizer = recognizer
         self._buffer = SpeechBuffer(SAMPLE_RATE)
+        self._early: tuple[tuple[int, int], Future[Transcript]] | None = None
+        """The stretch (byte offsets) decoding ahead of :meth:`finish`, and its decode."""
 
     @property
     def speech_ended(self) -> bool:
@@ -407,20 +432,39 @@ class Utterance:
         return self._buffer.speech_started
 
     def feed(self, pcm: bytes) -> None:
-        """More audio (16 kHz mono int16 LE, any length), kept in memory until :meth:`finish`."""
+        """More audio (16 kHz mono int16 LE, any length), kept in memory until :meth:`finish`;
+        a complete speech stretch starts decoding at once."""
         self._buffer.feed(pcm)
+        if DECODE_DURING_WAIT:
+            self._decode_early()
+
+    def _decode_early(self) -> None:
+        """Start decoding the speech stretch once it is complete, unless that very stretch is
+        decoding already; one early decode at a time (a stale one is let finish first, so a
+        participant pausing often cannot pile decodes up)."""
+        stretch = self._buffer.complete_stretch(PAD_SECONDS)
+        early = self._early
+        if stretch is None or (early is not None and (early[0] == stretch or not early[1].done())):
+            return
+        audio = _floats(self._buffer.audio(*stretch))
+        recognizer = self._recognizer
+        self._early = (stretch, recognizer.model.submit(audio, recognizer.prompt))
 
     def finish(self) -> Recognition:
-        """Close the utterance and decide (silence when the endpointer heard no speech)."""
+        """Close the utterance and decide (silence when the endpointer heard no speech): the
+        early decode's transcript when its stretch is still the speech, else a decode now."""
         self._buffer.close()
         started = time.perf_counter()
         recognizer = self._recognizer
         words, confidence, heard = "", 0.0, None
         transcript: Transcript | None = None
-        _, stretch = self._buffer.padded_speech(PAD_SECONDS)
+        first, stretch = self._buffer.padded_speech(PAD_SECONDS)
+        early, self._early = self._early, None
         if stretch:
-            speech = np.frombuffer(stretch, "<i2").astype(np.float32) / 32768.0
-            transcript = recognizer.model.transcribe(speech, prompt=recognizer.prompt)
+            if early is not None and early[0] == (first, first + len(stretch)):
+                transcript = early[1].result()
+            else:
+                transcript = recognizer.model.transcribe(_floats(stretch), prompt=recognizer.prompt)
             words, confidence = recognizer.decide(transcript)
             heard = Heard(words, confidence)
         return Recognition(
@@ -435,5 +479,14 @@ class Utterance:
         )
 
     def abandon(self) -> None:
-        """Forget the utterance unheard: its audio is dropped without a decode."""
+        """Forget the utterance unheard: its audio is dropped, and an early decode not yet
+        started is cancelled (one under way runs out; its transcript is dropped)."""
         self._buffer.drop()
+        if self._early is not None:
+            self._early[1].cancel()
+            self._early = None
+
+
+def _floats(pcm: bytes) -> np.ndarray:
+    """16-bit PCM as the floats Whisper's front end takes."""
+    return np.frombuffer(pcm, "<i2").astype(np.float32) / 32768.0

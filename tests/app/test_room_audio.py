@@ -30,7 +30,7 @@ from starlette.websockets import WebSocketDisconnect
 from app.protocol import ProtocolError, parse_protocol
 from app.services import studies
 from app.services.audit import Actor
-from app.speech.pool import RecognitionUnavailable, RecognizerPool
+from app.speech.pool import EngineSettings, RecognitionUnavailable, RecognizerPool
 from app.speech.synthesis import with_true_sizes
 from app.speech.vocabulary import Vocabulary
 from app.speech.wav import decode_wav
@@ -98,7 +98,7 @@ class ScriptedRecognizer:
 
     script: list[Heard] = field(default_factory=list)
     vocabularies: list[Vocabulary] = field(default_factory=list)
-    engines: list[str] = field(default_factory=list)
+    engines: list[EngineSettings] = field(default_factory=list)
     loops_seen: list[bool] = field(default_factory=list)
     finished: list[ScriptedUtterance] = field(default_factory=list)
     abandoned: list[ScriptedUtterance] = field(default_factory=list)
@@ -111,7 +111,7 @@ class ScriptedRecognizer:
 def recognizer(lab: Lab) -> ScriptedRecognizer:
     scripted = ScriptedRecognizer()
 
-    def make(vocabulary: Vocabulary, engine: str) -> ScriptedRecognizer:
+    def make(vocabulary: Vocabulary, engine: EngineSettings) -> ScriptedRecognizer:
         scripted.vocabularies.append(vocabulary)
         scripted.engines.append(engine)
         return scripted
@@ -191,7 +191,7 @@ def test_a_spoken_yes_is_recognised_on_the_server_and_recorded_once(
     assert recognizer.vocabularies == [
         Vocabulary.of(["yes", "yeah", "yep", "sure"], ["no", "nope", "no way"], 0.4)
     ]
-    assert recognizer.engines == ["whisper"]  # the default engine
+    assert recognizer.engines == [EngineSettings("whisper", prompt=True)]  # the defaults
     assert lab.robot.get("/api/v1/station").json()["open_prompts"] == []
     assert _recordings(lab) == 0
 
@@ -199,7 +199,14 @@ def test_a_spoken_yes_is_recognised_on_the_server_and_recorded_once(
 def test_a_study_may_choose_pocketsphinx_and_each_engine_is_built_once(
     lab: Lab, recognizer: ScriptedRecognizer
 ) -> None:
-    chosen = _seated_in(lab, "sphinx", **{'# engine = "whisper"': 'engine = "pocketsphinx"'})
+    chosen = _seated_in(
+        lab,
+        "sphinx",
+        **{
+            '# engine = "whisper"': 'engine = "pocketsphinx"',
+            "# prompt_phrases = true": "prompt_phrases = false",
+        },
+    )
     step = _open_step(chosen)
     recognizer.script += [Heard("no", "nope", 0.8)]
     with chosen.robot.websocket_connect(AUDIO) as ws:
@@ -212,8 +219,10 @@ def test_a_study_may_choose_pocketsphinx_and_each_engine_is_built_once(
         _receive(ws, "listening")
         _speak(ws)
         assert _receive(ws, "answer")["data"]["answer"] == "no"
-    assert recognizer.engines == ["pocketsphinx"]  # built once, shared by both listens
-    assert chosen.robot.get("/api/v1/station/speech").json()["engine"] == "pocketsphinx"
+    # built once, shared by both listens
+    assert recognizer.engines == [EngineSettings("pocketsphinx", prompt=False)]
+    settings = chosen.robot.get("/api/v1/station/speech").json()
+    assert (settings["engine"], settings["prompt_phrases"]) == ("pocketsphinx", False)
 
 
 def test_unclear_speech_and_silence_are_asked_again_and_nothing_is_stored(
@@ -357,7 +366,7 @@ def test_an_unknown_key_is_refused(lab: Lab) -> None:
 
 
 def test_without_an_offline_recogniser_the_room_is_told_in_one_line(lab: Lab) -> None:
-    def missing(vocabulary: Vocabulary, engine: str) -> Any:
+    def missing(vocabulary: Vocabulary, engine: EngineSettings) -> Any:
         raise RecognitionUnavailable("offline speech recognition is unavailable on this server")
 
     lab.app.state.recognizers = RecognizerPool(missing)

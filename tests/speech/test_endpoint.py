@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.speech.endpoint import FRAME_SECONDS, Endpointer, level_dbfs
+from app.speech.endpoint import FRAME_SECONDS, Endpointer, SpeechBuffer, level_dbfs
 from app.speech.recognizer import SAMPLE_RATE, read_wav
 
 DATA = Path(__file__).parent / "data"
 FRAME = round(SAMPLE_RATE * FRAME_SECONDS)
+PAD = 0.2
 
 
 def samples(name: str) -> np.ndarray:
@@ -79,3 +80,34 @@ def test_steady_loud_noise_alone_is_not_speech() -> None:
 def test_levels_are_relative_to_full_scale() -> None:
     assert level_dbfs(to_pcm(np.full(FRAME, 32767.0))) == pytest.approx(0.0, abs=0.01)
     assert level_dbfs(bytes(2 * FRAME)) == -120.0
+
+
+def test_a_lone_loud_frame_in_the_closing_quiet_does_not_move_the_stretch() -> None:
+    word = samples("yes")
+    word = word[: word.size - word.size % FRAME]  # the knock falls on one whole frame
+    loudest = int(np.argmax(np.convolve(word**2, np.ones(FRAME), "valid")))
+    knock = word[loudest : loudest + FRAME]  # one frame of the vowel: the detector's speech
+    rng = np.random.default_rng(3)
+    lead, pause, tail = (rng.normal(0, 30, int(s * SAMPLE_RATE)) for s in (0.3, 0.5, 1.0))
+    buffer = SpeechBuffer(SAMPLE_RATE)
+    buffer.feed(to_pcm(np.concatenate([lead, word, pause])))
+    before = buffer.complete_stretch(PAD)
+    buffer.feed(to_pcm(np.concatenate([knock, tail])))
+    endpointer = buffer._endpointer
+    assert endpointer.last_speech_frame > endpointer.last_word_frame + 20  # the knock was speech
+    assert before is not None and buffer.complete_stretch(PAD) == before
+    first, stretch = buffer.padded_speech(PAD)
+    assert (first, first + len(stretch)) == before
+    assert buffer.speech_ended
+
+
+def test_the_stretch_is_complete_only_once_its_padding_has_arrived() -> None:
+    word = to_pcm(samples("nope"))
+    buffer = SpeechBuffer(SAMPLE_RATE)
+    buffer.feed(bytes(2 * FRAME * 15) + word)
+    assert buffer.complete_stretch(PAD) is None  # the padding after the word is still to come
+    buffer.feed(bytes(2 * FRAME * 20))
+    stretch = buffer.complete_stretch(PAD)
+    assert stretch is not None
+    assert buffer.audio(*stretch) == buffer.padded_speech(PAD)[1]
+    assert buffer.complete_stretch(PAD) is None  # closed: nothing more is decoded early

@@ -308,6 +308,19 @@ def test_the_command_uses_a_protocols_engine(tmp_path: Path) -> None:
     assert json.loads(done.stdout)["engine"].startswith("pocketsphinx")
 
 
+def test_the_command_primes_whisper_as_the_protocol_or_the_option_says(tmp_path: Path) -> None:
+    unprimed = _protocol(tmp_path, {"# prompt_phrases = true": "prompt_phrases = false"})
+    command = ["speech", "recognize", str(DATA / "yes.wav"), "--json"]
+    default = json.loads(runner.invoke(cli, command).stdout)
+    from_protocol = json.loads(runner.invoke(cli, [*command, "--protocol", str(unprimed)]).stdout)
+    overridden = runner.invoke(cli, [*command, "--protocol", str(unprimed), "--prompt-phrases"])
+    assert (default["prompt_phrases"], from_protocol["prompt_phrases"]) == (True, False)
+    assert json.loads(overridden.stdout)["prompt_phrases"] is True
+    assert default["answer"] == from_protocol["answer"] == "yes"
+    sphinx = runner.invoke(cli, [*command, "--engine", "pocketsphinx"])
+    assert json.loads(sphinx.stdout)["prompt_phrases"] is False  # a Whisper setting only
+
+
 def test_the_command_refuses_a_file_that_is_no_wav(tmp_path: Path) -> None:
     bogus = tmp_path / "notes.wav"
     bogus.write_text("just text")

@@ -13,6 +13,7 @@ import pytest
 
 from app.speech import whisper
 from app.speech.engines import make_recognizer
+from app.speech.pool import EngineSettings
 from app.speech.vocabulary import Heard, Vocabulary
 from app.speech.wav import read_wav
 from app.speech.whisper import Recognizer, Transcript, answer_words, log_mel, shared_model
@@ -229,3 +230,73 @@ def test_the_engine_is_chosen_by_name() -> None:
     assert isinstance(make_recognizer(Vocabulary(), "whisper"), Recognizer)
     with pytest.raises(ValueError, match="unknown recogniser engine"):
         make_recognizer(Vocabulary(), "vosk")
+
+
+@pytest.fixture
+def decoded(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The shared model counts its decodes: the samples of audio each was given."""
+    model = shared_model()
+    sizes: list[int] = []
+    transcribe = model.transcribe
+
+    def counted(audio: np.ndarray, **kwargs: Any) -> Transcript:
+        sizes.append(audio.size)
+        return transcribe(audio, **kwargs)
+
+    monkeypatch.setattr(model, "transcribe", counted)
+    return sizes
+
+
+def _stream(recognizer: Recognizer, pcm: bytes) -> whisper.Recognition:
+    utterance = recognizer.utterance()
+    for start in range(0, len(pcm), FRAME_BYTES):
+        utterance.feed(pcm[start : start + FRAME_BYTES])
+    return utterance.finish()
+
+
+@pytest.mark.timeout(60)
+def test_the_stretch_decoded_during_the_wait_is_the_answer_and_not_decoded_again(
+    recognizer: Recognizer, decoded: list[int], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pcm = quiet(0.3, 1) + read_wav(DATA / "nope.wav") + quiet(1.2, 2)
+    heard = _stream(recognizer, pcm)
+    assert len(decoded) == 1  # decoded once, during the endpointer's wait
+    monkeypatch.setattr(whisper, "DECODE_DURING_WAIT", False)
+    late = _stream(recognizer, pcm)
+    assert len(decoded) == 2
+    assert (heard.answer, heard.transcript, heard.heard) == ("no", late.transcript, late.heard)
+    assert heard.confidence == late.confidence
+
+
+@pytest.mark.timeout(60)
+def test_speech_that_resumes_after_a_pause_is_decoded_whole(
+    recognizer: Recognizer, decoded: list[int]
+) -> None:
+    yes, no = read_wav(DATA / "yes.wav"), read_wav(DATA / "nope.wav")
+    pcm = quiet(0.3, 1) + yes + quiet(0.45, 2) + no + quiet(1.2, 3)
+    heard = _stream(recognizer, pcm)
+    assert len(decoded) >= 2  # the "yes" alone early, then the whole
+    assert max(decoded) >= (len(yes) + len(no)) // 2 + 0.45 * 16000  # both words and the pause
+    assert heard.answer is None  # "yes … nope" is no phrase: asked again
+
+
+def test_an_abandoned_utterance_drops_its_early_decode(recognizer: Recognizer) -> None:
+    utterance = recognizer.utterance()
+    pcm = quiet(0.3, 1) + read_wav(DATA / "yes.wav") + quiet(0.4, 2)
+    for start in range(0, len(pcm), FRAME_BYTES):
+        utterance.feed(pcm[start : start + FRAME_BYTES])
+    assert utterance._early is not None  # the stretch was complete: decoding began
+    utterance.abandon()
+    assert utterance._early is None
+    with pytest.raises(RuntimeError):
+        utterance.finish()
+
+
+def test_priming_with_the_phrases_is_a_setting_of_the_engine() -> None:
+    primed = make_recognizer(Vocabulary(), EngineSettings("whisper", prompt=True))
+    plain = make_recognizer(Vocabulary(), EngineSettings("whisper", prompt=False))
+    assert isinstance(primed, Recognizer) and isinstance(plain, Recognizer)
+    assert plain.prompt is None
+    assert primed.prompt is not None and primed.prompt[0] == primed.model.phrase_prompt([])[0]
+    assert "No way." in primed.model.text(primed.prompt[1:])
+    assert make_recognizer(Vocabulary(), "whisper").prompt is not None  # type: ignore[attr-defined]
