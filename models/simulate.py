@@ -120,7 +120,13 @@ class BatchMetaPolicy:
         self.trace: np.ndarray = np.zeros(checkpoint.n_arms)  # broadcast to (n, K) on update
 
     def probabilities(self) -> np.ndarray:
-        """π for every participant (a single row while all still share the start)."""
+        """π for every participant (a single row while all still share the start), calibrated
+        by the checkpoint's temperature, as :meth:`MetaPolicyLearner.probabilities` is."""
+        c = self.checkpoint
+        return np.atleast_2d(probabilities(self.params, c.observation, self.offset, c.temperature))
+
+    def _policy(self) -> np.ndarray:
+        """The trained policy, untempered (its update and gates use it)."""
         return np.atleast_2d(probabilities(self.params, self.checkpoint.observation, self.offset))
 
     def update(self, actions: np.ndarray, rewards: np.ndarray) -> None:
@@ -130,7 +136,7 @@ class BatchMetaPolicy:
         p_asked: np.ndarray | float = 1.0  # only surprise gates need it
         if c.gates is not None:
             p_asked = np.take_along_axis(
-                np.broadcast_to(self.probabilities(), (len(actions), c.n_arms)),
+                np.broadcast_to(self._policy(), (len(actions), c.n_arms)),
                 np.asarray(actions)[:, None],
                 axis=1,
             )[:, 0]
