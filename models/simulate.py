@@ -125,7 +125,7 @@ class BatchMetaPolicy:
         c = self.checkpoint
         return np.atleast_2d(probabilities(self.params, c.observation, self.offset, c.temperature))
 
-    def _policy(self) -> np.ndarray:
+    def policy(self) -> np.ndarray:
         """The trained policy, untempered (its update and gates use it)."""
         return np.atleast_2d(probabilities(self.params, self.checkpoint.observation, self.offset))
 
@@ -136,7 +136,7 @@ class BatchMetaPolicy:
         p_asked: np.ndarray | float = 1.0  # only surprise gates need it
         if c.gates is not None:
             p_asked = np.take_along_axis(
-                np.broadcast_to(self._policy(), (len(actions), c.n_arms)),
+                np.broadcast_to(self.policy(), (len(actions), c.n_arms)),
                 np.asarray(actions)[:, None],
                 axis=1,
             )[:, 0]

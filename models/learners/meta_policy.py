@@ -219,8 +219,9 @@ class MetaPolicyLearner:
             self._params, self.checkpoint.observation, self._offset, self.checkpoint.temperature
         )
 
-    def _policy(self) -> np.ndarray:
-        """The trained policy, untempered: what its update and surprise gates were trained on."""
+    def policy(self) -> np.ndarray:
+        """The trained policy, untempered: what its update and surprise gates were trained on
+        (equal to :meth:`probabilities` for a checkpoint without a temperature)."""
         return probabilities(self._params, self.checkpoint.observation, self._offset)
 
     def select(self, rng: np.random.Generator) -> int:
@@ -243,7 +244,7 @@ class MetaPolicyLearner:
         r = check_reward(reward)
         # Only surprise gates need the asked question's probability: no extra forward pass else.
         # The trained policy's, not the tempered one: the gates were trained on it.
-        p_asked = self._policy()[a] if self.checkpoint.gates is not None else 1.0
+        p_asked = self.policy()[a] if self.checkpoint.gates is not None else 1.0
         parts = self.checkpoint.trace_parts(self._trace, a)
         step, retention = self.checkpoint.step_and_retention(
             self._answers, p_asked, r, self._memory, parts

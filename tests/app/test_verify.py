@@ -273,7 +273,7 @@ def test_verify_replays_a_learner_on_a_calibrated_checkpoint(lab: Lab, tmp_path:
     for _, state in rows:  # the last answer stored what the tempered learner reports
         learner = MetaPolicyLearner(hot)
         learner.load_state_dict(state)
-        logits = np.log(learner._policy())
+        logits = np.log(learner.policy())
         tempered, trained = softmax(logits / 1.3), softmax(logits)
         assert any(np.allclose(p, tempered, rtol=0, atol=1e-12) for p in after)
         assert not any(np.allclose(p, trained, rtol=0, atol=1e-6) for p in after)
