@@ -199,9 +199,10 @@ class Checkpoint:
         None: they depend on the answer's number only.
     temperature
         A calibration of the policy's output, chosen after training: a learner asks with, and
-        reports, ``softmax(logits / temperature)``; its update (and every surprise gate) is the
-        trained one, on the untempered policy. 1: the trained policy as it is (a checkpoint
-        without the field, :func:`with_temperature`).
+        reports, the policy with its logits' departure from the prior divided by the
+        temperature (:meth:`calibrate`); its update (and every surprise gate) is the trained
+        one, on the untempered policy. 1: the trained policy as it is (a checkpoint without
+        the field, :func:`with_temperature`).
     config, metrics
         The training arguments and the figures training measured.
     """
@@ -231,10 +232,28 @@ class Checkpoint:
         is part of what meta-training learned from its tasks (a population's, issue 20), and
         the Appendix's comparison asks what the update rule does without it. For a checkpoint
         trained on the uniform prior the two are the same."""
+        prior = self.anchor_prior(random_init=random_init)
+        return None if prior is None else anchor_offset(prior, initial, self.observation)
+
+    def anchor_prior(self, *, random_init: bool = False) -> np.ndarray | None:
+        """The prior a learner's policy is anchored at (:meth:`offset_for`; None: not
+        anchored)."""
         if self.prior is None:
             return None
-        prior = np.full(self.n_arms, 1.0 / self.n_arms) if random_init else self.prior
-        return anchor_offset(prior, initial, self.observation)
+        return np.full(self.n_arms, 1.0 / self.n_arms) if random_init else self.prior
+
+    def calibrate(self, logits: np.ndarray, prior: np.ndarray | None) -> np.ndarray:
+        """``logits`` (…, K) calibrated by the temperature: ``log p + (logits − log p) / T``
+        for a policy anchored at the prior ``p`` (:meth:`anchor_prior`), so the temperature
+        scales what the learner has learned and the start stays the prior exactly, or
+        ``logits / T`` for one that is not anchored. ``logits`` themselves when ``T`` is 1, to
+        the last bit."""
+        if self.temperature == 1.0:
+            return logits
+        if prior is None:
+            return logits / self.temperature
+        log_prior = np.log(prior)
+        return log_prior + (logits - log_prior) / self.temperature
 
     def retention_after(self, answer_index: int) -> float:
         """ρ of the forgetting step after answer number ``answer_index`` (0-based; 1: none),

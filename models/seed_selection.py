@@ -32,7 +32,6 @@ from models.checkpoints import Checkpoint, trained_feedback
 from models.feedback import FeedbackModel
 from models.inner_loops import sample_online_batch
 from models.learners.belief import BatchBelief
-from models.learners.mlp_policy import hidden_and_logits
 from models.pretrain_config import PretrainArgs
 from models.simulate import BatchMetaPolicy, Scenario, simulate_adaptation
 
@@ -101,8 +100,7 @@ def filter_validation(
 def _log_probabilities(learner: BatchMetaPolicy) -> np.ndarray:
     """log π from the logits, as training's ``log_softmax`` does: finite where π rounds to 0
     (π calibrated by the checkpoint's temperature, as the learner reports it)."""
-    c = learner.checkpoint
-    logits = hidden_and_logits(learner.params, c.observation, learner.offset)[1] / c.temperature
+    logits = learner.logits()
     shifted = logits - logits.max(axis=-1, keepdims=True)
     return shifted - np.log(np.exp(shifted).sum(axis=-1, keepdims=True))
 

@@ -28,10 +28,12 @@ from models.learners.base import (
 from models.learners.mlp_policy import (
     PARAM_NAMES,
     Params,
+    hidden_and_logits,
     init_params,
     param_shapes,
     probabilities,
     retain,
+    softmax,
     update_params,
 )
 
@@ -213,11 +215,13 @@ class MetaPolicyLearner:
 
     def probabilities(self) -> np.ndarray:
         """The probability of asking each question (float64, sums to one): the policy,
-        calibrated by the checkpoint's temperature (:attr:`Checkpoint.temperature`; 1 for
-        most). What the learner asks with and what its replies and figures report."""
-        return probabilities(
-            self._params, self.checkpoint.observation, self._offset, self.checkpoint.temperature
-        )
+        calibrated by the checkpoint's temperature (:meth:`Checkpoint.calibrate`; most have
+        none). What the learner asks with and what its replies and figures report."""
+        c = self.checkpoint
+        if c.temperature == 1.0:
+            return self.policy()
+        logits = hidden_and_logits(self._params, c.observation, self._offset)[1]
+        return softmax(c.calibrate(logits, c.anchor_prior(random_init=self._random)))
 
     def policy(self) -> np.ndarray:
         """The trained policy, untempered: what its update and surprise gates were trained on

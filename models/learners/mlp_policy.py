@@ -109,13 +109,9 @@ def softmax(logits: np.ndarray) -> np.ndarray:
     return z / z.sum(axis=-1, keepdims=True)
 
 
-def probabilities(
-    params: Params, obs: np.ndarray, offset: np.ndarray | None = None, temperature: float = 1.0
-) -> np.ndarray:
-    """The policy π over the K questions (…, K), float64; with a ``temperature``, the
-    calibrated ``softmax(logits / temperature)`` a checkpoint asks with and reports (dividing
-    by 1 changes no bit, so 1 is the trained policy exactly)."""
-    return softmax(hidden_and_logits(params, obs, offset)[1] / temperature)
+def probabilities(params: Params, obs: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
+    """The policy π over the K questions (…, K), float64."""
+    return softmax(hidden_and_logits(params, obs, offset)[1])
 
 
 def anchor_offset(prior: np.ndarray, initial: Params, obs: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ from models.learners.meta_policy import MetaPolicyLearner
 from models.learners.mlp_policy import hidden_and_logits, softmax
 from models.seed_selection import filter_validation, temperature_candidates
 from models.simulate import BatchMetaPolicy
+from tests.models.conftest import make_checkpoint
 
 ANSWERS = [(0, 1.0), (1, 0.0), (2, 0.0), (3, 1.0), (3, 1.0), (0, 0.0), (3, 1.0)]
 """Two noes, a yes, a confirmation, a contradiction: every gate of the shipped checkpoint moves."""
@@ -100,9 +101,33 @@ def test_a_tempered_learner_asks_with_the_tempered_policy_and_learns_as_trained(
     plain, warm = _feed(MetaPolicyLearner(trained)), _feed(MetaPolicyLearner(tempered))
     assert _weights(warm) == _weights(plain)
     logits = hidden_and_logits(warm._params, tempered.observation, warm._offset)[1]
-    np.testing.assert_array_equal(warm.probabilities(), softmax(logits / 1.3))
+    # A uniform prior: the departure from it over T is the logits over T, up to a constant.
+    np.testing.assert_allclose(warm.probabilities(), softmax(logits / 1.3), rtol=0, atol=1e-15)
     np.testing.assert_array_equal(plain.probabilities(), softmax(logits))
+    np.testing.assert_array_equal(warm.policy(), plain.probabilities())
     assert warm.probabilities().max() < plain.probabilities().max()
+
+
+def test_a_temperature_scales_what_was_learned_and_the_start_stays_the_prior(
+    tmp_path: Path,
+) -> None:
+    """With a prior of its own (a population's) a tempered learner still asks the first
+    question with the prior exactly; after answers its logits' departure from the prior is
+    the trained policy's over T."""
+    prior = (0.4, 0.3, 0.2, 0.1)
+    trained = make_checkpoint(tmp_path / "pop", rule="natural_expected", prior=prior)
+    hot = dataclasses.replace(trained, temperature=1.5)
+    learner = MetaPolicyLearner(hot)
+    np.testing.assert_allclose(learner.probabilities(), prior, rtol=0, atol=1e-15)
+    for action, reward in ANSWERS:
+        learner.update(action, reward)
+    policy, tempered = np.log(learner.policy()), np.log(learner.probabilities())
+    departure = (policy - np.log(prior)) / 1.5 + np.log(prior)
+    np.testing.assert_allclose(
+        tempered - tempered.mean(), departure - departure.mean(), rtol=0, atol=1e-12
+    )
+    batch = BatchMetaPolicy(hot)
+    np.testing.assert_allclose(batch.probabilities()[0], prior, rtol=0, atol=1e-15)
 
 
 def test_a_temperature_of_one_is_the_trained_policy_bit_for_bit() -> None:
