@@ -16,8 +16,10 @@ import pytest
 from models.checkpoints import (
     HASH_FILE,
     PRETRAINED_DIR,
+    RETIRED_DIR,
     WEIGHTS_FILE,
     Checkpoint,
+    find_by_sha256,
     load_checkpoint,
     shipped_checkpoint,
     with_temperature,
@@ -199,3 +201,20 @@ def test_temperature_candidates_score_the_tempered_policy() -> None:
     assert found[1][1].figures != found[0][1].figures
     with pytest.raises(ValueError, match="calibrated already"):
         temperature_candidates(dataclasses.replace(trained, temperature=1.1), (1.0,))
+
+
+def test_the_shipped_cognition_checkpoint_calibrates_the_retired_one() -> None:
+    """What ships is the trained weights, bit for bit, plus the temperature the selection chose;
+    the checkpoint it calibrates stays restorable among the retired ones."""
+    shipped = load_checkpoint(shipped_checkpoint(4, "cognition", directory=PRETRAINED_DIR), 4)
+    note = shipped.metrics["temperature"]
+    assert shipped.temperature == note["value"] != 1.0
+    source = find_by_sha256(note["calibrates"], [RETIRED_DIR])
+    assert source is not None
+    trained = load_checkpoint(source)
+    assert trained.temperature == 1.0 and trained.config == shipped.config
+    for name, array in trained.params.items():
+        assert shipped.params[name].tobytes() == array.tobytes()
+    weights = json.loads((shipped.path / WEIGHTS_FILE).read_text())
+    del weights["temperature"]
+    assert weights == json.loads((trained.path / WEIGHTS_FILE).read_text())
