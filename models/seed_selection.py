@@ -253,7 +253,7 @@ def best_by_validation(scores: list[Score]) -> Score:
 TEMPERATURES: tuple[float, ...] = tuple(round(1.0 + 0.0025 * i, 4) for i in range(41))
 """The temperatures :func:`temperature_candidates` tries: 1 (the checkpoint as trained) to 1.1
 in steps of .0025. Only ≥ 1: a temperature below 1 sharpens the policy, which makes it
-confidently wrong more often, the figure a calibration is for. Above about 1.05 the shipped
+confidently wrong more often, the figure a calibration is for. Above about 1.03 the shipped
 cognition checkpoint already needs > 1.1 × the filter's answers (docs/engine.md)."""
 
 
