@@ -197,6 +197,12 @@ class Checkpoint:
     gates
         How the surprise of an answer scales its step and forgetting (:class:`SurpriseGates`);
         None: they depend on the answer's number only.
+    temperature
+        A calibration of the policy's output, chosen after training: a learner asks with, and
+        reports, the policy with its logits' departure from the prior divided by the
+        temperature (:meth:`calibrate`); its update (and every surprise gate) is the trained
+        one, on the untempered policy. 1: the trained policy as it is (a checkpoint without
+        the field, :func:`with_temperature`).
     config, metrics
         The training arguments and the figures training measured.
     """
@@ -215,6 +221,7 @@ class Checkpoint:
     prior: np.ndarray | None = None
     retention: np.ndarray | None = None
     gates: SurpriseGates | None = None
+    temperature: float = 1.0
     config: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
 
@@ -225,10 +232,28 @@ class Checkpoint:
         is part of what meta-training learned from its tasks (a population's, issue 20), and
         the Appendix's comparison asks what the update rule does without it. For a checkpoint
         trained on the uniform prior the two are the same."""
+        prior = self.anchor_prior(random_init=random_init)
+        return None if prior is None else anchor_offset(prior, initial, self.observation)
+
+    def anchor_prior(self, *, random_init: bool = False) -> np.ndarray | None:
+        """The prior a learner's policy is anchored at (:meth:`offset_for`; None: not
+        anchored)."""
         if self.prior is None:
             return None
-        prior = np.full(self.n_arms, 1.0 / self.n_arms) if random_init else self.prior
-        return anchor_offset(prior, initial, self.observation)
+        return np.full(self.n_arms, 1.0 / self.n_arms) if random_init else self.prior
+
+    def calibrate(self, logits: np.ndarray, prior: np.ndarray | None) -> np.ndarray:
+        """``logits`` (…, K) calibrated by the temperature: ``log p + (logits − log p) / T``
+        for a policy anchored at the prior ``p`` (:meth:`anchor_prior`), so the temperature
+        scales what the learner has learned and the start stays the prior exactly, or
+        ``logits / T`` for one that is not anchored. ``logits`` themselves when ``T`` is 1, to
+        the last bit."""
+        if self.temperature == 1.0:
+            return logits
+        if prior is None:
+            return logits / self.temperature
+        log_prior = np.log(prior)
+        return log_prior + (logits - log_prior) / self.temperature
 
     def retention_after(self, answer_index: int) -> float:
         """ρ of the forgetting step after answer number ``answer_index`` (0-based; 1: none),
@@ -374,11 +399,12 @@ def write_checkpoint(
     prior: np.ndarray | None = None,
     retention: np.ndarray | None = None,
     gates: SurpriseGates | None = None,
+    temperature: float | None = None,
 ) -> Checkpoint:
     """Write a checkpoint directory (created if needed) and return it loaded back and verified.
 
-    ``prior``, ``retention`` and ``gates`` are written only when given, so a checkpoint without
-    them has the same bytes (and hash) as before they existed."""
+    ``prior``, ``retention``, ``gates`` and ``temperature`` are written only when given, so a
+    checkpoint without them has the same bytes (and hash) as before they existed."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     weights: dict[str, Any] = {
@@ -415,6 +441,8 @@ def write_checkpoint(
             }
             if gates.trace_kind != "surprise":  # absent: the first kind, so its hashes stay
                 weights["surprise"]["trace_kind"] = gates.trace_kind
+    if temperature is not None:
+        weights["temperature"] = _check_temperature(temperature, directory / WEIGHTS_FILE)
     data = _dump(weights)
     (directory / WEIGHTS_FILE).write_bytes(data)
     (directory / HASH_FILE).write_text(f"{_digest(data)}  {WEIGHTS_FILE}\n")
@@ -548,6 +576,11 @@ def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Check
         if np.any(retention <= 0) or np.any(retention > 1):
             raise ValueError(f"checkpoint {weights_path}: 'retention' must lie in (0, 1]")
     gates = _gates(weights.get("surprise"), horizon, weights_path, retention is not None)
+    temperature = (
+        _check_temperature(weights["temperature"], weights_path)
+        if "temperature" in weights
+        else 1.0
+    )
     config = _read_json(directory / CONFIG_FILE)
     metrics = _read_json(directory / METRICS_FILE)
     if not isinstance(config, dict) or not isinstance(metrics, dict):
@@ -567,9 +600,32 @@ def load_checkpoint(path: Path | str, expected_arms: int | None = None) -> Check
         prior=prior,
         retention=retention,
         gates=gates,
+        temperature=temperature,
         config=config,
         metrics=metrics,
     )
+
+
+TEMPERATURE_RANGE = (0.5, 2.0)
+"""The temperatures a checkpoint may hold: a calibration of a trained policy moves it a few
+per cent (the shipped cognition checkpoint's 1.02); outside this range it would be a different
+policy, not a calibrated one."""
+
+
+def _check_temperature(value: Any, where: Path) -> float:
+    """``value`` as a checkpoint's temperature, or a ValueError naming ``where``."""
+    low, high = TEMPERATURE_RANGE
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not math.isfinite(value)
+        or not low <= value <= high
+    ):
+        raise ValueError(
+            f"checkpoint {where}: 'temperature' must be a number from {low:g} to {high:g}, "
+            f"got {value!r}"
+        )
+    return float(value)
 
 
 def _gates(value: Any, horizon: int, where: Path, forgets: bool) -> SurpriseGates | None:
@@ -611,6 +667,42 @@ def _trace(value: Any, horizon: int, where: Path) -> dict[str, np.ndarray] | Non
             f"checkpoint {where}: 'surprise.trace' must be an object with {', '.join(TRACE_GATES)}"
         )
     return {name: _array(value, name, (horizon,), where) for name in TRACE_GATES}
+
+
+def with_temperature(
+    checkpoint: Checkpoint, temperature: float, directory: Path, *, note: dict[str, Any]
+) -> Checkpoint:
+    """Write a copy of ``checkpoint`` to ``directory`` with ``temperature`` (hashed with the
+    weights, so the copy is a checkpoint of its own) and return it loaded back and verified.
+
+    Its config is the original's (the training that made the weights); its metrics are the
+    original's plus ``temperature``: ``note`` (how the temperature was chosen) and the original's
+    hash, so the copy names what it calibrates.
+    """
+    if checkpoint.temperature != 1.0:
+        raise ValueError(f"checkpoint {checkpoint.path} is calibrated already")
+    metrics = {
+        **checkpoint.metrics,
+        "temperature": {**note, "value": float(temperature), "calibrates": checkpoint.sha256},
+    }
+    return write_checkpoint(
+        directory,
+        n_arms=checkpoint.n_arms,
+        category=checkpoint.category,
+        mode=checkpoint.mode,
+        rule=checkpoint.rule,
+        observation=checkpoint.observation,
+        params=checkpoint.params,
+        step_sizes=checkpoint.step_sizes,
+        baselines=checkpoint.baselines,
+        damping=checkpoint.damping,
+        config=checkpoint.config,
+        metrics=metrics,
+        prior=checkpoint.prior,
+        retention=checkpoint.retention,
+        gates=checkpoint.gates,
+        temperature=temperature,
+    )
 
 
 def find_by_sha256(sha256: str, roots: Sequence[Path]) -> Path | None:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -32,7 +32,6 @@ from models.checkpoints import Checkpoint, trained_feedback
 from models.feedback import FeedbackModel
 from models.inner_loops import sample_online_batch
 from models.learners.belief import BatchBelief
-from models.learners.mlp_policy import hidden_and_logits
 from models.pretrain_config import PretrainArgs
 from models.simulate import BatchMetaPolicy, Scenario, simulate_adaptation
 
@@ -99,8 +98,9 @@ def filter_validation(
 
 
 def _log_probabilities(learner: BatchMetaPolicy) -> np.ndarray:
-    """log π from the logits, as training's ``log_softmax`` does: finite where π rounds to 0."""
-    logits = hidden_and_logits(learner.params, learner.checkpoint.observation, learner.offset)[1]
+    """log π from the logits, as training's ``log_softmax`` does: finite where π rounds to 0
+    (π calibrated by the checkpoint's temperature, as the learner reports it)."""
+    logits = learner.logits()
     shifted = logits - logits.max(axis=-1, keepdims=True)
     return shifted - np.log(np.exp(shifted).sum(axis=-1, keepdims=True))
 
@@ -248,3 +248,35 @@ def best_by_validation(scores: list[Score]) -> Score:
     if not scores:
         raise ValueError("no checkpoints to choose from")
     return max(scores, key=lambda score: score.filter_score)
+
+
+TEMPERATURES: tuple[float, ...] = tuple(round(1.0 + 0.0025 * i, 4) for i in range(41))
+"""The temperatures :func:`temperature_candidates` tries: 1 (the checkpoint as trained) to 1.1
+in steps of .0025. Only ≥ 1: a temperature below 1 sharpens the policy, which makes it
+confidently wrong more often, the figure a calibration is for. Above about 1.03 the shipped
+cognition checkpoint already needs > 1.1 × the filter's answers (docs/engine.md)."""
+
+
+def temperature_candidates(
+    checkpoint: Checkpoint,
+    temperatures: Sequence[float] = TEMPERATURES,
+    *,
+    participants: int = VALIDATION_PARTICIPANTS,
+    score_participants: int = 10_000,
+    seed: int = SELECTION_SEED,
+) -> list[tuple[float, Candidate]]:
+    """``checkpoint`` calibrated by each temperature, as candidates for :func:`select_by_targets`:
+    each one's filter objective (on the fixed validation set, the tempered policy scored) and its
+    target figures on the validation draws, exactly as a trained candidate's are measured. The
+    weights are not touched; only the probability the learner asks with and reports changes
+    (:attr:`models.checkpoints.Checkpoint.temperature`)."""
+    if checkpoint.temperature != 1.0:
+        raise ValueError(f"checkpoint {checkpoint.path} is calibrated already")
+    found = []
+    for temperature in temperatures:
+        tempered = replace(checkpoint, temperature=float(temperature))
+        score = filter_validation(tempered, score_participants, seed)
+        figures = target_validation(tempered, participants, seed)
+        name = f"{checkpoint.path} at temperature {temperature:g}"
+        found.append((float(temperature), Candidate(name, score.filter_score, figures)))
+    return found

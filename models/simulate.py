@@ -29,9 +29,11 @@ from models.learners.belief import BatchBelief
 from models.learners.exp3 import check_gamma
 from models.learners.mlp_policy import (
     Params,
+    hidden_and_logits,
     init_params,
     probabilities,
     retain,
+    softmax,
     update_params,
 )
 from models.replies import DEFAULT_THRESHOLDS, LEVEL_NAMES
@@ -114,13 +116,26 @@ class BatchMetaPolicy:
         self.initial: Params = dict(checkpoint.params if params is None else params)
         self.params: Params = dict(self.initial)
         # One anchor per participant when each has its own start (random ones: uniform).
-        self.offset = checkpoint.offset_for(self.initial, random_init=params is not None)
+        self.random_init = params is not None
+        self.offset = checkpoint.offset_for(self.initial, random_init=self.random_init)
         self.answers = 0
         self.memory: np.ndarray | float = 0.0
         self.trace: np.ndarray = np.zeros(checkpoint.n_arms)  # broadcast to (n, K) on update
 
     def probabilities(self) -> np.ndarray:
-        """π for every participant (a single row while all still share the start)."""
+        """π for every participant (a single row while all still share the start), calibrated
+        by the checkpoint's temperature, as :meth:`MetaPolicyLearner.probabilities` is."""
+        return np.atleast_2d(softmax(self.logits()))
+
+    def logits(self) -> np.ndarray:
+        """The logits the learner asks with: the policy's, calibrated by the checkpoint's
+        temperature (:meth:`Checkpoint.calibrate`)."""
+        c = self.checkpoint
+        logits = hidden_and_logits(self.params, c.observation, self.offset)[1]
+        return c.calibrate(logits, c.anchor_prior(random_init=self.random_init))
+
+    def policy(self) -> np.ndarray:
+        """The trained policy, untempered (its update and gates use it)."""
         return np.atleast_2d(probabilities(self.params, self.checkpoint.observation, self.offset))
 
     def update(self, actions: np.ndarray, rewards: np.ndarray) -> None:
@@ -130,7 +145,7 @@ class BatchMetaPolicy:
         p_asked: np.ndarray | float = 1.0  # only surprise gates need it
         if c.gates is not None:
             p_asked = np.take_along_axis(
-                np.broadcast_to(self.probabilities(), (len(actions), c.n_arms)),
+                np.broadcast_to(self.policy(), (len(actions), c.n_arms)),
                 np.asarray(actions)[:, None],
                 axis=1,
             )[:, 0]

@@ -299,9 +299,11 @@ def _for_arms(scenario: Scenario, arms: int) -> Scenario:
 
 def render(result: dict[str, Any], checkpoint: Checkpoint) -> str:
     """A readable table of the simulation's figures."""
+    calibrated = f", temperature {checkpoint.temperature:g}" if checkpoint.temperature != 1 else ""
     lines = [
         f"{result['participants']} simulated participants, K = {result['arms']}, "
-        f"{result['iterations']} answers; meta = {checkpoint.path} ({checkpoint.sha256[:12]})",
+        f"{result['iterations']} answers; meta = {checkpoint.path} ({checkpoint.sha256[:12]}"
+        f"{calibrated})",
         f"participants: {result['participants_answer']}; reference (bayes): {result['reference']}",
     ]
     population = result.get("population")

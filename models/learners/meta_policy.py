@@ -28,10 +28,12 @@ from models.learners.base import (
 from models.learners.mlp_policy import (
     PARAM_NAMES,
     Params,
+    hidden_and_logits,
     init_params,
     param_shapes,
     probabilities,
     retain,
+    softmax,
     update_params,
 )
 
@@ -212,7 +214,18 @@ class MetaPolicyLearner:
         return float(baselines[min(answer_index, len(baselines) - 1)])
 
     def probabilities(self) -> np.ndarray:
-        """The policy's probability of asking each question (float64, sums to one)."""
+        """The probability of asking each question (float64, sums to one): the policy,
+        calibrated by the checkpoint's temperature (:meth:`Checkpoint.calibrate`; most have
+        none). What the learner asks with and what its replies and figures report."""
+        c = self.checkpoint
+        if c.temperature == 1.0:
+            return self.policy()
+        logits = hidden_and_logits(self._params, c.observation, self._offset)[1]
+        return softmax(c.calibrate(logits, c.anchor_prior(random_init=self._random)))
+
+    def policy(self) -> np.ndarray:
+        """The trained policy, untempered: what its update and surprise gates were trained on
+        (equal to :meth:`probabilities` for a checkpoint without a temperature)."""
         return probabilities(self._params, self.checkpoint.observation, self._offset)
 
     def select(self, rng: np.random.Generator) -> int:
@@ -234,7 +247,8 @@ class MetaPolicyLearner:
         a = check_action(action, self.n_arms)
         r = check_reward(reward)
         # Only surprise gates need the asked question's probability: no extra forward pass else.
-        p_asked = self.probabilities()[a] if self.checkpoint.gates is not None else 1.0
+        # The trained policy's, not the tempered one: the gates were trained on it.
+        p_asked = self.policy()[a] if self.checkpoint.gates is not None else 1.0
         parts = self.checkpoint.trace_parts(self._trace, a)
         step, retention = self.checkpoint.step_and_retention(
             self._answers, p_asked, r, self._memory, parts

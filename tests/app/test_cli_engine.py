@@ -11,7 +11,7 @@ import typer
 from typer.testing import CliRunner, Result
 
 from app.cli.engine import EXIT_BAD_INPUT, register
-from models.checkpoints import load_checkpoint, trained_feedback
+from models.checkpoints import load_checkpoint, trained_feedback, with_temperature
 from models.feedback import FeedbackModel
 from tests.conftest import protocol_text
 from tests.models.conftest import make_checkpoint
@@ -360,3 +360,15 @@ def test_pretrain_defaults_give_the_gates_their_memory() -> None:
     untraced = training_feedback("online", None, False, None, None, False, None, "surprise")
     with pytest.raises(ValueError, match="part of the surprise gates"):
         PretrainArgs(**untraced).resolved()
+
+
+def test_simulate_names_a_checkpoints_temperature(cli: typer.Typer, tmp_path: Path) -> None:
+    """The table says which checkpoint ran and, for a calibrated one, its temperature."""
+    trained = make_checkpoint(tmp_path / "plain" / "online" / "generic-k4", n_arms=4)
+    with_temperature(trained, 1.25, tmp_path / "hot" / "online" / "generic-k4", note={})
+    common = ["simulate", "adaptation", "--participants", "50", "--arms", "4"]
+    plain = run(cli, *common, "--checkpoint-dir", str(tmp_path / "plain"))
+    hot = run(cli, *common, "--checkpoint-dir", str(tmp_path / "hot"))
+    assert plain.exit_code == 0 and hot.exit_code == 0, plain.stderr + hot.stderr
+    assert "temperature" not in plain.stdout.splitlines()[0]
+    assert "temperature 1.25)" in hot.stdout.splitlines()[0]

@@ -14,7 +14,7 @@ from sqlalchemy import select, update
 from app.protocol import parse_protocol
 from app.services import learners, replies, studies, verify
 from app.services.audit import Actor
-from app.tables import LearnerState, Prompt, Run, RunStatus, StudySession
+from app.tables import Answer, LearnerState, Prompt, Run, RunStatus, StudySession
 from models.checkpoints import (
     HASH_FILE,
     PRETRAINED_DIR,
@@ -22,7 +22,10 @@ from models.checkpoints import (
     TRACE_GATES,
     WEIGHTS_FILE,
     load_checkpoint,
+    with_temperature,
 )
+from models.learners.meta_policy import MetaPolicyLearner
+from models.learners.mlp_policy import softmax
 from tests.conftest import Lab, protocol_text
 
 
@@ -238,3 +241,40 @@ def test_verify_replays_a_learner_that_keeps_a_per_question_surprise_trace(
         )
         db.commit()
     assert any("stored state differs" in detail for _, detail in _findings(c2))
+
+
+def test_verify_replays_a_learner_on_a_calibrated_checkpoint(lab: Lab, tmp_path: Path) -> None:
+    """A checkpoint with a temperature (issue 36): every learner asks with and stores the
+    tempered probabilities (not the trained policy's), and verify replays them from the recorded
+    checkpoint."""
+    shipped = load_checkpoint(PRETRAINED_DIR / "online" / "cognition-k4")
+    hot = with_temperature(
+        replace(shipped, temperature=1.0), 1.3, tmp_path / "hot" / "cognition-k4", note={}
+    )
+    changes = {
+        'learner = "exp3"': 'learner = "meta"',
+        'checkpoint = "shipped"': f'checkpoint = "{hot.path}"',
+    }
+    with lab.database.writing() as db:
+        studies.create_study(
+            db, name="hot", loaded=parse_protocol(protocol_text(**changes)), actor=Actor.system()
+        )
+    c2 = replace(lab, study="hot")
+    c2.enrol_and_assign()
+    for _ in ("familiarisation", "session 1"):
+        c2.start_session()
+        c2.run_session(preferred=1)
+    assert _findings(c2) == []
+    with lab.database.read_session() as db:
+        rows = [(r.checkpoint_sha256, r.state) for r in db.scalars(select(LearnerState))]
+        after = [a.probabilities_after for a in db.scalars(select(Answer))]
+        prompts = list(db.scalars(select(Prompt)))
+    assert rows and all(sha256 == hot.sha256 for sha256, _ in rows)
+    for _, state in rows:  # the last answer stored what the tempered learner reports
+        learner = MetaPolicyLearner(hot)
+        learner.load_state_dict(state)
+        logits = np.log(learner.policy())
+        tempered, trained = softmax(logits / 1.3), softmax(logits)
+        assert any(np.allclose(p, tempered, rtol=0, atol=1e-12) for p in after)
+        assert not any(np.allclose(p, trained, rtol=0, atol=1e-6) for p in after)
+    assert any(not np.allclose(p.probabilities, 0.25) for p in prompts)  # it did adapt

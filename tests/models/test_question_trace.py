@@ -73,7 +73,7 @@ def test_the_surprise_trace_adds_each_surprise_to_its_question_and_forgets_it() 
     learner = MetaPolicyLearner(checkpoint)
     expected = np.zeros(4)
     for action, reward in ANSWERS:
-        p_asked = learner.probabilities()[action]
+        p_asked = learner.policy()[action]
         u = float(surprise(p_asked, reward, 1.0, 0.0))
         others = expected.sum() - expected[action]
         rho = float(
@@ -92,7 +92,7 @@ def test_a_contradiction_trace_counts_noes_net_of_yeses() -> None:
     learner = MetaPolicyLearner(checkpoint)
     learner.update(0, 1.0)  # a yes finds the favourite: no contradiction
     assert np.all(learner.surprise_trace == 0.0)
-    p_asked = learner.probabilities()[0]
+    p_asked = learner.policy()[0]
     learner.update(0, 0.0)  # a no to it: contradicted by its probability
     assert learner.surprise_trace[0] == pytest.approx(p_asked * _retention(learner), rel=0.5)
     assert learner.surprise_trace[0] > 0 and np.all(learner.surprise_trace[1:] == 0.0)
@@ -218,6 +218,7 @@ def test_a_tracing_checkpoint_writes_and_loads_its_trace(tmp_path: Path, kind: s
         prior=source.prior,
         retention=source.retention,
         gates=source.gates,
+        temperature=source.temperature,
     )
     assert written.gates is not None and source.gates is not None and source.gates.trace
     assert written.gates.trace_kind == kind and written.gates.trace is not None

@@ -309,7 +309,7 @@ def test_a_surprise_memory_is_kept_in_the_state_and_changes_later_steps() -> Non
     answers = [(0, 1.0), (0, 0.0), (1, 1.0), (0, 1.0)]
     expected = 0.0
     for action, reward in answers:
-        p_asked = learner.probabilities()[action]
+        p_asked = learner.policy()[action]  # the gates see the trained policy
         rho = checkpoint.step_and_retention(learner.answers, p_asked, reward, expected)[1]
         expected = float(rho) * (expected + float(surprise(p_asked, reward, 1.0, 0.0)))
         learner.update(action, reward)
