@@ -15,7 +15,7 @@ it costs).
 
 **The decode starts during the endpointer's wait.** The endpointer calls the end of speech after
 about 0.6 s of quiet, but the stretch to decode is complete once :data:`PAD_SECONDS` of quiet
-have followed the last speech frame. :meth:`Utterance.feed` then hands that stretch to the model's
+have followed the last word. :meth:`Utterance.feed` then hands that stretch to the model's
 decode workers at once, and :meth:`Utterance.finish` takes that result if the stretch is still the
 same (the participant stayed quiet); if speech resumed, the stretch has moved and it is decoded
 again. Audio is only appended, so the same offsets are the same audio and the same transcript:
@@ -369,7 +369,8 @@ class Recognition:
     """0-1: :attr:`Transcript.probability` when the transcript is a phrase, else 0."""
     engine: str
     seconds: float
-    """Processing time of the final decode (from :meth:`Utterance.finish` being called)."""
+    """From :meth:`Utterance.finish` being called to the decision: what is left of a decode
+    started during the endpointer's wait, or a whole decode when the speech changed after it."""
     heard: str = ""
     """Whisper's transcript as written (for a lab checking its room)."""
     no_speech: float = 0.0
@@ -464,6 +465,8 @@ class Utterance:
             if early is not None and early[0] == (first, first + len(stretch)):
                 transcript = early[1].result()
             else:
+                if early is not None:
+                    early[1].cancel()  # a stale decode not yet started: spare its time
                 transcript = recognizer.model.transcribe(_floats(stretch), prompt=recognizer.prompt)
             words, confidence = recognizer.decide(transcript)
             heard = Heard(words, confidence)

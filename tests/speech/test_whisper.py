@@ -270,13 +270,23 @@ def test_the_stretch_decoded_during_the_wait_is_the_answer_and_not_decoded_again
 
 @pytest.mark.timeout(60)
 def test_speech_that_resumes_after_a_pause_is_decoded_whole(
-    recognizer: Recognizer, decoded: list[int]
+    recognizer: Recognizer, decoded: list[int], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    model = recognizer.model
+    submitted: list[int] = []
+    submit = model.submit
+
+    def counted(audio: np.ndarray, prompt: list[int] | None) -> Any:
+        submitted.append(audio.size)
+        return submit(audio, prompt)
+
+    monkeypatch.setattr(model, "submit", counted)
     yes, no = read_wav(DATA / "yes.wav"), read_wav(DATA / "nope.wav")
     pcm = quiet(0.3, 1) + yes + quiet(0.45, 2) + no + quiet(1.2, 3)
     heard = _stream(recognizer, pcm)
-    assert len(decoded) >= 2  # the "yes" alone early, then the whole
-    assert max(decoded) >= (len(yes) + len(no)) // 2 + 0.45 * 16000  # both words and the pause
+    both = (len(yes) + len(no)) // 2 + 0.45 * 16000  # samples of both words and the pause
+    assert submitted and submitted[0] < both  # the "yes" alone began decoding in the pause
+    assert decoded and max(decoded) >= both  # the decision is the whole stretch's
     assert heard.answer is None  # "yes … nope" is no phrase: asked again
 
 
