@@ -72,7 +72,7 @@ log = logging.getLogger(__name__)
 router = APIRouter(tags=["robot"])
 
 BYTES_PER_SECOND = SAMPLE_RATE * 2
-ENGINE_NAME_LENGTH = 60
+ENGINE_NAME_LENGTH = 120
 TRANSCRIPT_LENGTH = 200
 
 
@@ -243,7 +243,8 @@ class _AudioConnection:
     async def drop(self) -> None:
         """Forget the answer being listened to, unheard: its audio goes with it, and its
         decoders go back to the recogniser's pool undecoded (a lost pair would cost the next
-        answer a model load; a decode would cost half a second of CPU for nothing)."""
+        answer a model load). A Whisper decode already started during the endpointer's wait
+        runs out (a decode cannot be stopped) and its transcript is dropped."""
         listening, self.listening = self.listening, None
         if listening is not None:
             with contextlib.suppress(Exception):

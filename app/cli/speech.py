@@ -105,8 +105,7 @@ def recognize(
     typer.echo(f"transcript: {result.transcript or '(silence)'}")
     typer.echo(f"heard:      {result.heard or '(nothing)'} (unconstrained, for comparison)")
     typer.echo(f"confidence: {result.confidence:.2f} (needs {vocabulary.min_confidence:g})")
-    primed_text = ", primed with the phrases" if primed else ""
-    typer.echo(f"engine:     {result.engine}{primed_text} (loaded in {load_seconds:.2f} s)")
+    typer.echo(f"engine:     {result.engine} (loaded in {load_seconds:.2f} s)")
     typer.echo(
         f"time:       {total * 1000:.0f} ms for {len(pcm) / 32000:.2f} s of audio, "
         f"final decode {result.seconds * 1000:.0f} ms"

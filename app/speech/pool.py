@@ -37,8 +37,10 @@ class EngineSettings:
 
     @classmethod
     def of(cls, speech: SpeechSettings) -> EngineSettings:
-        """The settings of a protocol's ``[speech]`` table (or anything shaped like it)."""
-        return cls(name=speech.engine, prompt=speech.prompt_phrases)
+        """The settings of a protocol's ``[speech]`` table (or anything shaped like it); the
+        prompt only for Whisper, so pocketsphinx studies share one recogniser whatever they
+        set."""
+        return cls(name=speech.engine, prompt=speech.engine == "whisper" and speech.prompt_phrases)
 
 
 class SpeechSettings(Protocol):

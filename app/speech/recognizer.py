@@ -19,10 +19,10 @@ acoustic model on the same frames, so room noise shifts neither the way the old 
 loop score was shifted (docs/performance.md).
 
 Only the speech is decoded: the endpointer (app.speech.endpoint) marks where speech started and
-last was, and :meth:`Utterance.finish` decodes that stretch plus :data:`PAD_SECONDS` either side,
-with the cepstral mean taken over that stretch (batch normalisation): leading and trailing room
-noise can neither pull a phrase over itself nor skew the normalisation. Audio is only held in
-memory, for the one utterance.
+where its last word ended, and :meth:`Utterance.finish` decodes that stretch plus
+:data:`PAD_SECONDS` either side, with the cepstral mean taken over that stretch (batch
+normalisation): leading and trailing room noise can neither pull a phrase over itself nor skew
+the normalisation. Audio is only held in memory, for the one utterance.
 
 Decoders take a while to load, so a :class:`Recognizer` keeps a pool of decoder pairs and lends
 one to each :class:`Utterance` (several stations may listen at once).

@@ -7,11 +7,12 @@ alone: no hub client is imported, so nothing is looked up or downloaded, and the
 leaves the process.
 
 Only the speech is decoded: the endpointer (app.speech.endpoint) marks where speech started and
-last was, and that stretch plus :data:`PAD_SECONDS` either side becomes Whisper's log-mel features
-(computed here with numpy, as Whisper computes them), decoded once — greedy, no temperature
-fallback, no timestamps — optionally primed with the vocabulary's phrases as the "previous text"
-(the protocol's ``[speech] prompt_phrases``; docs/performance.md measured what it gains and what
-it costs).
+where its last word ended, and that stretch plus :data:`PAD_SECONDS` either side becomes
+Whisper's log-mel features (computed here with numpy, as Whisper computes them), decoded once —
+greedy, no temperature fallback, no timestamps — optionally primed with the vocabulary's phrases
+as the "previous text" (the protocol's ``[speech] prompt_phrases``; docs/performance.md measured
+what it gains and what it costs). The recogniser's name, stored with every answer, says whether
+it was primed.
 
 **The decode starts during the endpointer's wait.** The endpointer calls the end of speech after
 about 0.6 s of quiet, but the stretch to decode is complete once :data:`PAD_SECONDS` of quiet
@@ -346,9 +347,11 @@ def shared_model(*, intra_threads: int = 1, inter_threads: int = 2) -> WhisperMo
         return model
 
 
-def engine_name() -> str:
-    """Engine and model, as stored with every answer."""
-    return f"{MODEL_NAME} ({MODEL_PACKAGE} {version(MODEL_PACKAGE)}, ct2 {version('ctranslate2')})"
+def engine_name(*, primed: bool) -> str:
+    """Engine, model and how it decodes, as stored with every answer: primed with the phrases
+    or not hears differently, so the data must tell the two apart."""
+    name = f"{MODEL_NAME} primed" if primed else MODEL_NAME
+    return f"{name} ({MODEL_PACKAGE} {version(MODEL_PACKAGE)}, ct2 {version('ctranslate2')})"
 
 
 def answer_words(text: str) -> str:
@@ -391,7 +394,7 @@ class Recognizer:
             raise ValueError("the vocabulary has no phrases")
         self.vocabulary = vocabulary
         self.model = model or shared_model()
-        self.engine = engine_name()
+        self.engine = engine_name(primed=prompt)
         self.prompt = self.model.phrase_prompt(vocabulary.phrases) if prompt else None
 
     def recognize(self, pcm: bytes) -> Recognition:

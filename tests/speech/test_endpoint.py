@@ -110,4 +110,5 @@ def test_the_stretch_is_complete_only_once_its_padding_has_arrived() -> None:
     stretch = buffer.complete_stretch(PAD)
     assert stretch is not None
     assert buffer.audio(*stretch) == buffer.padded_speech(PAD)[1]
+    buffer.close()
     assert buffer.complete_stretch(PAD) is None  # closed: nothing more is decoded early

