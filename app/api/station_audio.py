@@ -72,7 +72,7 @@ log = logging.getLogger(__name__)
 router = APIRouter(tags=["robot"])
 
 BYTES_PER_SECOND = SAMPLE_RATE * 2
-ENGINE_NAME_LENGTH = 120
+ENGINE_NAME_LENGTH = 60
 TRANSCRIPT_LENGTH = 200
 
 

@@ -348,10 +348,11 @@ def shared_model(*, intra_threads: int = 1, inter_threads: int = 2) -> WhisperMo
 
 
 def engine_name(*, primed: bool) -> str:
-    """Engine, model and how it decodes, as stored with every answer: primed with the phrases
-    or not hears differently, so the data must tell the two apart."""
+    """Engine, model and how it decodes, as stored with every answer (60 characters at most):
+    primed with the phrases or not hears differently, so the data must tell the two apart. The
+    CTranslate2 version is left out for room; requirements.lock pins it with the release."""
     name = f"{MODEL_NAME} primed" if primed else MODEL_NAME
-    return f"{name} ({MODEL_PACKAGE} {version(MODEL_PACKAGE)}, ct2 {version('ctranslate2')})"
+    return f"{name} ({MODEL_PACKAGE} {version(MODEL_PACKAGE)})"
 
 
 def answer_words(text: str) -> str:

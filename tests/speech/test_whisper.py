@@ -320,7 +320,7 @@ def test_priming_with_the_phrases_is_a_setting_of_the_engine() -> None:
     assert plain.prompt is None
     assert primed.prompt is not None and primed.prompt[0] == primed.model.phrase_prompt([])[0]
     assert "No way." in primed.model.text(primed.prompt[1:])
-    assert primed.engine.startswith("whisper tiny.en primed (") and len(primed.engine) <= 120
+    assert primed.engine.startswith("whisper tiny.en primed (") and len(primed.engine) <= 60
     assert plain.engine.startswith("whisper tiny.en (")  # the stored answers tell them apart
 
 
