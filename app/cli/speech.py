@@ -7,7 +7,6 @@ sure it is and how long it takes, before any participant comes in.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -53,25 +52,19 @@ def recognize(
     as_json: JsonFlag = False,
 ) -> None:
     """Recognise a yes or a no in FILE: answer, transcript, confidence and time taken."""
+    from app.protocol import SpeechSpec, load_protocol_file
     from app.speech.engines import ENGINES, make_recognizer
     from app.speech.pool import EngineSettings
     from app.speech.vocabulary import Vocabulary
     from app.speech.wav import read_wav
 
-    vocabulary = Vocabulary()
-    chosen = EngineSettings()
-    if protocol is not None:
-        from app.protocol import load_protocol_file
-
-        spec = load_protocol_file(protocol).protocol.speech
-        vocabulary = Vocabulary.of(spec.yes, spec.no, spec.min_confidence)
-        chosen = EngineSettings.of(spec)
-    if engine is not None:
-        if engine not in ENGINES:
-            fail(f"unknown engine {engine!r}: one of {', '.join(ENGINES)}", 2)
-        chosen = replace(chosen, name=engine)
-    if prompt_phrases is not None:
-        chosen = replace(chosen, prompt=prompt_phrases)
+    spec = SpeechSpec() if protocol is None else load_protocol_file(protocol).protocol.speech
+    if engine is not None and engine not in ENGINES:
+        fail(f"unknown engine {engine!r}: one of {', '.join(ENGINES)}", 2)
+    chosen_here = {"engine": engine, "prompt_phrases": prompt_phrases}
+    spec = spec.model_copy(update={k: v for k, v in chosen_here.items() if v is not None})
+    vocabulary = Vocabulary.of(spec.yes, spec.no, spec.min_confidence)
+    chosen = EngineSettings.of(spec)
     try:
         pcm = read_wav(file)
     except ValueError as exc:
@@ -83,7 +76,6 @@ def recognize(
     result = recognizer.recognize(pcm)
     total = time.perf_counter() - started
     answer = result.answer or "unclear"
-    primed = chosen.name == "whisper" and chosen.prompt
     if as_json:
         emit_json(
             {
@@ -93,7 +85,7 @@ def recognize(
                 "heard": result.heard,
                 "confidence": round(result.confidence, 4),
                 "engine": result.engine,
-                "prompt_phrases": primed,
+                "prompt_phrases": chosen.prompt,
                 "load_seconds": round(load_seconds, 4),
                 "seconds": round(result.seconds, 4),
                 "total_seconds": round(total, 4),

@@ -319,6 +319,9 @@ def test_the_command_primes_whisper_as_the_protocol_or_the_option_says(tmp_path:
     assert default["answer"] == from_protocol["answer"] == "yes"
     sphinx = runner.invoke(cli, [*command, "--engine", "pocketsphinx"])
     assert json.loads(sphinx.stdout)["prompt_phrases"] is False  # a Whisper setting only
+    sphinx_study = _protocol(tmp_path, {PHRASES: PHRASES + '\nengine = "pocketsphinx"'})
+    as_whisper = [*command, "--protocol", str(sphinx_study), "--engine", "whisper"]
+    assert json.loads(runner.invoke(cli, as_whisper).stdout)["prompt_phrases"] is True
 
 
 def test_the_command_refuses_a_file_that_is_no_wav(tmp_path: Path) -> None:
