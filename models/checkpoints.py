@@ -685,24 +685,31 @@ def with_temperature(
         **checkpoint.metrics,
         "temperature": {**note, "value": float(temperature), "calibrates": checkpoint.sha256},
     }
-    return write_checkpoint(
-        directory,
-        n_arms=checkpoint.n_arms,
-        category=checkpoint.category,
-        mode=checkpoint.mode,
-        rule=checkpoint.rule,
-        observation=checkpoint.observation,
-        params=checkpoint.params,
-        step_sizes=checkpoint.step_sizes,
-        baselines=checkpoint.baselines,
-        damping=checkpoint.damping,
-        config=checkpoint.config,
-        metrics=metrics,
-        prior=checkpoint.prior,
-        retention=checkpoint.retention,
-        gates=checkpoint.gates,
-        temperature=temperature,
-    )
+    return rewrite_checkpoint(checkpoint, directory, metrics=metrics, temperature=temperature)
+
+
+def rewrite_checkpoint(checkpoint: Checkpoint, directory: Path, **changes: Any) -> Checkpoint:
+    """Write ``checkpoint`` again to ``directory`` with ``changes`` to what
+    :func:`write_checkpoint` is given (say ``metrics`` or ``temperature``), and return it loaded
+    back and verified. Unchanged, the copy has the original's weights bytes and hash."""
+    fields: dict[str, Any] = {
+        "n_arms": checkpoint.n_arms,
+        "category": checkpoint.category,
+        "mode": checkpoint.mode,
+        "rule": checkpoint.rule,
+        "observation": checkpoint.observation,
+        "params": checkpoint.params,
+        "step_sizes": checkpoint.step_sizes,
+        "baselines": checkpoint.baselines,
+        "damping": checkpoint.damping,
+        "config": checkpoint.config,
+        "metrics": checkpoint.metrics,
+        "prior": checkpoint.prior,
+        "retention": checkpoint.retention,
+        "gates": checkpoint.gates,
+        "temperature": None if checkpoint.temperature == 1.0 else checkpoint.temperature,
+    }
+    return write_checkpoint(directory, **{**fields, **changes})
 
 
 def find_by_sha256(sha256: str, roots: Sequence[Path]) -> Path | None:

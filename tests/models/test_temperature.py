@@ -21,9 +21,9 @@ from models.checkpoints import (
     Checkpoint,
     find_by_sha256,
     load_checkpoint,
+    rewrite_checkpoint,
     shipped_checkpoint,
     with_temperature,
-    write_checkpoint,
 )
 from models.learners.meta_policy import MetaPolicyLearner
 from models.learners.mlp_policy import hidden_and_logits, softmax
@@ -52,24 +52,7 @@ def _weights(learner: MetaPolicyLearner) -> dict[str, Any]:
 
 
 def _rewrite(checkpoint: Checkpoint, directory: Path, **extra: Any) -> Checkpoint:
-    return write_checkpoint(
-        directory,
-        n_arms=checkpoint.n_arms,
-        category=checkpoint.category,
-        mode=checkpoint.mode,
-        rule=checkpoint.rule,
-        observation=checkpoint.observation,
-        params=checkpoint.params,
-        step_sizes=checkpoint.step_sizes,
-        baselines=checkpoint.baselines,
-        damping=checkpoint.damping,
-        config=checkpoint.config,
-        metrics={},
-        prior=checkpoint.prior,
-        retention=checkpoint.retention,
-        gates=checkpoint.gates,
-        **extra,
-    )
+    return rewrite_checkpoint(checkpoint, directory, metrics={}, **extra)
 
 
 def test_a_checkpoint_without_a_temperature_writes_no_field_and_keeps_its_hash(

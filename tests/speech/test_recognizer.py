@@ -16,9 +16,8 @@ from typer.testing import CliRunner
 from app.cli import cli
 from app.speech.recognizer import SAMPLE_RATE, Recognition, Recognizer, UnknownWords, read_wav
 from app.speech.vocabulary import Vocabulary
-from tests.speech.recordings import DATA, SHIPPED_ANSWERS, quiet
+from tests.speech.recordings import DATA, SHIPPED_ANSWERS, feed_in_frames, quiet
 
-FRAME_BYTES = SAMPLE_RATE // 50 * 2
 runner = CliRunner()
 
 
@@ -75,11 +74,7 @@ def test_streaming_20ms_frames_gives_the_same_answer_and_hears_the_end(
     pcm = quiet(0.3, 1) + read_wav(DATA / f"{name}.wav") + quiet(1.2, 2)
     whole = recognizer.recognize(pcm)
     utterance = recognizer.utterance()
-    ended_at = None
-    for start in range(0, len(pcm), FRAME_BYTES):
-        utterance.feed(pcm[start : start + FRAME_BYTES])
-        if ended_at is None and utterance.speech_ended:
-            ended_at = start
+    ended_at = feed_in_frames(utterance, pcm)
     streamed = utterance.finish()
     assert (
         (streamed.answer, streamed.transcript)
@@ -98,8 +93,7 @@ def test_streaming_20ms_frames_gives_the_same_answer_and_hears_the_end(
 def test_quiet_alone_never_ends_an_utterance(recognizer: Recognizer) -> None:
     utterance = recognizer.utterance()
     audio = quiet(2.0, 3)
-    for start in range(0, len(audio), FRAME_BYTES):
-        utterance.feed(audio[start : start + FRAME_BYTES])
+    feed_in_frames(utterance, audio)
     assert not utterance.speech_ended
     assert utterance.finish().answer is None
 

@@ -19,9 +19,7 @@ from app.speech.pool import EngineSettings
 from app.speech.vocabulary import Heard, Vocabulary
 from app.speech.wav import read_wav
 from app.speech.whisper import Recognizer, Transcript, answer_words, log_mel, shared_model
-from tests.speech.recordings import DATA, SHIPPED_ANSWERS, quiet
-
-FRAME_BYTES = whisper.SAMPLE_RATE // 50 * 2
+from tests.speech.recordings import DATA, SHIPPED_ANSWERS, feed_in_frames, quiet
 
 
 @pytest.fixture(scope="module")
@@ -161,11 +159,7 @@ def test_streaming_20ms_frames_gives_the_same_answer_and_hears_the_end(
     pcm = quiet(0.3, 1) + read_wav(DATA / f"{name}.wav") + quiet(1.2, 2)
     whole = recognizer.recognize(pcm)
     utterance = recognizer.utterance()
-    ended_at = None
-    for start in range(0, len(pcm), FRAME_BYTES):
-        utterance.feed(pcm[start : start + FRAME_BYTES])
-        if ended_at is None and utterance.speech_ended:
-            ended_at = start
+    ended_at = feed_in_frames(utterance, pcm)
     streamed = utterance.finish()
     assert (streamed.answer, streamed.transcript) == (whole.answer, whole.transcript)
     assert streamed.answer == answer
@@ -251,8 +245,7 @@ def decoded(monkeypatch: pytest.MonkeyPatch) -> list[int]:
 
 def _stream(recognizer: Recognizer, pcm: bytes) -> whisper.Recognition:
     utterance = recognizer.utterance()
-    for start in range(0, len(pcm), FRAME_BYTES):
-        utterance.feed(pcm[start : start + FRAME_BYTES])
+    feed_in_frames(utterance, pcm)
     return utterance.finish()
 
 
@@ -304,8 +297,7 @@ def test_an_abandoned_utterance_cancels_its_early_decode(
     monkeypatch.setattr(recognizer.model, "submit", queued)
     utterance = recognizer.utterance()
     pcm = quiet(0.3, 1) + read_wav(DATA / "yes.wav") + quiet(0.4, 2)
-    for start in range(0, len(pcm), FRAME_BYTES):
-        utterance.feed(pcm[start : start + FRAME_BYTES])
+    feed_in_frames(utterance, pcm)
     assert len(waiting) == 1 and not waiting[0].cancelled()  # the stretch began decoding
     utterance.abandon()
     assert waiting[0].cancelled()
