@@ -243,6 +243,7 @@ def test_a_reload_mid_run_finishes_it_without_duplicates(
     expect(page.locator("#pads")).to_be_visible()  # a touch screen gets walking pads
 
     drive.walk(page, drive.TO_CONATION)
+    drive.wait_question(page, "conation")  # the question arrives after the walk ends
     step = page.evaluate("() => window.trustlabRoom.question.step_id")
     before = drive.pose(page)
     page.screenshot(path=str(artifacts / "01-tablet-question.png"))
