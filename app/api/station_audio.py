@@ -200,7 +200,7 @@ class _AudioConnection:
             )
         except Exception:  # a defect: say so, log it, keep serving
             log.exception("station %s: audio %s failed", self.device.station, what)
-            self.listening = None
+            await self.drop()  # its decoders go back to the pool, as a cut-off's do
             await self.send_error(
                 request_id, 500, "the server failed to handle this request; its log has the details"
             )

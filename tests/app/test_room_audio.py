@@ -342,6 +342,36 @@ def test_more_audio_than_the_protocol_allows_is_cut_off(
         assert _receive(ws, "answer")["data"]["answer"] == "yes"
 
 
+def test_a_defect_while_listening_is_reported_and_gives_the_decoders_back(
+    lab: Lab, recognizer: ScriptedRecognizer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    lab.enrol_and_assign()
+    lab.start_session()
+    step = _open_step(lab)
+    recognizer.script += [Heard("yes", "yes", 0.9)]
+
+    def broken_feed(self: ScriptedUtterance, pcm: bytes) -> None:
+        raise RuntimeError("a defect in the recogniser")
+
+    with lab.robot.websocket_connect(AUDIO) as ws:
+        _receive(ws, "hello")
+        ws.send_json({"type": "start", "id": 1, "step_id": step})
+        _receive(ws, "listening")
+        with monkeypatch.context() as patch:
+            patch.setattr(ScriptedUtterance, "feed", broken_feed)
+            ws.send_bytes(SPEECH)
+            failed = _receive(ws, "error")
+        assert (failed["id"], failed["status"]) == (1, 500)
+        assert "its log has the details" in failed["detail"]
+        # the failed answer is dropped unheard, its decoders given back to the pool
+        assert (len(recognizer.abandoned), recognizer.finished) == (1, [])
+        ws.send_json({"type": "start", "id": 2, "step_id": step})  # the socket still serves
+        _receive(ws, "listening")
+        _speak(ws)
+        assert _receive(ws, "answer")["data"]["answer"] == "yes"
+    assert [a.answer for a in _answers(lab)] == [True]
+
+
 def test_an_odd_length_frame_is_refused(lab: Lab, recognizer: ScriptedRecognizer) -> None:
     lab.enrol_and_assign()
     lab.start_session()
