@@ -246,6 +246,14 @@ class RunOut(BaseModel):
     pending: list[str]
 
 
+class LastReplyOut(BaseModel):
+    """The robot's reply to the newest answer of the current run."""
+
+    step_id: int
+    category: str
+    reply: str
+
+
 class _StateFields(BaseModel):
     station: str
     participant: str | None
@@ -264,10 +272,17 @@ class StationStateOut(_StateFields):
     """Where a station stands (participant codes only: conditions are never shown to clients)."""
 
     open_prompts: list[PromptOut]
+    last_reply: LastReplyOut | None = Field(
+        default=None,
+        description="The robot's reply to the newest answer of the current run (null before "
+        "one): a client that was away when someone else answered the question it asked (a "
+        "Wizard-of-Oz answer while it was offline) says it on return.",
+    )
 
 
 class StaffStationStateOut(_StateFields):
-    """Where a station stands, as the experimenter's routes return it."""
+    """Where a station stands, as the experimenter's routes return it (without the last reply:
+    its words differ by condition, and the console shows them only as the robot says them)."""
 
     open_prompts: list[StaffPromptOut]
 

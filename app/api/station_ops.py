@@ -10,6 +10,7 @@ from app.api.runtime_schemas import (
     AnswerRequest,
     DeviceOut,
     ExpectedOut,
+    LastReplyOut,
     NoticeRequest,
     PresenceRequest,
     PromptOut,
@@ -310,6 +311,7 @@ def state_out(view: runtime.StationView) -> StationStateOut:
         ],
         expected=expected_out(view.expected),
         language=view.language,
+        last_reply=LastReplyOut(**view.last_reply) if view.last_reply else None,
     )
 
 
@@ -350,7 +352,7 @@ def staff_answer(answer: AnswerOut, *, shows_learners: bool) -> StaffAnswerOut:
 def staff_state(view: runtime.StationView) -> StaffStationStateOut:
     """A station's state for the experimenter's routes (open prompts as :func:`staff_prompt`)."""
     state = state_out(view)
-    data = state.model_dump(exclude={"open_prompts"})
+    data = state.model_dump(exclude={"open_prompts", "last_reply"})
     data["open_prompts"] = [
         staff_prompt(p, shows_learners=view.learners_shown) for p in state.open_prompts
     ]

@@ -810,6 +810,9 @@ class StationView:
     """Whether staff may see the seated participant's learners (app.services.blinding)."""
     language: str | None = None
     """The seated participant's language: what the room and the robot speak (None: nobody)."""
+    last_reply: dict[str, Any] | None = None
+    """The robot's reply to the newest answer of the current run: a client that was away when
+    it was given (a room offline during a Wizard-of-Oz answer) can still say it on return."""
 
 
 def station_view(db: Session, *, station_name: str, seat: Seat | None = None) -> StationView:
@@ -866,7 +869,17 @@ def _view(db: Session, ctx: Context) -> StationView:
         expected_next(db, ctx),
         ctx.learners_shown,
         ctx.protocol.default_language,
+        _last_reply(run),
     )
+
+
+def _last_reply(run: RunState | None) -> dict[str, Any] | None:
+    """The newest answered step of ``run`` and the robot's reply to it (None: none answered)."""
+    answered = [s for s in run.steps if s.answer_id is not None] if run is not None else []
+    if not answered:
+        return None
+    newest = max(answered, key=lambda s: s.answer_id or 0)
+    return {"step_id": newest.id, "category": newest.category, "reply": newest.reply}
 
 
 def last_step(db: Session, *, participant_id: int) -> tuple[Prompt, Answer | None] | None:

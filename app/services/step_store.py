@@ -125,6 +125,8 @@ class Step:
     learner_version: int
     adapts: bool
     answer_id: int | None
+    reply: str | None = None
+    """The robot's reply to the answer (None while unanswered)."""
 
 
 @dataclass(slots=True)
@@ -162,7 +164,8 @@ _RUN_OF_STEP = Statement(
 )
 _STEPS_OF_RUN = Statement(
     """SELECT pr.id, pr.participant_id, pr.category, pr.action, pr.question, pr.probabilities,
-    pr.learner_version, pr.adapts, a.id FROM prompt pr LEFT JOIN answer a ON a.prompt_id = pr.id
+    pr.learner_version, pr.adapts, a.id, a.reply FROM prompt pr
+    LEFT JOIN answer a ON a.prompt_id = pr.id
     WHERE pr.run_id = :run ORDER BY pr.id"""
 )
 
@@ -198,6 +201,7 @@ def _run_with_steps(cursor: Cursor, head: Any) -> RunState | None:
             row[6],
             bool(row[7]),
             row[8],
+            row[9],
         )
         for row in cursor.rows(_STEPS_OF_RUN, {"run": head[3]})
     ]

@@ -131,10 +131,11 @@ function applyState(state) {
   if (!room.question && open.length > 0 && !room.promptInFlight) {
     showQuestion(open[0], { speak: true });
   } else if (room.question && !room.answering && !open.some((p) => p.step_id === room.question.step_id)) {
-    // Answered elsewhere (its reply comes with the answer_recorded push), or its run ended.
+    // Answered elsewhere (its reply is in the state: see answeredElsewhere), or its run ended.
     closeQuestion();
     if (el("captions").dataset.kind === "question") hideCaption();
   }
+  answeredElsewhere(state.last_reply);
   if (needsExit() && !room.answering) guideToExit();
   render();
 }
@@ -148,13 +149,14 @@ function newParticipant() {
 }
 
 /** The reply to the shown question when someone else answered it (Wizard-of-Oz on the console):
- * the participant hears it as if the room had sent the answer. Pushed after the state that
- * closed the question (docs/robot-integration.md: run_ended, session_ended, answer_recorded). */
-function answeredElsewhere(data) {
-  const step = data && data.step_id;
-  if (!step || step !== room.shown || room.answeredHere.has(step) || !data.reply) return;
+ * the participant hears it as if the room had sent the answer. It comes in the state (its
+ * last_reply), so whether the answer_recorded push brought it or a reconnection after the room
+ * was cut off, the reply is said once. */
+function answeredElsewhere(last) {
+  const step = last && last.step_id;
+  if (!step || step !== room.shown || room.answeredHere.has(step) || !last.reply) return;
   room.shown = null;
-  say("reply", data.reply, { speak: true, hint: needsExit() ? TO_THE_EXIT() : "" });
+  say("reply", last.reply, { speak: true, hint: needsExit() ? TO_THE_EXIT() : "" });
 }
 
 /** Between two runs the participant walks out through the exit; the caption says so whenever
@@ -693,7 +695,6 @@ function connect() {
     },
     event: (message) => {
       applyState(message.state);
-      if (message.event === "answer_recorded") answeredElsewhere(message.data);
     },
   });
   room.socket.connect();

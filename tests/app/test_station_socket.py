@@ -104,6 +104,40 @@ def test_reconnecting_client_resumes_without_duplicates(lab: Lab) -> None:
         assert first["data"]["replayed"] is False and second["data"]["replayed"] is True
 
 
+def test_a_client_away_during_another_answer_finds_its_reply_in_the_state(lab: Lab) -> None:
+    lab.enrol_and_assign()
+    lab.start_session()
+    with lab.robot.websocket_connect(SOCKET) as ws:
+        hello = ws.receive_json()
+        assert hello["state"]["last_reply"] is None  # nothing answered in this run yet
+        ws.send_json({"id": 1, "type": "prompt", "category": "affection"})
+        step = _receive(ws, "result")["data"]["step_id"]
+    # the client is away (a room offline) while the experimenter answers by Wizard-of-Oz
+    answered = lab.experimenter.post(
+        f"/api/v1/stations/lab-1/steps/{step}/answer",
+        json={"answer": "no", "idempotency_key": "woz-away"},
+    )
+    assert answered.status_code == 200, answered.text
+    assert "last_reply" not in lab.experimenter.get("/api/v1/stations/lab-1/state").json()
+    with lab.robot.websocket_connect(SOCKET) as ws:
+        state = ws.receive_json()["state"]
+        assert state["open_prompts"] == []
+        assert state["last_reply"] == {
+            "step_id": step,
+            "category": "affection",
+            "reply": answered.json()["reply"],
+        }
+        ws.send_json({"id": 2, "type": "prompt", "category": "conation"})
+        newer = _receive(ws, "result")["data"]["step_id"]
+        ws.send_json(
+            {"id": 3, "type": "answer", "step_id": newer, "answer": "yes", "idempotency_key": "k"}
+        )
+        reply = _receive(ws, "result")["data"]["reply"]
+        ws.send_json({"id": 4, "type": "state"})
+        latest = _receive(ws, "result")["data"]["last_reply"]
+        assert (latest["step_id"], latest["reply"]) == (newer, reply)  # the newest answer's
+
+
 def test_authentication_by_first_message_and_refusal(app: FastAPI, lab: Lab) -> None:
     with TestClient(app) as anonymous:
         with anonymous.websocket_connect(SOCKET) as ws:

@@ -381,7 +381,8 @@ def test_a_wizard_of_oz_answer_shows_the_reply_and_the_way_out_in_the_room(
     context_of: Callable[..., BrowserContext],
     artifacts: Path,
 ) -> None:
-    page = context_of(viewport=DESKTOP).new_page()
+    context = context_of(viewport=DESKTOP)
+    page = context.new_page()
     drive.open_room(page, lab)
     lab.start_session()
     step = lab.wizard_prompt("conation")
@@ -390,7 +391,18 @@ def test_a_wizard_of_oz_answer_shows_the_reply_and_the_way_out_in_the_room(
     expect(page.locator("#captions")).to_have_attribute("data-kind", "reply")
     expect(page.locator("#caption-text")).to_have_text(reply)
     expect(page.locator("#answer")).to_be_hidden()
-    _wizard_run(page, lab, CATEGORIES[1:])
+
+    step = lab.wizard_prompt("affection")
+    drive.wait_question(page, "affection")
+    context.set_offline(True)  # the room is cut off while the console answers: no push reaches it
+    expect(page.locator("#offline")).to_be_visible()
+    reply = lab.wizard_answer(step, "no")
+    context.set_offline(False)  # back: the state it resumes from carries the reply
+    expect(page.locator("#offline")).to_be_hidden()
+    expect(page.locator("#captions")).to_have_attribute("data-kind", "reply")
+    expect(page.locator("#caption-text")).to_have_text(reply)
+    expect(page.locator("#answer")).to_be_hidden()
+    _wizard_run(page, lab, CATEGORIES[2:])
     expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
 
     lab.start_session()  # run 1 of 3: its last answer sends the participant to the exit
