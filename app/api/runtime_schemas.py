@@ -252,6 +252,7 @@ class LastReplyOut(BaseModel):
     step_id: int
     category: str
     reply: str
+    confidence: str = Field(description="The name of the reply's confidence level.")
 
 
 class _StateFields(BaseModel):

@@ -279,23 +279,30 @@ class Bridge:
             kind, data = event.get("type"), event.get("data") or {}
             if kind == "reconnected":
                 self._log("Bridge: back in touch with the server.")
-                self._queue_open_prompts(event.get("state"))
-                continue
+                state = event.get("state") or {}
+                self._queue_open_prompts(state)
+                if state.get("last_reply"):  # answered on the console while we were away
+                    await self._note_reply(state["last_reply"])
             name = event.get("event")
             if name == "prompt_opened":
                 self._work.put_nowait(_Handle(int(data["step_id"])))
             elif name == "answer_recorded":
-                async with self._answered.changed:
-                    self._answered.replies[int(data["step_id"])] = (
-                        str(data.get("reply", "")),
-                        data.get("confidence"),
-                    )
-                    self._answered.changed.notify_all()
+                await self._note_reply(data)
             elif name == "zone_entered" and self.settings.trigger is Trigger.PRESENCE:
                 zone = str(data.get("zone"))
                 self._work.put_nowait(_Ask(zone, f"the participant stepped into zone {zone}"))
             async with self._answered.changed:
                 self._answered.changed.notify_all()  # the state moved on: waiters look again
+
+    async def _note_reply(self, data: dict[str, Any]) -> None:
+        """Keep a recorded answer's reply for whoever waits to say it (an answer_recorded push,
+        or the state's last_reply after a reconnection that missed the push)."""
+        async with self._answered.changed:
+            self._answered.replies[int(data["step_id"])] = (
+                str(data.get("reply", "")),
+                data.get("confidence"),
+            )
+            self._answered.changed.notify_all()
 
     async def _follow_cues(self) -> None:
         while True:

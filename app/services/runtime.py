@@ -879,7 +879,12 @@ def _last_reply(run: RunState | None) -> dict[str, Any] | None:
     if not answered:
         return None
     newest = max(answered, key=lambda s: s.answer_id or 0)
-    return {"step_id": newest.id, "category": newest.category, "reply": newest.reply}
+    return {
+        "step_id": newest.id,
+        "category": newest.category,
+        "reply": newest.reply,
+        "confidence": newest.confidence,
+    }
 
 
 def last_step(db: Session, *, participant_id: int) -> tuple[Prompt, Answer | None] | None:

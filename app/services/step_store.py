@@ -127,6 +127,8 @@ class Step:
     answer_id: int | None
     reply: str | None = None
     """The robot's reply to the answer (None while unanswered)."""
+    confidence: str | None = None
+    """The name of the reply's confidence level (None while unanswered)."""
 
 
 @dataclass(slots=True)
@@ -164,7 +166,7 @@ _RUN_OF_STEP = Statement(
 )
 _STEPS_OF_RUN = Statement(
     """SELECT pr.id, pr.participant_id, pr.category, pr.action, pr.question, pr.probabilities,
-    pr.learner_version, pr.adapts, a.id, a.reply FROM prompt pr
+    pr.learner_version, pr.adapts, a.id, a.reply, a.confidence FROM prompt pr
     LEFT JOIN answer a ON a.prompt_id = pr.id
     WHERE pr.run_id = :run ORDER BY pr.id"""
 )
@@ -202,6 +204,7 @@ def _run_with_steps(cursor: Cursor, head: Any) -> RunState | None:
             bool(row[7]),
             row[8],
             row[9],
+            row[10],
         )
         for row in cursor.rows(_STEPS_OF_RUN, {"run": head[3]})
     ]

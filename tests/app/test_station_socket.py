@@ -126,6 +126,7 @@ def test_a_client_away_during_another_answer_finds_its_reply_in_the_state(lab: L
             "step_id": step,
             "category": "affection",
             "reply": answered.json()["reply"],
+            "confidence": answered.json()["confidence"],
         }
         ws.send_json({"id": 2, "type": "prompt", "category": "conation"})
         newer = _receive(ws, "result")["data"]["step_id"]

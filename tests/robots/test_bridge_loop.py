@@ -305,6 +305,33 @@ def test_an_answer_heard_while_the_server_is_away_is_recorded_once(seated: Lab) 
 
 
 @SQLITE_ONLY
+def test_a_console_answer_given_while_the_server_is_away_is_said_on_return(seated: Lab) -> None:
+    """The bridge is cut off from the server while the console answers the question it asked:
+    the push never reaches it, and the state it reconnects with brings the reply."""
+    script = Script()
+    script.add(Words("maybe", 0.9), Words("maybe", 0.9), Words("maybe", 0.9))
+    port = free_port()
+    with served(seated.app, port) as url:
+        bridge = RunningBridge(FakeRobot(script), url, seated.station, seated.key).__enter__()
+        step = ask_now(seated)
+        wait_for(lambda: _notice(seated)[1])  # unclear three times: the console is asked
+    try:
+        woz = seated.experimenter.post(  # the console is in touch; the bridge is not
+            f"/api/v1/stations/{seated.station}/steps/{step['step_id']}/answer",
+            json={"answer": "yes", "idempotency_key": "woz-away"},
+        )
+        assert woz.status_code == 200, woz.text
+        with served(seated.app, port):
+            said = script.wait_said(4, BOUND)
+            wait_for(lambda: _notice(seated) == (None, False))
+    finally:
+        bridge.stop()
+    assert [line.text for line in said[1:]] == [REPROMPT, REPROMPT, woz.json()["reply"]]
+    assert any("back in touch with the server" in line for line in bridge.lines)
+    assert len(stored_answers(seated)) == 1
+
+
+@SQLITE_ONLY
 def test_an_answer_stored_whose_response_is_lost_is_stored_and_replied_once(
     seated: Lab, url: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
