@@ -273,7 +273,17 @@ class _Lane:
                 self.summary.sessions += 1
         finally:
             await tablet.aclose()
-            await self.experimenter.unassign(self.station)
+            await self._leave_station()
+
+    async def _leave_station(self) -> None:
+        """Free the bot station, also when the run is stopped mid-session (Ctrl-C, a failed
+        lane): the session is ended early, as an experimenter would, so that the next run finds
+        the station free instead of a participant it may not unseat."""
+        state = await self.experimenter.call("GET", f"/stations/{self.station}/state")
+        session = state.get("session") or {}
+        if session.get("status") == "running":
+            await self.experimenter.end_session(self.station)
+        await self.experimenter.unassign(self.station)
 
     async def _run_session(self, categories: list[str], preferred: dict[str, int]) -> None:
         """Answer runs until the session is over; each run visits its categories in a new order."""
@@ -294,6 +304,25 @@ class _Lane:
                 if reply.run_completed:
                     pending = reply.expected.categories
                     break
+
+
+class BotStationsBusy(Exception):
+    """A bot station already has someone seated: another bots run uses it, or one that was
+    stopped hard left its participant there. Found before anyone is enrolled, so a refused run
+    adds no participant to the study (enrolling randomises)."""
+
+
+async def _claim_stations(admin: ExperimenterClient, names: list[str]) -> None:
+    """Create the bot stations that do not exist yet; refuse the run if one is occupied."""
+    for name in names:
+        await admin.ensure_station(name)
+        state = await admin.call("GET", f"/stations/{name}/state")
+        if state.get("participant"):
+            raise BotStationsBusy(
+                f"station {name} already has participant {state['participant']} seated "
+                "(another bots run, or one stopped hard): unseat them on the station's console, "
+                "or give this run other stations with --station-prefix"
+            )
 
 
 async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None) -> BotSummary:
@@ -318,9 +347,11 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
 
         issuing: list[asyncio.Future[IssuedDeviceOut]] = []
 
+        lanes = min(config.concurrency, max(config.participants, 1))
+        await _claim_stations(admin, [f"{config.station_prefix}-{n}" for n in range(1, lanes + 1)])
+
         async def lane_worker(number: int, lane_rng: random.Random) -> None:
             station = f"{config.station_prefix}-{number}"
-            await admin.ensure_station(station)
             # Shielded and remembered: even if the run is cancelled while the key is being
             # issued, the cleanup learns the key's id and revokes it.
             issue = asyncio.ensure_future(admin.issue_key(station, "bots"))
@@ -349,7 +380,6 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
             finally:
                 await robot.close()
 
-        lanes = min(config.concurrency, max(config.participants, 1))
         workers = [
             asyncio.ensure_future(lane_worker(n, random.Random(rng.random())))
             for n in range(1, lanes + 1)

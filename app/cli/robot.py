@@ -12,7 +12,7 @@ import typer
 from tqdm import tqdm
 from websockets.exceptions import ConnectionClosed, WebSocketException
 
-from app.bots import BotConfig, run_bots
+from app.bots import BotConfig, BotStationsBusy, run_bots
 from app.cli.admin import JsonFlag, emit_json
 from app.cli.errors import fail
 from app.client import ApiError, DeviceKeyRefused, StationSocket
@@ -228,6 +228,13 @@ def bots(
             "language drawn from those the tablet offers)."
         ),
     ] = None,
+    station_prefix: Annotated[
+        str,
+        typer.Option(
+            help="Name the bot stations PREFIX-1 … PREFIX-C (a second run beside a running one "
+            "needs its own)."
+        ),
+    ] = "bot",
     as_json: JsonFlag = False,
 ) -> None:
     """Simulated participants driven through the whole protocol over HTTP/WebSocket."""
@@ -245,11 +252,14 @@ def bots(
         noise=noise,
         seed=seed,
         transport=transport,  # type: ignore[arg-type]
+        station_prefix=station_prefix,
         language=language,
     )
     with tqdm(desc="answers", unit="step", file=sys.stderr, disable=as_json) as bar:
         try:
             summary = asyncio.run(run_bots(config, tick=lambda: bar.update(1)))
+        except BotStationsBusy as exc:
+            raise InvalidInput(str(exc)) from exc
         except ApiError as exc:
             raise InvalidInput(f"the server refused: {exc.detail}") from exc
         except OSError as exc:

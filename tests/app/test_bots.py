@@ -9,6 +9,7 @@ from importlib import resources
 from pathlib import Path
 
 import pytest
+from click.testing import Result
 from sqlalchemy import func, select
 from typer.testing import CliRunner
 
@@ -17,10 +18,10 @@ from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import accounts, stations, studies, users, verify
+from app.services import accounts, enrolment, stations, studies, users, verify
 from app.services.audit import Actor
 from app.settings import Settings
-from app.tables import Answer, Device, Participant, Prompt, Response, Role
+from app.tables import Answer, Device, Participant, Prompt, Response, Role, Station
 from tests.conftest import PASSWORD, make_user, sqlite_only
 from tests.servers import ServerProcess
 
@@ -104,6 +105,9 @@ def test_bots_revoke_their_keys_after_a_run_an_error_and_an_interruption(
     # run (that is up to the scheduler): whatever was issued is revoked.
     keys = _bot_keys(database)
     assert 3 <= len(keys) <= 4 and all(revoked for _, revoked in keys), keys
+    with database.read_session() as db:  # stopped mid-session, the stations were still freed
+        seated = db.scalars(select(Station.name).where(Station.participant_id.is_not(None)))
+        assert list(seated) == []
 
     monkeypatch.setattr(bots._Lane, "run_participant", _crash)
     with pytest.raises(RuntimeError, match="lane crashed"):
@@ -131,29 +135,46 @@ def test_response_model_shifts_and_mirrors() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("engine_name", ["sqlite"])  # the command's plumbing is engine-free
 def test_bots_command_prints_one_json_summary(
-    server: ServerProcess, database_url: str, exp3_study: str, engine_name: str
+    server: ServerProcess,
+    database: Database,
+    database_url: str,
+    exp3_study: str,
+    engine_name: str,
 ) -> None:
-    result = CliRunner().invoke(
-        cli,
-        [
-            "bots",
-            "--url",
-            server.url,
-            "--study",
-            exp3_study,
-            "--participants",
-            "1",
-            "--username",
-            "botmaster",
-            "--password-stdin",
-            "--json",
-        ],
-        input=PASSWORD + "\n",
-        env={"TRUSTLAB_DATABASE_URL": database_url},
-    )
+    def run_bots_command(*options: str) -> Result:
+        return CliRunner().invoke(
+            cli,
+            [
+                *("bots", "--url", server.url, "--study", exp3_study, "--participants", "1"),
+                *("--username", "botmaster", "--password-stdin", "--json", *options),
+            ],
+            input=PASSWORD + "\n",
+            env={"TRUSTLAB_DATABASE_URL": database_url},
+        )
+
+    result = run_bots_command()
     assert result.exit_code == 0, result.output
     summary = json.loads(result.stdout)
     assert summary["completed"] == 1 and summary["errors"] == []
+
+    # Someone sits at bot-1 (another run's participant, or one a hard stop left there): the
+    # run is refused before it enrols anyone, and another prefix runs beside it.
+    with database.writing() as db:
+        seated = enrolment.enroll_participant(db, study_name=exp3_study, actor=Actor.system())
+        stations.assign_participant(
+            db, station_name="bot-1", participant=seated.participant, actor=Actor.system()
+        )
+    busy = run_bots_command()
+    assert busy.exit_code == 2
+    assert (
+        f"error: station bot-1 already has participant {seated.participant.code} seated"
+        in busy.stderr
+    )
+    with database.read_session() as db:
+        assert db.scalar(select(func.count()).select_from(Participant)) == 2
+    beside = run_bots_command("--station-prefix", "second")
+    assert beside.exit_code == 0, beside.output
+    assert json.loads(beside.stdout)["completed"] == 1
     refused = CliRunner().invoke(
         cli,
         [
