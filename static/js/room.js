@@ -615,7 +615,9 @@ async function loadSpeech() {
   }
   room.listener.stop();
   if (room.listener.close) room.listener.close();
-  const browser = new Listener(LISTEN && room.speech.cloud_recognizer);
+  const speech = room.speech;
+  const phrases = { yes: speech.yes, no: speech.no, english: (speech.language || "en").startsWith("en") };
+  const browser = new Listener(LISTEN && speech.cloud_recognizer, phrases);
   if (browser.available) {
     room.listener = browser;
   } else if (room.speech.offline_recognition === false) {

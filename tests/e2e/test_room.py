@@ -476,13 +476,17 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     drive.open_room(page, lab)
     page.wait_for_function("() => window.trustlabRoom.listener === 'browser'")
     heard = page.evaluate(
-        """async (phrases) => {
+        """async ([heard, swedish, phrases]) => {
             const speech = await import('/static/js/room/speech.js');
-            return phrases.map((phrase) => speech.classifyAnswer(phrase));
+            return [
+                heard.map((words) => speech.classifyAnswer(words)),
+                swedish.map((words) => speech.classifyAnswer(words, phrases)),
+            ];
         }""",
-        list(CLASSIFIED),
+        [list(CLASSIFIED), list(CLASSIFIED_SV), SWEDISH_PHRASES],
     )
-    assert dict(zip(CLASSIFIED, heard, strict=True)) == CLASSIFIED
+    assert dict(zip(CLASSIFIED, heard[0], strict=True)) == CLASSIFIED
+    assert dict(zip(CLASSIFIED_SV, heard[1], strict=True)) == CLASSIFIED_SV
 
     lab.start_session()
     page.evaluate("() => { window.__heard.push(['maybe', 0.95], ['yeah sure', 0.3]); }")
@@ -526,6 +530,25 @@ CLASSIFIED = {
     "": None,
 }
 """What a recogniser may hear, and what the room takes it for (None: it asks again)."""
+
+SWEDISH_PHRASES = {
+    "yes": ["ja", "javisst", "absolut"],
+    "no": ["nej", "nä", "nej tack"],
+    "english": False,
+}
+"""A protocol's phrases for a Swedish participant, as the room passes them to the recogniser."""
+CLASSIFIED_SV = {
+    "Ja": "yes",
+    "Ja, absolut!": "yes",
+    "javisst": "yes",
+    "Nej tack.": "no",
+    "nä": "no",
+    "ja nej": None,
+    "jaså": None,  # a word that begins like "ja" is not "ja"
+    "yes": None,  # the built-in English words are for English speakers
+    "jag vet inte": None,
+}
+"""What a Swedish participant's recogniser may hear, and what the room takes it for."""
 
 
 WALKING_RULES = """async () => {

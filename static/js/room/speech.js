@@ -7,7 +7,9 @@
 // A recognised answer counts only when it is a clear yes or a clear no: "yes", "yeah, sure" or
 // "no, not really" are; "yes… no", "I don't know", "maybe" and anything heard with low confidence
 // are not, and the robot asks again. Real participants hesitate and correct themselves, and a
-// misheard answer would teach the learner the wrong thing.
+// misheard answer would teach the learner the wrong thing. The protocol's own phrases for the
+// participant's language ([speech] yes/no and their translations: "ja", "nej tack") count as
+// well; the built-in English words and hedges only where the participant speaks English.
 
 export const MIN_CONFIDENCE = 0.5;
 
@@ -21,19 +23,40 @@ const UNSURE = [
   /\bkind of\b/, /\bsort of\b/, /\bwhat\b/, /\bpardon\b/, /\brepeat\b/,
 ];
 
-/** "yes", "no" or null (not a clear answer) for what a recogniser heard. */
-export function classifyAnswer(transcript) {
-  const text = String(transcript || "")
+/** Lower case, letters of any script and apostrophes only, single spaces. */
+function normalise(text) {
+  return String(text || "")
+    .normalize("NFC")
     .toLowerCase()
     .replace(/[’`]/g, "'")
-    .replace(/[^a-z' ]+/g, " ")
+    .replace(/[^\p{L}' ]+/gu, " ")
     .replace(/\s+/g, " ")
     .trim();
-  if (!text || UNSURE.some((pattern) => pattern.test(text))) return null;
+}
+
+/** Whether ``text`` (normalised) says one of ``phrases`` as whole words. */
+function says(text, phrases) {
+  return (phrases || []).some((phrase) => {
+    const words = normalise(phrase);
+    return words !== "" && ` ${text} `.includes(` ${words} `);
+  });
+}
+
+/** "yes", "no" or null (not a clear answer) for what a recogniser heard. ``phrases``: the
+ * protocol's ``yes`` and ``no`` phrases in the participant's language, and whether that language
+ * is English (the built-in words and hedges are English). */
+export function classifyAnswer(transcript, phrases = { yes: [], no: [], english: true }) {
+  const text = normalise(transcript);
+  const english = phrases.english !== false;
+  if (!text || (english && UNSURE.some((pattern) => pattern.test(text)))) return null;
   const words = text.split(" ");
-  const saidYes = words.some((word) => YES.has(word)) || /\bof course\b/.test(text);
-  const saidNo = words.some((word) => NO.has(word) || word === "don't" || word === "didn't");
-  if (saidYes === saidNo) return null; // neither, or both ("yes no", "right, no")
+  const saidYes =
+    says(text, phrases.yes) ||
+    (english && (words.some((word) => YES.has(word)) || /\bof course\b/.test(text)));
+  const saidNo =
+    says(text, phrases.no) ||
+    (english && words.some((word) => NO.has(word) || word === "don't" || word === "didn't"));
+  if (saidYes === saidNo) return null; // neither, or both ("yes no", "right, no", "ja nej")
   return saidYes ? "yes" : "no";
 }
 
@@ -41,7 +64,7 @@ export function classifyAnswer(transcript) {
  * enough confidence, with its words and confidence, or ``{answer: null, …}`` with the same words
  * when it is not. The other alternatives are not consulted: a guess the recogniser ranked lower
  * is no evidence of what the participant said. */
-export function pickAnswer(alternatives, minConfidence = MIN_CONFIDENCE) {
+export function pickAnswer(alternatives, minConfidence = MIN_CONFIDENCE, phrases = undefined) {
   const heard = alternatives
     .filter((alternative) => alternative && alternative.transcript)
     .map((alternative) => ({
@@ -50,7 +73,7 @@ export function pickAnswer(alternatives, minConfidence = MIN_CONFIDENCE) {
     }));
   if (heard.length === 0) return { answer: null, transcript: "", confidence: 0 };
   const top = heard[0];
-  const answer = classifyAnswer(top.transcript);
+  const answer = classifyAnswer(top.transcript, phrases);
   if (answer === null || top.confidence < minConfidence) return { answer: null, ...top };
   return { answer, ...top };
 }
@@ -155,11 +178,14 @@ export class Voice {
   }
 }
 
-/** Listens for one yes/no answer at a time (where the browser offers speech recognition). */
+/** Listens for one yes/no answer at a time (where the browser offers speech recognition), in
+ * the participant's language, for the protocol's phrases of it (``phrases``: as
+ * :func:`classifyAnswer` takes them). */
 export class Listener {
-  constructor(enabled = true) {
+  constructor(enabled = true, phrases = undefined) {
     const Recognition = enabled && (window.SpeechRecognition || window.webkitSpeechRecognition);
     this.Recognition = Recognition || null;
+    this.phrases = phrases;
     this.active = null;
   }
 
@@ -187,7 +213,7 @@ export class Listener {
       };
       recognition.onresult = (event) => {
         const result = event.results[event.results.length - 1];
-        settle(pickAnswer(Array.from(result)));
+        settle(pickAnswer(Array.from(result), MIN_CONFIDENCE, this.phrases));
       };
       recognition.onerror = () => settle(null);
       recognition.onend = () => settle(null);
