@@ -207,10 +207,18 @@ def _at_start(here: dict[str, float]) -> bool:
 
 
 def walk_out(page: Page) -> None:
-    """From the cognition zone's corridor out through the exit, back to the start."""
+    """From the cognition zone's corridor out through the exit, back to the start (the room
+    sends the participant back once its state says the run is complete: after the last reply,
+    that state may still be on its way when the walker reaches the exit, so wait for it)."""
     walk_to(page, *TO_EXIT_FROM_COGNITION[0])
     walk_to(page, *TO_EXIT_FROM_COGNITION[1], until_start=True)
-    assert _at_start(pose(page)), pose(page)
+    page.wait_for_function(
+        """([x, z]) => {
+             const p = window.trustlabRoom.pose;
+             return Math.hypot(p.x - x, p.z - z) < 0.01 && p.heading === 0;
+           }""",
+        arg=list(START),
+    )
 
 
 def walk(page: Page, waypoints: Iterable[tuple[float, float]]) -> None:
@@ -237,11 +245,18 @@ def answer_by_rules(page: Page, category: str, question: str, *, how: str = "key
         page.keyboard.press("KeyY" if said == "yes" else "KeyN")
     else:
         page.get_by_role("button", name="Yes" if said == "yes" else "No").click()
+    wait_reply(page)
+    return said
+
+
+def wait_reply(page: Page, *, timeout: float | None = None) -> None:
+    """Until the question is closed and the robot's reply to its answer is shown (the answer is
+    stored by then: the server replies after it commits)."""
     page.wait_for_function(
         "() => !window.trustlabRoom.question && "
-        "document.getElementById('captions').dataset.kind === 'reply'"
+        "document.getElementById('captions').dataset.kind === 'reply'",
+        timeout=timeout,
     )
-    return said
 
 
 def session_running(page: Page) -> bool:

@@ -58,7 +58,9 @@ def test_a_participant_accepts_a_new_consent_text_before_the_next_session(
     expect(page).to_have_url(f"{live_server.url}/tablet/q/demographics")
     # The pre-study questionnaires (tested page by page in test_tablet.py) through the JSON
     # tablet, with the same link.
-    api = httpx.Client(base_url=live_server.url, headers={"Authorization": f"Bearer {token}"})
+    api = httpx.Client(
+        base_url=live_server.url, headers={"Authorization": f"Bearer {token}"}, timeout=30
+    )
     for instrument, answers in PRE_STUDY_ANSWERS.items():
         assert api.post(f"/api/v1/tablet/questionnaires/{instrument}", json={"answers": answers})
     page.goto(f"{live_server.url}/tablet")

@@ -20,7 +20,9 @@ del SECRET  # the server signs its own links; nothing here needs the secret
 
 def _fill_tablet(server: ServerProcess, token: str) -> None:
     """The participant's consent and pre-study questionnaires (their part, not the test's)."""
-    with httpx.Client(base_url=server.url, headers={"Authorization": f"Bearer {token}"}) as tablet:
+    with httpx.Client(
+        base_url=server.url, headers={"Authorization": f"Bearer {token}"}, timeout=30
+    ) as tablet:
         assert tablet.post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
         for instrument, answers in PRE_STUDY_ANSWERS.items():
             tablet.post(f"/api/v1/tablet/questionnaires/{instrument}", json={"answers": answers})
@@ -124,7 +126,7 @@ def test_a_dashboard_on_one_worker_updates_from_an_answer_posted_to_another(
     first.start()
     second.start()
     try:
-        with httpx.Client(base_url=second.url) as api:
+        with httpx.Client(base_url=second.url, timeout=30) as api:
             signed = api.post(
                 "/api/v1/session", json={"username": "operator", "password": PASSWORD}
             )

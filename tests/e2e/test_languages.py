@@ -100,6 +100,7 @@ def test_a_swedish_participant_on_the_tablet_and_in_the_room(
     tablet.get_by_label("Jag har läst texten ovan och samtycker till att delta.").check()
     tablet.screenshot(path=str(artifacts / "02-consent.png"), full_page=True)
     tablet.get_by_role("button", name="Fortsätt").click()
+    tablet.wait_for_url("**/tablet/q/**")  # _fill_pre_study reads the URL to know where it is
     _fill_pre_study(tablet, english)
     expect(tablet).to_have_url(f"{live_server.url}/tablet/wait")
     expect(tablet.locator("body")).to_contain_text("Vänta på försöksledaren.")

@@ -492,7 +492,8 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     page.evaluate("() => { window.__heard.push(['maybe', 0.95], ['yeah sure', 0.3]); }")
     page.evaluate("() => { window.__heard.push(['Yeah, sure.', 0.92]); }")
     drive.walk(page, drive.TO_CONATION)
-    page.wait_for_function("() => !window.trustlabRoom.question")
+    # Not just "no question": the walk may end before the zone's question has even arrived.
+    drive.wait_reply(page)
     stored = _answers_for(database, lab.code, "conation")
     assert len(stored) == 1
     assert (stored[0].answer, stored[0].modality, stored[0].transcript) == (
@@ -674,13 +675,15 @@ def test_a_spoken_yes_is_recognised_offline_on_the_server(
         lab.start_session()
         drive.walk(page, drive.TO_CONATION)
         drive.wait_question(page, "conation")
-        expect(page.locator("#listening")).to_be_visible(timeout=60_000)
-        page.screenshot(path=str(artifacts / "01-listening.png"))
+        # Checked on every frame: the indicator shows only until the server has heard the yes,
+        # which may be shorter than expect()'s polling interval (a second, by then).
         page.wait_for_function(
-            "() => !window.trustlabRoom.question && "
-            "document.getElementById('captions').dataset.kind === 'reply'",
-            timeout=120_000,
+            "() => document.getElementById('listening')"
+            ".checkVisibility({ visibilityProperty: true })",
+            timeout=60_000,
         )
+        page.screenshot(path=str(artifacts / "01-listening.png"))
+        drive.wait_reply(page, timeout=120_000)
         page.screenshot(path=str(artifacts / "02-replied.png"))
         stored = _answers_for(room_server.database, lab.code, "conation")
         assert len(stored) == 1

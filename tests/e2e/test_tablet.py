@@ -38,8 +38,11 @@ class _Lab:
                 db, station_name=station, label="robot", actor=SYSTEM
             ).key
         self.station = station
-        self.robot = httpx.Client(base_url=server.url, headers={"Authorization": f"Bearer {key}"})
-        self.experimenter = httpx.Client(base_url=server.url)
+        # Not httpx's 5 s default: an answer's learner update on a loaded machine may take longer.
+        self.robot = httpx.Client(
+            base_url=server.url, headers={"Authorization": f"Bearer {key}"}, timeout=30
+        )
+        self.experimenter = httpx.Client(base_url=server.url, timeout=30)
         signed_in = self.experimenter.post(
             "/api/v1/session", json={"username": "e2e-admin", "password": PASSWORD}
         )
@@ -149,7 +152,7 @@ def test_a_participant_completes_every_instrument(
     for session in (1, 2, 3, 4):
         lab.run_session()
         # The wait page moves on by itself (server-sent event) to the session questionnaire.
-        expect(page).to_have_url(f"{live_server.url}/tablet/q/trust/{session}", timeout=15000)
+        expect(page).to_have_url(f"{live_server.url}/tablet/q/trust/{session}")
         if session == 1:
             _check_layout(page, artifacts / "07-trust.png")
         for n in range(1, 6):
