@@ -418,6 +418,46 @@ def test_a_wizard_of_oz_answer_shows_the_reply_and_the_way_out_in_the_room(
 
 
 @pytest.mark.e2e
+def test_the_console_shows_the_last_of_two_quick_changes(
+    room_server: RoomServer,
+    lab: drive.RoomLab,
+    context_of: Callable[..., BrowserContext],
+) -> None:
+    """A change whose event reaches the console while its refresh for the change before is on
+    its way is shown all the same (htmx's throttle drops that event, and a refresh queued behind
+    one in flight is dropped when that one's swap replaces the console)."""
+    console = _console(room_server, lab, context_of)
+    console.evaluate(
+        """() => {
+            window.__changes = 0;
+            document.addEventListener('htmx:sseMessage', (event) => {
+                if (event.detail.type === 'changed') window.__changes += 1;
+            });
+        }"""
+    )
+    lab.start_session()
+    expect(console.locator("section.woz form button").first).to_be_visible()  # refreshed
+    answered: list[str] = []
+    step = 0
+
+    def answer_while_refreshing(route: Route) -> None:
+        if step and not answered and route.request.headers.get("hx-request"):
+            fetched = route.fetch()  # the console's refresh has read the open prompt...
+            heard = console.evaluate("() => window.__changes")
+            answered.append(lab.wizard_answer(step))  # ...and now the answer is committed,
+            console.wait_for_function("(n) => window.__changes > n", arg=heard)  # and heard of
+            route.fulfill(response=fetched)
+        else:
+            route.continue_()
+
+    console.route(f"**/stations/{lab.station}", answer_while_refreshing)
+    step = lab.wizard_prompt("conation")
+    expect(console.locator("#console")).to_contain_text("participant: yes")
+    assert answered, "the answer was not given during the prompt's refresh"
+    expect(console.locator("#console")).to_contain_text(f"robot: “{answered[0]}”")
+
+
+@pytest.mark.e2e
 def test_the_console_shows_no_line_of_the_previous_participant(
     room_server: RoomServer,
     lab: drive.RoomLab,

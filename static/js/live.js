@@ -1,0 +1,80 @@
+// Live regions on staff pages: a region the page's event stream keeps current never misses the
+// last change of a burst. A region says which stream event refreshes it and how often at most:
+// data-live="EVENT MS" beside hx-trigger="sse:EVENT throttle:MSms, trustlab:refresh".
+//
+// htmx alone can leave a region stale until the next change: its throttle drops an event that
+// comes within MS of the last refresh, and a refresh queued behind one in flight is dropped
+// when that one's swap replaces the region (outerHTML). So every event is counted here, each
+// refresh notes the count when it starts, and when a refresh ends (or a dropped event leaves
+// none on its way) with events it did not see, one more refresh follows, MS after the last.
+(() => {
+  const regions = new Map(); // id -> {seen, covered, inFlight, started, timer}
+
+  function stateOf(id) {
+    if (!regions.has(id)) {
+      regions.set(id, { seen: 0, covered: 0, inFlight: false, started: 0, timer: null });
+    }
+    return regions.get(id);
+  }
+
+  function settingsOf(region) {
+    const [event, gap] = (region.dataset.live || "").split(" ");
+    return { event, gap: Number(gap) || 0 };
+  }
+
+  /** Refresh the region once more if an event came after its last refresh started. */
+  function catchUp(id) {
+    const state = stateOf(id);
+    const region = document.getElementById(id);
+    if (!region || state.covered >= state.seen || state.inFlight || state.timer) return;
+    const wait = Math.max(0, state.started + settingsOf(region).gap - Date.now());
+    state.timer = setTimeout(() => {
+      state.timer = null;
+      const current = document.getElementById(id);
+      if (current && state.covered < state.seen && !state.inFlight) {
+        htmx.trigger(current, "trustlab:refresh");
+      }
+    }, wait);
+  }
+
+  function watch(eventName) {
+    // Capture: counted before htmx's own listener on the region starts (or drops) a refresh.
+    document.addEventListener(
+      `sse:${eventName}`,
+      (event) => {
+        const region = event.target;
+        if (!(region instanceof Element) || !region.id || !region.dataset.live) return;
+        if (settingsOf(region).event !== eventName) return;
+        stateOf(region.id).seen += 1;
+        setTimeout(() => catchUp(region.id), 0); // after htmx has decided
+      },
+      true,
+    );
+  }
+
+  document.addEventListener("htmx:beforeRequest", (event) => {
+    const region = event.detail.elt;
+    if (!(region instanceof Element) || !region.id || !region.dataset.live) return;
+    const state = stateOf(region.id);
+    state.inFlight = true;
+    state.started = Date.now();
+    state.covered = state.seen;
+    event.detail.xhr.addEventListener("loadend", () => {
+      state.inFlight = false; // after htmx's swap: the region shows what this refresh read
+      catchUp(region.id);
+    });
+  });
+
+  const watched = new Set();
+  function watchRegions(root) {
+    root.querySelectorAll("[data-live]").forEach((region) => {
+      const { event } = settingsOf(region);
+      if (event && !watched.has(event)) {
+        watched.add(event);
+        watch(event);
+      }
+    });
+  }
+  document.addEventListener("DOMContentLoaded", () => watchRegions(document));
+  document.addEventListener("htmx:afterSettle", (event) => watchRegions(event.target));
+})();
