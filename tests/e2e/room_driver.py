@@ -281,3 +281,24 @@ def run_through(
     if session_running(page):
         walk_out(page)
     return asked
+
+
+FAKE_SPEECH = """
+window.__heard = [];
+class FakeRecognition {
+  start() {
+    const next = window.__heard.shift();
+    setTimeout(() => {
+      if (!next) { this.onend && this.onend(); return; }
+      const result = [{ transcript: next[0], confidence: next[1] }];
+      this.onresult && this.onresult({ results: [result] });
+    }, 20);
+  }
+  abort() {}
+}
+window.SpeechRecognition = FakeRecognition;
+window.webkitSpeechRecognition = FakeRecognition;
+window.speechSynthesis = { speak(u) { setTimeout(() => u.onend && u.onend(), 5); }, cancel() {} };
+"""
+"""A browser recogniser and voice for a page's init script: the recogniser hears the next of
+window.__heard ([transcript, confidence] pairs), or silence when it is empty."""

@@ -10,6 +10,7 @@ from pathlib import Path
 import httpx
 import pytest
 from playwright.sync_api import Browser, Page, expect
+from sqlalchemy import select
 
 from app.db import Database
 from app.i18n.catalogues import catalogue
@@ -17,8 +18,9 @@ from app.i18n.protocol_texts import text_slots
 from app.protocol import parse_protocol
 from app.services import enrolment, stations, studies, tablet_tokens
 from app.services.audit import Actor
-from app.tables import Role
+from app.tables import Answer, Prompt, Role
 from tests.conftest import EXP3_ONLY, PASSWORD, PRE_STUDY_ANSWERS, make_user
+from tests.e2e import room_driver as drive
 from tests.e2e.conftest import SECRET
 from tests.servers import ServerProcess
 
@@ -27,7 +29,8 @@ SYSTEM = Actor.system("e2e-languages")
 
 def _swedish_study(database: Database) -> str:
     text = resources.files("app.protocols").joinpath("fast_adaptation_trust_sv.toml").read_text()
-    for old, new in EXP3_ONLY.items():
+    # the browser's own recogniser, so that the room hears Swedish (the server's is English only)
+    for old, new in {**EXP3_ONLY, "cloud_recognizer = false": "cloud_recognizer = true"}.items():
         text = text.replace(old, new)
     with database.writing() as db:
         studies.create_study(db, name="sv", loaded=parse_protocol(text), actor=SYSTEM)
@@ -117,7 +120,8 @@ def test_a_swedish_participant_on_the_tablet_and_in_the_room(
         )
         stations.assign_participant(db, station_name="rum-1", participant=seated, actor=SYSTEM)
     room = context.new_page()
-    room.goto(f"{live_server.url}/stations/rum-1/room?voice=off")
+    room.add_init_script(drive.FAKE_SPEECH)
+    room.goto(f"{live_server.url}/stations/rum-1/room?voice=off&listen=on")
     room.get_by_label("Device key of station rum-1").fill(key)
     room.get_by_role("button", name="Open the room").click()
     room.wait_for_function("() => window.trustlabRoom && window.trustlabRoom.ready")
@@ -144,3 +148,15 @@ def test_a_swedish_participant_on_the_tablet_and_in_the_room(
     assert room.locator("#caption-text").inner_text() in replies
     room.screenshot(path=str(artifacts / "03-room.png"))
     _no_english(room, english, "room")
+
+    # Answered aloud in Swedish: the protocol's Swedish phrases are what the recogniser listens for.
+    room.evaluate("() => { window.__heard.push(['Ja, absolut.', 0.9]); }")
+    spoken = staff.post("/api/v1/stations/rum-1/prompts", json={"category": "conation"})
+    assert spoken.status_code == 201, spoken.text
+    expect(room.locator("#caption-text")).to_have_text(spoken.json()["question"])
+    drive.wait_reply(room)
+    with database.read_session() as db:
+        heard = db.scalars(
+            select(Answer).join(Prompt).where(Prompt.id == spoken.json()["step_id"])
+        ).one()
+    assert (heard.answer, heard.modality, heard.transcript) == (True, "speech", "Ja, absolut.")

@@ -479,25 +479,6 @@ def test_the_console_shows_no_line_of_the_previous_participant(
     console.screenshot(path=str(artifacts / "01-console-next-participant.png"), full_page=True)
 
 
-FAKE_SPEECH = """
-window.__heard = [];
-class FakeRecognition {
-  start() {
-    const next = window.__heard.shift();
-    setTimeout(() => {
-      if (!next) { this.onend && this.onend(); return; }
-      const result = [{ transcript: next[0], confidence: next[1] }];
-      this.onresult && this.onresult({ results: [result] });
-    }, 20);
-  }
-  abort() {}
-}
-window.SpeechRecognition = FakeRecognition;
-window.webkitSpeechRecognition = FakeRecognition;
-window.speechSynthesis = { speak(u) { setTimeout(() => u.onend && u.onend(), 5); }, cancel() {} };
-"""
-
-
 @pytest.mark.e2e
 def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     room_server: RoomServer,
@@ -511,7 +492,7 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     expect(console.locator("#room-panel")).to_contain_text("No room client has reported yet")
 
     context = context_of(viewport=DESKTOP)
-    context.add_init_script(FAKE_SPEECH)
+    context.add_init_script(drive.FAKE_SPEECH)
     page = context.new_page()
     drive.open_room(page, lab)
     page.wait_for_function("() => window.trustlabRoom.listener === 'browser'")
