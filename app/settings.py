@@ -95,6 +95,16 @@ class Settings(BaseSettings):
     )
     host: str = Field(default="127.0.0.1", description="Where `trustlab serve` listens.")
     port: int = Field(default=8000, ge=1, le=65535, description="The port `trustlab serve` uses.")
+    shutdown_grace_seconds: int = Field(
+        default=5,
+        ge=1,
+        le=300,
+        description=(
+            "How long `trustlab serve` waits, when told to stop, for requests still running: an "
+            "answer takes milliseconds, but the consoles' and tablets' live streams never end by "
+            "themselves, so they are cut after this (the pages reconnect to the next server)."
+        ),
+    )
     trusted_proxies: Annotated[tuple[str, ...], NoDecode] = Field(
         default=(),
         description=(

@@ -81,6 +81,8 @@ class ServerProcess:
             str(self.port),
             "--log-level",
             "warning",
+            "--timeout-graceful-shutdown",  # as `trustlab serve` does: live streams never end
+            "1",
         ]
         if self.workers > 1:
             arguments += ["--workers", str(self.workers)]

@@ -156,6 +156,7 @@ def serve(
         workers=workers,
         proxy_headers=False,  # the app trusts only TRUSTLAB_TRUSTED_PROXIES (app.main)
         log_level="info",
+        timeout_graceful_shutdown=settings.shutdown_grace_seconds,
     )
 
 
