@@ -256,8 +256,10 @@ class _Lane:
             c.name: c.preferred if c.preferred is not None else self.rng.randrange(c.arms)
             for c in self.categories
         }
-        await self.experimenter.assign(self.station, self.config.study, code)
         try:
+            # Inside the try: a run stopped while the seating's response is on its way (the
+            # server has seated the participant) still frees the station.
+            await self.experimenter.assign(self.station, self.config.study, code)
             while True:
                 submitted = await tablet.fill()  # await first: += would read before the await
                 self.summary.questionnaires += submitted
@@ -273,13 +275,16 @@ class _Lane:
                 self.summary.sessions += 1
         finally:
             await tablet.aclose()
-            await self._leave_station()
+            await self._leave_station(code)
 
-    async def _leave_station(self) -> None:
-        """Free the bot station, also when the run is stopped mid-session (Ctrl-C, a failed
-        lane): the session is ended early, as an experimenter would, so that the next run finds
-        the station free instead of a participant it may not unseat."""
+    async def _leave_station(self, code: str) -> None:
+        """Free the bot station of participant ``code``, also when the run is stopped
+        mid-session (Ctrl-C, a failed lane): the session is ended early, as an experimenter
+        would, so that the next run finds the station free instead of a participant it may not
+        unseat. Someone else seated there (the seating was refused) is left alone."""
         state = await self.experimenter.call("GET", f"/stations/{self.station}/state")
+        if state.get("participant") != code:
+            return
         session = state.get("session") or {}
         if session.get("status") == "running":
             await self.experimenter.end_session(self.station)

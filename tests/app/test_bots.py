@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 from app import bots, demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
+from app.client import ExperimenterClient
 from app.db import Database
 from app.protocol import parse_protocol
 from app.services import accounts, enrolment, stations, studies, users, verify
@@ -118,6 +119,39 @@ def test_bots_revoke_their_keys_after_a_run_an_error_and_an_interruption(
 
 async def _crash(self: object) -> None:
     raise RuntimeError("lane crashed")
+
+
+@pytest.mark.slow
+def test_a_run_stopped_right_after_seating_frees_the_station(
+    server: ServerProcess, database: Database, exp3_study: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C while the seating's response is on its way (the server has seated the participant,
+    the bots have not heard so): the station is freed all the same, or the next run is refused."""
+    seated = asyncio.Event()
+    assign = ExperimenterClient.assign
+
+    async def assign_then_wait(
+        self: ExperimenterClient, station: str, study: str, code: str
+    ) -> None:
+        await assign(self, station, study, code)
+        seated.set()
+        await asyncio.Event().wait()  # the response "still on its way" when Ctrl-C comes
+
+    monkeypatch.setattr(ExperimenterClient, "assign", assign_then_wait)
+
+    async def interrupted() -> None:
+        config = dataclasses.replace(_config(server, exp3_study, 1), concurrency=1)
+        run = asyncio.ensure_future(run_bots(config))
+        await asyncio.wait_for(seated.wait(), 60)
+        run.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await run
+
+    asyncio.run(interrupted())
+    with database.read_session() as db:
+        assert (
+            list(db.scalars(select(Station.name).where(Station.participant_id.is_not(None)))) == []
+        )
 
 
 def test_response_model_shifts_and_mirrors() -> None:
