@@ -497,17 +497,25 @@ def test_spoken_answers_count_only_when_clear_and_the_console_follows_the_room(
     drive.open_room(page, lab)
     page.wait_for_function("() => window.trustlabRoom.listener === 'browser'")
     heard = page.evaluate(
-        """async ([heard, swedish, phrases]) => {
+        """async ([heard, swedish, phrases, hindi, hindiPhrases]) => {
             const speech = await import('/static/js/room/speech.js');
             return [
                 heard.map((words) => speech.classifyAnswer(words)),
                 swedish.map((words) => speech.classifyAnswer(words, phrases)),
+                hindi.map((words) => speech.classifyAnswer(words, hindiPhrases)),
             ];
         }""",
-        [list(CLASSIFIED), list(CLASSIFIED_SV), SWEDISH_PHRASES],
+        [
+            list(CLASSIFIED),
+            list(CLASSIFIED_SV),
+            SWEDISH_PHRASES,
+            list(CLASSIFIED_HI),
+            HINDI_PHRASES,
+        ],
     )
     assert dict(zip(CLASSIFIED, heard[0], strict=True)) == CLASSIFIED
     assert dict(zip(CLASSIFIED_SV, heard[1], strict=True)) == CLASSIFIED_SV
+    assert dict(zip(CLASSIFIED_HI, heard[2], strict=True)) == CLASSIFIED_HI
 
     lab.start_session()
     page.evaluate("() => { window.__heard.push(['maybe', 0.95], ['yeah sure', 0.3]); }")
@@ -571,6 +579,16 @@ CLASSIFIED_SV = {
     "jag vet inte": None,
 }
 """What a Swedish participant's recogniser may hear, and what the room takes it for."""
+
+HINDI_PHRASES = {"yes": ["हाँ", "जी हाँ"], "no": ["नहीं", "जी नहीं"], "english": False}
+"""A script whose vowel signs are combining marks: dropping them made "हूँ" ("am") read as "हाँ"."""
+CLASSIFIED_HI = {
+    "हाँ": "yes",
+    "जी हाँ": "yes",
+    "नहीं": "no",
+    "मैं ठीक हूँ": None,  # "I am fine": "हूँ" is not "हाँ"
+    "नहीं, मैं तैयार नहीं हूँ": "no",
+}
 
 
 WALKING_RULES = """async () => {

@@ -23,13 +23,14 @@ const UNSURE = [
   /\bkind of\b/, /\bsort of\b/, /\bwhat\b/, /\bpardon\b/, /\brepeat\b/,
 ];
 
-/** Lower case, letters of any script and apostrophes only, single spaces. */
+/** Lower case, letters of any script (with their combining marks: the vowel signs of Indic
+ * scripts, Thai tone marks) and apostrophes only, single spaces. */
 function normalise(text) {
   return String(text || "")
     .normalize("NFC")
     .toLowerCase()
     .replace(/[’`]/g, "'")
-    .replace(/[^\p{L}' ]+/gu, " ")
+    .replace(/[^\p{L}\p{M}' ]+/gu, " ")
     .replace(/\s+/g, " ")
     .trim();
 }
