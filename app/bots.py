@@ -275,7 +275,11 @@ class _Lane:
                 self.summary.sessions += 1
         finally:
             await tablet.aclose()
-            await self._leave_station(code)
+            try:
+                await self._leave_station(code)
+            except (ApiError, ConnectionError, TimeoutError, OSError, httpx.HTTPError) as exc:
+                # recorded beside the lane's own error (if any), which goes on as it was
+                self.summary.errors.append(f"{self.station}: {code} was left seated: {exc}")
 
     async def _leave_station(self, code: str) -> None:
         """Free the bot station of participant ``code``, also when the run is stopped
@@ -312,21 +316,43 @@ class _Lane:
 
 
 class BotStationsBusy(Exception):
-    """A bot station already has someone seated: another bots run uses it, or one that was
-    stopped hard left its participant there. Found before anyone is enrolled, so a refused run
-    adds no participant to the study (enrolling randomises)."""
+    """A bot station cannot be the bots': someone is seated there (another bots run uses it, or
+    one stopped hard left its participant), or it has device keys of its own (a lab's robot or
+    room). Found before anyone is enrolled, so a refused run adds no
+    participant to the study (enrolling randomises)."""
+
+
+BOT_KEY_LABEL = "bots"
+"""The label of the device keys the bots issue (and revoke when they stop)."""
 
 
 async def _claim_stations(admin: ExperimenterClient, names: list[str]) -> None:
-    """Create the bot stations that do not exist yet; refuse the run if one is occupied."""
+    """Create the bot stations that do not exist yet; refuse the run if one is not free for
+    bots."""
+    existing = {s["name"]: s for s in await admin.call("GET", "/stations")}
+    other_prefix = "or give this run other stations with --station-prefix"
     for name in names:
-        await admin.ensure_station(name)
-        state = await admin.call("GET", f"/stations/{name}/state")
-        if state.get("participant"):
+        found = existing.get(name)
+        if found is None:
+            await admin.ensure_station(name)
+            continue
+        keys = sorted(
+            {
+                d["label"]
+                for d in found.get("devices", [])
+                if d.get("revoked_at") is None and d["label"] != BOT_KEY_LABEL
+            }
+        )
+        if keys:
             raise BotStationsBusy(
-                f"station {name} already has participant {state['participant']} seated "
-                "(another bots run, or one stopped hard): unseat them on the station's console, "
-                "or give this run other stations with --station-prefix"
+                f"station {name} has device keys of its own ({', '.join(keys)}): bots use "
+                f"stations of their own; {other_prefix}"
+            )
+        if found.get("participant"):
+            raise BotStationsBusy(
+                f"station {name} already has participant {found['participant']} seated "
+                "(another bots run, or one stopped hard): end their session and unseat them on "
+                f"the station's console, {other_prefix}"
             )
 
 
@@ -359,7 +385,7 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
             station = f"{config.station_prefix}-{number}"
             # Shielded and remembered: even if the run is cancelled while the key is being
             # issued, the cleanup learns the key's id and revokes it.
-            issue = asyncio.ensure_future(admin.issue_key(station, "bots"))
+            issue = asyncio.ensure_future(admin.issue_key(station, BOT_KEY_LABEL))
             issuing.append(issue)
             key = (await asyncio.shield(issue)).key
             if config.transport == "ws":

@@ -282,8 +282,9 @@ class StationStateOut(_StateFields):
 
 
 class StaffStationStateOut(_StateFields):
-    """Where a station stands, as the experimenter's routes return it (without the last reply:
-    its words differ by condition, and the console shows them only as the robot says them)."""
+    """Where a station stands, as the experimenter's routes return it (without the last reply,
+    which only a device that missed it needs: staff see a reply's words in the answer that
+    gave it and on the console)."""
 
     open_prompts: list[StaffPromptOut]
 

@@ -10,7 +10,7 @@ would teach the learner the wrong thing, while asking again only costs a few sec
 
 from __future__ import annotations
 
-import re
+import unicodedata
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -32,9 +32,11 @@ DEFAULT_MIN_CONFIDENCE = 0.4
 
 
 def normalise(words: str) -> str:
-    """Lower case, letters and apostrophes only, single spaces: how phrases are compared."""
+    """Lower case, letters (with their combining marks: Indic vowel signs, Thai tone marks,
+    Arabic vowels) and apostrophes only, single spaces: how phrases are compared."""
     text = words.lower().replace("\u2019", "'")
-    return " ".join(re.sub(r"[^\w' ]+|\d|_", " ", text).split())
+    kept = (c if c == "'" or unicodedata.category(c)[0] in "LM" else " " for c in text)
+    return " ".join("".join(kept).split())
 
 
 @dataclass(frozen=True)

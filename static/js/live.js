@@ -8,11 +8,11 @@
 // refresh notes the count when it starts, and when a refresh ends (or a dropped event leaves
 // none on its way) with events it did not see, one more refresh follows, MS after the last.
 (() => {
-  const regions = new Map(); // id -> {seen, covered, inFlight, started, timer}
+  const regions = new Map(); // id -> {seen, covered, inFlight (requests on their way), started, timer}
 
   function stateOf(id) {
     if (!regions.has(id)) {
-      regions.set(id, { seen: 0, covered: 0, inFlight: false, started: 0, timer: null });
+      regions.set(id, { seen: 0, covered: 0, inFlight: 0, started: 0, timer: null });
     }
     return regions.get(id);
   }
@@ -56,11 +56,11 @@
     const region = event.detail.elt;
     if (!(region instanceof Element) || !region.id || !region.dataset.live) return;
     const state = stateOf(region.id);
-    state.inFlight = true;
+    state.inFlight += 1; // a count: htmx may start a queued refresh before this one's loadend
     state.started = Date.now();
     state.covered = state.seen;
     event.detail.xhr.addEventListener("loadend", () => {
-      state.inFlight = false; // after htmx's swap: the region shows what this refresh read
+      state.inFlight -= 1; // after htmx's swap: the region shows what this refresh read
       catchUp(region.id);
     });
   });

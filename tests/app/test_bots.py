@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 from app import bots, demo
 from app.bots import BotConfig, ResponseModel, run_bots
 from app.cli import cli
-from app.client import ExperimenterClient
+from app.client import ApiError, ExperimenterClient
 from app.db import Database
 from app.protocol import parse_protocol
 from app.services import accounts, enrolment, stations, studies, users, verify
@@ -117,6 +117,21 @@ def test_bots_revoke_their_keys_after_a_run_an_error_and_an_interruption(
     assert len(after_crash) > len(keys) and all(revoked for _, revoked in after_crash), after_crash
 
 
+@pytest.mark.slow
+def test_a_station_left_seated_is_reported_beside_the_run(
+    server: ServerProcess, exp3_study: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    async def cannot_leave(self: object, code: str) -> None:
+        raise ApiError(503, "the database is unavailable right now")
+
+    monkeypatch.setattr(bots._Lane, "_leave_station", cannot_leave)
+    summary = asyncio.run(run_bots(_config(server, exp3_study, 1)))
+    assert summary.completed == 1
+    assert summary.errors == [
+        "bot-1: P001 was left seated: 503: the database is unavailable right now"
+    ]
+
+
 async def _crash(self: object) -> None:
     raise RuntimeError("lane crashed")
 
@@ -209,6 +224,17 @@ def test_bots_command_prints_one_json_summary(
     beside = run_bots_command("--station-prefix", "second")
     assert beside.exit_code == 0, beside.output
     assert json.loads(beside.stdout)["completed"] == 1
+
+    # A lab's own station (a robot's key) is never the bots', whatever the prefix says.
+    with database.writing() as db:
+        stations.create_station(db, name="room-1", actor=Actor.system())
+    with database.writing() as db:
+        stations.issue_device_key(db, station_name="room-1", label="pepper", actor=Actor.system())
+    robots = run_bots_command("--station-prefix", "room")
+    assert robots.exit_code == 2
+    assert "error: station room-1 has device keys of its own (pepper)" in robots.stderr
+    with database.read_session() as db:
+        assert db.scalar(select(func.count()).select_from(Participant)) == 3  # nobody enrolled
     refused = CliRunner().invoke(
         cli,
         [

@@ -39,3 +39,12 @@ def test_silence_is_unclear_and_the_phrases_are_normalised_once() -> None:
     assert VOCABULARY.phrases == ["yes", "yeah", "sure", "no", "no way", "nope"]
     assert Vocabulary.of(["Yes", "yes!"], ["no"], 0.5).yes == ("yes",)
     assert normalise("It’s  FINE, 100%") == "it's fine"
+
+
+def test_combining_marks_are_part_of_the_words() -> None:
+    """The word "हूँ" ("am") is not "हाँ" ("yes"): they differ only in their vowel signs."""
+    hindi = Vocabulary.of(["हाँ", "जी हाँ"], ["नहीं"], 0.4)
+    assert hindi.classify(Heard("हाँ", 0.9)) == "yes"
+    assert hindi.classify(Heard("हूँ", 0.9)) is None
+    assert hindi.classify(Heard("नहीं!", 0.9)) == "no"
+    assert normalise("สวัสดี ครับ") == "สวัสดี ครับ"  # Thai vowels and tone marks kept
