@@ -318,8 +318,8 @@ class _Lane:
 class BotStationsBusy(Exception):
     """A bot station cannot be the bots': someone is seated there (another bots run uses it, or
     one stopped hard left its participant), or it has device keys of its own (a lab's robot or
-    room). Found before anyone is enrolled, so a refused run adds no
-    participant to the study (enrolling randomises)."""
+    room). Found before anyone is enrolled, so a refused run adds no participant to the study
+    (enrolling randomises)."""
 
 
 BOT_KEY_LABEL = "bots"

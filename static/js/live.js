@@ -67,7 +67,9 @@
 
   const watched = new Set();
   function watchRegions(root) {
-    root.querySelectorAll("[data-live]").forEach((region) => {
+    const regionsIn = [...root.querySelectorAll("[data-live]")];
+    if (root.matches && root.matches("[data-live]")) regionsIn.push(root); // a swapped-in region
+    regionsIn.forEach((region) => {
       const { event } = settingsOf(region);
       if (event && !watched.has(event)) {
         watched.add(event);
