@@ -263,7 +263,7 @@ class _Lane:
             while True:
                 submitted = await tablet.fill()  # await first: += would read before the await
                 self.summary.questionnaires += submitted
-                state = await self.experimenter.call("GET", f"/stations/{self.station}/state")
+                state = await self.experimenter.station_state(self.station)
                 expected = state["expected"]
                 if expected["action"] == "done":
                     self.summary.completed += 1
@@ -286,7 +286,7 @@ class _Lane:
         mid-session (Ctrl-C, a failed lane): the session is ended early, as an experimenter
         would, so that the next run finds the station free instead of a participant it may not
         unseat. Someone else seated there (the seating was refused) is left alone."""
-        state = await self.experimenter.call("GET", f"/stations/{self.station}/state")
+        state = await self.experimenter.station_state(self.station)
         if state.get("participant") != code:
             return
         session = state.get("session") or {}

@@ -531,6 +531,11 @@ class ExperimenterClient:
         value: dict[str, Any] = await self.call("POST", f"/studies/{study}/participants", body)
         return value
 
+    async def station_state(self, station: str) -> dict[str, Any]:
+        """Where a station stands, as the experimenter's routes return it."""
+        state: dict[str, Any] = await self.call("GET", f"/stations/{station}/state")
+        return state
+
     async def ensure_station(self, name: str) -> None:
         """Create the station unless it exists (admin)."""
         try:

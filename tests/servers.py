@@ -133,3 +133,11 @@ class ServerProcess:
             except subprocess.TimeoutExpired:
                 self.kill()
         self.process = None
+
+
+class TrustlabServe(ServerProcess):
+    """``trustlab serve`` itself (ServerProcess runs uvicorn's own command line, whose defaults
+    trust X-Forwarded-For from loopback)."""
+
+    def command_line(self) -> tuple[str, list[str]]:
+        return "trustlab", ["serve", "--host", "127.0.0.1", "--port", str(self.port)]

@@ -21,7 +21,7 @@ from app.settings import Settings
 from app.tables import LoginAttempt, Role
 from app.tablet import TABLET_COOKIE
 from tests.conftest import PASSWORD, Lab, UserClientFactory, make_user, sqlite_only
-from tests.servers import ServerProcess
+from tests.servers import TrustlabServe
 
 SPOOFED = "203.0.113.9"
 
@@ -129,14 +129,6 @@ def test_the_sign_in_and_notice_cookies_follow_the_same_rule(
     assert ("secure" in login.headers["set-cookie"].lower()) is secure
     assert noticed.status_code == 303
     assert ("secure" in noticed.headers["set-cookie"].lower()) is secure
-
-
-class TrustlabServe(ServerProcess):
-    """``trustlab serve`` itself (ServerProcess runs uvicorn's own command line, whose defaults
-    trust X-Forwarded-For from loopback)."""
-
-    def command_line(self) -> tuple[str, list[str]]:
-        return "trustlab", ["serve", "--host", "127.0.0.1", "--port", str(self.port)]
 
 
 @contextmanager

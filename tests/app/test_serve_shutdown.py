@@ -17,8 +17,8 @@ from app.db import Database
 from app.services import stations
 from app.services.audit import Actor
 from app.tables import Role
-from tests.app.test_forwarded_headers import TrustlabServe
 from tests.conftest import PASSWORD, make_user
+from tests.servers import TrustlabServe
 
 
 def test_the_server_stops_within_its_grace_period_with_a_live_stream_open(
