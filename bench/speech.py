@@ -59,17 +59,17 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from app.speech.engines import ENGINES, make_recognizer  # noqa: E402
-from app.speech.pool import (  # noqa: E402
+from app.speech.engines import (  # noqa: E402
+    ENGINES,
+    SAMPLE_RATE,
     EngineSettings,
     RecognitionLike,
     RecognizerLike,
     UtteranceLike,
+    make_recognizer,
 )
 from app.speech.vocabulary import Vocabulary  # noqa: E402
 from app.speech.wav import read_wav  # noqa: E402
-
-SAMPLE_RATE = 16000
 
 FRAME = SAMPLE_RATE // 50
 """20 ms of samples: the frame the room streams."""

@@ -1,8 +1,9 @@
 """The house's arrows (docs: DESIGN "Layout"): app → models, app → analysis, never back, and no
 circle of imports among the app's modules.
 
-Read from the source (every ``import`` anywhere in a module, a function's own included), so a
-lazy import cannot hide an arrow that points the wrong way.
+Read from the source (every ``import`` anywhere in a module, a function's own included, and
+``importlib.import_module`` of a literal name), so a lazy import cannot hide an arrow that points
+the wrong way.
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ def _imported(name: str, path: Path) -> Iterator[tuple[str, int]]:
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield alias.name, node.lineno
+        elif _is_import_module_call(node):
+            yield node.args[0].value, node.lineno
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
@@ -51,6 +54,18 @@ def _imported(name: str, path: Path) -> Iterator[tuple[str, int]]:
             for alias in node.names:
                 submodule = f"{base}.{alias.name}"
                 yield (submodule if submodule in MODULES else base), node.lineno
+
+
+def _is_import_module_call(node: ast.AST) -> bool:
+    """``importlib.import_module("a.literal.name")``: an import by another name."""
+    return (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and node.func.attr == "import_module"
+        and len(node.args) == 1
+        and isinstance(node.args[0], ast.Constant)
+        and isinstance(node.args[0].value, str)
+    )
 
 
 def _app_graph() -> dict[str, set[str]]:
@@ -123,3 +138,10 @@ def test_the_cycle_finder_finds_a_circle() -> None:
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert _cycles(graph) == [["a", "b", "c"]]
     assert "app.services.learners" in _app_graph()  # the graph is of the real modules
+
+
+def test_an_import_by_importlib_is_an_import() -> None:
+    source = 'import importlib\nengines = importlib.import_module("app.speech.engines")\n'
+    assert [
+        node.args[0].value for node in ast.walk(ast.parse(source)) if _is_import_module_call(node)
+    ] == ["app.speech.engines"]

@@ -58,13 +58,8 @@ from app.api.station_ws import (
 from app.errors import Conflict, NotAuthenticated, TrustlabError
 from app.inputs import RowId
 from app.services.step_store import DeviceSeat
-from app.speech.pool import (
-    SAMPLE_RATE,
-    EngineSettings,
-    RecognitionLike,
-    RecognizerPool,
-    UtteranceLike,
-)
+from app.speech.engines import SAMPLE_RATE, EngineSettings, RecognitionLike, UtteranceLike
+from app.speech.pool import RecognizerPool
 from app.speech.vocabulary import Vocabulary
 
 log = logging.getLogger(__name__)

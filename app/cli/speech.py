@@ -53,8 +53,7 @@ def recognize(
 ) -> None:
     """Recognise a yes or a no in FILE: answer, transcript, confidence and time taken."""
     from app.protocol import SpeechSpec, load_protocol_file
-    from app.speech.engines import ENGINES, make_recognizer
-    from app.speech.pool import EngineSettings
+    from app.speech.engines import ENGINES, EngineSettings, make_recognizer
     from app.speech.vocabulary import Vocabulary
     from app.speech.wav import read_wav
 

@@ -13,7 +13,7 @@ import wave
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.speech.pool import SAMPLE_RATE
+from app.speech.engines import SAMPLE_RATE
 from app.tables import Answer, AnswerAudio
 
 SAMPLE_WIDTH = 2

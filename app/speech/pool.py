@@ -3,83 +3,20 @@
 A recogniser for a protocol's yes/no phrases (app.speech.engines: Whisper by default, or
 pocketsphinx) takes a while to build (it loads a model), so the server keeps one per engine
 settings and vocabulary and every station whose study shares them shares it; each answer gets an
-utterance of its own. The engine's module is imported only when a room first streams audio: a
-server whose rooms never listen does not pay for the model, and one without the engine installed
-says so in one line instead of failing to start.
+utterance of its own. The engine's module is imported only when a room first streams audio
+(app.speech.engines imports it when it builds the first recogniser): a server whose rooms never
+listen does not pay for the model, and one without the engine installed says so in one line
+instead of failing to start.
 """
 
 from __future__ import annotations
 
-import importlib
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Protocol
 
 from app.errors import TrustlabError
+from app.speech.engines import EngineSettings, RecognizerLike, make_recognizer
 from app.speech.vocabulary import Vocabulary
-
-SAMPLE_RATE = 16000
-"""What every recogniser takes: 16 kHz mono 16-bit little-endian PCM (as the room streams)."""
-
-
-DEFAULT_ENGINE = "whisper"
-
-
-@dataclass(frozen=True)
-class EngineSettings:
-    """Which offline recogniser takes a study's answers, and how: the protocol's ``[speech]
-    engine`` and ``prompt_phrases`` (two studies that differ in either need two recognisers)."""
-
-    name: str = DEFAULT_ENGINE
-    prompt: bool = True
-    """Whisper only: prime each decode with the phrases (pocketsphinx's grammar has them)."""
-
-    @classmethod
-    def of(cls, speech: SpeechSettings) -> EngineSettings:
-        """The settings of a protocol's ``[speech]`` table (or anything shaped like it); the
-        prompt only for Whisper, so pocketsphinx studies share one recogniser whatever they
-        set."""
-        return cls(name=speech.engine, prompt=speech.engine == "whisper" and speech.prompt_phrases)
-
-
-class SpeechSettings(Protocol):
-    """The part of a protocol's ``[speech]`` table that chooses the recogniser."""
-
-    @property
-    def engine(self) -> str: ...
-    @property
-    def prompt_phrases(self) -> bool: ...
-
-
-class RecognitionLike(Protocol):
-    """What a recogniser concluded about one utterance (app.speech.recognizer.Recognition)."""
-
-    @property
-    def answer(self) -> str | None: ...
-    @property
-    def transcript(self) -> str: ...
-    @property
-    def confidence(self) -> float: ...
-    @property
-    def engine(self) -> str: ...
-
-
-class UtteranceLike(Protocol):
-    """One answer's audio, fed as it arrives (app.speech.recognizer.Utterance)."""
-
-    def feed(self, pcm: bytes) -> None: ...
-    @property
-    def speech_ended(self) -> bool: ...
-    def finish(self) -> RecognitionLike: ...
-    def abandon(self) -> None: ...
-
-
-class RecognizerLike(Protocol):
-    """A recogniser for one vocabulary (app.speech.recognizer.Recognizer)."""
-
-    def utterance(self) -> UtteranceLike: ...
-
 
 RecognizerFactory = Callable[[Vocabulary, EngineSettings], RecognizerLike]
 """Builds the recogniser of (vocabulary, engine settings)."""
@@ -97,8 +34,7 @@ def offline_recognizer(
     """The shipped offline recogniser of ``engine`` for ``vocabulary`` (RecognitionUnavailable
     without it)."""
     try:
-        engines = importlib.import_module("app.speech.engines")
-        recognizer: RecognizerLike = engines.make_recognizer(vocabulary, engine)
+        recognizer = make_recognizer(vocabulary, engine)
     except ImportError as exc:
         raise RecognitionUnavailable(
             f"offline speech recognition is unavailable on this server: {exc}"

@@ -30,7 +30,8 @@ from starlette.websockets import WebSocketDisconnect
 from app.protocol import ProtocolError, parse_protocol
 from app.services import studies
 from app.services.audit import Actor
-from app.speech.pool import EngineSettings, RecognitionUnavailable, RecognizerPool
+from app.speech.engines import EngineSettings
+from app.speech.pool import RecognitionUnavailable, RecognizerPool
 from app.speech.synthesis import with_true_sizes
 from app.speech.vocabulary import Vocabulary
 from app.speech.wav import decode_wav

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.speech.pool import UtteranceLike
+from app.speech.engines import UtteranceLike
 
 DATA = Path(__file__).parent / "data"
 SAMPLE_RATE = 16000

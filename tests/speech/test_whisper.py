@@ -14,8 +14,7 @@ import pytest
 
 from app.protocol import SpeechSpec
 from app.speech import whisper
-from app.speech.engines import make_recognizer
-from app.speech.pool import EngineSettings
+from app.speech.engines import EngineSettings, make_recognizer
 from app.speech.vocabulary import Heard, Vocabulary
 from app.speech.wav import read_wav
 from app.speech.whisper import Recognizer, Transcript, answer_words, log_mel, shared_model
