@@ -349,7 +349,7 @@ def participant_enroll(
     ] = None,
     site: Annotated[
         str | None,
-        typer.Option(help="The participant's site: one of the study's [sites] (required there)."),
+        typer.Option(help="The participant's site: one of the study's \\[sites] (required there)."),
     ] = None,
     as_json: JsonFlag = False,
 ) -> None:

@@ -65,7 +65,7 @@ def export(
     ] = None,
     site: Annotated[
         str | None,
-        typer.Option(help="Only this site's participants (a study with [sites]; default: all)."),
+        typer.Option(help="Only this site's participants (a study with \\[sites]; default: all)."),
     ] = None,
     as_json: JsonFlag = False,
 ) -> None:

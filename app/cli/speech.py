@@ -30,7 +30,7 @@ def recognize(
         Path | None,
         typer.Option(
             "--protocol",
-            help="Use this protocol file's [speech] phrases, min_confidence, engine and "
+            help="Use this protocol file's \\[speech] phrases, min_confidence, engine and "
             "prompt_phrases (default: the default phrases).",
         ),
     ] = None,

@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session
 
 from app.services import consent, sites
 from app.services.audit import Actor
+from app.services.blinding import condition_labels
 from app.services.enrolment import condition_label
 from app.services.runtime import session_label
 from app.services.studies import protocol_of
@@ -141,6 +142,10 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
     )
     consents = consent.standings(db, study)
     overview = StudyOverview(sessions_total=protocol.schedule.sessions)
+    # The groups in the order to list them (C1 before C2, or neutral labels alphabetically), not
+    # in the order their first participant happened to enrol.
+    for group in condition_labels(study, actor).values():
+        overview.groups.setdefault(group, dict.fromkeys(ParticipantStatus, 0))
     session_instruments = [i.key for i in protocol.instruments_at("session")]
     for participant, condition in participants:
         own = sessions.get(participant.id, [])

@@ -76,8 +76,9 @@
     }
     root.dataset.answers = String(latest.answers);
     root.dataset.questionnaires = String(latest.questionnaires);
+    // UTC in 24-hour time, as every other time on the staff pages.
     status.textContent = `${latest.answers} answers learned and ${latest.questionnaires} ` +
-      `questionnaire answers so far · updated ${new Date().toLocaleTimeString()}`;
+      `questionnaire answers so far · updated ${new Date().toISOString().slice(11, 19)} UTC`;
     // data-drawn counts completed draws; the first one is also a performance mark, the moment
     // the dashboard is usable (bench/page_load.py reads it).
     Promise.all(drawing).then(() => {

@@ -264,6 +264,21 @@ def test_help_texts_name_defaults_and_no_issue_numbers() -> None:
         assert not re.search(r"\bissues? \d", shown.stdout, re.IGNORECASE), words
 
 
+def test_help_texts_keep_their_bracketed_words() -> None:
+    """A help text's ``[sites]`` or ``[speech]`` (a protocol table) reaches the terminal: the help
+    is printed through rich, whose markup took such words for styles and dropped them
+    ("(a study with ; default: all)")."""
+    for words, command in _commands().items():
+        texts = [command.help or "", *(getattr(p, "help", None) or "" for p in command.params)]
+        bracketed = {m for text in texts for m in re.findall(r"\[[a-z_.]+\]", text)}
+        if not bracketed:
+            continue
+        shown = runner.invoke(cli, [*words.split(), "--help"], env={"COLUMNS": "300"})
+        flat = re.sub(r"[\s│]+", " ", shown.stdout)
+        for word in bracketed:
+            assert word in flat, f"`trustlab {words} --help` lost {word}"
+
+
 def test_study_consent_adds_a_version_and_refuses_bad_files(
     database_url: str, tmp_path: Path
 ) -> None:

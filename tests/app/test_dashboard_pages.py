@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select, update
 
 from app.db import Database
-from app.tables import Device, Participant, Prompt, Response, Role, StudySession, utcnow
+from app.tables import Allocation, Device, Participant, Prompt, Response, Role, StudySession, utcnow
 from tests.conftest import (
     CSRF_INPUT,
     TRUST_ANSWERS,
@@ -177,6 +177,24 @@ def test_overview_warns_about_stalled_sessions_and_missing_questionnaires(lab: L
         db.commit()
     # the stall is measured from the last activity: answers and questionnaires are recent
     assert "has had no answer" not in lab.experimenter.get("/studies/rt").text
+
+
+def test_the_group_cards_list_the_conditions_in_protocol_order(lab: Lab) -> None:
+    """C1 before C2 even when the first participant was allocated to C2 (the cards followed the
+    order in which each group's first participant enrolled)."""
+    code = lab.enrol_and_assign()
+    with lab.database.writing() as db:
+        participant = db.scalars(select(Participant).where(Participant.code == code)).one()
+        db.execute(
+            update(Allocation)
+            .where(Allocation.participant_id == participant.id)
+            .values(condition="C2")
+        )
+        db.commit()
+    page = lab.experimenter.get("/studies/rt").text
+    cards = page.split('id="enrolment-cards"')[1].split("</div>\n</div>")[0]
+    labels = re.findall(r'<div class="stat-label">([^<]+)</div>', cards)
+    assert labels == ["C1", "C2"]
 
 
 def test_overview_names_the_familiarisation_run_not_session_0(lab: Lab) -> None:

@@ -3,6 +3,7 @@ probability bars and the live dashboard change without reloading."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import httpx
@@ -51,7 +52,10 @@ def test_experimenter_runs_a_session_and_watches_it_live(
     artifacts: Path,
 ) -> None:
     make_user(database, "operator", Role.ADMIN)
-    context = browser.new_context(viewport={"width": 1366, "height": 900})
+    # A browser on the US west coast in 12-hour time: the page's times are UTC all the same.
+    context = browser.new_context(
+        viewport={"width": 1366, "height": 900}, locale="en-US", timezone_id="America/Los_Angeles"
+    )
     page = context.new_page()
     page.goto(f"{live_server.url}/")
     expect(page).to_have_url(f"{live_server.url}/login?next=/")
@@ -105,6 +109,9 @@ def test_experimenter_runs_a_session_and_watches_it_live(
     # The page has no timer: only the server's event makes it fetch (the default wait bounds it).
     expect(dashboard.locator("#dashboard")).to_have_attribute("data-answers", "3")
     expect(dashboard.locator("#adaptation .main-svg").first).to_be_visible()
+    expect(dashboard.locator("#dashboard-status")).to_have_text(
+        re.compile(r"· updated \d{2}:\d{2}:\d{2} UTC$")
+    )
     dashboard.screenshot(path=str(artifacts / "06-dashboard.png"), full_page=True)
     context.close()
 

@@ -38,6 +38,19 @@ def _overflow(page: Page, selector: str) -> list[str]:
     )
 
 
+def _wrapped(page: Page, selector: str) -> list[str]:
+    """The text of each element matching ``selector`` that runs over more than one line."""
+    return page.evaluate(
+        """(selector) => Array.from(document.querySelectorAll(selector)).flatMap((el) => {
+             const range = document.createRange();
+             range.selectNodeContents(el);
+             const tops = new Set(Array.from(range.getClientRects(), (r) => Math.round(r.top)));
+             return tops.size > 1 ? [el.textContent.trim()] : [];
+           })""",
+        selector,
+    )
+
+
 @pytest.mark.e2e
 @pytest.mark.parametrize(("width", "height"), SIZES)
 def test_the_staff_pages_fit_and_read(
@@ -70,6 +83,7 @@ def test_the_staff_pages_fit_and_read(
     expect(page.get_by_role("link", name="Withdraw…").first).to_be_visible()
     page.screenshot(path=str(artifacts / f"overview-{width}.png"), full_page=True)
     assert _overflow(page, "#participant-rows") == []
+    assert _wrapped(page, ".heading .actions .button, .heading .actions button") == []
 
     page.goto(f"{live_server.url}/studies/{lab.study}/participants/{running}")
     demographics = page.locator("details.questionnaire", has_text="About you")
