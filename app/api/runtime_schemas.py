@@ -297,10 +297,12 @@ class RoomCategory(BaseModel):
 
 
 class RoomOut(BaseModel):
-    """The escape room of the study a station runs: what a room client draws and triggers."""
+    """The escape room of the study a station runs: what a room client draws and triggers.
+
+    No study title: a room is in front of the participant, and the title is the staff's name
+    for the study (it may say what the study tests)."""
 
     study: str = Field(description="The study's short name.")
-    title: str = Field(description="The study's title.")
     categories: list[RoomCategory] = Field(description="In protocol order.")
     rules: list[str] = Field(description="The rules shown to participants.")
     layout: RoomSpec = Field(description="The floor plan, in metres (docs/escape-room.md).")

@@ -78,7 +78,6 @@ def room(db: Session, *, station: Seat) -> RoomOut:
     protocol = _as_seated_sees_it(study, station)
     return RoomOut(
         study=study.name,
-        title=study.title,
         categories=[RoomCategory(name=c.name, title=c.title) for c in protocol.categories],
         rules=list(protocol.study.rules),
         layout=protocol.room_layout(),

@@ -116,6 +116,7 @@ def test_the_station_serves_the_room_of_its_study(lab: Lab) -> None:
     assert room.status_code == 200, room.text
     body = room.json()
     assert body["study"] == lab.study
+    assert "title" not in body  # the staff's title of the study: not for a participant's screen
     assert [c["name"] for c in body["categories"]] == ["conation", "affection", "cognition"]
     assert body["layout"]["zones"][1] == {
         "category": "affection",
