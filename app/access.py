@@ -152,6 +152,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/admin/audit.csv"): ADMINS,
     ("POST", "/stations"): ADMINS,
     ("POST", "/stations/{name}/devices"): ADMINS,
+    ("GET", "/stations/{name}/devices/{device_id}"): ADMINS,
     ("POST", "/stations/{name}/kiosk"): ADMINS,
     ("POST", "/stations/{name}/archive"): ADMINS,
     ("POST", "/devices/{device_id}/revoke"): ADMINS,

@@ -14,7 +14,7 @@ from datetime import datetime
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, Form, Request
-from fastapi.responses import Response
+from fastapi.responses import RedirectResponse, Response
 from sqlalchemy import select
 
 from app.api import station_ops
@@ -25,10 +25,12 @@ from app.deps import (
     OneHopRouter,
     SessionDep,
     SettingsDep,
+    set_private_cookie,
     station_in_scope,
 )
 from app.errors import Conflict, InvalidInput, NotFound, TrustlabError
 from app.inputs import RowId
+from app.security import sign, unsign
 from app.services import (
     blinding,
     enrolment,
@@ -102,7 +104,6 @@ def _stations_context(
     hidden = len(stations.list_stations(db, archived=True)) if not archived else 0
     return {
         "rows": rows,
-        "new_key": None,
         "archived": archived,
         "archived_count": hidden,
         "form_error": "",
@@ -157,6 +158,12 @@ def archive_station(
     return redirect_with_notice(request, "/stations", notice)
 
 
+NEW_KEY_COOKIE = "tl_new_key"
+"""Carries a key just issued from the POST to the page that shows it (signed, a minute, read
+once): the page has a URL of its own, so a reload shows it again or says it was shown, and never
+issues a second key."""
+
+
 @router.post("/stations/{name}/devices")
 def issue_key(
     request: Request,
@@ -166,14 +173,40 @@ def issue_key(
     name: str,
     label: Annotated[str, Form(max_length=64)] = "robot",
 ) -> Response:
-    """Issue a device key and show it, this once."""
+    """Issue a device key, then show it on its own page, this once."""
     issued = stations.issue_device_key(
         db, station_name=name, label=label, actor=Actor.of_user(admin)
     )
-    context = _stations_context(request, db, settings, admin)
-    context["new_key"] = {"station": name, "label": issued.device.label, "key": issued.key}
-    response = render(request, "stations.html", context)
+    response = RedirectResponse(f"/stations/{name}/devices/{issued.device.id}", status_code=303)
+    value = sign(settings.secret, f"{issued.device.id}:{issued.key}")
+    set_private_cookie(response, request, NEW_KEY_COOKIE, value, max_age=60, samesite="strict")
+    return response
+
+
+@router.get("/stations/{name}/devices/{device_id}")
+def issued_key(
+    request: Request,
+    db: SessionDep,
+    settings: SettingsDep,
+    admin: AdminUser,
+    name: str,
+    device_id: RowId,
+) -> Response:
+    """A device key just issued, shown this once with what to do next; later visits say it was
+    shown and how to replace a lost one."""
+    device = db.get(Device, device_id)
+    if device is None or device.station.name != name:
+        raise NotFound(f"no device {device_id} at station {name!r}")
+    carried = unsign(settings.secret, request.cookies.get(NEW_KEY_COOKIE, "")) or ""
+    shown_id, _, key = carried.partition(":")
+    context = {
+        "device": device,
+        "key": key if shown_id == str(device.id) and device.revoked_at is None else "",
+        "room_url": f"{str(request.base_url).rstrip('/')}/stations/{name}/room",
+    }
+    response = render(request, "device_key.html", context)
     response.headers["Cache-Control"] = "no-store"
+    response.delete_cookie(NEW_KEY_COOKIE)
     return response
 
 

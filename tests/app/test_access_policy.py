@@ -278,6 +278,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/admin/audit.csv"): get("/admin/audit.csv?action=none"),
     ("POST", "/stations"): send("POST", "/stations", data={}),
     ("POST", "/stations/{name}/devices"): send("POST", "/stations/ghost/devices", data={}),
+    ("GET", "/stations/{name}/devices/{device_id}"): get("/stations/ghost/devices/1"),
     ("POST", "/stations/{name}/kiosk"): send("POST", "/stations/ghost/kiosk", data={}),
     ("POST", "/stations/{name}/archive"): send(
         "POST", "/stations/ghost/archive", data={"archived": "true"}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import html
+import re
 
 import pytest
 from fastapi.testclient import TestClient
@@ -134,6 +135,32 @@ def test_security_headers(client: TestClient) -> None:
     assert "<script>" not in body  # every script is an external file (the CSP forbids inline)
 
 
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
+def test_a_new_device_key_has_a_page_of_its_own_and_a_reload_issues_none(
+    user_client: UserClientFactory, study_name: str
+) -> None:
+    """The key shows once on a GET page (no "Method Not Allowed" on reload, no second key),
+    with what to do next: open the station's room and paste it."""
+    admin = user_client(Role.ADMIN)
+    assert admin.post("/stations", data={"name": "lab-1"}).status_code == 200
+    issued = admin.post("/stations/lab-1/devices", data={"label": "room"})
+    assert issued.status_code == 200
+    assert issued.history and issued.history[0].status_code == 303
+    assert str(issued.url).startswith("http://testserver/stations/lab-1/devices/")
+    key = re.search(r"tlk_[\w-]+", issued.text)
+    assert key is not None, issued.text
+    assert "http://testserver/stations/lab-1/room" in issued.text
+    assert issued.headers["cache-control"] == "no-store"
+    with_key = {"Authorization": f"Bearer {key[0]}"}
+    assert admin.get("/api/v1/station", headers=with_key).status_code != 401  # a live key
+    again = admin.get(str(issued.url))  # a reload: the key is not shown again, none is issued
+    assert again.status_code == 200
+    assert key[0] not in again.text and "was shown once" in again.text
+    listed = admin.get("/api/v1/stations").json()
+    assert [len(s["devices"]) for s in listed if s["name"] == "lab-1"] == [1]
+    assert admin.get("/stations/lab-1/devices/999999").status_code == 404
+
+
 WIDE_TEXT = "Schlüssel … 机器人 ✓"
 """Text outside Latin-1 (a cookie header's alphabet): device labels and titles may hold any."""
 
@@ -144,7 +171,7 @@ def test_notices_carry_any_text(user_client: UserClientFactory, study_name: str)
     assert admin.post("/stations", data={"name": "lab-1"}).status_code == 200
     issued = admin.post("/stations/lab-1/devices", data={"label": WIDE_TEXT})
     assert issued.status_code == 200
-    device_id = issued.text.split('action="/devices/')[1].split("/revoke")[0]
+    device_id = str(issued.url).rsplit("/", 1)[1]
     revoked = admin.post(f"/devices/{device_id}/revoke")
     assert revoked.status_code == 200
     assert f"Revoked {WIDE_TEXT} (" in revoked.text and "…) at lab-1." in revoked.text
