@@ -27,7 +27,7 @@ from app.services import (
 )
 from app.services.audit import Actor
 from app.tables import Role
-from app.web.qr import qr_svg
+from app.web.qr import tablet_link
 from app.web.templating import redirect_with_notice, render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
@@ -66,7 +66,7 @@ def _participant_page(
     protocol = studies.protocol_of(study)
     can_act = user.role in (Role.ADMIN, Role.EXPERIMENTER)
     token = tablet_tokens.participant_token(settings.secret, participant) if can_act else None
-    link = f"{str(request.base_url).rstrip('/')}/t/{token}" if token else None
+    link = tablet_link(request, f"/t/{token}") if token else None
     return render(
         request,
         "participant.html",
@@ -80,7 +80,6 @@ def _participant_page(
             "shows_learners": blinding.shows_learners(study),
             "can_act": can_act,
             "link": link,
-            "qr": qr_svg(link) if link else "",
             "languages": [(c, native_name(c)) for c in protocol.study.languages],
             "language": languages.language_of(participant.language, protocol),
             "language_chosen": participant.language is not None,

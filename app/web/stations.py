@@ -54,7 +54,7 @@ from app.tables import (
     User,
     utcnow,
 )
-from app.web.qr import qr_svg
+from app.web.qr import TabletLink, tablet_link
 from app.web.templating import redirect_with_notice, render
 
 # A site-limited account meets a station seating another site's participant as if it did not
@@ -67,7 +67,6 @@ router = OneHopRouter(
 def _stations_context(
     request: Request, db: SessionDep, settings: SettingsDep, user: User, *, archived: bool = False
 ) -> dict[str, Any]:
-    base = str(request.base_url).rstrip("/")
     found = sites.visible_stations(
         db, stations.list_stations(db, archived=archived), Actor.of_user(user)
     )
@@ -89,7 +88,6 @@ def _stations_context(
         kiosk = (
             tablet_tokens.kiosk_token(settings.secret, station) if user.role == "admin" else None
         )
-        kiosk_url = f"{base}/k/{kiosk}" if kiosk else None
         participant, study = seated.get(station.id, (None, None))
         rows.append(
             {
@@ -97,8 +95,7 @@ def _stations_context(
                 "participant": participant,
                 "study": study,
                 "devices": devices[station.id],
-                "kiosk_url": kiosk_url,
-                "kiosk_qr": qr_svg(kiosk_url) if kiosk_url else "",
+                "kiosk": tablet_link(request, f"/k/{kiosk}") if kiosk else None,
             }
         )
     hidden = len(stations.list_stations(db, archived=True)) if not archived else 0
@@ -338,11 +335,20 @@ def _console(
             "error": error,
             "answer_key": uuid.uuid4().hex,
             "room_panel": room_panel_context(db, station),
+            "tablet": _tablet_of(request, participant) if view.expected.action == "wait" else None,
         },
         block="console",
         status_code=status_code,
     )
     return response
+
+
+def _tablet_of(request: Request, participant: Participant | None) -> TabletLink | None:
+    """The seated participant's tablet link while the console waits for the tablet."""
+    if participant is None:
+        return None
+    token = tablet_tokens.participant_token(request.app.state.settings.secret, participant)
+    return tablet_link(request, f"/t/{token}") if token else None
 
 
 def room_panel_context(db: SessionDep, station: Station) -> dict[str, Any]:

@@ -15,7 +15,14 @@ from app.protocol import default_protocol, parse_protocol
 from app.services import studies
 from app.services.audit import Actor
 from app.tables import Participant, ParticipantStatus, Role, Station
-from tests.conftest import EXP3_ONLY, Lab, UserClientFactory, protocol_text
+from tests.conftest import (
+    EXP3_ONLY,
+    Lab,
+    UserClientFactory,
+    fill_pre_study,
+    protocol_text,
+    tablet_client,
+)
 
 
 def _second_study(database: Database, name: str = "rt2", title: str = "Main study") -> str:
@@ -228,3 +235,24 @@ def test_a_title_given_at_creation_from_the_page_the_api_and_the_cli(
     )
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["title"] == "From the shell"
+
+
+def test_the_console_waiting_for_the_tablet_offers_its_link_and_warns_of_a_loopback_address(
+    lab: Lab,
+) -> None:
+    """While the console waits for consent on the tablet it shows the participant's tablet link
+    as a QR code; a link on 127.0.0.1 says a tablet cannot reach it (it is the tablet itself)."""
+    lab.enrol_and_assign("W01", questionnaires=False)
+    page = lab.experimenter.get("/stations/lab-1").text
+    assert "waiting for W01 to give consent on the tablet" in page
+    assert "No tablet link is issued for W01" in page
+    issued = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/W01/link")
+    token = issued.json()["token"]
+    page = lab.experimenter.get("/stations/lab-1").text
+    assert f"http://testserver/t/{token}" in page and "<svg" in page
+    assert "a tablet cannot reach it" not in page
+    local = lab.experimenter.get("/stations/lab-1", headers={"host": "127.0.0.1:8000"}).text
+    assert f"http://127.0.0.1:8000/t/{token}" in local
+    assert "a tablet cannot reach it" in local
+    fill_pre_study(lab.tablets.setdefault("W01", tablet_client(lab.app, lab, "W01")))
+    assert "tablet-link" not in lab.experimenter.get("/stations/lab-1").text  # nothing to wait for
