@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
 import secrets
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -115,29 +117,56 @@ def wait_until_up(url: str, timeout: float = 60.0) -> bool:
     return False
 
 
+class QuietWhileFilling(logging.Filter):
+    """Keeps the server's request log quiet while the demo fills its study: its bots make
+    hundreds of requests, and their lines would scroll away the admin's once-only password that
+    ``trustlab init`` printed just above. Attached to ``uvicorn.access`` by ``trustlab serve``."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.filling = threading.Event()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not self.filling.is_set()
+
+
 def run_demo(
-    plan: DemoPlan, url: str, settings: Settings, echo: Callable[[str], None]
+    plan: DemoPlan,
+    url: str,
+    settings: Settings,
+    echo: Callable[[str], None],
+    quiet: QuietWhileFilling | None = None,
 ) -> BotSummary | None:
-    """Fill the demo study through the running server at ``url``; then retire the plan."""
+    """Fill the demo study through the running server at ``url``; then retire the plan.
+    ``quiet``: the request log's filter, set while the bots run."""
     if not wait_until_up(url):
         echo("demo: the server did not come up; the demo study stays empty (restart to retry)")
         return None
-    echo(f"demo: {plan.participants} simulated participants are filling the '{plan.study}' study…")
-    summary = asyncio.run(
-        run_bots(
-            BotConfig(
-                url=url,
-                study=plan.study,
-                participants=plan.participants,
-                username=plan.username,
-                password=plan.password,
-                concurrency=DEMO_STATIONS,
-                noise=0.1,
-                seed=1,
-                station_prefix=DEMO_STATION_PREFIX,
+    echo(
+        f"demo: {plan.participants} simulated participants are filling the '{plan.study}' study…"
+        + (" (the request log resumes when it is done)" if quiet is not None else "")
+    )
+    if quiet is not None:
+        quiet.filling.set()
+    try:
+        summary = asyncio.run(
+            run_bots(
+                BotConfig(
+                    url=url,
+                    study=plan.study,
+                    participants=plan.participants,
+                    username=plan.username,
+                    password=plan.password,
+                    concurrency=DEMO_STATIONS,
+                    noise=0.1,
+                    seed=1,
+                    station_prefix=DEMO_STATION_PREFIX,
+                )
             )
         )
-    )
+    finally:
+        if quiet is not None:
+            quiet.filling.clear()
     retire(plan, settings, echo)
     problems = ""
     if summary.errors:

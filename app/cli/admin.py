@@ -4,6 +4,7 @@ app.cli.accounts)."""
 from __future__ import annotations
 
 import json
+import logging
 import secrets
 import sys
 import threading
@@ -14,7 +15,7 @@ import typer
 
 from app import backup, schema
 from app.db import Database, describe_url
-from app.demo import pending_demo, plan_demo, run_demo
+from app.demo import QuietWhileFilling, pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
 from app.services import audit, blinding, enrolment, erasure, languages, studies, users
@@ -81,6 +82,7 @@ def init(
         + ("" if before == after else f" (was {before or 'empty'})")
     )
     actor = Actor.system("trustlab init")
+    once: list[str] = []
     with database.writing() as db:
         empty = studies.count_studies(db) == 0
         if empty:
@@ -100,8 +102,10 @@ def init(
             )
             typer.echo(f"created the admin account {settings.admin_username!r}")
             if given is None:
-                typer.echo(f"  password: {password}")
-                typer.echo("  (shown only this once: write it down, then add personal accounts)")
+                once = [
+                    f"the admin account {settings.admin_username!r}'s password: {password}",
+                    "  (shown only this once: write it down, then add personal accounts)",
+                ]
         if empty and demo:
             plan = plan_demo(db, settings, actor)
             typer.echo(
@@ -109,6 +113,10 @@ def init(
                 f"with {plan.participants} simulated participants"
             )
     database.dispose()
+    # Last, so that nothing init prints scrolls it away (and `serve` keeps its log quiet while
+    # the demo fills, app.demo).
+    for line in once:
+        typer.echo(line)
 
 
 DEFAULT_HOST = Settings.model_fields["host"].default
@@ -142,9 +150,11 @@ def serve(
     plan = pending_demo(settings)
     if plan is not None:
         local = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+        quiet = QuietWhileFilling()
+        logging.getLogger("uvicorn.access").addFilter(quiet)  # uvicorn's set-up keeps filters
         threading.Thread(
             target=run_demo,
-            args=(plan, f"http://{local}:{port}", settings, typer.echo),
+            args=(plan, f"http://{local}:{port}", settings, typer.echo, quiet),
             name="demo-bots",
             daemon=True,
         ).start()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
+import logging
 from importlib import resources
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from sqlalchemy import func, select
 from typer.testing import CliRunner
 
 from app import bots, demo
-from app.bots import BotConfig, ResponseModel, run_bots
+from app.bots import BotConfig, BotSummary, ResponseModel, run_bots
 from app.cli import cli
 from app.client import ApiError, ExperimenterClient
 from app.db import Database
@@ -257,7 +258,11 @@ def test_bots_command_prints_one_json_summary(
 
 @pytest.mark.slow
 def test_the_demo_fills_its_study_once_then_retires_its_account(
-    database: Database, database_url: str, exp3_study: str, tmp_path: Path
+    database: Database,
+    database_url: str,
+    exp3_study: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     settings = Settings(database_url=database_url, var_dir=tmp_path / "var")
     make_user(database, "admin", Role.ADMIN)  # as `trustlab init` does first
@@ -269,10 +274,23 @@ def test_the_demo_fills_its_study_once_then_retires_its_account(
     server = ServerProcess(database_url, tmp_path / "server")
     server.start()
     said: list[str] = []
+    quiet = demo.QuietWhileFilling()
+    record = logging.LogRecord("uvicorn.access", logging.INFO, "", 0, "GET / 200", None, None)
+    dropped_while_filling: list[bool] = []
+    bots = demo.run_bots
+
+    async def watched(config: BotConfig) -> BotSummary:
+        dropped_while_filling.append(not quiet.filter(record))
+        return await bots(config)
+
+    monkeypatch.setattr(demo, "run_bots", watched)
     try:
-        summary = demo.run_demo(plan, server.url, settings, said.append)
+        summary = demo.run_demo(plan, server.url, settings, said.append, quiet)
     finally:
         server.stop()
+    # The request log is quiet while the bots run, and speaks again when they are done.
+    assert "the request log resumes when it is done" in said[0]
+    assert dropped_while_filling == [True] and quiet.filter(record)
     assert summary is not None and summary.errors == []
     assert summary.completed == 2
     assert said[-1].startswith("demo: done in") and "2 participants" in said[-1]

@@ -50,6 +50,7 @@ def test_init_migrates_creates_default_study_and_admin_once(
     assert plan is not None and plan.study == "demo"
     assert (tmp_path / demo.PLAN_FILE).stat().st_mode & 0o077 == 0, "the plan holds a password"
     password = next(line.split(": ", 1)[1] for line in out.splitlines() if "password:" in line)
+    assert "password:" in out.splitlines()[-2], "the password comes last, not scrolled away"
     database = Database(blank_database_url)
     with database.read_session() as db:
         assert users.authenticate(db, username="admin", password=password) is not None
