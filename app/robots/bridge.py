@@ -13,8 +13,11 @@ the server needs nothing special for it. What it adds is the robot's side:
 - an answer is sent with the recogniser's words and confidence, under one idempotency key however
   often it is retried, and the reply is said only once the server has recorded it: an answer the
   participant heard acknowledged is never lost, and none is sent twice; a reply the robot was
-  cut off in (lost while saying it) is said once the robot is back, before anything else, or,
-  if the study has moved on meanwhile, told to the console;
+  cut off in (lost while saying it), like the reply to an answer the console gave while the robot
+  was away, is said once the robot is back, before anything else, or, if the study has moved on
+  meanwhile, told to the console (never said out of turn, never dropped unsaid without a word);
+- a recogniser's confidence outside 0-1 (85 for 85 %) is refused in one line, never clamped into
+  a certain answer;
 - losing the robot or the server is told to the console (or shown there as the device
   disconnected), and the bridge reconnects and asks the open question again.
 
