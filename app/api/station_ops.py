@@ -8,6 +8,7 @@ from sqlalchemy.orm import Session
 from app.api.runtime_schemas import (
     AnswerOut,
     AnswerRequest,
+    DeviceNotice,
     DeviceOut,
     ExpectedOut,
     LastReplyOut,
@@ -315,7 +316,13 @@ def state_out(view: runtime.StationView) -> StationStateOut:
 
 
 def device_out(device: Device, station: Station) -> DeviceOut:
-    """Serialise a device (never its key)."""
+    """Serialise a device (never its key), with what the console shows of it: connected or not,
+    and its notice, so that a JSON client sees what the operator sees."""
+    notice = (
+        DeviceNotice(text=device.notice, attention=device.notice_attention, at=device.notice_at)
+        if device.notice is not None
+        else None
+    )
     return DeviceOut(
         id=device.id,
         station=station.name,
@@ -324,6 +331,8 @@ def device_out(device: Device, station: Station) -> DeviceOut:
         created_at=device.created_at,
         revoked_at=device.revoked_at,
         last_seen_at=device.last_seen_at,
+        connected=device.connected and device.revoked_at is None,
+        notice=notice,
     )
 
 

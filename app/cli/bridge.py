@@ -224,6 +224,13 @@ def rosbridge(
     listen_topic: Annotated[
         str, typer.Option(help="std_msgs/String topic that asks the recogniser to listen.")
     ] = "/trustlab/listen",
+    cancel_topic: Annotated[
+        str,
+        typer.Option(
+            help="std_msgs/String topic that cancels a listen the bridge gave up on ('' sends "
+            "none)."
+        ),
+    ] = "/trustlab/listen_cancel",
     heard_topic: Annotated[
         str, typer.Option(help="std_msgs/String topic the recogniser reports on.")
     ] = "/trustlab/heard",
@@ -247,6 +254,7 @@ def rosbridge(
         said_topic=said_topic,
         gesture_topic=gesture_topic or None,
         listen_topic=listen_topic,
+        cancel_topic=cancel_topic or None,
         heard_topic=heard_topic,
         cue_topic=cue_topic,
         led_topic=led_topic or None,

@@ -13,8 +13,11 @@ the server needs nothing special for it. What it adds is the robot's side:
 - an answer is sent with the recogniser's words and confidence, under one idempotency key however
   often it is retried, and the reply is said only once the server has recorded it: an answer the
   participant heard acknowledged is never lost, and none is sent twice; a reply the robot was
-  cut off in (lost while saying it) is said once the robot is back, before anything else, or,
-  if the study has moved on meanwhile, told to the console;
+  cut off in (lost while saying it), like the reply to an answer the console gave while the robot
+  was away, is said once the robot is back, before anything else, or, if the study has moved on
+  meanwhile, told to the console (never said out of turn, never dropped unsaid without a word);
+- a recogniser's confidence outside 0-1 (85 for 85 %) is refused in one line, never clamped into
+  a certain answer;
 - losing the robot or the server is told to the console (or shown there as the device
   disconnected), and the bridge reconnects and asks the open question again.
 
@@ -120,6 +123,9 @@ class _Handle:
     """Ask an open step's question (a console's prompt, or one left open by a restart)."""
 
     step_id: int
+    cut_off: PromptOut | None = None
+    """The prompt, when the robot was lost while asking it: if the console answered it while
+    the robot was away, its reply is said (or told to the console) instead."""
 
 
 @dataclass(frozen=True)
@@ -132,6 +138,8 @@ class _Unsaid:
     reply: str
     gesture: str | None
     leds: Colour | None
+    answered_while_away: bool = False
+    """The console answered while the robot was away (else: the robot was lost replying)."""
 
 
 @dataclass
@@ -142,22 +150,35 @@ class _Answered:
     changed: asyncio.Condition = field(default_factory=asyncio.Condition)
 
 
+def confidence_of(heard: Heard) -> float | None:
+    """The recogniser's confidence as a finite number, or None when it is none."""
+    try:
+        confidence = float(heard.confidence)
+    except (TypeError, ValueError):
+        return None
+    return confidence if math.isfinite(confidence) else None
+
+
+def out_of_range(heard: Heard | None) -> bool:
+    """A confidence that is a number outside 0-1 (a node reporting 85 for 85 %): refused, not
+    clamped, since 1.0 would pass any ``min_confidence`` as certain."""
+    if heard is None:
+        return False
+    confidence = confidence_of(heard)
+    return confidence is not None and not 0.0 <= confidence <= 1.0
+
+
 def clean_transcript(heard: Heard | None) -> tuple[str | None, float | None]:
     """The recogniser's words and confidence as the server stores them: printable, at most 200
     characters, a confidence in [0, 1]; None for what cannot be stored (a recogniser may return
-    anything)."""
+    anything; one outside 0-1 is refused before an answer is sent, see :func:`out_of_range`)."""
     if heard is None:
         return None, None
     printable = "".join(ch if ch.isprintable() else " " for ch in str(heard.words))
     words = " ".join(printable.split())[:TRANSCRIPT_MAX] or None
-    try:
-        confidence: float | None = float(heard.confidence)
-    except (TypeError, ValueError):
+    confidence = confidence_of(heard)
+    if confidence is not None and not 0.0 <= confidence <= 1.0:
         confidence = None
-    if confidence is not None and not math.isfinite(confidence):
-        confidence = None
-    if confidence is not None:
-        confidence = min(1.0, max(0.0, confidence))
     return words, confidence
 
 
@@ -166,6 +187,8 @@ def describe_heard(heard: Heard | None) -> str:
     words, confidence = clean_transcript(heard)
     if words is None:
         return "silence"
+    if heard is not None and out_of_range(heard):
+        return f"“{words}” (confidence {confidence_of(heard):g}, not within 0-1)"
     return f"“{words}” ({confidence:.2f})" if confidence is not None else f"“{words}”"
 
 
@@ -193,6 +216,8 @@ class Bridge:
         """Replies recorded but not yet said in full: said once the robot is back (before
         anything else), or told to the console if the study has moved on meanwhile."""
         self._missed_reply_shown = False
+        self._speech: SpeechOut | None = None
+        """The speech settings of the question asked last (its reply's gesture and LEDs)."""
         self._stopping = asyncio.Event()
         self._robot_back = asyncio.Lock()
         self._rng = random.Random()
@@ -329,12 +354,17 @@ class Bridge:
                 prompt = await self._prompt_for(item)
                 if prompt is not None:
                     await self._ask(prompt)
+                elif isinstance(item, _Handle) and item.cut_off is not None:
+                    self._answered_while_away(item.cut_off)  # answered after the robot was back
             except RobotLost as lost:
                 await self._reconnect_robot(lost)
                 if unsaid is None and prompt is not None and prompt.step_id in self._unsaid:
                     continue  # answered, its reply cut off: said first (above), not asked again
+                if unsaid is None and prompt is not None and self._answered_while_away(prompt):
+                    continue  # the console answered meanwhile: its reply first (above)
                 if unsaid is None:
-                    self._work.put_nowait(item if prompt is None else _Handle(prompt.step_id))
+                    again = item if prompt is None else _Handle(prompt.step_id, prompt)
+                    self._work.put_nowait(again)
             except DeviceKeyRefused:
                 raise
             except ApiError as exc:
@@ -394,7 +424,7 @@ class Bridge:
         if prompt.language != self.settings.speaks:
             await self._cannot_speak(prompt)
             return
-        speech = await self._client.speech()
+        speech = self._speech = await self._client.speech()
         vocabulary = Vocabulary.of(speech.yes, speech.no, speech.min_confidence)
         await self._robot(self.robot.say, prompt.question, None)
         self._log(f"Robot asks (step {prompt.step_id}): {prompt.question}")
@@ -403,7 +433,12 @@ class Bridge:
             if await self._say_recorded_reply(prompt, speech):
                 return
             heard = await self._robot(self.robot.listen, vocabulary.phrases, speech.listen_seconds)
-            answer = vocabulary.classify(heard)
+            if out_of_range(heard):
+                self._log(
+                    f"Bridge: the robot's recogniser reported {describe_heard(heard)}: a "
+                    "confidence is a fraction from 0 to 1 (0.85 for 85 %); not taken as an answer."
+                )
+            answer = None if out_of_range(heard) else vocabulary.classify(heard)
             self._log(f"Robot heard: {describe_heard(heard)} -> {answer or 'unclear'}")
             if await self._say_recorded_reply(prompt, speech):
                 return  # answered on the console meanwhile: that answer stands
@@ -451,17 +486,42 @@ class Bridge:
         """Say a recorded answer's reply, with the protocol's gesture and LED colour for its
         level (if any); kept until said, so that a robot lost while saying it says it once it is
         back (:meth:`_say_unsaid`)."""
+        await self._say_kept(self._kept(prompt, reply, level, speech))
+
+    def _kept(
+        self,
+        prompt: PromptOut,
+        reply: str,
+        level: str | None,
+        speech: SpeechOut | None,
+        *,
+        answered_while_away: bool = False,
+    ) -> _Unsaid:
+        """A reply to keep until said, with its level's gesture and LED colour (if any)."""
         seated = (self._socket.state or {}).get("participant")
-        leds = speech.leds.get(level or "")
-        unsaid = _Unsaid(
+        leds = speech.leds.get(level or "") if speech is not None else None
+        return _Unsaid(
             prompt.step_id,
             prompt.question,
             seated,
             reply,
-            speech.gestures.get(level or ""),
+            speech.gestures.get(level or "") if speech is not None else None,
             colour_of(leds) if leds else None,
+            answered_while_away,
         )
-        await self._say_kept(unsaid)
+
+    def _answered_while_away(self, prompt: PromptOut) -> bool:
+        """The robot was lost while asking ``prompt``: if the console answered it meanwhile,
+        keep that reply as unsaid, so that it is said once the robot is back or, if the study
+        has moved on by then, told to the console (:meth:`_say_unsaid`). True when kept."""
+        recorded = self._answered.replies.get(prompt.step_id)
+        if recorded is None or prompt.step_id in self._unsaid:
+            return False
+        reply, level = recorded
+        self._unsaid[prompt.step_id] = self._kept(
+            prompt, reply, level, self._speech, answered_while_away=True
+        )
+        return True
 
     async def _say_kept(self, unsaid: _Unsaid) -> None:
         self._unsaid[unsaid.step_id] = unsaid
@@ -480,17 +540,30 @@ class Bridge:
         async with self._answered.changed:
             later_answered = any(step > unsaid.step_id for step in self._answered.replies)
         moved_on = later_asked or later_answered or state.get("participant") != unsaid.participant
+        who = unsaid.participant or "the participant"
         if not moved_on:
-            self._log(f"Bridge: saying the reply the robot was cut off in (step {unsaid.step_id}).")
+            if unsaid.answered_while_away:
+                self._log(
+                    f"Bridge: saying the reply to the console's answer given while the robot was "
+                    f"away (step {unsaid.step_id})."
+                )
+            else:
+                self._log(
+                    f"Bridge: saying the reply the robot was cut off in (step {unsaid.step_id})."
+                )
             await self._say_kept(unsaid)
             self._log(f"Robot replies: {unsaid.reply}")
             return
         self._unsaid.pop(unsaid.step_id, None)
+        what = (
+            f"the robot was away when {who}'s answer to “{unsaid.question}” was given on this "
+            "console,"
+            if unsaid.answered_while_away
+            else f"the robot was lost while replying to {who}'s answer to “{unsaid.question}”"
+        )
         line = (
-            f"the robot was lost while replying to {unsaid.participant or 'the participant'}'s "
-            f"answer to "
-            f"“{unsaid.question}” and the study has moved on: the reply “{unsaid.reply}” "
-            "was recorded but not heard"
+            f"{what} and the study has moved on: the reply “{unsaid.reply}” was recorded but "
+            "not heard"
         )
         await self._notice(line[:300], attention=True)
         self._missed_reply_shown = True

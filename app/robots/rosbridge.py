@@ -5,21 +5,31 @@ ROS 2 has no standard speech interface, so trustlab defines a small one of ``std
 topics; a robot joins by running a node that implements the robot's side (every name is an
 option of :class:`RosbridgeOptions`):
 
-========================  ========  ========================================================
-topic (default)           who       ``data`` of the String
-========================  ========  ========================================================
-``/trustlab/gesture``     bridge    a gesture name, published just before the line it goes with
-``/trustlab/say``         bridge    a line to say with the robot's text-to-speech
-``/trustlab/said``        robot     the same line once it has been said (or empty: "done")
-``/trustlab/listen``      bridge    JSON ``{"id": 3, "phrases": ["yes", "no"],
-                                    "language": "en-US", "seconds": 8.0}``: listen now
-``/trustlab/heard``       robot     JSON ``{"id": 3, "words": "yes", "confidence": 0.8}``, or
-                                    plain words (confidence 1); empty words mean silence.
-                                    ``id`` (optional) echoes the request's, so a late result
-                                    of an earlier request is not taken for this one
-``/trustlab/cue``         robot     the robot's cue to ask: empty for the next expected
-                                    category, or a category's name
-========================  ========  ========================================================
+============================  =======  ============================================================
+topic (default)               who      ``data`` of the String
+============================  =======  ============================================================
+``/trustlab/gesture``         bridge   a gesture name, published just before the line it goes with
+``/trustlab/say``             bridge   a line to say with the robot's text-to-speech
+``/trustlab/said``            robot    the same line once it has been said (or empty: "done")
+``/trustlab/listen``          bridge   JSON ``{"id": "5f0c9a1e2b7d-3", "phrases": ["yes", "no"],
+                                       "language": "en-US", "seconds": 8.0}``: listen now
+``/trustlab/listen_cancel``   bridge   JSON ``{"id": "5f0c9a1e2b7d-3"}``: stop that listen (the
+                                       bridge gave up on it, or a new listen supersedes it)
+``/trustlab/heard``           robot    JSON ``{"id": "5f0c9a1e2b7d-3", "words": "yes",
+                                       "confidence": 0.8}``, or plain words (confidence 1);
+                                       empty words mean silence. ``id`` (optional) echoes the
+                                       request's, so a late result of an earlier request is not
+                                       taken for this one
+``/trustlab/cue``             robot    the robot's cue to ask: empty for the next expected
+                                       category, or a category's name
+============================  =======  ============================================================
+
+A request's ``id`` is an opaque string for the node to echo unchanged: a random prefix of the
+bridge process and a counter of that process (:func:`new_listen_id`), so no two listen requests
+share one, across reconnections and restarts of the bridge alike. A node that keeps a result of
+an earlier request (the connection dropped before it arrived) cannot have it taken as the answer
+to a later question. ``confidence`` is a fraction from 0 to 1: anything else (85 for 85 %) is
+passed on as it is and the bridge refuses it (not taken as an answer).
 
 One topic is not a String: ``/trustlab/led`` (``std_msgs/msg/ColorRGBA``, published by the bridge
 when the protocol gives a reply's level an LED colour) carries that colour (``r``, ``g``, ``b`` in
@@ -27,8 +37,11 @@ when the protocol gives a reply's level an LED colour) carries that colour (``r`
 robot's own colours.
 
 A robot that reports nothing on the heard topic is silence once ``seconds`` (plus
-``listen_grace`` for the result to travel) are over. A cue that comes while the bridge is busy is
-kept for its next :meth:`~RosbridgeRobot.wait_cue` (only the latest one).
+``listen_grace`` for the result to travel) are over: the bridge then gives up on that request
+and publishes its cancel. A listen request that never got its result because the connection
+dropped is cancelled on the next connection, just before the next listen request. A cue that
+comes while the bridge is busy is kept for its next :meth:`~RosbridgeRobot.wait_cue` (only the
+latest one).
 
 At connect the adapter checks, through rosbridge's rosapi services, that the topics the robot must
 provide (said and heard; the cue topic when ``require_cue_topic``) exist and carry Strings; the
@@ -46,11 +59,13 @@ again), so roslibpy's own endless retries are switched off on every connection.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import math
 import socket
 import threading
 import time
+import uuid
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -61,11 +76,29 @@ from app.robots.robot import Colour, Cue, Heard, RobotLost, RobotUnreachable
 STRING = "std_msgs/msg/String"
 STRING_TYPES = {STRING, "std_msgs/String"}
 COLOUR = "std_msgs/msg/ColorRGBA"
+MAX_UNFINISHED = 5
+"""Listen requests of lost connections remembered for a cancel (a robot lost again and again
+while listening leaves no more than this many to cancel)."""
 CLOSE_BOUND = 5.0
 """Seconds closing may take before the adapter lets the socket go (autobahn's own bound)."""
 
 _REACTOR_START = threading.Lock()
 """roslibpy starts the reactor thread on the first ``Ros.run``; two at once could start two."""
+
+_PROCESS_PREFIX = uuid.uuid4().hex[:12]
+"""Random for each bridge process: a restarted bridge never repeats an earlier one's ids."""
+_LISTEN_COUNT = itertools.count(1)
+_LISTEN_COUNT_LOCK = threading.Lock()
+
+
+def new_listen_id() -> str:
+    """A listen request's id, unique across connections and processes: this process's random
+    prefix and its own count of requests (``"5f0c9a1e2b7d-3"``). Numbering from 1 on every
+    connection would give the first listen after a reconnection the id of the one the drop cut
+    off, and the node's late result of that one would be taken as the answer to the new
+    question."""
+    with _LISTEN_COUNT_LOCK:
+        return f"{_PROCESS_PREFIX}-{next(_LISTEN_COUNT)}"
 
 
 @dataclass(frozen=True)
@@ -81,6 +114,8 @@ class RosbridgeOptions:
     led_topic: str | None = "/trustlab/led"
     """A ``std_msgs/msg/ColorRGBA`` topic for the reply's LED colour; None: none is sent."""
     listen_topic: str = "/trustlab/listen"
+    cancel_topic: str | None = "/trustlab/listen_cancel"
+    """Where the bridge cancels a listen request it gave up on or superseded; None: not sent."""
     heard_topic: str = "/trustlab/heard"
     cue_topic: str = "/trustlab/cue"
     require_cue_topic: bool = False
@@ -107,6 +142,9 @@ class RosbridgeRobot:
         self.description = f"rosbridge at ws://{self.options.host}:{self.options.port}"
         self._link: _Link | None = None
         self._reached_before = False
+        self._unfinished: list[str] = []
+        """Ids of listen requests whose result never came because their connection was lost:
+        cancelled on the next connection before the next request (the node may still listen)."""
 
     def connect(self) -> None:
         self.close()
@@ -121,7 +159,13 @@ class RosbridgeRobot:
         self._current().say(text, gesture, leds)
 
     def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
-        return self._current().listen(phrases, seconds)
+        link = self._current()
+        request_id = new_listen_id()
+        superseded = list(self._unfinished)
+        self._unfinished = [*superseded[-(MAX_UNFINISHED - 1) :], request_id]
+        heard = link.listen(request_id, phrases, seconds, superseded)
+        self._unfinished = []  # heard, or given up on and cancelled; the superseded cancelled
+        return heard
 
     def wait_cue(self, seconds: float) -> Cue | None:
         return self._current().wait_cue(seconds)
@@ -154,7 +198,6 @@ class _Link:
         self._heard: deque[str] = deque()
         self._cues: deque[str] = deque(maxlen=1)
         """Only the latest cue is kept: one touch, however it bounced, asks one question."""
-        self._listen_id = 0
         self._ready = False
         self._lost = False
         self._closed = False
@@ -192,6 +235,8 @@ class _Link:
         topic(self.options.cue_topic).subscribe(self._queue(self._cues))
         self._say = topic(self.options.say_topic)
         self._listen = topic(self.options.listen_topic)
+        cancel_topic = self.options.cancel_topic
+        self._cancel = topic(cancel_topic) if cancel_topic else None
         self._gesture = topic(self.options.gesture_topic) if self.options.gesture_topic else None
         led_topic = self.options.led_topic
         self._led = (
@@ -199,7 +244,7 @@ class _Link:
             if led_topic
             else None
         )
-        for advertised in (self._say, self._listen, self._gesture, self._led):
+        for advertised in (self._say, self._listen, self._cancel, self._gesture, self._led):
             if advertised is not None:
                 advertised.advertise()
         # rosbridge handles a connection's operations in order, so the subscriptions are in place
@@ -269,12 +314,16 @@ class _Link:
         assert self._led is not None
         self._led.publish(self._roslibpy.Message(colour))
 
-    def listen(self, phrases: Sequence[str], seconds: float) -> Heard | None:
+    def listen(
+        self, request_id: str, phrases: Sequence[str], seconds: float, superseded: list[str]
+    ) -> Heard | None:
+        """Publish a listen request (after cancelling ``superseded``, requests of lost
+        connections) and wait for its result; on silence the request is cancelled."""
         with self._changed:
             self._check("listening")
             self._heard.clear()
-            self._listen_id += 1
-            request_id = self._listen_id
+        for unfinished in superseded:
+            self._publish_cancel(unfinished)
         request = {
             "id": request_id,
             "phrases": list(phrases),
@@ -288,7 +337,14 @@ class _Link:
             seconds + self.options.listen_grace,
             "listening",
         )
-        return None if result is None else decode_heard(result)[1]
+        if result is None:
+            self._publish_cancel(request_id)  # given up: a node still listening stops
+            return None
+        return decode_heard(result)[1]
+
+    def _publish_cancel(self, request_id: str) -> None:
+        if self._cancel is not None:
+            self._cancel.publish(self._roslibpy.Message({"data": json.dumps({"id": request_id})}))
 
     def wait_cue(self, seconds: float) -> Cue | None:
         cue = self._take(self._cues, lambda _: True, seconds, "waiting for a cue")
@@ -367,8 +423,9 @@ class _Link:
 def decode_heard(data: str) -> tuple[object, Heard | None]:
     """A heard message's request id (None when it has none) and what it heard (None: silence).
 
-    JSON objects give ``words`` and ``confidence`` (missing: 1; not a number: 0, so unclear);
-    anything else is plain words heard with confidence 1."""
+    JSON objects give ``words`` and ``confidence`` (missing: 1; not a number: 0, so unclear; a
+    number outside 0-1 as it is, for the bridge to refuse: clamping 85 to 1 would pass it as
+    certain); anything else is plain words heard with confidence 1."""
     try:
         fields = json.loads(data)
     except ValueError:
@@ -379,7 +436,7 @@ def decode_heard(data: str) -> tuple[object, Heard | None]:
     confidence = fields.get("confidence", 1.0)
     if isinstance(confidence, bool) or not isinstance(confidence, int | float):
         confidence = 0.0
-    confidence = min(1.0, max(0.0, float(confidence))) if math.isfinite(confidence) else 0.0
+    confidence = float(confidence) if math.isfinite(confidence) else 0.0
     return fields.get("id"), Heard(words, confidence) if words else None
 
 

@@ -176,7 +176,7 @@ def test_zone_and_how_answered_are_stored_once(lab: Lab) -> None:
         ({"answer": "no", "modality": "voice"}, "modality"),
         (
             {"answer": "no", "modality": "speech", "transcript_confidence": 1.5},
-            "less than or equal",
+            "a fraction from 0 to 1 (0.85 for 85 %), not 1.5",
         ),
     ],
 )

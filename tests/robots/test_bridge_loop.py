@@ -225,6 +225,96 @@ def test_a_reply_cut_off_after_the_study_moved_on_is_told_to_the_console(
     assert_verify_clean(seated)
 
 
+def test_a_console_answer_given_while_the_robot_is_away_is_said_once_it_is_back(
+    seated: Lab, url: str
+) -> None:
+    """The robot drops while listening and stays away; the console answers the question
+    meanwhile: once the robot is back it says that answer's reply (the question is not asked
+    again, and nothing else has happened since)."""
+    script = Script()
+    script.add(Drop())
+    robot = FakeRobot(script)
+    robot.away_after_drop = True
+    with RunningBridge(robot, url, seated.station, seated.key) as bridge:
+        step = ask_now(seated)
+        wait_for(lambda: (_notice(seated)[0] or "").startswith("lost the robot"))
+        woz = seated.experimenter.post(
+            f"/api/v1/stations/{seated.station}/steps/{step['step_id']}/answer",
+            json={"answer": "yes", "idempotency_key": "woz-away"},
+        )
+        assert woz.status_code == 200, woz.text
+        robot.away.clear()
+        said = script.wait_said(2, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+    assert [line.text for line in said] == [step["question"], woz.json()["reply"]]
+    assert len(script.vocabularies) == 1 and len(stored_answers(seated)) == 1
+    assert any("given while the robot was away" in line for line in bridge.lines)
+
+
+def test_a_console_answer_given_while_the_robot_is_away_is_flagged_once_the_study_moved_on(
+    seated: Lab, url: str
+) -> None:
+    """The robot drops while listening and stays away; the console answers the question and
+    asks the next one: once back, the robot does not say the stale reply, and the console is
+    told that the participant never heard it, until the next reply is said."""
+    script = Script()
+    script.add(Drop())
+    robot = FakeRobot(script)
+    robot.away_after_drop = True
+    with RunningBridge(robot, url, seated.station, seated.key):
+        first = ask_now(seated, "conation")
+        wait_for(lambda: (_notice(seated)[0] or "").startswith("lost the robot"))
+        woz = seated.experimenter.post(
+            f"/api/v1/stations/{seated.station}/steps/{first['step_id']}/answer",
+            json={"answer": "yes", "idempotency_key": "woz-away"},
+        )
+        assert woz.status_code == 200, woz.text
+        second = ask_now(seated, "affection")
+        robot.hold = True
+        robot.away.clear()
+        wait_for(lambda: "moved on" in (_notice(seated)[0] or ""))
+        notice, attention = _notice(seated)
+        assert attention and notice is not None
+        assert notice.startswith(
+            f"the robot was away when P001's answer to “{first['question']}” was given on this "
+            "console, and the study has moved on"
+        )
+        assert f"the reply “{woz.json()['reply']}” was recorded but not heard" in notice
+        assert robot.listening.wait(BOUND)  # the next question is asked
+        script.add("no")
+        robot.release.set()
+        said = script.wait_said(3, BOUND)
+        wait_for(lambda: _notice(seated) == (None, False))
+    first_answer, second_answer = stored_answers(seated)
+    assert (first_answer.prompt_id, second_answer.prompt_id) == (
+        first["step_id"],
+        second["step_id"],
+    )
+    assert [line.text for line in said] == [
+        first["question"],
+        second["question"],
+        second_answer.reply,
+    ]
+    assert_verify_clean(seated)
+
+
+@SQLITE_ONLY
+def test_a_confidence_outside_0_to_1_is_refused_not_taken_as_certain(seated: Lab, url: str) -> None:
+    """A recogniser reporting 85 (per cent) is not clamped to 1.0 and answered with: the bridge
+    says so in one line and asks again; the next clear answer is stored with its own
+    confidence."""
+    script = Script()
+    script.add(Words("yes", 85), Words("yes", 0.9))
+    with RunningBridge(FakeRobot(script), url, seated.station, seated.key) as bridge:
+        step = ask_now(seated)
+        said = script.wait_said(3, BOUND)
+    [answer] = stored_answers(seated)
+    assert (answer.prompt_id, answer.transcript_confidence) == (step["step_id"], 0.9)
+    assert [line.text for line in said] == [step["question"], REPROMPT, answer.reply]
+    [refused] = [line for line in bridge.lines if "not taken as an answer" in line]
+    assert "“yes” (confidence 85, not within 0-1)" in refused and "\n" not in refused
+
+
 def test_a_bridge_killed_mid_answer_and_restarted_answers_once(seated: Lab, url: str) -> None:
     first = Script()
     first.add(Silence())

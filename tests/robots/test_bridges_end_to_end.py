@@ -178,3 +178,33 @@ def test_a_furhat_lost_while_replying_says_the_reply_once_back(gesturing: Lab, u
     )
     assert any("reconnecting" in line for line in bridge.lines)
     assert_verify_clean(gesturing)
+
+
+def test_a_rosbridge_node_s_late_result_of_a_cut_off_listen_is_not_the_next_answer(
+    gesturing: Lab, url: str
+) -> None:
+    """The connection to rosbridge drops while the robot listens; the node still hears "yes" and
+    publishes it, with that request's id, when the reconnected bridge asks again: the answer
+    stored is the participant's "no" to the question asked now, with its confidence."""
+    from app.robots.rosbridge import RosbridgeOptions, RosbridgeRobot
+    from tests.robots.standins.rosbridge import RosbridgeStandIn
+
+    script = Script()
+    script.add(Drop(), Words("no", 0.7))
+    with (
+        RosbridgeStandIn(script, late_after_drop=Words("yes", 0.95)) as stand_in,
+        RunningBridge(
+            RosbridgeRobot(RosbridgeOptions(host="127.0.0.1", port=stand_in.port)),
+            url,
+            gesturing.station,
+            gesturing.key,
+        ),
+    ):
+        step = ask_now(gesturing, "conation")
+        said = script.wait_said(3, BOUND)
+    [answer] = stored_answers(gesturing)
+    assert (answer.prompt_id, answer.answer) == (step["step_id"], False)
+    assert (answer.transcript, answer.transcript_confidence) == ("no", 0.7)
+    assert [line.text for line in said] == [step["question"], step["question"], answer.reply]
+    cut_off, asked = (request["id"] for request in stand_in.listen_requests)
+    assert stand_in.listen_log == [("listen", cut_off), ("cancel", cut_off), ("listen", asked)]

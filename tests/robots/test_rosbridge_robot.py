@@ -7,6 +7,8 @@ shows that roslibpy's reactor (started once, never stopped) serves connection af
 from __future__ import annotations
 
 import socket
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 from dataclasses import replace
@@ -15,7 +17,7 @@ from typing import Any
 import pytest
 
 from app.robots.robot import Cue, Heard, RobotError, RobotLost, RobotUnreachable
-from app.robots.rosbridge import RosbridgeOptions, RosbridgeRobot, decode_heard
+from app.robots.rosbridge import RosbridgeOptions, RosbridgeRobot, decode_heard, new_listen_id
 from tests.robots.standins.rosbridge import CUE, HEARD, SAID, RosbridgeStandIn
 from tests.robots.standins.script import Drop, Said, Script, Silence, Words
 
@@ -96,7 +98,66 @@ def test_listen_reports_what_the_recogniser_heard_and_none_on_silence(
     assert script.vocabularies == [PHRASES, PHRASES, PHRASES, ["no"]]
     first = stand_in.listen_requests[0]
     assert first == {"id": first["id"], "phrases": PHRASES, "language": "en-US", "seconds": 0.3}
-    assert len({request["id"] for request in stand_in.listen_requests}) == 4
+    ids = [request["id"] for request in stand_in.listen_requests]
+    assert len(set(ids)) == 4
+    # only the silent one is given up on, and cancelled, before the next request
+    assert stand_in.listen_log == [
+        ("listen", ids[0]),
+        ("listen", ids[1]),
+        ("cancel", ids[1]),
+        ("listen", ids[2]),
+        ("listen", ids[3]),
+    ]
+
+
+def test_the_late_result_of_a_listen_cut_off_by_a_drop_is_not_taken_after_reconnecting(
+    script: Script,
+) -> None:
+    """The connection drops while the robot listens (request one); the node still hears "yes"
+    and publishes it, with request one's id, once the reconnected bridge asks the next question:
+    that is not this question's answer (silence), and request one is cancelled first."""
+    script.add(Drop(), Silence())
+    with RosbridgeStandIn(script, late_after_drop=Words("yes", 0.95)) as stand_in:
+        robot = robot_at(stand_in.port, listen_grace=0.2)
+        robot.connect()
+        with pytest.raises(RobotLost):
+            robot.listen(PHRASES, 30)
+        robot.connect()
+        assert robot.listen(PHRASES, 0.3) is None
+        robot.close()
+    cut_off, asked = (request["id"] for request in stand_in.listen_requests)
+    assert cut_off != asked
+    assert stand_in.listen_log == [
+        ("listen", cut_off),
+        ("cancel", cut_off),  # superseded by the next request, on the new connection
+        ("listen", asked),
+        ("cancel", asked),  # silence: given up on
+    ]
+
+
+def test_listen_ids_are_unique_across_robots_and_processes() -> None:
+    """Each id is the process's random prefix and its count: a second adapter in this process
+    and a restarted bridge (another process) never repeat one."""
+    here = [new_listen_id() for _ in range(3)]
+    program = "from app.robots.rosbridge import new_listen_id; print(new_listen_id())"
+    elsewhere = [
+        subprocess.run(
+            [sys.executable, "-c", program], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        for _ in range(2)
+    ]
+    assert len(set(here + elsewhere)) == 5
+    assert all(isinstance(request_id, str) and request_id for request_id in here + elsewhere)
+
+
+def test_no_cancel_is_sent_without_a_cancel_topic(script: Script) -> None:
+    script.add(Silence())
+    with RosbridgeStandIn(script) as stand_in:
+        robot = robot_at(stand_in.port, listen_grace=0.1, cancel_topic=None)
+        robot.connect()
+        assert robot.listen(PHRASES, 0.1) is None
+        robot.close()
+    assert [kind for kind, _ in stand_in.listen_log] == ["listen"]
 
 
 def test_a_late_result_of_an_earlier_listen_is_not_taken_for_this_one(script: Script) -> None:
@@ -114,7 +175,9 @@ def test_a_late_result_of_an_earlier_listen_is_not_taken_for_this_one(script: Sc
     ("data", "request_id", "heard"),
     [
         ('{"id": 3, "words": "yes", "confidence": 0.6}', 3, Heard("yes", 0.6)),
-        ('{"words": " no ", "confidence": 2}', None, Heard("no", 1.0)),
+        ('{"words": " no ", "confidence": 2}', None, Heard("no", 2.0)),  # refused by the bridge
+        ('{"id": "a-1", "words": "yes", "confidence": 85}', "a-1", Heard("yes", 85.0)),
+        ('{"words": "yes", "confidence": -0.5}', None, Heard("yes", -0.5)),
         ('{"words": "no"}', None, Heard("no", 1.0)),
         ('{"words": "yes", "confidence": "high"}', None, Heard("yes", 0.0)),
         ('{"words": "yes", "confidence": NaN}', None, Heard("yes", 0.0)),

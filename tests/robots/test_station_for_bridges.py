@@ -218,3 +218,59 @@ def test_a_socket_of_a_dead_worker_lapses(lab: Lab) -> None:
         stations.socket_alive(db, device_id=device.id, socket_id="alive", lasts=lasts)
         db.commit()
     assert console_badge(lab) == "connected"
+
+
+def test_the_stations_list_carries_each_device_s_connection_and_notice(lab: Lab) -> None:
+    """``GET /api/v1/stations`` shows what the console's HTML shows of each device key: whether
+    it is connected now, and the line its bridge put there (with its highlight)."""
+
+    def device() -> dict[str, Any]:
+        listed = lab.experimenter.get("/api/v1/stations")
+        assert listed.status_code == 200, listed.text
+        [station] = listed.json()
+        [pepper] = station["devices"]
+        return dict(pepper)
+
+    assert (device()["connected"], device()["notice"]) == (False, None)
+    with lab.robot.websocket_connect(SOCKET) as ws:
+        assert ws.receive_json()["type"] == "hello"
+        assert device()["connected"] is True
+        line = "lost the robot (connection refused); reconnecting"
+        put = lab.robot.put("/api/v1/station/notice", json={"text": line, "attention": True})
+        assert put.status_code == 204, put.text
+        notice = device()["notice"]
+        assert (notice["text"], notice["attention"]) == (line, True)
+        assert datetime.fromisoformat(notice["at"].replace("Z", "+00:00"))
+    wait_for(lambda: device()["connected"] is False)
+    lab.robot.put("/api/v1/station/notice", json={"text": None})
+    assert device()["notice"] is None
+
+
+@pytest.mark.parametrize("confidence", [85, -0.5, 1.01])
+def test_a_confidence_outside_0_to_1_is_refused_in_one_line(lab: Lab, confidence: float) -> None:
+    """A recogniser's 85 (per cent) is neither clamped nor stored, on the robot's route and on
+    the experimenter's (console) route alike: a 422 whose one line says what a confidence is."""
+    lab.enrol_and_assign("P001")
+    lab.start_session()
+    step = lab.robot.post("/api/v1/station/prompts", json={"category": "conation"}).json()
+    body = {
+        "answer": "yes",
+        "idempotency_key": "k",
+        "modality": "speech",
+        "transcript": "yes",
+        "transcript_confidence": confidence,
+    }
+    routes = (
+        (lab.robot, f"/api/v1/station/steps/{step['step_id']}/answer"),
+        (lab.experimenter, f"/api/v1/stations/{lab.station}/steps/{step['step_id']}/answer"),
+    )
+    for client, path in routes:
+        refused = client.post(path, json=body)
+        assert refused.status_code == 422, refused.text
+        detail = refused.json()["detail"]
+        assert detail == (
+            "transcript_confidence: the recogniser's confidence is a fraction from 0 to 1 "
+            f"(0.85 for 85 %), not {confidence:g}"
+        )
+    state = lab.experimenter.get(f"/api/v1/stations/{lab.station}/state").json()
+    assert [p["step_id"] for p in state["open_prompts"]] == [step["step_id"]]  # not answered

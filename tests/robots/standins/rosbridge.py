@@ -11,14 +11,18 @@ gesture and listen topics and publishes on the said, heard and cue topics:
   with the same text; a ColorRGBA on the LED topic sets that colour (``a`` = 0: the robot's own);
 - a request published on the listen topic takes the participant's next reply: words are published
   on the heard topic as ``{"id", "words", "confidence"}``, silence publishes nothing, and a drop
-  aborts the TCP connection without a WebSocket close (a robot that vanishes);
+  aborts the TCP connection without a WebSocket close (a robot that vanishes); a cancel on the
+  cancel topic is recorded (:attr:`RosbridgeStandIn.listen_log` keeps both in arrival order);
 - :meth:`RosbridgeStandIn.cue` publishes a cue, as a touch sensor's node would.
 
 ``missing_topics`` leaves topics out of ``/rosapi/topics`` (a robot whose node does not provide
 them); ``rosapi=False`` is a rosbridge started without its rosapi node; ``topic_types`` gives a
 topic another type; ``reports_said=False`` is a robot that never reports a line said;
 ``stale_heard`` is published on the heard topic before each answer to a listen request (a late
-result of an earlier one). The server runs on its own thread with its own asyncio loop, on port 0.
+result of an earlier one); ``late_after_drop`` is the node's result of the request a drop cut
+off, published (with that request's id) when the next listen request arrives, on whichever
+connection: a node keeps listening when rosbridge's client goes. The server runs on its own
+thread with its own asyncio loop, on port 0.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ STRING = "std_msgs/msg/String"
 SAY, SAID, GESTURE = "/trustlab/say", "/trustlab/said", "/trustlab/gesture"
 LED = "/trustlab/led"
 LISTEN, HEARD, CUE = "/trustlab/listen", "/trustlab/heard", "/trustlab/cue"
+CANCEL = "/trustlab/listen_cancel"
 ROBOT_TOPICS = (SAY, SAID, GESTURE, LISTEN, HEARD, CUE)
 """The topics the robot node itself subscribes to or publishes on (the documented defaults)."""
 
@@ -58,15 +63,21 @@ class RosbridgeStandIn:
         topic_types: dict[str, str] | None = None,
         reports_said: bool = True,
         stale_heard: str | None = None,
+        late_after_drop: Words | None = None,
     ) -> None:
         self.script = script
         self.reports_said = reports_said
         self.stale_heard = stale_heard
+        self.late_after_drop = late_after_drop
+        self._cut_off: dict[str, Any] | None = None
+        """The listen request a drop cut off, until its late result is published."""
         self.missing_topics = frozenset(missing_topics)
         self.rosapi = rosapi
         self.topic_types = dict.fromkeys(ROBOT_TOPICS, STRING) | (topic_types or {})
         self.listen_requests: list[dict[str, Any]] = []
         """Every listen request's JSON, in order (phrases, language, seconds, id)."""
+        self.listen_log: list[tuple[str, Any]] = []
+        """``("listen", id)`` and ``("cancel", id)`` in the order they arrived."""
         self.port = 0
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, daemon=True)
@@ -167,17 +178,26 @@ class RosbridgeStandIn:
             self._gesture = None
             if self.reports_said:
                 await self._publish(SAID, data)
+        elif topic == CANCEL:
+            self.listen_log.append(("cancel", json.loads(data)["id"]))
         elif topic == LISTEN:
             request = json.loads(data)
             self.listen_requests.append(request)
+            self.listen_log.append(("listen", request["id"]))
             self.script.record_vocabulary(request["phrases"])
             if self.stale_heard is not None:
                 await self._publish(HEARD, self.stale_heard)
+            if self._cut_off is not None and self.late_after_drop is not None:
+                late = self.late_after_drop
+                result = {"id": self._cut_off["id"], "words": late.words}
+                await self._publish(HEARD, json.dumps(result | {"confidence": late.confidence}))
+                self._cut_off = None
             reply = self.script.next_reply()
             if isinstance(reply, Words):
                 heard = {"id": request["id"], "words": reply.words, "confidence": reply.confidence}
                 await self._publish(HEARD, json.dumps(heard))
             elif isinstance(reply, Drop):
+                self._cut_off = request
                 connection.transport.abort()
             else:
                 assert isinstance(reply, Silence)
