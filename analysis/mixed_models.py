@@ -252,7 +252,7 @@ def _outcome_models(
             adaptation = adaptation_trust(measures, data, dv=dv, confidence=confidence)
         except AnalysisError as error:
             adaptation_problem = str(error)
-    excluded = 0 if outcome.anova is None else len(outcome.anova.excluded)
+    excluded = len(outcome.excluded)
     return OutcomeMixedModels(
         key=outcome.key,
         label=outcome.label,

@@ -32,7 +32,12 @@ from analysis.figures import (
     trajectories_payload,
     trust_confidence_payload,
 )
-from analysis.methods import analysis_paragraph, design_paragraph, participants_paragraph
+from analysis.methods import (
+    analysis_paragraph,
+    design_paragraph,
+    exclusion_sentence,
+    participants_paragraph,
+)
 from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
 from analysis.mixed_prose import (
     adaptation_sentences,
@@ -41,8 +46,8 @@ from analysis.mixed_prose import (
     ordinal_sentences,
 )
 from analysis.prereg import check_registration
-from analysis.prose import item_title
-from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
+from analysis.prose import count, item_title
+from analysis.study import ALL_ANALYSES, OutcomeAnalysis, StudyAnalysis, analyse_study
 
 __all__ = [
     "MAX_EXCLUSION_ROWS",
@@ -281,7 +286,9 @@ def _methods(result: StudyAnalysis, confidence: float) -> tuple[str, str, str]:
     paragraphs = [
         participants_paragraph(protocol, result.sample),
         design_paragraph(protocol, result.dataset.instruments),
-        analysis_paragraph(protocol, len(protocol["conditions"]), result.ss_type, confidence),
+        analysis_paragraph(protocol, len(protocol["conditions"]), result.ss_type, confidence)
+        + " "
+        + _exclusion_sentence(result),
     ]
     citations = sorted(
         {spec.citation for spec in result.dataset.instruments if spec.citation}
@@ -321,6 +328,10 @@ def _registration(result: StudyAnalysis) -> tuple[str, str, str]:
     return "registration", "Registration", content
 
 
+def _exclusion_sentence(result: StudyAnalysis) -> str:
+    return exclusion_sentence(result.exclusions().to_dict("records"), everywhere=ALL_ANALYSES)
+
+
 def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
     participants = result.dataset.participants
     counts = (
@@ -358,7 +369,7 @@ def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
                 "participant's data are in the exports).</p>"
             )
     else:
-        listed = "<p>No participant was excluded.</p>"
+        listed = f"<p>{html.escape(_exclusion_sentence(result))}</p>"
     content = (
         '<section id="participants"><h2>Participants and exclusions</h2>'
         f"<p>{html.escape(participants_paragraph(result.dataset.protocol, result.sample))}</p>"
@@ -404,8 +415,16 @@ def _outcome_section(
     anchor = f"outcome-{outcome.key}"
     title = _outcome_title(outcome)
     parts = [f'<section id="{html.escape(anchor)}"><h2>{html.escape(title)}</h2>']
+    incomplete = len(outcome.excluded)
+    excluded_note = (
+        f"{incomplete} excluded as incomplete (listed under Exclusions)"
+        if incomplete
+        else "none excluded as incomplete"
+    )
     if outcome.anova is None:
         parts.append(f'<p class="problem">{html.escape(outcome.problem)}</p>')
+        if incomplete:
+            parts.append(f"<p>{html.escape(excluded_note[0].upper() + excluded_note[1:])}.</p>")
     else:
         anova = outcome.anova
         sentences = outcome.sentences
@@ -415,8 +434,8 @@ def _outcome_section(
         parts.append(
             f"<p>{html.escape(sphericity_sentence(anova))}. Type "
             f"{'III' if anova.ss_type == 3 else 'II'} sums of squares; "
-            f"{anova.n_subjects_used} participants with complete data, "
-            f"{len(anova.excluded)} excluded.</p>"
+            f"{count(anova.n_subjects_used, 'participant')} with complete data, "
+            f"{html.escape(excluded_note)}.</p>"
         )
         parts.append(
             _table(
