@@ -42,6 +42,7 @@ from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
 from analysis.mixed_prose import (
     adaptation_sentences,
     comparison_sentence,
+    covariate_sentences,
     lmm_sentences,
     ordinal_sentences,
 )
@@ -583,10 +584,7 @@ def mixed_models_section(
                 sentences.append(comparison_sentence(models.lmm))
         else:
             sentences.append(models.lmm_problem)
-        sentences += [
-            f"The linear mixed models leave out the specified covariate {covariate}: {why}."
-            for covariate, why in models.covariates_left_out.items()
-        ]
+        sentences += covariate_sentences(models.covariates_left_out)
         if models.ordinal is not None:
             sentences += ordinal_sentences(models.ordinal)
         elif models.ordinal_problem:

@@ -20,6 +20,7 @@ from analysis.report import build_report
 from analysis.specification import analysis_specification, study_covariates
 from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
 from analysis.synthetic import synthetic_study
+from app.services.mixed_view import mixed_view
 
 NOT_FITS = {
     "OutcomeAnalysis": {
@@ -178,3 +179,21 @@ def test_a_registration_without_the_covariate_is_a_deviation(
         "linear mixed models: registered, not fitted in this report"
         in check_registration({"analysis_plan": registered_plan(one)}, again).deviations
     )
+
+
+def test_the_report_and_the_page_say_which_covariate_a_measure_left_out(
+    fitted: tuple[StudyAnalysis, StudyMixedModels],
+) -> None:
+    result, _ = fitted
+    one = dataclasses.replace(
+        result.dataset, participants=result.dataset.participants.assign(language="sv")
+    )
+    again = analyse_study(one)
+    left = analyse_mixed_models(again, keys=["trust_1"], random_slope=False)
+    sentence = (
+        "The linear mixed models leave out the specified covariate language: every participant "
+        "who rated it has the same language (sv)."
+    )
+    assert html.escape(sentence) in build_report(again, mixed=left)
+    view = mixed_view(again, left.outcome("trust_1"), random_slope=False)
+    assert sentence in view.lmm_sentences
