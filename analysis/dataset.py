@@ -91,6 +91,12 @@ class ProtocolSummary(TypedDict):
     record_audio: NotRequired[bool]
     """Whether the participants' spoken answers were recorded as audio (``[speech]
     record_audio``; the codebook lists the recordings)."""
+    languages: NotRequired[list[str]]
+    """The languages participants may take part in (the protocol's first); with two or more
+    the linear mixed models adjust for language (:mod:`analysis.specification`)."""
+    sites: NotRequired[list[str]]
+    """The sites of a multi-site study; with two or more the linear mixed models adjust for
+    site (:mod:`analysis.specification`)."""
     population: NotRequired[dict[str, Any]]
     """The population C2 was meta-trained for (issue 20): ``sha256``, ``source`` (in words),
     ``enrolling_reason`` and per category ``participants``, ``prior``, ``prior_ci``, ``slip``,

@@ -18,6 +18,7 @@ from analysis.prose import count, gender_word, value_range
 __all__ = [
     "analysis_paragraph",
     "design_paragraph",
+    "exclusion_sentence",
     "participants_paragraph",
     "population_sentence",
 ]
@@ -73,6 +74,41 @@ def participants_paragraph(protocol: ProtocolSummary, sample: Mapping[str, Any])
             + ")"
         )
     return text + "."
+
+
+def exclusion_sentence(exclusions: Sequence[Mapping[str, Any]], *, everywhere: str = "all") -> str:
+    """What the exclusion list holds, in one sentence for the methods: how many enrolled
+    participants were left out of every analysis and why, how many of the analysed were left
+    out of an ANOVA as incomplete. Written from the list the report prints
+    (:meth:`analysis.study.StudyAnalysis.exclusions`, rows with ``participant``, ``analysis``
+    and ``reason``; ``everywhere`` is the ``analysis`` of an exclusion from every analysis), so
+    the methods, the list, the ANOVAs' notes and N analysed say the same."""
+    if not exclusions:
+        return "No participant was excluded."
+    reasons: dict[str, set[Any]] = {}
+    incomplete: set[Any] = set()
+    for row in exclusions:
+        if row["analysis"] == everywhere:
+            reasons.setdefault(str(row["reason"]), set()).add(row["participant"])
+        else:
+            incomplete.add(row["participant"])
+    parts = []
+    if reasons:
+        n = len(set().union(*reasons.values()))
+        why = "; ".join(f"{reason}: {len(who)}" for reason, who in reasons.items())
+        parts.append(
+            f"{count(n, 'enrolled participant')} {'was' if n == 1 else 'were'} excluded from "
+            f"every analysis ({why})"
+        )
+    if incomplete:
+        n = len(incomplete)
+        parts.append(
+            f"{count(n, 'analysed participant')} {'was' if n == 1 else 'were'} excluded from "
+            "the ANOVA of one or more measures for incomplete data (the mixed models use every "
+            "rating they gave)"
+        )
+    text = _join(parts)
+    return text[0].upper() + text[1:] + "; each is listed with the reason below."
 
 
 def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[InstrumentSpec]) -> str:

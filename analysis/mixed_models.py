@@ -11,7 +11,7 @@ computed carries the one-line reason; the others go on.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import pandas as pd
@@ -20,6 +20,7 @@ from analysis.adaptation_trust import AdaptationTrust, adaptation_trust, session
 from analysis.errors import AnalysisError, InvalidInputError
 from analysis.lmm import LinearMixedModels, linear_mixed_models
 from analysis.ordinal import OrdinalFit, not_single_item, ordinal_model
+from analysis.specification import COVARIATES, planned
 from analysis.study import OutcomeAnalysis, StudyAnalysis
 
 __all__ = ["OutcomeMixedModels", "StudyMixedModels", "analyse_mixed_models"]
@@ -46,6 +47,12 @@ class OutcomeMixedModels:
     adaptation_problem : str
     anova_excluded : int
         Participants the ANOVA of this measure drops (for the "kept" sentence).
+    covariates : tuple of str
+        The specification's covariates the linear mixed models of this measure include.
+    covariates_left_out : dict of str to str
+        A specified covariate the models could not include, with why (every participant who
+        rated it shares one level, or some lack the attribute): a deviation from the
+        registration, which the report names.
     """
 
     key: str
@@ -57,6 +64,8 @@ class OutcomeMixedModels:
     adaptation: AdaptationTrust | None
     adaptation_problem: str
     anova_excluded: int
+    covariates: tuple[str, ...] = ()
+    covariates_left_out: dict[str, str] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -69,6 +78,8 @@ class OutcomeMixedModels:
             "ordinal_problem": self.ordinal_problem,
             "adaptation": self.adaptation.to_dict() if self.adaptation else None,
             "adaptation_problem": self.adaptation_problem,
+            "covariates": list(self.covariates),
+            "covariates_left_out": dict(self.covariates_left_out),
         }
 
 
@@ -160,25 +171,19 @@ def analyse_mixed_models(
     )
 
 
-LANGUAGE = "language"
-SITE = "site"
-COVARIATES = (LANGUAGE, SITE)
-"""Participant attributes the linear mixed models adjust for (sum-coded fixed effects) when the
-analysed participants have more than one level: the language of a study run in several, and
-the site of a multi-site study."""
-
-
 def _covariates(result: StudyAnalysis) -> dict[str, pd.Series]:
-    """Each analysed participant's language and site, for those of :data:`COVARIATES` with two
-    or more levels among them (a study run in several languages, at several sites)."""
+    """Each analysed participant's value of every covariate the specification
+    (:func:`analysis.specification.analysis_specification`, from the protocol's languages and
+    sites) gives the linear mixed models; whether a measure's models can include it is decided
+    per measure, from those who rated it."""
     participants = result.dataset.participants
     analysed = participants[participants["participant"].isin(result.participants["participant"])]
     found = {}
-    for column in COVARIATES:
-        if column in participants.columns and analysed[column].nunique(dropna=True) >= 2:
-            found[column] = pd.Series(
-                analysed[column].to_numpy(), index=analysed["participant"].to_numpy(), name=column
-            )
+    for column in planned(result.dataset.protocol, "lmm").covariates:
+        values = analysed[column].to_numpy() if column in analysed else [None] * len(analysed)
+        found[column] = pd.Series(
+            values, index=analysed["participant"].to_numpy(), name=column, dtype=object
+        )
     return found
 
 
@@ -212,9 +217,16 @@ def _outcome_models(
     dv = outcome.key if outcome.key not in (*_FACTORS, *COVARIATES) else "value"
     data = outcome.data.rename(columns={"value": dv})
     covariates: tuple[str, ...] = ()
+    left_out: dict[str, str] = {}
     for column, values in (attributes or {}).items():
         data = data.assign(**{column: data["participant"].map(values).to_numpy()})
-        if data[column].dropna().nunique() > 1 and not data[column].isna().any():
+        rated = data.loc[data[dv].notna(), column]
+        if rated.isna().any():
+            left_out[column] = f"{rated.isna().sum()} ratings have no {column}"
+        elif rated.nunique() < 2:
+            level = ", ".join(map(str, rated.unique())) or "none"
+            left_out[column] = f"every participant who rated it has the same {column} ({level})"
+        else:
             covariates += (column,)
     lmm = ordinal = adaptation = None
     lmm_problem = ordinal_problem = adaptation_problem = ""
@@ -252,7 +264,7 @@ def _outcome_models(
             adaptation = adaptation_trust(measures, data, dv=dv, confidence=confidence)
         except AnalysisError as error:
             adaptation_problem = str(error)
-    excluded = 0 if outcome.anova is None else len(outcome.anova.excluded)
+    excluded = len(outcome.excluded)
     return OutcomeMixedModels(
         key=outcome.key,
         label=outcome.label,
@@ -263,6 +275,8 @@ def _outcome_models(
         adaptation=adaptation,
         adaptation_problem=adaptation_problem,
         anova_excluded=excluded,
+        covariates=covariates,
+        covariates_left_out=left_out,
     )
 
 

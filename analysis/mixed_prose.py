@@ -8,6 +8,7 @@ be fitted gives its one-line reason instead of a sentence.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 from analysis.adaptation_trust import MEASURES, AdaptationTrust
 from analysis.apa import format_df, format_number, format_p
@@ -18,6 +19,7 @@ from analysis.prose import count
 __all__ = [
     "adaptation_sentences",
     "comparison_sentence",
+    "covariate_sentences",
     "lmm_sentences",
     "ordinal_sentences",
 ]
@@ -29,6 +31,16 @@ def _f(row: dict[str, float]) -> str:
     return (
         f"F({format_df(row['df1'])}, {df2_text}) = {format_number(row['F'])}, {format_p(row['p'])}"
     )
+
+
+def covariate_sentences(left_out: Mapping[str, str]) -> list[str]:
+    """One sentence per covariate the analysis specification gives the linear mixed models that
+    a measure's models could not include (:attr:`analysis.mixed_models.OutcomeMixedModels.
+    covariates_left_out`): a deviation from the registration, said where the models are."""
+    return [
+        f"The linear mixed models leave out the specified covariate {covariate}: {why}."
+        for covariate, why in left_out.items()
+    ]
 
 
 def lmm_sentences(models: LinearMixedModels, fit: MixedModelFit | None = None) -> list[str]:

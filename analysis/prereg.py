@@ -10,8 +10,15 @@ fits, the exclusion rules :func:`analysis.study.analyse_study` applies, and a po
 The *plan* part of a registration (:func:`analysis_plan`: protocol hash, measures, models, α,
 sums of squares, exclusions) is the part a report can check: :func:`check_registration`
 computes the same plan from the analysis it reports and lists every difference, so the report
-says "as registered" or names each deviation. The plan is derived from the same constants the
-analysis code uses, so a change to trustlab's analysis shows up as a deviation too.
+says "as registered" or names each deviation. The models are the analysis specification
+(:func:`analysis.specification.analysis_specification`, covariates included) that the fitting
+code reads too, so a change to trustlab's analysis shows up as a deviation, and a covariate a
+measure's models had to leave out is named as one.
+
+A registration also records how much data there was when it was made
+(:func:`data_at_registration`: participants enrolled, and those who had answered anything), so
+a registration written after data collection began says so, and so does every report checked
+against it.
 """
 
 from __future__ import annotations
@@ -23,17 +30,20 @@ from dataclasses import dataclass
 from typing import Any
 
 from analysis.dataset import StudyDataset
+from analysis.mixed_models import StudyMixedModels
 from analysis.power_simulation import SIMULATED_MODEL_NAMES
+from analysis.specification import PlannedAnalysis, analysis_specification
 from analysis.study import StudyAnalysis
 
 __all__ = [
     "ALPHA",
     "FORMAT",
-    "MODELS",
     "RegistrationCheck",
     "analysis_plan",
     "build_registration",
     "check_registration",
+    "data_at_registration",
+    "data_sentence",
     "plan_of",
     "planned_measures",
     "registered_plan",
@@ -48,18 +58,6 @@ ALPHA = 0.05
 """The level trustlab's reports test at: p < .05 is called significant, Mauchly's test at .05
 decides the Greenhouse–Geisser correction, post-hoc tests are Holm-corrected to .05."""
 
-MODELS = (
-    "mixed ANOVA: condition (between) × session (within) on each per-session measure; "
-    "sphericity by Mauchly's test, Greenhouse–Geisser corrected df and p when it is violated; "
-    "effect sizes partial and generalised η²",
-    "post-hoc tests: sessions within each condition (paired t) and conditions within each "
-    "session (independent t, Welch's with unequal groups), Holm-corrected within each family",
-    "linear mixed model: value ~ condition * session + (1 | participant), REML, type III F "
-    "tests with Satterthwaite df (all participants, incomplete ones too)",
-    "ordinal mixed model (cumulative logit, random intercept) for single Likert items",
-)
-"""The models the report fits, as the report's methods describe them."""
-
 
 def analysis_plan(
     *,
@@ -68,6 +66,7 @@ def analysis_plan(
     ss_type: int,
     confidence: float,
     excluded_statuses: Sequence[str],
+    analyses: Sequence[PlannedAnalysis],
     alpha: float = ALPHA,
 ) -> dict[str, Any]:
     """The checkable part of a registration: what a report must have run to be "as registered".
@@ -76,6 +75,9 @@ def analysis_plan(
     ----------
     measures : sequence of mapping
         ``{"key", "label", "reverse_keyed"}`` of each per-session measure, in report order.
+    analyses : sequence of PlannedAnalysis
+        The analysis specification (:func:`analysis.specification.analysis_specification`):
+        ``models`` holds their descriptions, ``analyses`` their formulas and covariates.
     """
     return {
         "protocol_sha256": protocol_sha256,
@@ -88,7 +90,8 @@ def analysis_plan(
             for m in measures
         ],
         "primary_measure": str(measures[0]["key"]) if measures else None,
-        "models": list(MODELS),
+        "models": [analysis.description for analysis in analyses],
+        "analyses": [analysis.to_dict() for analysis in analyses],
         "alpha": alpha,
         "ss_type": ss_type,
         "confidence": confidence,
@@ -100,6 +103,8 @@ def analysis_plan(
                 + " are left out of every analysis and listed with the reason",
                 "the mixed ANOVA of a measure keeps participants with a value in every session "
                 "(complete cases); the others are listed with the reason",
+                "participants without a single per-session rating are left out of every "
+                "analysis (no data) and listed with the reason",
                 "the mixed models keep every participant with at least one value",
                 "reverse-keyed items are reverse-scored before any analysis",
             ],
@@ -138,6 +143,41 @@ def registered_plan(
         ss_type=ss_type,
         confidence=confidence,
         excluded_statuses=sorted(dataset.excluded_statuses),
+        analyses=analysis_specification(dataset.protocol),
+    )
+
+
+def data_at_registration(dataset: StudyDataset) -> dict[str, int]:
+    """How much data the study had when it was registered: ``participants_enrolled`` (every
+    participant stored, whatever their status) and ``participants_answered`` (those with any
+    questionnaire answer or any answer to the robot). Both 0 for a registration made before
+    data collection, as a pre-registration should be."""
+    answered = set(dataset.responses["participant"].dropna()) | set(
+        dataset.steps["participant"].dropna()
+    )
+    return {
+        "participants_enrolled": len(dataset.participants),
+        "participants_answered": len(answered),
+    }
+
+
+def data_sentence(registration: Mapping[str, Any]) -> str:
+    """When the registration was made, against the data: "Registered on DATE, before any
+    participant was enrolled." or "…, after 12 participants had been enrolled and 9 had
+    answered (data collection had begun)."; a registration that did not record it says so."""
+    when = str(registration.get("created_at") or "an unknown date")
+    data = registration.get("data_at_registration")
+    if not isinstance(data, Mapping):
+        return f"Registered on {when}; the registration does not record how much data there was."
+    enrolled = int(data.get("participants_enrolled", 0))
+    answered = int(data.get("participants_answered", 0))
+    if enrolled == 0:
+        return f"Registered on {when}, before any participant was enrolled."
+    people = "participant" if enrolled == 1 else "participants"
+    return (
+        f"Registered on {when}, after {enrolled} {people} had been enrolled and {answered} "
+        "had answered"
+        + (" (data collection had begun)." if answered else " (no one had answered yet).")
     )
 
 
@@ -152,6 +192,7 @@ def plan_of(result: StudyAnalysis) -> dict[str, Any]:
         ss_type=result.ss_type,
         confidence=result.confidence,
         excluded_statuses=sorted(result.dataset.excluded_statuses),
+        analyses=analysis_specification(result.dataset.protocol),
     )
 
 
@@ -165,11 +206,14 @@ def build_registration(
     software: Mapping[str, str],
     seeds: Mapping[str, Any],
     created_at: str,
+    data: Mapping[str, int],
 ) -> dict[str, Any]:
-    """The whole registration (``prereg.json``), JSON-ready."""
+    """The whole registration (``prereg.json``), JSON-ready; ``data`` is
+    :func:`data_at_registration` of the study when it was registered."""
     return {
         "format": FORMAT,
         "created_at": created_at,
+        "data_at_registration": dict(data),
         "study": dict(study),
         "protocol": {"sha256": plan["protocol_sha256"], "source": protocol_source},
         "hypotheses": list(hypotheses),
@@ -203,10 +247,17 @@ class RegistrationCheck:
 
 
 def check_registration(
-    registration: Mapping[str, Any], result: StudyAnalysis, *, source: str = ""
+    registration: Mapping[str, Any],
+    result: StudyAnalysis,
+    *,
+    mixed: StudyMixedModels | None = None,
+    source: str = "",
 ) -> RegistrationCheck:
     """Compare the registered plan with the one ``result`` carried out: protocol hash,
-    measures, models, α, sums of squares, confidence level and exclusion rules."""
+    measures, models (formulas and covariates), α, sums of squares, confidence level and
+    exclusion rules; then what was fitted: ``mixed`` are the mixed models of the report (None:
+    the report has none, so the registered mixed models were not fitted), and a covariate a
+    measure's models had to leave out is a deviation of that measure."""
     registered = registration.get("analysis_plan") or {}
     actual = plan_of(result)
     deviations = []
@@ -228,12 +279,17 @@ def check_registration(
             f"primary measure: registered {registered.get('primary_measure')}, "
             f"reported first {actual['primary_measure']}"
         )
-    for model in registered.get("models", []):
-        if model not in actual["models"]:
-            deviations.append(f"model registered but not fitted: {model}")
-    for model in actual["models"]:
-        if model not in registered.get("models", []):
-            deviations.append(f"model fitted but not registered: {model}")
+    specification = analysis_specification(result.dataset.protocol)
+    if isinstance(registered.get("analyses"), list):
+        deviations += _model_deviations(registered["analyses"], specification)
+    else:  # a registration written before the plan named formulas: its model sentences
+        for model in registered.get("models", []):
+            if model not in actual["models"]:
+                deviations.append(f"model registered but not fitted: {model}")
+        for model in actual["models"]:
+            if model not in registered.get("models", []):
+                deviations.append(f"model fitted but not registered: {model}")
+    deviations += _fitted_deviations(specification, mixed)
     for name, what in (
         ("alpha", "α"),
         ("ss_type", "type of sums of squares"),
@@ -249,6 +305,56 @@ def check_registration(
             + json.dumps(actual["exclusions"], ensure_ascii=False)
         )
     return RegistrationCheck(deviations, str(registration.get("created_at", "")), source)
+
+
+def _model_deviations(
+    registered: Sequence[Mapping[str, Any]], specification: Sequence[PlannedAnalysis]
+) -> list[str]:
+    """Each registered analysis against the specification's of the same name: formulas and
+    covariates."""
+    planned = {analysis.name: analysis for analysis in specification}
+    named = {str(entry.get("name")): entry for entry in registered}
+    deviations = []
+    for name, entry in named.items():
+        if name not in planned:
+            deviations.append(f"model registered but not fitted: {name}")
+            continue
+        analysis = planned[name]
+        if list(entry.get("formulas", [])) != list(analysis.formulas):
+            deviations.append(
+                f"{analysis.title}: registered {'; '.join(entry.get('formulas', []))}, "
+                f"fitted {'; '.join(analysis.formulas)}"
+            )
+        if list(entry.get("covariates", [])) != list(analysis.covariates):
+            deviations.append(
+                f"{analysis.title}: registered covariates "
+                f"{', '.join(entry.get('covariates', [])) or 'none'}, fitted "
+                f"{', '.join(analysis.covariates) or 'none'}"
+            )
+    for name, analysis in planned.items():
+        if name not in named:
+            deviations.append(f"model fitted but not registered: {analysis.description}")
+    return deviations
+
+
+def _fitted_deviations(
+    specification: Sequence[PlannedAnalysis], mixed: StudyMixedModels | None
+) -> list[str]:
+    """What the report did not fit of the specification: its mixed models when it has none,
+    the random-slope model when it was not asked for, a covariate a measure left out."""
+    in_mixed = [a for a in specification if a.result.startswith("OutcomeMixedModels.")]
+    if mixed is None:
+        return [f"{a.title}: registered, not fitted in this report" for a in in_mixed]
+    deviations = []
+    if not mixed.random_slope:
+        deviations.append("linear mixed models: the random-slope model was not fitted")
+    for outcome in mixed.outcomes:
+        for covariate, why in outcome.covariates_left_out.items():
+            deviations.append(
+                f"{outcome.key}: the linear mixed models left out the registered covariate "
+                f"{covariate} ({why})"
+            )
+    return deviations
 
 
 # ------------------------------------------------------------------------------ rendering
@@ -314,8 +420,8 @@ def _sections(registration: Mapping[str, Any]) -> list[tuple[str, list[str], str
         (
             "Study",
             [
-                f"{study.get('title')} (trustlab study {study.get('name')!r}), registered "
-                f"{registration['created_at']}.",
+                f"{study.get('title')} (trustlab study {study.get('name')!r}).",
+                data_sentence(registration),
                 f"Protocol SHA-256: {registration['protocol']['sha256']} (the protocol as "
                 "trustlab stores and runs it, in full below).",
             ],

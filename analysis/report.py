@@ -32,17 +32,24 @@ from analysis.figures import (
     trajectories_payload,
     trust_confidence_payload,
 )
-from analysis.methods import analysis_paragraph, design_paragraph, participants_paragraph
+from analysis.methods import (
+    analysis_paragraph,
+    design_paragraph,
+    exclusion_sentence,
+    participants_paragraph,
+)
 from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
 from analysis.mixed_prose import (
     adaptation_sentences,
     comparison_sentence,
+    covariate_sentences,
     lmm_sentences,
     ordinal_sentences,
 )
-from analysis.prereg import check_registration
-from analysis.prose import item_title
-from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
+from analysis.prereg import check_registration, data_sentence
+from analysis.prose import count, item_title
+from analysis.specification import analysis_specification
+from analysis.study import ALL_ANALYSES, OutcomeAnalysis, StudyAnalysis, analyse_study
 
 __all__ = [
     "MAX_EXCLUSION_ROWS",
@@ -136,7 +143,7 @@ def build_report(
     figures = _FigureCounter()
     sections = [
         _methods(result, confidence),
-        *([_registration(result)] if result.dataset.registration is not None else []),
+        *([_registration(result, mixed)] if result.dataset.registration is not None else []),
         _participants(result),
         *[_outcome_section(result, o, figures, confidence) for o in result.outcomes],
         *([mixed_models_section(result, mixed, figures)] if mixed is not None else []),
@@ -281,7 +288,9 @@ def _methods(result: StudyAnalysis, confidence: float) -> tuple[str, str, str]:
     paragraphs = [
         participants_paragraph(protocol, result.sample),
         design_paragraph(protocol, result.dataset.instruments),
-        analysis_paragraph(protocol, len(protocol["conditions"]), result.ss_type, confidence),
+        analysis_paragraph(protocol, len(protocol["conditions"]), result.ss_type, confidence)
+        + " "
+        + _exclusion_sentence(result),
     ]
     citations = sorted(
         {spec.citation for spec in result.dataset.instruments if spec.citation}
@@ -297,28 +306,37 @@ def _methods(result: StudyAnalysis, confidence: float) -> tuple[str, str, str]:
     return "methods", "Methods", content
 
 
-def _registration(result: StudyAnalysis) -> tuple[str, str, str]:
-    """Whether the analyses below are the registered ones (:mod:`analysis.prereg`)."""
-    assert result.dataset.registration is not None
+def _registration(result: StudyAnalysis, mixed: StudyMixedModels | None) -> tuple[str, str, str]:
+    """Whether the analyses below are the registered ones (:mod:`analysis.prereg`), and when
+    the registration was made against the data (before any participant, or after some)."""
+    registration = result.dataset.registration
+    assert registration is not None
     check = check_registration(
-        result.dataset.registration, result, source=result.dataset.registration_source
+        registration, result, mixed=mixed, source=result.dataset.registration_source
     )
     when = html.escape(check.registered_at or "an unknown date")
     source = f" ({html.escape(check.source)})" if check.source else ""
+    # Never a bare "as registered": when it was registered against the data comes with it.
+    timing = html.escape(data_sentence(registration))
     if check.as_registered:
         body = (
-            f'<p class="apa"><strong>As registered.</strong> The protocol, the measures, the '
-            f"models, α, the sums of squares, the confidence level and the exclusion rules of "
-            f"this report are those of the pre-registration of {when}{source}.</p>"
+            f'<p class="apa"><strong>As registered.</strong> {timing} The protocol, the '
+            f"measures, the models (with their covariates), α, the sums of squares, the "
+            f"confidence level and the exclusion rules of this report are those of that "
+            f"pre-registration{source}.</p>"
         )
     else:
         items = "".join(f"<li>{html.escape(d)}</li>" for d in check.deviations)
         body = (
             f'<div class="problem"><p><strong>Deviations from the pre-registration</strong> of '
-            f"{when}{source}:</p><ul>{items}</ul></div>"
+            f"{when}{source}:</p><ul>{items}</ul><p>{timing}</p></div>"
         )
     content = f'<section id="registration"><h2>Registration</h2>{body}</section>'
     return "registration", "Registration", content
+
+
+def _exclusion_sentence(result: StudyAnalysis) -> str:
+    return exclusion_sentence(result.exclusions().to_dict("records"), everywhere=ALL_ANALYSES)
 
 
 def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
@@ -358,7 +376,7 @@ def _participants(result: StudyAnalysis) -> tuple[str, str, str]:
                 "participant's data are in the exports).</p>"
             )
     else:
-        listed = "<p>No participant was excluded.</p>"
+        listed = f"<p>{html.escape(_exclusion_sentence(result))}</p>"
     content = (
         '<section id="participants"><h2>Participants and exclusions</h2>'
         f"<p>{html.escape(participants_paragraph(result.dataset.protocol, result.sample))}</p>"
@@ -404,8 +422,16 @@ def _outcome_section(
     anchor = f"outcome-{outcome.key}"
     title = _outcome_title(outcome)
     parts = [f'<section id="{html.escape(anchor)}"><h2>{html.escape(title)}</h2>']
+    incomplete = len(outcome.excluded)
+    excluded_note = (
+        f"{incomplete} excluded as incomplete (listed under Exclusions)"
+        if incomplete
+        else "none excluded as incomplete"
+    )
     if outcome.anova is None:
         parts.append(f'<p class="problem">{html.escape(outcome.problem)}</p>')
+        if incomplete:
+            parts.append(f"<p>{html.escape(excluded_note[0].upper() + excluded_note[1:])}.</p>")
     else:
         anova = outcome.anova
         sentences = outcome.sentences
@@ -415,8 +441,8 @@ def _outcome_section(
         parts.append(
             f"<p>{html.escape(sphericity_sentence(anova))}. Type "
             f"{'III' if anova.ss_type == 3 else 'II'} sums of squares; "
-            f"{anova.n_subjects_used} participants with complete data, "
-            f"{len(anova.excluded)} excluded.</p>"
+            f"{count(anova.n_subjects_used, 'participant')} with complete data, "
+            f"{html.escape(excluded_note)}.</p>"
         )
         parts.append(
             _table(
@@ -533,14 +559,18 @@ def mixed_models_section(
 ) -> tuple[str, str, str]:
     """The mixed models of every measure: sentences, the preferred model's tests, the kept
     participants, the ordinal model and whether trust follows the robot's confidence."""
+    # The models as the analysis specification (the registered one) describes them.
+    planned = [
+        analysis.description
+        for analysis in analysis_specification(result.dataset.protocol)
+        if analysis.result.startswith("OutcomeMixedModels.")
+    ]
     parts = [
         '<section id="mixed-models"><h2>Mixed models</h2>',
-        "<p>Beside the ANOVAs: linear mixed models (REML, Satterthwaite degrees of freedom, "
-        "type III tests) keep every rating, including those of participants with a missing "
-        "session; a proportional-odds model with participant-clustered standard errors treats "
-        "each single item as ordinal; and trust is modelled on the adaptation measures of the "
-        "same session, split by person-mean centring into within- and between-participant "
-        "slopes (per unit of the measure, controlling for condition and session).</p>",
+        "<p>Beside the ANOVAs, these models keep every rating, including those of participants "
+        "with a missing session:</p><ul>"
+        + "".join(f"<li>{html.escape(text)}.</li>" for text in planned)
+        + "</ul>",
     ]
     outcomes = {o.key: o for o in result.outcomes}
     for models in mixed.outcomes:
@@ -554,6 +584,7 @@ def mixed_models_section(
                 sentences.append(comparison_sentence(models.lmm))
         else:
             sentences.append(models.lmm_problem)
+        sentences += covariate_sentences(models.covariates_left_out)
         if models.ordinal is not None:
             sentences += ordinal_sentences(models.ordinal)
         elif models.ordinal_problem:

@@ -20,16 +20,31 @@ from analysis.anova import MixedAnovaResult, SSType, mixed_anova_from_design
 from analysis.apa import anova_sentences
 from analysis.dataset import StudyDataset
 from analysis.descriptives import CELL_COLUMNS, cell_descriptives, marginal_means_from_design
-from analysis.design import prepare_mixed_design
+from analysis.design import EXCLUSION_COLUMNS, prepare_mixed_design
 from analysis.errors import AnalysisError, InvalidInputError
 from analysis.figures import condition_colors
 from analysis.posthoc import pairwise_comparisons_from_design
 from analysis.scoring import score_responses, score_scales
 
-__all__ = ["EXCLUSION_LIST_COLUMNS", "OutcomeAnalysis", "StudyAnalysis", "analyse_study"]
+__all__ = [
+    "ALL_ANALYSES",
+    "EXCLUSION_LIST_COLUMNS",
+    "NO_DATA_REASON",
+    "OutcomeAnalysis",
+    "StudyAnalysis",
+    "analyse_study",
+]
 
 EXCLUSION_LIST_COLUMNS = ("participant", "condition", "analysis", "reason")
 """Columns of :meth:`StudyAnalysis.exclusions`."""
+
+ALL_ANALYSES = "all"
+"""The ``analysis`` of an exclusion from every analysis (by status, or for having no data)."""
+
+NO_DATA_REASON = "no data: no rating in any session"
+"""Why an enrolled participant with no per-session rating is left out of every analysis (and
+of N analysed): there is nothing of theirs to analyse, and counting them would make N say
+more people were studied than any table holds."""
 
 
 @dataclass(frozen=True)
@@ -57,6 +72,11 @@ class OutcomeAnalysis:
     descriptives : pandas.DataFrame
         Cell descriptives of the ANOVA's complete cases (of all available values if the ANOVA
         could not be computed).
+    excluded : pandas.DataFrame
+        ``subject``, ``between``, ``reason`` of every analysed participant the ANOVA of this
+        outcome leaves out as incomplete (one with no value of it at all included), whether or
+        not the ANOVA could be computed: the report's note, the ANOVA's own count and the
+        exclusion list are this one frame.
     marginal_conditions, marginal_sessions, posthoc, sentences : pandas.DataFrame or None
         Estimated marginal means, Holm post-hoc tests and APA sentences (None without ANOVA).
     """
@@ -71,6 +91,7 @@ class OutcomeAnalysis:
     anova: MixedAnovaResult | None
     problem: str
     descriptives: pd.DataFrame
+    excluded: pd.DataFrame
     marginal_conditions: pd.DataFrame | None
     marginal_sessions: pd.DataFrame | None
     posthoc: pd.DataFrame | None
@@ -88,9 +109,13 @@ class StudyAnalysis:
     confidence : float
         Coverage of every confidence interval.
     participants : pandas.DataFrame
-        Participants analysed (status not excluded).
+        Participants analysed: status not excluded, and at least one per-session rating (when
+        the protocol has per-session measures). ``sample["n"]`` ("N analysed") counts them.
     status_exclusions : pandas.DataFrame
         ``participant``, ``condition``, ``status``, ``reason`` of those left out by status.
+    excluded : pandas.DataFrame
+        The one list of exclusions (:data:`EXCLUSION_LIST_COLUMNS`), as :meth:`exclusions`
+        gives it.
     scored : pandas.DataFrame
         Scored responses of the analysed participants (with ``condition``; the participant,
         instrument and item columns are categoricals).
@@ -115,6 +140,7 @@ class StudyAnalysis:
     confidence: float
     participants: pd.DataFrame
     status_exclusions: pd.DataFrame
+    excluded: pd.DataFrame
     scored: pd.DataFrame
     scale_scores: pd.DataFrame
     outcomes: tuple[OutcomeAnalysis, ...]
@@ -139,27 +165,11 @@ class StudyAnalysis:
         raise InvalidInputError(f"no outcome {key!r}; have {[o.key for o in self.outcomes]}")
 
     def exclusions(self) -> pd.DataFrame:
-        """Every exclusion: by status (``analysis`` = "all") and per outcome (incomplete data)."""
-        frames = []
-        if len(self.status_exclusions):
-            status = self.status_exclusions.assign(analysis="all")
-            frames.append(status[list(EXCLUSION_LIST_COLUMNS)])
-        for outcome in self.outcomes:
-            if outcome.anova is not None and len(outcome.anova.excluded):
-                excluded = outcome.anova.excluded
-                frames.append(
-                    pd.DataFrame(
-                        {
-                            "participant": excluded["subject"],
-                            "condition": excluded["between"],
-                            "analysis": outcome.key,
-                            "reason": excluded["reason"],
-                        }
-                    )
-                )
-        if not frames:
-            return pd.DataFrame(columns=list(EXCLUSION_LIST_COLUMNS))
-        return pd.concat(frames, ignore_index=True)
+        """Every exclusion, one row per participant and analysis: from every analysis
+        (``analysis`` = :data:`ALL_ANALYSES`: by status, or with no data) and from one outcome's
+        ANOVA (incomplete data). The report's methods, its exclusions section, each ANOVA's note
+        and N analysed all read this list, so they cannot disagree."""
+        return self.excluded
 
 
 def analyse_study(
@@ -188,8 +198,10 @@ def analyse_study(
     Notes
     -----
     Exclusions: participants whose status is in ``dataset.excluded_statuses`` are left out of
-    everything; for each outcome, participants without a value for every session
-    (1..``protocol["sessions"]``) are left out of that outcome's ANOVA, with the reason.
+    everything, and so are those without a single per-session rating (:data:`NO_DATA_REASON`;
+    when the protocol has per-session measures); for each outcome, participants without a
+    value for every session (1..``protocol["sessions"]``) are left out of that outcome's ANOVA,
+    with the reason. All of them are in :meth:`StudyAnalysis.exclusions`.
     Every ANOVA p value is computed from its F and degrees of freedom.
     """
     if ss_type not in (2, 3):
@@ -207,22 +219,28 @@ def analyse_study(
     )
     status_exclusions["reason"] = "status: " + status_exclusions["status"].astype(str)
     analysed = participants.loc[~excluded_mask].reset_index(drop=True)
-    condition_of = pd.Series(
-        analysed["condition"].to_numpy(), index=analysed["participant"].to_numpy()
-    )
 
     # Factorise the repeated string keys once; every later groupby then works on codes.
     responses = _as_categories(dataset.responses, ("participant", "instrument", "item"))
-    responses = responses[responses["participant"].isin(condition_of.index)]
+    responses = responses[responses["participant"].isin(set(analysed["participant"]))]
     scored = score_responses(responses, dataset.instruments)
+    rated = _rated(dataset, scored)
+    no_data = analysed[~analysed["participant"].isin(rated)] if rated is not None else None
+    if no_data is not None and len(no_data):
+        analysed = analysed[analysed["participant"].isin(rated)].reset_index(drop=True)
+        responses = responses[responses["participant"].isin(rated)]
+        scored = scored[scored["participant"].isin(rated)].reset_index(drop=True)
+    condition_of = pd.Series(
+        analysed["condition"].to_numpy(), index=analysed["participant"].to_numpy()
+    )
     scored["condition"] = scored["participant"].map(condition_of).to_numpy()
     scale_scores = score_scales(responses, dataset.scales)
     scale_scores["condition"] = scale_scores["participant"].map(condition_of).to_numpy()
 
     sessions = list(range(1, dataset.protocol["sessions"] + 1))
     outcomes = [
-        *_item_outcomes(dataset, scored, sessions, ss_type, confidence),
-        *_scale_outcomes(dataset, scale_scores, sessions, ss_type, confidence),
+        *_item_outcomes(dataset, scored, sessions, ss_type, confidence, condition_of),
+        *_scale_outcomes(dataset, scale_scores, sessions, ss_type, confidence, condition_of),
     ]
 
     per_session = {i.name for i in dataset.instruments if i.per_session}
@@ -243,6 +261,7 @@ def analyse_study(
         confidence=confidence,
         participants=analysed,
         status_exclusions=status_exclusions,
+        excluded=_exclusion_list(status_exclusions, no_data, outcomes),
         scored=scored,
         scale_scores=scale_scores,
         outcomes=tuple(outcomes),
@@ -254,12 +273,68 @@ def analyse_study(
     )
 
 
+def _rated(dataset: StudyDataset, scored: pd.DataFrame) -> set[Any] | None:
+    """The participants with at least one per-session rating (a value of a Likert or numeric
+    item of a per-session instrument), or None when the protocol has no such measure (then
+    having no rating says nothing about a participant)."""
+    measures = {
+        item.key
+        for spec in dataset.instruments
+        if spec.per_session
+        for item in spec.items
+        if item.kind in ("likert", "numeric")
+    }
+    if not measures:
+        return None
+    rows = scored[
+        scored["session"].notna() & scored["item"].isin(measures) & scored["scored"].notna()
+    ]
+    return set(rows["participant"])
+
+
+def _exclusion_list(
+    status: pd.DataFrame, no_data: pd.DataFrame | None, outcomes: list[OutcomeAnalysis]
+) -> pd.DataFrame:
+    """The one exclusion list (:meth:`StudyAnalysis.exclusions`): status, no data, then each
+    outcome's incomplete participants (whether or not its ANOVA could be computed)."""
+    frames = []
+    if len(status):
+        frames.append(status.assign(analysis=ALL_ANALYSES)[list(EXCLUSION_LIST_COLUMNS)])
+    if no_data is not None and len(no_data):
+        frames.append(
+            pd.DataFrame(
+                {
+                    "participant": no_data["participant"].to_numpy(),
+                    "condition": no_data["condition"].to_numpy(),
+                    "analysis": ALL_ANALYSES,
+                    "reason": NO_DATA_REASON,
+                }
+            )
+        )
+    for outcome in outcomes:
+        if len(outcome.excluded):
+            frames.append(
+                pd.DataFrame(
+                    {
+                        "participant": outcome.excluded["subject"].to_numpy(),
+                        "condition": outcome.excluded["between"].to_numpy(),
+                        "analysis": outcome.key,
+                        "reason": outcome.excluded["reason"].to_numpy(),
+                    }
+                )
+            )
+    if not frames:
+        return pd.DataFrame(columns=list(EXCLUSION_LIST_COLUMNS))
+    return pd.concat(frames, ignore_index=True)
+
+
 def _item_outcomes(
     dataset: StudyDataset,
     scored: pd.DataFrame,
     sessions: list[int],
     ss_type: SSType,
     confidence: float,
+    condition_of: pd.Series,
 ) -> list[OutcomeAnalysis]:
     out = []
     per_session = scored[scored["session"].notna()]
@@ -298,6 +373,7 @@ def _item_outcomes(
                     sessions=sessions,
                     ss_type=ss_type,
                     confidence=confidence,
+                    condition_of=condition_of,
                 )
             )
     return out
@@ -309,6 +385,7 @@ def _scale_outcomes(
     sessions: list[int],
     ss_type: SSType,
     confidence: float,
+    condition_of: pd.Series,
 ) -> list[OutcomeAnalysis]:
     out = []
     per_session = {i.name for i in dataset.instruments if i.per_session}
@@ -338,6 +415,7 @@ def _scale_outcomes(
                 sessions=sessions,
                 ss_type=ss_type,
                 confidence=confidence,
+                condition_of=condition_of,
             )
         )
     return out
@@ -355,6 +433,7 @@ def _outcome(
     sessions: list[int],
     ss_type: SSType,
     confidence: float,
+    condition_of: pd.Series,
 ) -> OutcomeAnalysis:
     # Name the dependent variable after the outcome so exclusion reasons and tables say
     # "no trust_1 value for session 3" rather than a generic column name.
@@ -369,8 +448,15 @@ def _outcome(
         "posthoc": None,
         "sentences": None,
     }
+    excluded = pd.DataFrame(columns=list(EXCLUSION_COLUMNS))
     try:
-        design = prepare_mixed_design(frame, **kw, subject="participant", within_levels=sessions)
+        design = prepare_mixed_design(
+            _with_absent(frame, dv, condition_of, sessions[0]),
+            **kw,
+            subject="participant",
+            within_levels=sessions,
+        )
+        excluded = design.excluded
         anova = mixed_anova_from_design(design, ss_type=ss_type)
         descriptives = cell_descriptives(design.long(), **kw, confidence=confidence)
         extras = {
@@ -398,8 +484,30 @@ def _outcome(
         anova=anova,
         problem=problem,
         descriptives=descriptives,
+        excluded=excluded,
         **extras,
     )
+
+
+def _with_absent(
+    frame: pd.DataFrame, dv: str, condition_of: pd.Series, session: int
+) -> pd.DataFrame:
+    """``frame`` with one missing value for each analysed participant who has no value of
+    this outcome at all, so the design lists them as incomplete with the sessions they lack
+    (and the ANOVA's own count of the incomplete agrees with the exclusion list)."""
+    absent = condition_of[~condition_of.index.isin(set(frame["participant"]))]
+    if absent.empty:
+        return frame
+    missing = pd.DataFrame(
+        {
+            "participant": absent.index.to_numpy(),
+            "condition": absent.to_numpy(),
+            "session": session,
+            dv: np.nan,
+        }
+    )
+    rows = frame.assign(participant=frame["participant"].astype(object))
+    return pd.concat([rows, missing], ignore_index=True)
 
 
 def _as_categories(frame: pd.DataFrame, columns: tuple[str, ...]) -> pd.DataFrame:

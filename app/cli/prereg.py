@@ -3,7 +3,10 @@
 Writes into ``--out``: ``prereg.json`` (:func:`analysis.prereg.build_registration`: the frozen
 protocol with its SHA-256, hypotheses, planned analyses, exclusion rules, the power analysis and
 its inputs, versions and seeds), the same as ``prereg.md`` and ``prereg.html`` for people, and
-the protocol itself as ``protocol.toml``. The files are the study's plan, attached to an OSF
+the protocol itself as ``protocol.toml``. A registration written after participants were
+enrolled records how many had been and how many had answered
+(:func:`analysis.prereg.data_at_registration`), says so in the files and on stderr, and every
+report checked against it repeats it. The files are the study's plan, attached to an OSF
 registration; they are written as exports are (owner-only, never through a link, never over an
 existing file without ``--force``) and the writing is audited with prereg.json's SHA-256 and the
 analysis plan, which every later report of the study checks its analyses against
@@ -22,6 +25,8 @@ import typer
 from analysis.errors import AnalysisError
 from analysis.prereg import (
     build_registration,
+    data_at_registration,
+    data_sentence,
     registered_plan,
     registration_html,
     registration_markdown,
@@ -142,6 +147,7 @@ def prereg_command(
     except AnalysisError as error:
         raise InvalidInput(str(error)) from None
     plan = registered_plan(dataset)
+    data = data_at_registration(dataset)
     if power is not None:
         plan["alpha"] = power["design"]["alpha"]
     registration = build_registration(
@@ -156,6 +162,7 @@ def prereg_command(
         },
         seeds=_seeds(dataset.manifest, power),
         created_at=utcnow().isoformat(timespec="seconds"),
+        data=data,
     )
     text = json.dumps(registration, indent=2, ensure_ascii=False) + "\n"
     contents = (text, registration_markdown(registration), registration_html(registration), source)
@@ -178,13 +185,16 @@ def prereg_command(
                 "registration": {
                     "format": registration["format"],
                     "created_at": registration["created_at"],
+                    "data_at_registration": data,
                     "analysis_plan": plan,
                 },
             },
         )
         db.commit()
+    if data["participants_enrolled"]:  # a pre-registration made after data collection began
+        typer.echo(f"note: {data_sentence(registration)} The registration says so.", err=True)
     if as_json:
-        emit_json({"study": study, "folder": str(out), "files": files})
+        emit_json({"study": study, "folder": str(out), "files": files, **data})
         return
     for target in targets:
         typer.echo(f"{target}  sha256 {files[target.name][:16]}…")

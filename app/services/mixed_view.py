@@ -19,6 +19,7 @@ from analysis.mixed_models import OutcomeMixedModels
 from analysis.mixed_prose import (
     adaptation_sentences,
     comparison_sentence,
+    covariate_sentences,
     lmm_sentences,
     ordinal_sentences,
 )
@@ -132,7 +133,10 @@ def mixed_view(
         adaptation_problem=models.adaptation_problem,
     )
     if models.lmm is not None:
-        view.lmm_sentences = lmm_sentences(models.lmm)
+        # A specified (registered) covariate these models had to leave out is said here too.
+        view.lmm_sentences = lmm_sentences(models.lmm) + covariate_sentences(
+            models.covariates_left_out
+        )
         view.comparison = comparison_sentence(models.lmm)
         view.fits = [_fit_view(fit) for fit in models.lmm.models]
         view.kept = [

@@ -1,11 +1,12 @@
 """Pre-registrations written by ``trustlab prereg``, as the audit log records them.
 
 The bundle (prereg.json, .md, .html and the protocol) is a set of files the PI attaches to an
-OSF registration; the audit log keeps, for each one written, the SHA-256 of its prereg.json and
-its analysis plan (:func:`analysis.prereg.analysis_plan`). :func:`latest` gives the newest, so
-every report of the study (the command line's and the download) checks its analyses against the
-registration without being told where the file went; ``trustlab export --prereg FILE`` checks
-against a given file instead (e.g. the one on OSF).
+OSF registration; the audit log keeps, for each one written, the SHA-256 of its prereg.json,
+its analysis plan (:func:`analysis.prereg.analysis_plan`) and how many participants had been
+enrolled and had answered when it was written (:func:`analysis.prereg.data_at_registration`).
+:func:`latest` gives the newest, so every report of the study (the command line's and the
+download) checks its analyses against the registration without being told where the file went;
+``trustlab export --prereg FILE`` checks against a given file instead (e.g. the one on OSF).
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ ACTION = "prereg.written"
 
 
 def latest(db: Session, study: Study) -> tuple[dict[str, Any] | None, str]:
-    """The newest registration of ``study`` (its ``created_at`` and analysis plan) and where it
-    is from, or ``(None, "")``."""
+    """The newest registration of ``study`` (its ``created_at``, ``data_at_registration`` and
+    analysis plan) and where it is from, or ``(None, "")``."""
     event = db.scalars(
         select(AuditEvent)
         .where(AuditEvent.study_id == study.id, AuditEvent.action == ACTION)

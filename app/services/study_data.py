@@ -183,6 +183,9 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
         "feedback": f"yes → {protocol.reward.yes:g}, no → {protocol.reward.no:g}",
         "version": study.protocol_sha256,
         "reply_levels": [level.name for level in protocol.replies.levels],
+        # The analysis specification's covariates come from these (analysis.specification).
+        "languages": list(protocol.study.languages),
+        "sites": list(protocol.sites.names) if protocol.sites is not None else [],
     }
     if protocol.speech.record_audio:
         summary["record_audio"] = True

@@ -89,16 +89,35 @@ def test_a_covariate_the_model_cannot_use_is_refused(change, reason: str) -> Non
 
 
 def test_a_study_run_in_several_languages_adjusts_its_mixed_models_for_language() -> None:
+    """The protocol's languages decide the covariate (analysis.specification), as registered:
+    a study in three languages adjusts for language; when everyone who rated used one of them
+    the models cannot, and say which covariate they left out and why; a study in one language
+    has no language term whatever the participants' column holds."""
     study = synthetic_study(24, seed=3)
+    protocol = {**study.protocol, "languages": ["en", "sv", "de"]}
     languages = ["en", "sv", "de"] * 8
-    several = dataclasses.replace(study, participants=study.participants.assign(language=languages))
-    one = dataclasses.replace(study, participants=study.participants.assign(language="en"))
+    several = dataclasses.replace(
+        study, protocol=protocol, participants=study.participants.assign(language=languages)
+    )
     fitted = analyse_mixed_models(analyse_study(several), keys=["trust_1"], random_slope=False)
     lmm = fitted.outcome("trust_1").lmm
     assert lmm is not None and "language" in set(lmm.intercept.tests["Source"])
+    assert fitted.outcome("trust_1").covariates == ("language",)
+    one = dataclasses.replace(several, participants=study.participants.assign(language="en"))
     plain = analyse_mixed_models(analyse_study(one), keys=["trust_1"], random_slope=False)
     single = plain.outcome("trust_1").lmm
     assert single is not None and "language" not in set(single.intercept.tests["Source"])
+    assert plain.outcome("trust_1").covariates_left_out == {
+        "language": "every participant who rated it has the same language (en)"
+    }
+    english = dataclasses.replace(
+        study,
+        protocol={**study.protocol, "languages": ["en"]},
+        participants=study.participants.assign(language=languages),
+    )
+    unplanned = analyse_mixed_models(analyse_study(english), keys=["trust_1"], random_slope=False)
+    assert unplanned.outcome("trust_1").covariates == ()
+    assert unplanned.outcome("trust_1").covariates_left_out == {}
 
 
 def test_a_multi_site_study_adjusts_its_mixed_models_for_site_and_exports_it() -> None:
@@ -108,6 +127,7 @@ def test_a_multi_site_study_adjusts_its_mixed_models_for_site_and_exports_it() -
     study = synthetic_study(24, seed=3)  # conditions alternate: sites by pairs, not confounded
     several = dataclasses.replace(
         study,
+        protocol={**study.protocol, "languages": ["en"], "sites": ["kth", "uu"]},
         participants=study.participants.assign(language="en", site=["kth", "kth", "uu", "uu"] * 6),
     )
     fitted = analyse_mixed_models(analyse_study(several), keys=["trust_1"], random_slope=False)

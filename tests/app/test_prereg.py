@@ -14,16 +14,21 @@ import pytest
 from sqlalchemy import select
 from typer.testing import CliRunner, Result
 
-from analysis import report
-from analysis.prereg import ALPHA, MODELS, check_registration
+from analysis.mixed_models import analyse_mixed_models
+from analysis.prereg import ALPHA, check_registration
 from analysis.report import build_report
+from analysis.specification import analysis_specification
 from analysis.study import analyse_study
 from app.cli import cli
 from app.db import Database
+from app.protocol import parse_protocol
 from app.services import registrations, studies, study_data
+from app.services.audit import Actor
+from app.services.enrolment import enroll_participant
 from app.tables import AuditEvent
 from bench.seed import seed_study
 from tests.conftest import sqlite_only
+from tests.preloaded import REPO_ROOT
 
 POWER = ["--effect", "interaction", "--eta2", ".204", "--convention", "spss", "--n", "24"]
 
@@ -54,13 +59,16 @@ def test_the_bundle_holds_protocol_plan_power_versions_and_seeds(
     with database.read_session() as db:
         study = studies.get_study(db, study_name)
         digest, source = study.protocol_sha256, study.protocol_source
+        protocol_summary = study_data.load_dataset(db, study=study).protocol
     protocol = (out / "protocol.toml").read_text()
     assert protocol == source and hashlib.sha256(protocol.encode()).hexdigest() == digest
     assert registration["protocol"] == {"sha256": digest, "source": source}
     plan = registration["analysis_plan"]
     assert plan["primary_measure"] == "trust_1" and plan["measures"][0]["key"] == "trust_1"
     assert [m["key"] for m in plan["measures"] if m["reverse_keyed"]] == ["trust_5"]
-    assert plan["models"] == list(MODELS) and plan["alpha"] == ALPHA and plan["ss_type"] == 3
+    assert plan["models"] == [a.description for a in analysis_specification(protocol_summary)]
+    assert plan["analyses"] == [a.to_dict() for a in analysis_specification(protocol_summary)]
+    assert plan["alpha"] == ALPHA and plan["ss_type"] == 3
     assert plan["exclusions"]["statuses"] == ["withdrawn"]
     hypotheses = registration["hypotheses"]
     assert hypotheses[0].startswith("H1 (condition × session): the change of trust_1")
@@ -114,8 +122,6 @@ def test_bad_power_input_is_one_line_and_writes_nothing(
 def test_the_report_says_as_registered_or_lists_each_deviation(
     database: Database, database_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # Fitting every measure's mixed models takes most of a report's time and is not checked here.
-    monkeypatch.setattr(report, "analyse_mixed_models", lambda result: None)
     seed_study(database, name="small", participants=4, seed=5)
     out = tmp_path / "prereg"
     power = tmp_path / "power.json"
@@ -130,7 +136,8 @@ def test_the_report_says_as_registered_or_lists_each_deviation(
     assert dataset.registration is not None  # the newest registration, from the audit log
     assert "in the audit log" in dataset.registration_source
     result = analyse_study(dataset)
-    page = build_report(result)
+    mixed = analyse_mixed_models(result)
+    page = build_report(result, mixed=mixed)
     assert "<strong>As registered.</strong>" in page and "Deviations" not in page
     # A registration that differs: another protocol, a measure dropped, another α.
     registered = json.loads((out / "prereg.json").read_text())
@@ -139,7 +146,7 @@ def test_the_report_says_as_registered_or_lists_each_deviation(
     plan["measures"] = plan["measures"][1:]
     plan["primary_measure"] = plan["measures"][0]["key"]
     plan["alpha"] = 0.01
-    check = check_registration(registered, result)
+    check = check_registration(registered, result, mixed=mixed)
     assert check.deviations == [
         f"protocol: registered SHA-256 000000000000…, the study's is "
         f"{result.dataset.manifest['protocol_sha256'][:12]}… (the protocol changed)",
@@ -168,3 +175,100 @@ def test_the_report_says_as_registered_or_lists_each_deviation(
     assert "α: registered 0.01, used 0.05" in html_report
     plain = dataclasses.replace(dataset, registration=None)
     assert 'id="registration"' not in build_report(analyse_study(plain))
+
+
+def _registration_section(page: str) -> str:
+    start = page.index('<section id="registration">')
+    return page[start : page.index("</section>", start)]
+
+
+@sqlite_only("files and one audit row: the database only supplies the study")
+def test_a_registration_after_data_collection_began_says_so_everywhere(
+    database: Database, database_url: str, tmp_path: Path
+) -> None:
+    """Item 15: registering once participants are enrolled is recorded (how many, how many had
+    answered), printed, written into prereg.json/.md/.html and repeated by the report instead
+    of a bare "As registered"."""
+    seed_study(database, name="small", participants=4, seed=5)
+    with database.writing() as db:  # a fifth, enrolled but not yet answered
+        enroll_participant(db, study_name="small", actor=Actor.system(), code="P900")
+    out = tmp_path / "prereg"
+    written = _run(database_url, "prereg", "--study", "small", "--out", str(out))
+    assert written.exit_code == 0, written.output
+    registration = json.loads((out / "prereg.json").read_text())
+    assert registration["data_at_registration"] == {
+        "participants_enrolled": 5,
+        "participants_answered": 4,
+    }
+    sentence = (
+        f"Registered on {registration['created_at']}, after 5 participants had been enrolled "
+        "and 4 had answered (data collection had begun)."
+    )
+    assert f"note: {sentence} The registration says so.\n" in written.stderr
+    assert f"- {sentence}" in (out / "prereg.md").read_text()
+    assert f"<li>{sentence}</li>" in (out / "prereg.html").read_text()
+    with database.read_session() as db:
+        dataset = study_data.load_dataset(db, study=studies.get_study(db, "small"))
+    assert dataset.registration is not None
+    assert dataset.registration["data_at_registration"] == registration["data_at_registration"]
+    result = analyse_study(dataset)
+    section = _registration_section(build_report(result, mixed=analyse_mixed_models(result)))
+    assert f"<strong>As registered.</strong> {sentence}" in section
+
+
+@sqlite_only("files and one audit row: the database only supplies the study")
+def test_a_registration_before_any_participant_says_that_and_prints_no_note(
+    database: Database, database_url: str, study_name: str, tmp_path: Path
+) -> None:
+    out = tmp_path / "prereg"
+    written = _run(database_url, "prereg", "--study", study_name, "--out", str(out))
+    assert written.exit_code == 0, written.output
+    assert "enrolled" not in written.stderr
+    registration = json.loads((out / "prereg.json").read_text())
+    assert registration["data_at_registration"] == {
+        "participants_enrolled": 0,
+        "participants_answered": 0,
+    }
+    sentence = f"Registered on {registration['created_at']}, before any participant was enrolled."
+    assert f"- {sentence}" in (out / "prereg.md").read_text()
+    with database.read_session() as db:
+        dataset = study_data.load_dataset(db, study=studies.get_study(db, study_name))
+    section = _registration_section(build_report(analyse_study(dataset)))
+    assert sentence in section
+    # An older registration, without the record, does not pretend to know.
+    older = {
+        k: v for k, v in dict(dataset.registration or {}).items() if k != "data_at_registration"
+    }
+    page = build_report(analyse_study(dataclasses.replace(dataset, registration=older)))
+    assert "the registration does not record how much data there was" in page
+
+
+@sqlite_only("files and one audit row: the database only supplies the study")
+def test_a_study_in_two_languages_registers_the_language_covariate_it_fits(
+    database: Database, database_url: str, tmp_path: Path
+) -> None:
+    """Item 16: the shipped English + Swedish protocol registers the linear mixed models with
+    language, as the fitting code fits them, before any participant has chosen a language."""
+    with database.writing() as db:
+        loaded = parse_protocol(
+            (REPO_ROOT / "app/protocols/fast_adaptation_trust_sv.toml").read_text()
+        )
+        studies.create_study(db, name="sv", loaded=loaded, actor=Actor.system("tests"))
+    out = tmp_path / "prereg"
+    written = _run(database_url, "prereg", "--study", "sv", "--out", str(out))
+    assert written.exit_code == 0, written.output
+    plan = json.loads((out / "prereg.json").read_text())["analysis_plan"]
+    lmm = next(a for a in plan["analyses"] if a["name"] == "lmm")
+    assert lmm["covariates"] == ["language"]
+    assert lmm["formulas"] == [
+        "{dv} ~ condition * session + language + (1 | participant)",
+        "{dv} ~ condition * session + language + (1 + session_step | participant)",
+    ]
+    markdown = (out / "prereg.md").read_text()
+    assert "linear mixed models: value ~ condition * session + language + (1 | participant)" in (
+        markdown
+    )
+    assert "adjusted for language" in markdown
+    with database.read_session() as db:
+        protocol = study_data.load_dataset(db, study=studies.get_study(db, "sv")).protocol
+    assert protocol["languages"] == ["en", "sv"]

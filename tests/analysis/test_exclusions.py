@@ -1,0 +1,113 @@
+"""One exclusion list (issue 48, item 17): the methods, the exclusions section, each analysis's
+note and N analysed all come from :meth:`analysis.study.StudyAnalysis.exclusions`, and an
+enrolled participant without a single rating is excluded from every analysis with that reason
+instead of being counted as analysed."""
+
+from __future__ import annotations
+
+import dataclasses
+import html
+import re
+
+import pytest
+
+from analysis.dataset import StudyDataset
+from analysis.report import build_report
+from analysis.study import ALL_ANALYSES, NO_DATA_REASON, StudyAnalysis, analyse_study
+from analysis.synthetic import synthetic_study
+
+COMPLETE, INCOMPLETE, NO_DATA = "P00001", "P00002", "P00003"
+
+
+@pytest.fixture(scope="module")
+def dataset() -> StudyDataset:
+    """A complete participant (C1), an incomplete one (C2: sessions 1 and 2 only) and one with
+    no data at all (C1: enrolled, nothing answered)."""
+    study = synthetic_study(4, seed=11)
+    keep = {COMPLETE, INCOMPLETE, NO_DATA}
+    responses = study.responses
+    late = (responses["participant"] == INCOMPLETE) & (responses["session"].fillna(0) > 2)
+    responses = responses[
+        responses["participant"].isin({COMPLETE, INCOMPLETE}) & ~late
+    ].reset_index(drop=True)
+    steps = study.steps
+    steps = steps[steps["participant"].isin({COMPLETE, INCOMPLETE})].reset_index(drop=True)
+    participants = study.participants[study.participants["participant"].isin(keep)]
+    return dataclasses.replace(
+        study,
+        participants=participants.reset_index(drop=True),
+        responses=responses,
+        steps=steps,
+    )
+
+
+@pytest.fixture(scope="module")
+def result(dataset: StudyDataset) -> StudyAnalysis:
+    return analyse_study(dataset)
+
+
+def _section(report: str, anchor: str) -> str:
+    start = report.index(f'<section id="{anchor}">')
+    return report[start : report.index("</section>", start)]
+
+
+def _text(fragment: str) -> str:
+    return html.unescape(re.sub(r"<[^>]+>", " ", fragment))
+
+
+def test_the_list_holds_the_participant_without_data_and_the_incomplete_one(
+    result: StudyAnalysis,
+) -> None:
+    exclusions = result.exclusions()
+    everywhere = exclusions[exclusions["analysis"] == ALL_ANALYSES]
+    assert everywhere[["participant", "reason"]].values.tolist() == [[NO_DATA, NO_DATA_REASON]]
+    per_measure = exclusions[exclusions["analysis"] != ALL_ANALYSES]
+    assert set(per_measure["participant"]) == {INCOMPLETE}
+    assert list(per_measure["analysis"]) == [o.key for o in result.outcomes]
+    assert per_measure["reason"].str.contains(r"value for session 3, 4 \(needs all").all()
+    # N analysed: the two who rated, not the one with nothing to analyse.
+    assert list(result.participants["participant"]) == [COMPLETE, INCOMPLETE]
+    assert result.sample["n"] == 2
+    for outcome in result.outcomes:  # the ANOVA cannot run (one complete case) yet lists them
+        assert outcome.anova is None and list(outcome.excluded["subject"]) == [INCOMPLETE]
+
+
+def test_every_place_in_the_report_says_the_same(result: StudyAnalysis) -> None:
+    report = build_report(result)
+    methods = _text(_section(report, "methods"))
+    participants = _text(_section(report, "participants"))
+    assert "N = 2 participants were analysed (C1, Exp3: 1; C2, meta-learned policy: 1)" in methods
+    assert "N = 2 participants were analysed" in participants
+    sentence = (
+        f"1 enrolled participant was excluded from every analysis ({NO_DATA_REASON}: 1) and "
+        "1 analysed participant was excluded from the ANOVA of one or more measures for "
+        "incomplete data (the mixed models use every rating they gave); each is listed with "
+        "the reason below."
+    )
+    assert sentence in methods
+    assert "No participant was excluded" not in report
+    # The exclusions table: the participant without data, and the incomplete one.
+    rows = re.findall(
+        r"<tr><td[^>]*>(P\d+)</td><td[^>]*>(C\d)</td><td[^>]*>([^<]*)</td>"
+        r"<td[^>]*>([^<]*)</td></tr>",
+        _section(report, "participants"),
+    )
+    listed = {(code, html.unescape(what), html.unescape(why)) for code, _, what, why in rows}
+    keys = ", ".join(o.key for o in result.outcomes)
+    assert listed == {
+        (NO_DATA, "all", NO_DATA_REASON),
+        (INCOMPLETE, keys, "incomplete: no value for session 3, 4 (needs all of 1, 2, 3, 4)"),
+    }
+    for outcome in result.outcomes:  # each analysis's note counts the same one participant
+        section = _text(_section(report, f"outcome-{outcome.key}"))
+        assert "1 excluded as incomplete (listed under Exclusions)" in section
+        assert not re.search(r"\((?!1 )\d+ excluded as incomplete\)", section)
+
+
+def test_a_complete_study_says_nobody_was_excluded() -> None:
+    result = analyse_study(synthetic_study(6, seed=2))
+    assert result.exclusions().empty
+    report = build_report(result)
+    assert "No participant was excluded." in _text(_section(report, "methods"))
+    assert "No participant was excluded." in _text(_section(report, "participants"))
+    assert "6 participants with complete data, none excluded as incomplete." in report
