@@ -103,8 +103,8 @@ def analysis_plan(
                 + " are left out of every analysis and listed with the reason",
                 "the mixed ANOVA of a measure keeps participants with a value in every session "
                 "(complete cases); the others are listed with the reason",
-                "participants without a single per-session rating are left out of every "
-                "analysis (no data) and listed with the reason",
+                "participants without a single per-session rating or answer to the robot are "
+                "left out of every analysis (no data) and listed with the reason",
                 "the mixed models keep every participant with at least one value",
                 "reverse-keyed items are reverse-scored before any analysis",
             ],

@@ -41,7 +41,7 @@ EXCLUSION_LIST_COLUMNS = ("participant", "condition", "analysis", "reason")
 ALL_ANALYSES = "all"
 """The ``analysis`` of an exclusion from every analysis (by status, or for having no data)."""
 
-NO_DATA_REASON = "no data: no rating in any session"
+NO_DATA_REASON = "no data: no rating in any session and no answer to the robot"
 """Why an enrolled participant with no per-session rating is left out of every analysis (and
 of N analysed): there is nothing of theirs to analyse, and counting them would make N say
 more people were studied than any table holds."""
@@ -198,8 +198,8 @@ def analyse_study(
     Notes
     -----
     Exclusions: participants whose status is in ``dataset.excluded_statuses`` are left out of
-    everything, and so are those without a single per-session rating (:data:`NO_DATA_REASON`;
-    when the protocol has per-session measures); for each outcome, participants without a
+    everything, and so are those without a single per-session rating or answer to the robot
+    (:data:`NO_DATA_REASON`; when the protocol has per-session measures); for each outcome, participants without a
     value for every session (1..``protocol["sessions"]``) are left out of that outcome's ANOVA,
     with the reason. All of them are in :meth:`StudyAnalysis.exclusions`.
     Every ANOVA p value is computed from its F and degrees of freedom.
@@ -224,7 +224,7 @@ def analyse_study(
     responses = _as_categories(dataset.responses, ("participant", "instrument", "item"))
     responses = responses[responses["participant"].isin(set(analysed["participant"]))]
     scored = score_responses(responses, dataset.instruments)
-    rated = _rated(dataset, scored)
+    rated = _with_data(dataset, scored)
     no_data = analysed[~analysed["participant"].isin(rated)] if rated is not None else None
     if no_data is not None and len(no_data):
         analysed = analysed[analysed["participant"].isin(rated)].reset_index(drop=True)
@@ -273,10 +273,11 @@ def analyse_study(
     )
 
 
-def _rated(dataset: StudyDataset, scored: pd.DataFrame) -> set[Any] | None:
+def _with_data(dataset: StudyDataset, scored: pd.DataFrame) -> set[Any] | None:
     """The participants with at least one per-session rating (a value of a Likert or numeric
-    item of a per-session instrument), or None when the protocol has no such measure (then
-    having no rating says nothing about a participant)."""
+    item of a per-session instrument) or one answer to the robot (a step: the adaptation curves
+    use it), or None when the protocol has no per-session measure (then having no rating says
+    nothing about a participant)."""
     measures = {
         item.key
         for spec in dataset.instruments
@@ -289,7 +290,8 @@ def _rated(dataset: StudyDataset, scored: pd.DataFrame) -> set[Any] | None:
     rows = scored[
         scored["session"].notna() & scored["item"].isin(measures) & scored["scored"].notna()
     ]
-    return set(rows["participant"])
+    answered = set() if dataset.steps_withheld else set(dataset.steps["participant"])
+    return set(rows["participant"]) | answered
 
 
 def _exclusion_list(

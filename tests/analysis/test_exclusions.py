@@ -9,6 +9,7 @@ import dataclasses
 import html
 import re
 
+import pandas as pd
 import pytest
 
 from analysis.dataset import StudyDataset
@@ -111,3 +112,23 @@ def test_a_complete_study_says_nobody_was_excluded() -> None:
     assert "No participant was excluded." in _text(_section(report, "methods"))
     assert "No participant was excluded." in _text(_section(report, "participants"))
     assert "6 participants with complete data, none excluded as incomplete." in report
+
+
+def test_a_participant_who_answered_the_robot_but_rated_nothing_is_analysed(
+    dataset: StudyDataset,
+) -> None:
+    """Answers to the robot are data (the adaptation curves use them): only a participant with
+    neither a rating nor an answer is 'no data'; one without ratings is incomplete per outcome."""
+    study = synthetic_study(4, seed=11)
+    answered_only = study.steps[study.steps["participant"] == NO_DATA]
+    assert len(answered_only)
+    result = analyse_study(
+        dataclasses.replace(
+            dataset, steps=pd.concat([dataset.steps, answered_only], ignore_index=True)
+        )
+    )
+    exclusions = result.exclusions()
+    assert NO_DATA_REASON not in set(exclusions["reason"])
+    assert NO_DATA in set(result.participants["participant"]) and result.sample["n"] == 3
+    for outcome in result.outcomes:
+        assert NO_DATA in set(outcome.excluded["subject"])
