@@ -199,9 +199,9 @@ def analyse_study(
     -----
     Exclusions: participants whose status is in ``dataset.excluded_statuses`` are left out of
     everything, and so are those without a single per-session rating or answer to the robot
-    (:data:`NO_DATA_REASON`; when the protocol has per-session measures); for each outcome, participants without a
-    value for every session (1..``protocol["sessions"]``) are left out of that outcome's ANOVA,
-    with the reason. All of them are in :meth:`StudyAnalysis.exclusions`.
+    (:data:`NO_DATA_REASON`; when the protocol has per-session measures); for each outcome,
+    participants without a value for every session (1..``protocol["sessions"]``) are left out of
+    that outcome's ANOVA, with the reason. All of them are in :meth:`StudyAnalysis.exclusions`.
     Every ANOVA p value is computed from its F and degrees of freedom.
     """
     if ss_type not in (2, 3):
