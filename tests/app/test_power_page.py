@@ -17,6 +17,7 @@ from analysis.study import analyse_study
 from app.db import Database
 from app.services import studies, study_data
 from app.services.power_view import PlanForm, answer_plan
+from app.services.sites import Scope
 from app.tables import Role
 from app.web.templating import REFUSAL_HEADER
 from bench.seed import seed_study
@@ -55,7 +56,9 @@ def test_the_analysis_page_plans_from_the_studys_own_data(
 ) -> None:
     seed_study(database, name="pilot", participants=10, seed=4)
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "pilot"))
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, "pilot")
+        )
     outcome = analyse_study(dataset).outcomes[0]
     pilot = estimate_pilot(
         outcome.data,

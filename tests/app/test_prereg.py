@@ -21,6 +21,7 @@ from analysis.study import analyse_study
 from app.cli import cli
 from app.db import Database
 from app.services import registrations, studies, study_data
+from app.services.sites import Scope
 from app.tables import AuditEvent
 from bench.seed import seed_study
 from tests.conftest import sqlite_only
@@ -126,7 +127,9 @@ def test_the_report_says_as_registered_or_lists_each_deviation(
     )
     assert written.exit_code == 0, written.output
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "small"))
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, "small")
+        )
     assert dataset.registration is not None  # the newest registration, from the audit log
     assert "in the audit log" in dataset.registration_source
     result = analyse_study(dataset)
