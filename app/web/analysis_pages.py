@@ -141,7 +141,7 @@ def power_plan_page(
         request,
         "analysis_power.html",
         {"study": study, "plan": plan, "error": plan.error},
-        block="power_answer",
+        block="power_plan",
         status_code=422 if plan.error else 200,
     )
 
