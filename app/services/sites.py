@@ -153,9 +153,7 @@ def check_code(code: str, site: str | None, *, study: Study) -> None:
 
 def visible(actor: Actor) -> ColumnElement[bool]:
     """A WHERE clause keeping the participants ``actor`` may see (all when unlimited)."""
-    if actor.sites is None:
-        return true()
-    return Participant.site.in_(sorted(actor.sites))
+    return Scope.of(actor).where()
 
 
 def sees(actor: Actor, participant: Participant) -> bool:
