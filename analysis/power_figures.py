@@ -93,14 +93,8 @@ def power_curve_payload(
                 "line": {"dash": "dot", "color": "#888"},
             }
         )
-    rho = "—" if design.rho is None else f"{design.rho:.2f}"
     layout = {
-        "title": {
-            "text": title
-            or f"Power of the {design.effect} test: {design.groups} groups × "
-            f"{design.sessions} sessions, ρ = {rho}, ε = {design.epsilon:.3g}, "
-            f"α = {design.alpha:g}"
-        },
+        "title": {"text": title or _title(design)},
         "xaxis": {"title": {"text": "participants in total (N)"}, "gridcolor": "#e5e5e5"},
         "yaxis": {"title": {"text": "power"}, "range": [0, 1.02], "gridcolor": "#e5e5e5"},
         "shapes": shapes,
@@ -111,6 +105,22 @@ def power_curve_payload(
         "legend": {"orientation": "h", "x": 0, "y": -0.25},
     }
     return {"kind": "power_curve", "n": totals, "power": powers, "data": data, "layout": layout}
+
+
+def _title(design: PowerDesign) -> str:
+    """The curve's title: the design, with only the values its test uses (ρ is in an SPSS η²;
+    ε does not enter the between effect), so the title never shows a value the answer says is
+    not used."""
+    used = design.to_dict()
+    parts = [f"{design.groups} groups × {design.sessions} sessions"]
+    if used["rho_used"] and design.rho is not None:
+        parts.append(f"ρ = {design.rho:.2f}")
+    if used["epsilon_used"]:
+        parts.append(f"ε = {design.epsilon:.3g}")
+    parts.append(f"α = {design.alpha:g}")
+    if design.convention == "spss":
+        parts.append("η² as in SPSS")
+    return f"Power of the {design.effect} test: {', '.join(parts)}"
 
 
 def power_curve_figure(

@@ -352,6 +352,17 @@ async def station_in_scope(request: Request, db: SessionDep, user: CurrentUser) 
         raise NotFound(f"no station named {name!r}")
 
 
+async def reader_scope(user: CurrentUser) -> sites.Scope:
+    """The participants the signed-in account may see (app.services.sites): its sites when it
+    is limited, else every site. Pages reading participant data without an actor to record
+    (the analysis, exports, the power planning) take this, and pass it to the query, which
+    requires it."""
+    return sites.Scope.of(Actor.of_user(user))
+
+
+ReaderScope = Annotated[sites.Scope, Depends(reader_scope)]
+
+
 SiteFilter = Annotated[
     str,
     Query(max_length=40, description="One of the study's sites: only its participants."),

@@ -883,6 +883,20 @@ def _check_sites(protocol: Protocol) -> list[Problem]:
         for name in sites.labels
         if name not in sites.names
     ]
+    # A participant's code begins with the first 24 characters of its site's name (codes have
+    # at most 32): two sites sharing them would share codes, and an account limited to one could
+    # learn from "already used" of the other's (app.services.sites.check_code).
+    first: dict[str, str] = {}
+    for index, name in enumerate(sites.names):
+        other = first.setdefault(name[:24], name)
+        if other != name:
+            problems.append(
+                Problem(
+                    f"sites.names[{index}]",
+                    f"{name!r} and {other!r} begin with the same 24 characters, which begin "
+                    "their participants' codes: shorten one",
+                )
+            )
     if SITE_FACTOR in protocol.allocation.stratify_by:
         problems.append(
             Problem(

@@ -384,8 +384,10 @@ class _Connection:
                 except NotAuthenticated:
                     await self.close_revoked()
                     return
+                # ``site`` only routes the event to staff pages (app.services.sites.reaches).
+                data = {key: value for key, value in event.data.items() if key != "site"}
                 await self.send(
-                    {"type": "event", "event": event.type, "data": event.data, "state": state}
+                    {"type": "event", "event": event.type, "data": data, "state": state}
                 )
 
     async def heartbeat_loop(self) -> None:

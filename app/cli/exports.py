@@ -87,8 +87,8 @@ def export(
     require_current_schema(database)
     with database.read_session() as db:
         found = studies.get_study(db, study)
-        only = sites.narrowed(Actor.command_line(), site or "", found).sites
-        dataset = study_data.load_dataset(db, study=found, sites=only)
+        scope = sites.Scope.every_site().narrowed(site or "", found)
+        dataset = study_data.load_dataset(db, study=found, scope=scope)
         study_id, sealed = found.id, is_sealed(found)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
@@ -121,7 +121,7 @@ def export(
                 "data_sha256": dataset.manifest["data_sha256"],
                 "for_unblinded_use": sealed,
                 "pseudonymised": key is not None,
-                "sites": None if only is None else sorted(only),
+                "sites": None if scope.sites is None else sorted(scope.sites),
             },
         )
         db.commit()

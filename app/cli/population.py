@@ -21,6 +21,7 @@ from app.cli.admin import JsonFlag, emit_json, open_database, require_current_sc
 from app.errors import InvalidInput
 from app.services import studies, study_data
 from app.services.population_fit import fit_population
+from app.services.sites import Scope
 from app.settings import Settings
 from app.tables import StudyStatus
 
@@ -123,7 +124,7 @@ def _from_studies(
     with database.read_session() as db:
         for name in names:
             found = studies.get_study(db, name)
-            dataset = study_data.load_dataset(db, study=found)
+            dataset = study_data.load_dataset(db, study=found, scope=Scope.every_site())
             for category, texts in dataset.protocol["categories"].items():
                 if questions.setdefault(category, list(texts)) != list(texts):
                     raise InvalidInput(

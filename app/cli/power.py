@@ -455,12 +455,15 @@ def read_pilot(
     from analysis.study import analyse_study
     from app.cli.admin import open_database, require_current_schema
     from app.services import studies, study_data
+    from app.services.sites import Scope
     from app.settings import Settings
 
     database = open_database(Settings())
     require_current_schema(database)
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, source))
+        dataset = study_data.load_dataset(
+            db, study=studies.get_study(db, source), scope=Scope.every_site()
+        )
     key = dv or "trust_1"
     outcome = analyse_study(dataset).outcome(key)
     columns = {"dv": key, "within": "session", "between": "condition", "subject": "participant"}

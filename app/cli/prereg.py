@@ -38,6 +38,7 @@ from app.errors import InvalidInput
 from app.private_files import new_private_file, refuse_existing, refuse_link
 from app.services import audit, registrations, studies, study_data
 from app.services.audit import Actor
+from app.services.sites import Scope
 from app.settings import Settings
 from app.tables import utcnow
 
@@ -125,7 +126,7 @@ def prereg_command(
     require_current_schema(database)
     with database.read_session() as db:
         found = studies.get_study(db, study)
-        dataset = study_data.load_dataset(db, study=found)
+        dataset = study_data.load_dataset(db, study=found, scope=Scope.every_site())
         source, study_id = found.protocol_source, found.id
     try:
         if effect is not None:

@@ -44,6 +44,7 @@ from app.errors import Conflict
 from app.protocol import Protocol
 from app.services import audit, stations
 from app.services.audit import Actor
+from app.services.sites import STUDY_WIDE
 from app.services.studies import get_study, protocol_of
 from app.tables import Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
@@ -148,6 +149,8 @@ def unblind(db: Session, *, name: str, actor: Actor) -> Study:
         },
     )
     # Open dashboards refetch, and their data now carries the learners and the real conditions.
-    events.publish(db, topics=[stations.study_topic(study.id)], type="study.unblinded")
+    events.publish(
+        db, topics=[stations.study_topic(study.id)], type="study.unblinded", site=STUDY_WIDE
+    )
     db.commit()
     return study

@@ -31,6 +31,7 @@ from app.errors import Conflict, InvalidInput
 from app.protocol import Protocol, mentions_audio_recording
 from app.services import audit, studies
 from app.services.audit import Actor
+from app.services.sites import STUDY_WIDE
 from app.services.stations import participant_topic, station_topic_of, study_topic
 from app.tables import (
     ConsentRecord,
@@ -288,6 +289,7 @@ def add_version(
         ],
         type="consent_changed",
         version=number,
+        site=STUDY_WIDE,  # a new text for everyone, not a participant's activity
     )
     audit.record(
         db,

@@ -103,7 +103,7 @@ def _next_code(db: Session, study: Study, site: str | None) -> str:
     prefix = "P"
     if site is not None:
         query = query.where(Participant.site == site)
-        prefix = f"{site[:24]}-"
+        prefix = sites.code_prefix(site)
     number = (db.scalar(query) or 0) + 1
     while True:
         code = f"{prefix}{number:03d}"
@@ -216,10 +216,14 @@ def enroll_participant(
     account may see (app.services.sites); with ``[sites] stratify`` it is also the stratum's
     ``site`` factor.
 
+    ``code``: typed, or None for the next automatic one; at a site it begins with the site's
+    name and a hyphen (``uppsala-017``), as automatic codes do, so that a code can only ever
+    clash with one of its own site's (app.services.sites.check_code).
+
     Raises NotFound for an unknown study, Conflict for a closed study or a taken code,
     PermissionDenied for a site the actor's account is not limited to, and InvalidInput for a
-    malformed code, a language the study does not offer, a site it does not declare or strata
-    that do not match the protocol.
+    malformed code (or one without its site's prefix), a language the study does not offer, a
+    site it does not declare or strata that do not match the protocol.
     """
     study = get_study(db, study_name, for_update=True)
     if study.status != StudyStatus.OPEN:
@@ -236,6 +240,10 @@ def enroll_participant(
     if code is not None:
         code = code.strip()
         PARTICIPANT_CODE.check(code)
+        # In a study with sites a typed code begins with its site's name, so it can clash only
+        # with a participant of that site: "already used" never tells a limited account that
+        # a code exists at a site it cannot see (app.services.sites).
+        sites.check_code(code, site, study=study)
         if _code_taken(db, study, code):
             raise Conflict(f"participant code {code!r} is already used in study {study.name!r}")
     participant = Participant(

@@ -174,7 +174,12 @@ def erase_participant(
         subject=pseudonym,
         details={"removed": removed, "reason_given": bool(reason.strip())},
     )
-    events.publish(db, topics=[study_topic(study.id)], type="participant_erased")
+    events.publish(
+        db,
+        topics=[study_topic(study.id)],
+        type="participant_erased",
+        site=sites.event_site(participant),
+    )
     db.commit()
     after_erasures(db)
     return Erasure(

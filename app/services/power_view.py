@@ -9,6 +9,20 @@ and says so; otherwise from the seed paper's design and a medium effect, and say
 
 The form's values arrive as text and are read here, so that every bad value is refused in one
 line naming the field, the same words whether the page is loaded whole or its answer by htmx.
+
+Where the values come from. A prefilled form carries the study's estimates in a hidden field
+(``study``), so each answer says which values are still the study's, and recomputes those
+derived from what the person changed (:func:`reconciled`), once, in the form it gives back:
+
+- the effect size: the study's f is an effect's (between, within, interaction) and is typed as
+  f or as η²; switching the effect or the kind of size gives the study's value for the new one;
+- ε: the study's was estimated for its m sessions, so another number of sessions starts from 1;
+  and a partial η² of one's own read "as in SPSS" carries the df of the test it came from
+  (λ = F · df1 for a published one, the PI guide's example), so it starts from ε = 1 too: the
+  answer is then the documented one, not one silently corrected by this study's sphericity;
+- ρ is a property of the ratings, kept (and shown as not used by the SPSS convention).
+
+A value recomputed leaves the ``study`` field, so typing it back applies it as one's own.
 """
 
 from __future__ import annotations
@@ -27,6 +41,7 @@ from analysis.power import (
     PowerAnswer,
     PowerDesign,
     detectable_effect,
+    eta2_from_f,
     f_from_eta2,
     n_for_power,
     power_for_n,
@@ -67,6 +82,9 @@ class PlanForm:
     question: str = "n"
     n: str = "24"
     target: str = "0.8"
+    study: str = ""
+    """The study's estimates the form was prefilled with, still unchanged (``rho=0.41;…``):
+    hidden, carried with the form so that an answer knows which values are the study's."""
 
     @classmethod
     def from_query(cls, query: Mapping[str, str]) -> PlanForm | None:
@@ -90,7 +108,8 @@ class PlanAnswer:
 
 @dataclass(frozen=True)
 class PlanView:
-    """The section: the form as typed, what it was prefilled from, the answer or the refusal."""
+    """The section: the form (as typed, with the study's values the change made stale
+    recomputed), what it was prefilled from, the answer or the refusal."""
 
     form: PlanForm
     basis: str
@@ -98,14 +117,127 @@ class PlanView:
     error: str
     questions: Mapping[str, str]
     effects: tuple[str, ...] = EFFECTS
+    from_study: frozenset[str] = frozenset()
+    """The fields still holding the study's value."""
+    recomputed: tuple[str, ...] = ()
+    """One sentence per value recomputed from what the person changed."""
+
+    @property
+    def provenance(self) -> str:
+        """Which of the answer's values are the study's, in one sentence ('' when none is)."""
+        if not self.from_study:
+            return ""
+        labels = FROM_STUDY_LABELS.items()
+        named = [label for name, label in labels if name in self.from_study]
+        yours = [label for name, label in labels if name not in self.from_study]
+        return f"From this study's data: {', '.join(named)}" + (
+            f"; yours (or the defaults): {', '.join(yours)}." if yours else "."
+        )
+
+
+FROM_STUDY_LABELS = {
+    "groups": "groups",
+    "sessions": "sessions",
+    "value": "the effect size",
+    "rho": "ρ",
+    "epsilon": "ε",
+    "n": "N",
+}
+"""The fields a study prefills, as the answer names them."""
 
 
 def plan_view(form: PlanForm, basis: str = "") -> PlanView:
     """The form answered, or refused in one line (``error``)."""
+    form, from_study, recomputed = reconciled(form)
     try:
-        return PlanView(form, basis, answer_plan(form), "", QUESTIONS)
-    except AnalysisError as error:
-        return PlanView(form, basis, None, str(error), QUESTIONS)
+        answer, error = answer_plan(form), ""
+    except AnalysisError as refused:
+        answer, error = None, str(refused)
+    return PlanView(
+        form, basis, answer, error, QUESTIONS, from_study=from_study, recomputed=recomputed
+    )
+
+
+def _study_values(text: str) -> dict[str, str]:
+    values = {}
+    for pair in text.split(";"):
+        key, _, value = pair.partition("=")
+        if key.strip() and value.strip():
+            values[key.strip()] = value.strip()
+    return values
+
+
+def _same(typed: str, value: str) -> bool:
+    """Whether the form's text is the study's value (as numbers: '.5' is '0.5')."""
+    try:
+        return math.isclose(float(typed.replace("−", "-")), float(value), abs_tol=5e-4)
+    except ValueError:
+        return False
+
+
+def _study_size(study: Mapping[str, str], effect: str, size: str) -> str | None:
+    """The study's effect size for ``effect``, typed as ``size`` (f or η²), G*Power's."""
+    f = study.get(f"f_{effect}")
+    if f is None:
+        return None
+    return f if size == "f" else _typed(eta2_from_f(float(f)))
+
+
+def reconciled(form: PlanForm) -> tuple[PlanForm, frozenset[str], tuple[str, ...]]:
+    """``form`` with the study's values the change made stale recomputed (the module's notes),
+    the fields still holding the study's value, and a sentence per value recomputed."""
+    study = _study_values(form.study)
+    if not study:
+        return form, frozenset(), ()
+    changes: dict[str, str] = {}
+    notes: list[str] = []
+    kept = dict(study)
+    sizes = {
+        _study_size(study, effect, size)
+        for effect in EFFECTS
+        for size in ("f", "eta2")
+        if study.get(f"f_{effect}")
+    }
+    own_size = not any(s is not None and _same(form.value, s) for s in sizes)
+    wanted = _study_size(study, form.effect, form.size)
+    if own_size:
+        for effect in EFFECTS:
+            kept.pop(f"f_{effect}", None)
+    elif wanted is not None and not _same(form.value, wanted):
+        changes["value"] = wanted
+        name = "f" if form.size == "f" else "partial η²"
+        notes.append(
+            f"{name} = {wanted}: this study's for the {form.effect} effect, recomputed for the "
+            "effect and size you chose."
+        )
+    if "epsilon" in study and _same(form.epsilon, study["epsilon"]):
+        why = ""
+        if study.get("sessions") and form.sessions != study["sessions"]:
+            why = (
+                f"this study's ε = {study['epsilon']} was estimated over its "
+                f"{study['sessions']} sessions, not {form.sessions[:12]}"
+            )
+        elif own_size and form.convention == "spss":
+            why = (
+                f"a partial η² of your own, read as in SPSS, comes with the df of its own test, "
+                f"so this study's ε = {study['epsilon']} is not applied to it (type it again to "
+                "apply it)"
+            )
+        if why:
+            changes["epsilon"] = "1"
+            kept.pop("epsilon")
+            notes.append(f"ε = 1: {why}.")
+    if changes:
+        form = replace(form, **changes)
+    form = replace(form, study=";".join(f"{key}={value}" for key, value in kept.items()))
+    from_study: set[str] = {
+        name
+        for name in ("groups", "sessions", "rho", "epsilon", "n")
+        if name in kept and _same(getattr(form, name), kept[name])
+    }
+    if not own_size and _same(form.value, wanted or "nan") and form.convention == "gpower":
+        from_study.add("value")
+    return form, frozenset(from_study), tuple(notes)
 
 
 def prefilled(result: StudyAnalysis | None, problem: str = "") -> tuple[PlanForm, str]:
@@ -143,14 +275,23 @@ def prefilled(result: StudyAnalysis | None, problem: str = "") -> tuple[PlanForm
             f"conditions. {fallback}"
         )
     n = sum(estimate.group_sizes)
+    typed = {
+        "groups": str(estimate.groups),
+        "sessions": str(m),
+        "rho": _typed(min(max(rho, -0.99), 0.99)),
+        "epsilon": _typed(math.floor(epsilon * 1000) / 1000 if epsilon < 1 else 1.0),
+        "n": str(n),
+    }
+    effect_sizes = {
+        f"f_{effect}": _typed(values[f"f_{effect}"])
+        for effect in EFFECTS
+        if math.isfinite(values[f"f_{effect}"])
+    }
     form = replace(
         defaults,
-        groups=str(estimate.groups),
-        sessions=str(m),
-        value=_typed(values["f_interaction"]),
-        rho=_typed(min(max(rho, -0.99), 0.99)),
-        epsilon=_typed(math.floor(epsilon * 1000) / 1000 if epsilon < 1 else 1.0),
-        n=str(n),
+        value=effect_sizes.get("f_interaction", defaults.value),
+        study=";".join(f"{key}={value}" for key, value in {**typed, **effect_sizes}.items()),
+        **typed,
     )
     sizes = ", ".join(
         f"{level} {size}"

@@ -34,7 +34,7 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.i18n.catalogues import Message
 from app.protocol import InstrumentSpec, ItemKind, ItemSpec, Protocol
-from app.services import audit, consent, languages
+from app.services import audit, consent, languages, sites
 from app.services.audit import Actor
 from app.services.stations import participant_topic, station_topic, study_topic
 from app.tables import (
@@ -526,6 +526,7 @@ def _publish(
         participant=participant.code,
         instrument=instrument,
         session=session,
+        site=sites.event_site(participant),
     )
 
 

@@ -192,6 +192,8 @@ def _apply(
         db,
         topics=[study_topic(study.id)],
         type="participant_erased" if then == "erase" else "participants_anonymised",
+        # Heard by the accounts limited to these participants' sites (app.services.sites).
+        site=sorted({p.site for p in participants if p.site is not None}),
     )
     return {"participants": len(participants), **done}
 

@@ -15,6 +15,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
 from app import events
+from app.services import sites
 from app.services.stations import station_topic_of
 from app.tables import RoomPresence, utcnow
 
@@ -70,9 +71,14 @@ def record(
     statement = dialect.insert(RoomPresence).values(values)
     changed = {name: statement.excluded[name] for name in values if name != "station_id"}
     db.execute(statement.on_conflict_do_update(index_elements=["station_id"], set_=changed))
-    events.publish(db, topics=[room_topic_of(station_id)], type=PRESENCE_CHANGED)
+    # Where the participant walks is their activity: it names their site, so that a console of
+    # an account limited to other sites does not hear it (app.services.sites.reaches).
+    site = sites.seated_site(db, station_id)
+    events.publish(db, topics=[room_topic_of(station_id)], type=PRESENCE_CHANGED, site=site)
     if entered:
-        events.publish(db, topics=[station_topic_of(station_id)], type=ZONE_ENTERED, zone=zone)
+        events.publish(
+            db, topics=[station_topic_of(station_id)], type=ZONE_ENTERED, zone=zone, site=site
+        )
     db.commit()
 
 

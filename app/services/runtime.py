@@ -246,6 +246,11 @@ def _topics(ctx: Context) -> list[str]:
     return [station_topic_of(ctx.seat.station_id), study_topic(ctx.participant.study_id)]
 
 
+def _site(ctx: Context) -> str | None:
+    """The ``site`` every event of the session carries (app.services.sites.reaches)."""
+    return ctx.participant.site
+
+
 def _audit(ctx: Context, actor: Actor, action: str, details: dict[str, Any]) -> None:
     step_store.insert_audit(
         ctx.cursor,
@@ -303,7 +308,12 @@ def start_session(db: Session, *, station_name: str, actor: Actor) -> StationVie
     ctx.run = RunState(session_id, number, SessionStatus.RUNNING, run_id, 1, RunStatus.RUNNING, [])
     _audit(ctx, actor, "session.started", {"session": number, "station": ctx.seat.station_name})
     events.publish(
-        db, topics=_topics(ctx), type="session_started", participant=code, session=number
+        db,
+        topics=_topics(ctx),
+        type="session_started",
+        participant=code,
+        session=number,
+        site=_site(ctx),
     )
     view = _view(db, ctx)
     db.commit()
@@ -327,6 +337,7 @@ def _close_session(ctx: Context, run: RunState, status: SessionStatus, actor: Ac
         participant=participant.code,
         session=run.session_number,
         status=str(status),
+        site=_site(ctx),
     )
 
 
@@ -342,6 +353,7 @@ def _close_run(ctx: Context, run: RunState, status: RunStatus, actor: Actor) -> 
         session=run.session_number,
         run=run.run_number,
         status=str(status),
+        site=_site(ctx),
     )
     if run.run_number < runs_in(ctx.protocol, run.session_number):
         return False
@@ -389,6 +401,7 @@ def _open_next_run(ctx: Context) -> RunState:
         participant=ctx.participant.code,
         session=run.session_number,
         run=number,
+        site=_site(ctx),
     )
     ctx.run = RunState(
         run.session_id,
@@ -576,6 +589,7 @@ def request_prompt(
         step_id=step.id,
         category=category,
         action=action,
+        site=_site(ctx),
     )
     db.commit()
     return PromptResult(
@@ -756,6 +770,7 @@ def record_answer(
                 answer=answer,
                 confidence=reply.name,
                 reply=reply.text,  # a room client says it when Wizard-of-Oz answered
+                site=_site(ctx),
             )
             _audit(
                 ctx,

@@ -14,18 +14,31 @@ Like REDCap's data access groups:
 The limit travels with the :class:`~app.services.audit.Actor` (``actor.sites``), so every service
 that shows or changes participants filters with :func:`visible` in SQL or checks with
 :func:`require_visible`; pages narrowing a view to one site (the dashboard's and the analysis's
-site filter) pass a narrowed actor (:func:`narrowed`).
+site filter) pass a narrowed actor (:func:`narrowed`). A reader that has no actor to record
+(the analysis and its exports, the power planning) takes a :class:`Scope`, a required argument
+built from the account by one dependency (``app.deps.ReaderScope``) or, on the command line,
+said out loud (:meth:`Scope.every_site`): there is no optional ``sites=`` to forget.
+
+What reaches a limited account is its sites' participants in every form: rows, counts,
+estimates, and their activity on the live streams (:func:`event_site`, :func:`reaches`: an
+event names the site of the participant it is about, and a limited account's stream passes only
+its own sites' events and the study-wide ones). Participant codes are a study's, unique in it,
+and in a study with sites each begins with its site's name (:func:`check_code`), so a code typed
+at one site can never meet another site's: "already used" is only ever said of a participant
+the account can see, and nobody can test whether a code exists elsewhere.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 from sqlalchemy import ColumnElement, select, true
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, NotFound, PermissionDenied
+from app.events import Event
 from app.protocol import Protocol
 from app.services import audit, users
 from app.services.audit import Actor
@@ -33,11 +46,114 @@ from app.services.studies import list_studies, protocol_of
 from app.tables import Participant, Role, Station, Study, User
 
 
+@dataclass(frozen=True)
+class Scope:
+    """The participants a reader may see: those of ``sites`` (a limited account's, or a page's
+    site filter), or of every site (``sites`` None).
+
+    Every query that reads participant data for someone without an :class:`Actor` to record
+    takes one, as a required argument: the analysis, its exports and the power planning.
+    """
+
+    sites: frozenset[str] | None
+
+    @classmethod
+    def of(cls, actor: Actor) -> Scope:
+        """What ``actor`` may see (a narrowed actor's site, a limited account's sites)."""
+        return cls(actor.sites)
+
+    @classmethod
+    def every_site(cls) -> Scope:
+        """Every participant: the command line's (whoever holds the server sees every site)."""
+        return cls(None)
+
+    @property
+    def limited(self) -> bool:
+        """Whether some participants are out of sight."""
+        return self.sites is not None
+
+    def narrowed(self, site: str, study: Study) -> Scope:
+        """This scope seeing only ``site`` (a page's ``?site=`` filter; itself when empty),
+        refused as :func:`narrowed` refuses."""
+        return Scope(_narrowed(self.sites, site, study))
+
+    def where(self) -> ColumnElement[bool]:
+        """A WHERE clause keeping the participants in scope."""
+        if self.sites is None:
+            return true()
+        return Participant.site.in_(sorted(self.sites))
+
+    def sees_site(self, site: str | None) -> bool:
+        """Whether a participant of ``site`` (None: of a study without sites) is in scope."""
+        return self.sites is None or (site is not None and site in self.sites)
+
+
+STUDY_WIDE = "*"
+"""The ``site`` of a live event about no participant in particular (a new consent version, the
+study unblinded, a device key): every reader of the study or station may hear of it."""
+
+
+def event_site(participant: Participant | None) -> str | None:
+    """The ``site`` a live event about ``participant`` carries (None for a study without sites,
+    :data:`STUDY_WIDE` for an event about no participant)."""
+    return STUDY_WIDE if participant is None else participant.site
+
+
+def seated_site(db: Session, station_id: int) -> str | None:
+    """The ``site`` of a live event about what happens at a station: its seated participant's
+    (:func:`event_site`), :data:`STUDY_WIDE` when nobody is seated."""
+    seated = db.scalar(
+        select(Participant)
+        .join(Station, Station.participant_id == Participant.id)
+        .where(Station.id == station_id)
+    )
+    return event_site(seated)
+
+
+def reaches(scope: Scope, event: Event) -> bool:
+    """Whether a live page of a reader with ``scope`` hears ``event``.
+
+    An event reaches a limited account only when it names a site in scope, or
+    :data:`STUDY_WIDE`: an event that names no site (a publisher that forgot, or a participant of
+    a study without sites) reaches unlimited accounts only, so a forgotten site makes a page
+    stale, never leaks a hidden site's activity. ``site`` may be a list (one change touching
+    participants of several sites, e.g. retention)."""
+    if scope.sites is None or event.topic == "*":
+        return True
+    site = event.data.get("site")
+    if site == STUDY_WIDE:
+        return True
+    named = site if isinstance(site, list) else [site]
+    return any(isinstance(one, str) and one in scope.sites for one in named)
+
+
+def code_prefix(site: str) -> str:
+    """What every participant code at ``site`` begins with (``uppsala-``): automatic codes are
+    numbered after it, and a typed one must start with it. Site names have no hyphen, so the
+    prefix names one site."""
+    return f"{site[:24]}-"
+
+
+def check_code(code: str, site: str | None, *, study: Study) -> None:
+    """Refuse a typed code that does not begin with its site's prefix (a study with sites).
+
+    Codes are unique in a study (the analysis, the exports and every URL name a participant by
+    code alone), so a clash is possible only within one prefix, that is within one site: an
+    account limited to that site sees whoever holds the code, and "already used" tells it
+    nothing about other sites."""
+    if site is None:
+        return
+    prefix = code_prefix(site)
+    if not code.startswith(prefix) or len(code) == len(prefix):
+        raise InvalidInput(
+            f"participant code {code!r}: a code at site {site!r} begins with {prefix!r} "
+            f"(e.g. {prefix}017), or leave it out for the next one"
+        )
+
+
 def visible(actor: Actor) -> ColumnElement[bool]:
     """A WHERE clause keeping the participants ``actor`` may see (all when unlimited)."""
-    if actor.sites is None:
-        return true()
-    return Participant.site.in_(sorted(actor.sites))
+    return Scope.of(actor).where()
 
 
 def sees(actor: Actor, participant: Participant) -> bool:
@@ -114,18 +230,23 @@ def enrolment_site(
 def narrowed(actor: Actor, site: str, study: Study) -> Actor:
     """``actor`` seeing only ``site`` (a page's site filter); ``actor`` itself when ``site`` is
     empty. Refused for a site the study does not declare or the actor may not see."""
+    within = _narrowed(actor.sites, site, study)
+    return actor if within == actor.sites else dataclasses.replace(actor, sites=within)
+
+
+def _narrowed(sites: frozenset[str] | None, site: str, study: Study) -> frozenset[str] | None:
     site = site.strip()
     if not site:
-        return actor
+        return sites
     declared = names(protocol_of(study))
     if site not in declared:
         offered = ", ".join(declared) if declared else "none: it is a single-site study"
         raise InvalidInput(
             f"site: study {study.name!r} has no site {site!r} (its sites: {offered})"
         )
-    if actor.sites is not None and site not in actor.sites:
-        raise PermissionDenied(f"your account is limited to {_limit_words(actor.sites)}")
-    return dataclasses.replace(actor, sites=frozenset({site}))
+    if sites is not None and site not in sites:
+        raise PermissionDenied(f"your account is limited to {_limit_words(sites)}")
+    return frozenset({site})
 
 
 def station_hidden(db: Session, station: Station, actor: Actor) -> bool:

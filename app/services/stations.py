@@ -19,7 +19,7 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
 from app.inputs import STATION_NAME
 from app.security import new_token, token_digest
-from app.services import audit, step_store
+from app.services import audit, sites, step_store
 from app.services.audit import Actor
 from app.sql import Cursor
 from app.tables import (
@@ -231,7 +231,11 @@ def revoke_device(db: Session, *, device_id: int, actor: Actor) -> Device:
         details={"device_id": device.id, "key_prefix": device.key_prefix},
     )
     events.publish(
-        db, topics=[station_topic(device.station)], type=DEVICE_REVOKED, device_id=device.id
+        db,
+        topics=[station_topic(device.station)],
+        type=DEVICE_REVOKED,
+        device_id=device.id,
+        site=sites.STUDY_WIDE,  # a key, not a participant's activity
     )
     db.commit()
     return device
@@ -321,6 +325,7 @@ def _seating_changed(
         type=f"participant_{change}",
         station=station.name,
         participant=participant.code,
+        site=sites.event_site(participant),
     )
 
 
@@ -388,4 +393,10 @@ def _update_device(db: Session, device_id: int, event: str, values: dict[Any, An
         update(Device).where(Device.id == device_id).values(values).returning(Device.station_id)
     ).scalar_one_or_none()
     if station_id is not None:
-        events.publish(db, topics=[station_topic_of(station_id)], type=event, device_id=device_id)
+        events.publish(
+            db,
+            topics=[station_topic_of(station_id)],
+            type=event,
+            device_id=device_id,
+            site=sites.STUDY_WIDE,  # a device's state, not a participant's activity
+        )

@@ -44,6 +44,9 @@ class Seated:
     """Whether an admin has unblinded the study (app.services.blinding)."""
     language: str | None = None
     """The participant's language (None: not chosen, the study's first applies)."""
+    site: str | None = None
+    """The participant's site (None in a study without sites): the session's live events name it,
+    so that accounts limited to other sites do not hear them (app.services.sites.reaches)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,7 +73,7 @@ class DeviceSeat:
 
 
 _SEAT_COLUMNS = """s.id, s.name, p.id, p.code, p.status, p.study_id, st.name, st.allocation_seed,
-    st.protocol_sha256, st.unblinded_at IS NOT NULL, p.language"""
+    st.protocol_sha256, st.unblinded_at IS NOT NULL, p.language, p.site"""
 _SEATED_JOINS = """LEFT JOIN participant p ON p.id = s.participant_id
     LEFT JOIN study st ON st.id = p.study_id"""
 
@@ -85,13 +88,14 @@ _STATION_SEAT = Statement(
 
 
 def _seat(columns: tuple[Any, ...]) -> Seat:
-    station_id, station_name, pid, code, status, study_id, study, seed, sha, unblinded, lang = (
-        columns
-    )
+    station_id, station_name, pid, code, status, study_id, study, seed, sha, unblinded = columns[
+        :10
+    ]
+    lang, site = columns[10:]
     seated = (
         None
         if pid is None
-        else Seated(pid, code, status, study_id, study, seed, sha, bool(unblinded), lang)
+        else Seated(pid, code, status, study_id, study, seed, sha, bool(unblinded), lang, site)
     )
     return Seat(station_id, station_name, seated)
 

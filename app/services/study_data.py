@@ -28,6 +28,7 @@ from app.protocol import SITE_FACTOR, InstrumentSpec, ItemKind, Protocol
 from app.services import learners, registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
+from app.services.sites import Scope
 from app.services.studies import protocol_of
 from app.tables import (
     Allocation,
@@ -229,15 +230,12 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
     return summary
 
 
-def _of_sites(study: Study, sites: frozenset[str] | None) -> ColumnElement[bool]:
-    """The study's participants, of ``sites`` only when given (app.services.sites)."""
-    where = Participant.study_id == study.id
-    return where if sites is None else where & Participant.site.in_(sorted(sites))
+def _of_scope(study: Study, scope: Scope) -> ColumnElement[bool]:
+    """The study's participants in ``scope`` (app.services.sites)."""
+    return (Participant.study_id == study.id) & scope.where()
 
 
-def _participants(
-    db: Session, study: Study, protocol: Protocol, sites: frozenset[str] | None
-) -> pd.DataFrame:
+def _participants(db: Session, study: Study, protocol: Protocol, scope: Scope) -> pd.DataFrame:
     rows = db.execute(
         select(
             Participant.code,
@@ -248,7 +246,7 @@ def _participants(
             Participant.strata,
         )
         .join(Allocation, Allocation.participant_id == Participant.id)
-        .where(_of_sites(study, sites), Participant.erased_at.is_(None))
+        .where(_of_scope(study, scope), Participant.erased_at.is_(None))
         .order_by(Participant.enrolled_at, Participant.id)
     ).all()
     # A multi-site study's site is a participant attribute like the language: the exports put it
@@ -283,7 +281,7 @@ def _responses(
     db: Session,
     study: Study,
     instruments: tuple[AnalysisInstrument, ...],
-    sites: frozenset[str] | None,
+    scope: Scope,
 ) -> pd.DataFrame:
     numeric = {
         (spec.name, item.key)
@@ -296,7 +294,7 @@ def _responses(
             Participant.code, Response.instrument, Response.session, Response.item, Response.value
         )
         .join(Participant, Participant.id == Response.participant_id)
-        .where(_of_sites(study, sites))
+        .where(_of_scope(study, scope))
         .order_by(Participant.id, Response.instrument, Response.session, Response.id)
     ).all()
     frame = pd.DataFrame(rows, columns=["participant", "instrument", "session", "item", "value"])
@@ -311,9 +309,7 @@ def _responses(
     return frame
 
 
-def _steps(
-    db: Session, study: Study, categories: set[str], sites: frozenset[str] | None
-) -> pd.DataFrame:
+def _steps(db: Session, study: Study, categories: set[str], scope: Scope) -> pd.DataFrame:
     rows = db.execute(
         select(
             Participant.code,
@@ -340,7 +336,7 @@ def _steps(
         .join(Participant, Participant.id == Answer.participant_id)
         .join(Allocation, Allocation.participant_id == Participant.id)
         .where(
-            _of_sites(study, sites),
+            _of_scope(study, scope),
             Prompt.adapts.is_(True),
             Prompt.category.in_(categories),
         )
@@ -385,20 +381,21 @@ def _data_sha256(*frames: pd.DataFrame) -> str:
 
 
 def load_dataset(
-    db: Session, *, study: Study, for_staff: bool = False, sites: frozenset[str] | None = None
+    db: Session, *, study: Study, scope: Scope, for_staff: bool = False
 ) -> StudyDataset:
     """The whole study as the analysis package expects it, with real condition ids (exports are
     for analysts and admins). ``for_staff``: for a signed-in person, so while the study is
     blinded the step log is withheld (app.services.blinding); the command line passes False.
-    ``sites``: only these sites' participants (a site-limited account's, or a page's site
-    filter: app.services.sites); the manifest then names them."""
+    ``scope``: whose participants (a site-limited account's sites, a page's site filter, or
+    every site on the command line: app.services.sites), required, so that no page can forget
+    it; the manifest names the sites of a limited one."""
     protocol = protocol_of(study)
     instruments = instruments_of(protocol)
     summary = protocol_summary(study, protocol)
-    participants = _participants(db, study, protocol, sites)
-    responses = _responses(db, study, instruments, sites)
+    participants = _participants(db, study, protocol, scope)
+    responses = _responses(db, study, instruments, scope)
     withheld = LEARNERS_SEALED if for_staff and not shows_learners(study) else ""
-    steps = empty_steps() if withheld else _steps(db, study, set(summary["categories"]), sites)
+    steps = empty_steps() if withheld else _steps(db, study, set(summary["categories"]), scope)
     digests = db.scalars(
         select(LearnerState.checkpoint_sha256)
         .join(Participant, Participant.id == LearnerState.participant_id)
@@ -422,8 +419,8 @@ def load_dataset(
         "learners": json.loads(json.dumps(protocol.learners.model_dump(mode="json"))),
         "software": _software(),
     }
-    if sites is not None:
-        manifest["sites"] = sorted(sites)
+    if scope.sites is not None:
+        manifest["sites"] = sorted(scope.sites)
     registration, registration_source = registrations.latest(db, study)
     return StudyDataset(
         participants=participants,

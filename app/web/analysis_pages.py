@@ -14,7 +14,7 @@ from analysis.errors import AnalysisError
 from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
 from analysis.mixed_models import analyse_mixed_models
 from analysis.study import analyse_study
-from app.deps import AnalystUser, OneHopRouter, SessionDep, SiteFilter
+from app.deps import AnalystUser, OneHopRouter, ReaderScope, SessionDep, SiteFilter
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
 from app.services import audit, blinding, pseudonyms, sites, studies, study_data
@@ -35,6 +35,7 @@ def analysis_page(
     request: Request,
     db: SessionDep,
     user: AnalystUser,
+    scope: ReaderScope,
     name: str,
     ss: Count = 3,
     site: SiteFilter = "",
@@ -44,8 +45,9 @@ def analysis_page(
     if ss not in (2, 3):
         raise InvalidInput("ss: the sums of squares are of type 3 (default) or 2")
     study = studies.get_study(db, name)
-    actor = sites.narrowed(Actor.of_user(user), site, study)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
+    dataset = study_data.load_dataset(
+        db, study=study, for_staff=True, scope=scope.narrowed(site, study)
+    )
     try:
         result = analyse_study(dataset, ss_type=ss)  # type: ignore[arg-type]
         view = analysis_view(result)
@@ -77,6 +79,7 @@ def mixed_models_page(
     request: Request,
     db: SessionDep,
     user: AnalystUser,
+    scope: ReaderScope,
     name: str,
     measure: str = "",
     slope: bool = False,
@@ -84,8 +87,9 @@ def mixed_models_page(
 ) -> Response:
     """One measure's mixed models (fitted now): the whole page, or its section for htmx."""
     study = studies.get_study(db, name)
-    actor = sites.narrowed(Actor.of_user(user), site, study)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
+    dataset = study_data.load_dataset(
+        db, study=study, for_staff=True, scope=scope.narrowed(site, study)
+    )
     view, error = None, ""
     try:
         result = analyse_study(dataset)
@@ -114,15 +118,18 @@ def mixed_models_page(
 
 
 @router.get("/studies/{name}/analysis/power")
-def power_plan_page(request: Request, db: SessionDep, user: AnalystUser, name: str) -> Response:
-    """Power, N or detectable effect for the next study: the page, or its answer for htmx."""
+def power_plan_page(
+    request: Request, db: SessionDep, user: AnalystUser, scope: ReaderScope, name: str
+) -> Response:
+    """Power, N or detectable effect for the next study: the page, or its answer for htmx
+    (prefilled from the participants the account may see)."""
     # The fields are read from the query as text by the view, so a bad one is refused in one
     # line naming it (422, the page showing the words), never pydantic's list of errors.
     study = studies.get_study(db, name)
     form = PlanForm.from_query(request.query_params)
     basis = ""
     if form is None or not is_htmx(request):  # the whole page says where its values came from
-        dataset = study_data.load_dataset(db, study=study, for_staff=True)
+        dataset = study_data.load_dataset(db, study=study, for_staff=True, scope=scope)
         try:
             result, problem = analyse_study(dataset), ""
         except AnalysisError as exc:
@@ -134,7 +141,7 @@ def power_plan_page(request: Request, db: SessionDep, user: AnalystUser, name: s
         request,
         "analysis_power.html",
         {"study": study, "plan": plan, "error": plan.error},
-        block="power_answer",
+        block="power_plan",
         status_code=422 if plan.error else 200,
     )
 
@@ -144,6 +151,7 @@ def download(
     request: Request,
     db: SessionDep,
     user: AnalystUser,
+    scope: ReaderScope,
     name: str,
     export: str,
     site: SiteFilter = "",
@@ -154,7 +162,7 @@ def download(
     if spec is None:
         raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
     study = studies.get_study(db, name)
-    actor = sites.narrowed(Actor.of_user(user), site, study)
+    scope = scope.narrowed(site, study)
     if export in STEP_LOG_EXPORTS and not blinding.shows_learners(study):
         raise Conflict(f"no step log yet: {blinding.LEARNERS_SEALED}")  # before reading it all
     pseudonymise = request.query_params.get("pseudonymise") in ("1", "true", "yes")
@@ -162,7 +170,7 @@ def download(
     if pseudonymise:
         configured = request.app.state.settings.pseudonym_key
         key = pseudonyms.require_key(configured.get_secret_value() if configured else None)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True, sites=actor.sites)
+    dataset = study_data.load_dataset(db, study=study, for_staff=True, scope=scope)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study.name)
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
@@ -179,7 +187,7 @@ def download(
                 "sha256": digest,
                 "data_sha256": dataset.manifest["data_sha256"],
                 "pseudonymised": key is not None,
-                "sites": None if actor.sites is None else sorted(actor.sites),
+                "sites": None if scope.sites is None else sorted(scope.sites),
             },
         )
         writer.commit()

@@ -1,7 +1,10 @@
 """Live streams for signed-in pages: a study's changes and a station's changes.
 
 Streams are long-lived, so they check the user and the name in a short unit of work and then hold
-no database connection while they wait for events; each ends when its login does.
+no database connection while they wait for events; each ends when its login does. Each carries
+the account's scope (app.services.sites): an account limited to some sites hears nothing of
+another site's participants, and a station seating one does not exist for it, as on every other
+route of the station.
 """
 
 from __future__ import annotations
@@ -12,7 +15,9 @@ from starlette.concurrency import run_in_threadpool
 
 from app.db import Database
 from app.deps import OneHopRouter, StreamingLogin
-from app.services import room_presence, stations, studies, users
+from app.errors import NotFound
+from app.services import room_presence, sites, stations, studies, users
+from app.services.audit import Actor
 from app.web.streams import event_stream
 
 ROOM_EVENT = "room"
@@ -31,7 +36,10 @@ async def study_events(request: Request, name: str, login: StreamingLogin) -> Re
             return stations.study_topic(studies.get_study(db, name).id)
 
     return event_stream(
-        database.hub, [await run_in_threadpool(topic)], ends_with=users.login_topic(login.id)
+        database.hub,
+        [await run_in_threadpool(topic)],
+        scope=sites.Scope.of(Actor.of_user(login.user)),
+        ends_with=users.login_topic(login.id),
     )
 
 
@@ -40,15 +48,20 @@ async def station_events(request: Request, name: str, login: StreamingLogin) -> 
     """Server-sent events whenever the station changes (for its operator console): ``changed``,
     and ``room`` when the room client reports where the participant is (the room panel)."""
     database: Database = request.app.state.database
+    actor = Actor.of_user(login.user)
 
     def station_id() -> int:
         with database.read_session() as db:
-            return stations.get_station(db, name).id
+            station = stations.get_station(db, name)
+            if sites.station_hidden(db, station, actor):
+                raise NotFound(f"no station named {name!r}")
+            return station.id
 
     found = await run_in_threadpool(station_id)
     return event_stream(
         database.hub,
         [stations.station_topic_of(found)],
+        scope=sites.Scope.of(actor),
         ends_with=users.login_topic(login.id),
         named={room_presence.room_topic_of(found): ROOM_EVENT},
     )

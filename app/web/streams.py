@@ -2,6 +2,9 @@
 
 Pages listen with EventSource (or htmx's SSE extension) and fetch what they show again; events
 carry only their type, so a page never renders from a push it could not have fetched itself.
+Nor does a page hear *when* something it could not fetch happened: every stream takes the
+reader's scope (app.services.sites.Scope, required), and an event about a participant of a site
+out of scope never reaches it, not even as a bare "changed".
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from collections.abc import AsyncIterator, Iterable, Mapping
 from fastapi.responses import StreamingResponse
 
 from app.events import EventHub
+from app.services.sites import Scope, reaches
 
 KEEPALIVE_SECONDS = 15.0
 COALESCE_SECONDS = 0.1
@@ -27,6 +31,7 @@ def event_stream(
     hub: EventHub,
     topics: Iterable[str],
     *,
+    scope: Scope,
     ends_with: str | None = None,
     named: Mapping[str, str] | None = None,
 ) -> StreamingResponse:
@@ -36,7 +41,11 @@ def event_stream(
     account is disabled, hears nothing more (the EventSource's reconnection is refused).
 
     ``named`` maps further topics to an SSE event name of their own, so that a part of the page
-    that changes often (the console's room panel) refreshes alone instead of the whole page."""
+    that changes often (the console's room panel) refreshes alone instead of the whole page.
+
+    ``scope``: whose activity the reader may hear of (app.services.sites.reaches); the events
+    of other sites' participants are dropped before they are counted, so a burst of them sends
+    nothing at all."""
     named = dict(named or {})
     subscribed = [*topics, *named, *([ends_with] if ends_with else [])]
 
@@ -57,6 +66,7 @@ def event_stream(
                 batch = [event, *subscription.drain()]
                 if any(item.topic == ends_with for item in batch):
                     return
+                batch = [item for item in batch if reaches(scope, item)]
                 for name in sorted({named.get(item.topic, CHANGED) for item in batch}):
                     types = sorted({i.type for i in batch if named.get(i.topic, CHANGED) == name})
                     yield f"event: {name}\ndata: {json.dumps({'types': types})}\n\n"

@@ -25,6 +25,7 @@ from app.protocol import InstrumentSpec
 from app.security import same
 from app.services import consent, languages, questionnaires
 from app.services.audit import Actor
+from app.services.sites import Scope
 from app.tables import ActorKind
 from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
 from app.web.streams import event_stream
@@ -414,4 +415,5 @@ async def tablet_events(request: Request) -> Response:
         return Response(exc.message, status_code=exc.status_code)
 
     # Ends when the link is reissued or revoked: its EventSource then reconnects and is refused.
-    return event_stream(database.hub, subscribed, ends_with=link)
+    # The participant's own topics: whatever they carry is about this participant.
+    return event_stream(database.hub, subscribed, scope=Scope.every_site(), ends_with=link)

@@ -23,6 +23,7 @@ from app.protocol import ProtocolError, parse_protocol
 from app.services import learner_cache, learners, populations, studies, verify
 from app.services.audit import Actor
 from app.services.enrolment import enroll_participant
+from app.services.sites import Scope
 from app.services.study_data import load_dataset
 from app.tables import Answer, LearnerState, Participant, Prompt, Role
 from models.feedback import FeedbackModel
@@ -109,7 +110,9 @@ def test_exp3_meta_and_bayes_enrol_answer_and_replay_in_verify(three: Lab) -> No
         assert _colours_of(data["measures"][0]["payload"]["data"], condition) == {PALETTE[index]}
     # So do the analysis and the report (the ANOVA itself: tests/analysis, with 2 or 3 groups).
     with lab.database.read_session() as db:
-        result = analyse_study(load_dataset(db, study=studies.get_study(db, lab.study)))
+        result = analyse_study(
+            load_dataset(db, scope=Scope.every_site(), study=studies.get_study(db, lab.study))
+        )
     assert result.colors == {"C1": PALETTE[0], "C2": PALETTE[1], "C3": PALETTE[2]}
     assert "C3 (Exact filter)" in build_report(result)
 

@@ -20,6 +20,7 @@ from app.events import Event, EventHub
 from app.protocol import parse_protocol
 from app.services import studies
 from app.services.audit import Actor
+from app.services.sites import Scope
 from app.tables import Answer, AuditEvent, Prompt, Role, StudyStatus
 from app.web.streams import event_stream
 from tests.conftest import (
@@ -218,7 +219,7 @@ def test_the_robot_still_gets_everything_it_needs(blind: Lab) -> None:
 def test_a_pages_event_stream_carries_only_the_types_of_change() -> None:
     async def first_message() -> str:
         hub = EventHub()
-        body = event_stream(hub, ["study:1"]).body_iterator
+        body = event_stream(hub, ["study:1"], scope=Scope.every_site()).body_iterator
         await anext(body)  # the retry hint: subscribed
         hub.deliver([Event(topic="study:1", type="answer", data={"probabilities": [0.7, 0.1]})])
         message = str(await asyncio.wait_for(anext(body), 5))

@@ -16,6 +16,7 @@ from app.cli.analysis import EXIT_BAD_INPUT
 from app.cli.power import register
 from app.db import Database
 from app.services import studies, study_data
+from app.services.sites import Scope
 from bench.seed import seed_study
 from tests.conftest import sqlite_only
 
@@ -294,7 +295,9 @@ def _run_on(database_url: str, *args: str) -> Result:
 def test_a_stored_study_as_the_pilot(database: Database, database_url: str) -> None:
     seed_study(database, name="pilot", participants=10, seed=4)
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "pilot"))
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, "pilot")
+        )
     outcome = analyse_study(dataset).outcome("trust_2")
     data = outcome.data.rename(columns={"value": "trust_2"})
     expected = estimate_pilot(

@@ -10,6 +10,7 @@ from analysis.figures import PALETTE
 from analysis.report import build_report
 from analysis.study import analyse_study
 from app.services import studies
+from app.services.sites import Scope
 from app.services.study_data import load_dataset
 from tests.conftest import Lab
 
@@ -53,7 +54,9 @@ def test_c2_keeps_its_colour_with_only_c2_enrolled(lab: Lab) -> None:
     assert trust["layout"]["showlegend"] is True
     assert all(trace["type"] == "scatter" for trace in trust["data"])  # dodged means, not bars
     with lab.database.read_session() as db:
-        result = analyse_study(load_dataset(db, study=studies.get_study(db, lab.study)))
+        result = analyse_study(
+            load_dataset(db, scope=Scope.every_site(), study=studies.get_study(db, lab.study))
+        )
     assert result.colors == {"C1": PALETTE[0], "C2": PALETTE[1]}
     report = build_report(result)
     # The adaptation figure of the report: C2's curve in C2's colour, though C1 has no steps.

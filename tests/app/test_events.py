@@ -12,6 +12,7 @@ from sqlalchemy import text
 from app import events
 from app.db import Database
 from app.events import RESYNC, Event, EventHub
+from app.services.sites import Scope
 
 
 def _deliver(
@@ -153,7 +154,7 @@ def test_a_page_stream_sends_one_message_per_burst_of_changes() -> None:
 
     async def scenario() -> list[str]:
         hub = EventHub()
-        body = event_stream(hub, ["study:1"]).body_iterator
+        body = event_stream(hub, ["study:1"], scope=Scope.every_site()).body_iterator
         chunks = [await anext(body)]  # the retry hint; the subscription is open now
         hub.deliver(Event(topic="study:1", type=kind) for kind in ("prompt", "answer", "answer"))
         chunks.append(await asyncio.wait_for(anext(body), 5))

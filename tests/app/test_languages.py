@@ -26,6 +26,7 @@ from app.i18n.protocol_texts import TRANSLATIONS, text_slots
 from app.protocol import Protocol, ProtocolError, default_protocol, parse_protocol
 from app.services import enrolment, languages, questionnaires, studies, study_data, verify
 from app.services.audit import Actor
+from app.services.sites import Scope
 from app.tables import Role
 from tests.app.test_cli import run as cli_run
 from tests.conftest import (
@@ -446,7 +447,9 @@ def test_exports_carry_each_participants_language(swedish_lab: Lab) -> None:
         ended = lab.experimenter.post(f"/api/v1/stations/{lab.station}/sessions/current/end")
         assert ended.status_code == 200, ended.text
     with lab.database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "sv"))
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, "sv")
+        )
     expected = {"S1": "sv", "E1": "en"}
     wide = wide_table(dataset)
     assert dict(zip(wide["participant"], wide["language"], strict=True)) == expected

@@ -7,6 +7,7 @@ import pytest
 from analysis.adaptation_trust import session_adaptation
 from app.db import Database
 from app.services import studies, study_data
+from app.services.sites import Scope
 from app.tables import Role
 from bench.seed import seed_study
 from models.replies import exp3_belief, heard_probability
@@ -94,7 +95,9 @@ def test_the_step_log_carries_the_reply_the_participant_heard(
     seeded: str, database: Database
 ) -> None:
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, seeded), for_staff=True)
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, seeded), for_staff=True
+        )
     steps = dataset.steps
     assert {"reply_probability", "reply_level"} <= set(steps.columns)
     assert dataset.protocol["reply_levels"] == ["low", "medium_low", "medium", "high"]

@@ -19,6 +19,7 @@ from app.services.audit import Actor
 from app.services.enrolment import enroll_participant
 from app.services.learners import feedback_model, restore
 from app.services.population_fit import fit_population
+from app.services.sites import Scope
 from app.services.study_data import load_dataset
 from app.tables import AuditEvent, LearnerState, Role, StudyStatus
 from models.checkpoints import checkpoint_name, observation_for, write_checkpoint
@@ -214,7 +215,7 @@ def test_the_report_says_where_the_prior_came_from(
         for _ in range(4):
             enroll_participant(db, study_name="main", actor=Actor.system())
     with database.read_session() as db:
-        dataset = load_dataset(db, study=studies.get_study(db, "main"))
+        dataset = load_dataset(db, scope=Scope.every_site(), study=studies.get_study(db, "main"))
     used = dataset.protocol["population"]
     assert used["sha256"] == population.sha256 and used["source"] == "pilot"
     assert set(used["categories"]) == set(QUESTIONS)
@@ -227,7 +228,7 @@ def test_the_report_says_where_the_prior_came_from(
     with database.writing() as db:
         enroll_participant(db, study_name="plain", actor=Actor.system())
     with database.read_session() as db:
-        plain = load_dataset(db, study=studies.get_study(db, "plain"))
+        plain = load_dataset(db, scope=Scope.every_site(), study=studies.get_study(db, "plain"))
     assert "population" not in plain.protocol and plain.manifest["population_sha256"] is None
 
 
@@ -262,7 +263,7 @@ def test_a_blinded_studys_staff_report_leaves_the_prior_out(
             enroll_participant(db, study_name="main", actor=Actor.system())
     with database.read_session() as db:
         study = studies.get_study(db, "main")
-        staff = load_dataset(db, study=study, for_staff=True)
-        command_line = load_dataset(db, study=study)
+        staff = load_dataset(db, scope=Scope.every_site(), study=study, for_staff=True)
+        command_line = load_dataset(db, scope=Scope.every_site(), study=study)
     assert "population" not in staff.protocol and staff.manifest["population_sha256"] is None
     assert command_line.protocol["population"]["sha256"] == population.sha256

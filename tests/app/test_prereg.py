@@ -25,6 +25,7 @@ from app.protocol import parse_protocol
 from app.services import registrations, studies, study_data
 from app.services.audit import Actor
 from app.services.enrolment import enroll_participant
+from app.services.sites import Scope
 from app.tables import AuditEvent
 from bench.seed import seed_study
 from tests.conftest import sqlite_only
@@ -59,7 +60,9 @@ def test_the_bundle_holds_protocol_plan_power_versions_and_seeds(
     with database.read_session() as db:
         study = studies.get_study(db, study_name)
         digest, source = study.protocol_sha256, study.protocol_source
-        protocol_summary = study_data.load_dataset(db, study=study).protocol
+        protocol_summary = study_data.load_dataset(
+            db, study=study, scope=Scope.every_site()
+        ).protocol
     protocol = (out / "protocol.toml").read_text()
     assert protocol == source and hashlib.sha256(protocol.encode()).hexdigest() == digest
     assert registration["protocol"] == {"sha256": digest, "source": source}
@@ -132,7 +135,9 @@ def test_the_report_says_as_registered_or_lists_each_deviation(
     )
     assert written.exit_code == 0, written.output
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "small"))
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, "small")
+        )
     assert dataset.registration is not None  # the newest registration, from the audit log
     assert "in the audit log" in dataset.registration_source
     result = analyse_study(dataset)
@@ -208,7 +213,9 @@ def test_a_registration_after_data_collection_began_says_so_everywhere(
     assert f"- {sentence}" in (out / "prereg.md").read_text()
     assert f"<li>{sentence}</li>" in (out / "prereg.html").read_text()
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "small"))
+        dataset = study_data.load_dataset(
+            db, study=studies.get_study(db, "small"), scope=Scope.every_site()
+        )
     assert dataset.registration is not None
     assert dataset.registration["data_at_registration"] == registration["data_at_registration"]
     result = analyse_study(dataset)
@@ -232,7 +239,9 @@ def test_a_registration_before_any_participant_says_that_and_prints_no_note(
     sentence = f"Registered on {registration['created_at']}, before any participant was enrolled."
     assert f"- {sentence}" in (out / "prereg.md").read_text()
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, study_name))
+        dataset = study_data.load_dataset(
+            db, study=studies.get_study(db, study_name), scope=Scope.every_site()
+        )
     section = _registration_section(build_report(analyse_study(dataset)))
     assert sentence in section
     # An older registration, without the record, does not pretend to know.
@@ -270,5 +279,7 @@ def test_a_study_in_two_languages_registers_the_language_covariate_it_fits(
     )
     assert "adjusted for language" in markdown
     with database.read_session() as db:
-        protocol = study_data.load_dataset(db, study=studies.get_study(db, "sv")).protocol
+        protocol = study_data.load_dataset(
+            db, study=studies.get_study(db, "sv"), scope=Scope.every_site()
+        ).protocol
     assert protocol["languages"] == ["en", "sv"]

@@ -19,6 +19,7 @@ from app.cli import cli
 from app.db import Database
 from app.main import create_app
 from app.services import pseudonyms, studies, study_data
+from app.services.sites import Scope
 from app.settings import Settings
 from app.tables import AuditEvent, Role
 from bench.seed import seed_study
@@ -42,7 +43,9 @@ def _export(
 
 def _codes(database: Database) -> list[str]:
     with database.read_session() as db:
-        dataset = study_data.load_dataset(db, study=studies.get_study(db, "small"))
+        dataset = study_data.load_dataset(
+            db, scope=Scope.every_site(), study=studies.get_study(db, "small")
+        )
     return list(dataset.participants["participant"])
 
 

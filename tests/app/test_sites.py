@@ -5,9 +5,13 @@ every staff route of the access policy, like the blinding sweep (tests/app/test_
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import json
 import re
+import threading
+import time
+import uuid
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -15,7 +19,7 @@ from typing import Any
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from sqlalchemy import select
+from sqlalchemy import select, update
 
 from analysis.exports import EXPORT_FORMATS
 from app.access import POLICY, Principal
@@ -24,7 +28,17 @@ from app.errors import Conflict, InvalidInput
 from app.protocol import ProtocolError, parse_protocol
 from app.services import sites, studies, verify
 from app.services.audit import Actor
-from app.tables import AuditEvent, Participant, ParticipantStatus, Role, User
+from app.tables import (
+    Allocation,
+    AuditEvent,
+    Participant,
+    ParticipantStatus,
+    Role,
+    Study,
+    User,
+)
+from bench.seed import seed_study
+from tests.app.test_access_policy import app_routes
 from tests.conftest import (
     EXP3_ONLY,
     Lab,
@@ -32,6 +46,7 @@ from tests.conftest import (
     client_of,
     fill_pre_study,
     protocol_text,
+    sign_in_api,
     sqlite_only,
     tablet_client,
 )
@@ -401,3 +416,313 @@ def test_a_protocol_declares_sites_cleanly() -> None:
     assert "sites.labels.malmo: not listed in sites.names" in message
     protocol = parse_protocol(sites_protocol()).protocol
     assert protocol.sites is not None and protocol.sites.label("uppsala") == "uppsala"
+
+
+# ------------------------------------------------ the sweep: nothing a limited account gets depends
+# on another site
+
+STREAMS = ("/studies/{name}/events", "/stations/{name}/events")
+"""The staff's live streams: swept by reading them while the other site is busy."""
+
+NOT_SWEPT_FOR_THE_OTHER_SITE = {
+    "writes": "a change, not a read: naming another site's participant or a station seating one "
+    "answers 404 (test_another_sites_participant_and_station_do_not_exist_for_a_limited_account)"
+    ", and a typed code can only clash within its own site (test_a_code_in_use_at_another_site"
+    "_is_not_told)",
+    "admins": "admins see every site: an admin's account cannot be limited",
+    "anonymous": "no account, so no scope: public pages carry no participant data (the tablet "
+    "and kiosk links are the participant's own token; the room shell asks for a device key)",
+    "devices": "a robot's key belongs to its station, which serves whoever is seated there",
+    "participants": "a tablet token reaches its own participant only",
+}
+"""Why the routes the sweep does not read are not swept: by the access policy's principals, so a
+new route falls into one of these, or is read by the sweep."""
+
+
+def _classify(method: str, path: str) -> str:
+    """``swept``, ``stream``, or the key of :data:`NOT_SWEPT_FOR_THE_OTHER_SITE`."""
+    allowed = POLICY[(method, path)]
+    if Principal.ANONYMOUS in allowed:
+        return "anonymous"
+    if allowed & {Principal.EXPERIMENTER, Principal.ANALYST}:
+        if method != "GET":
+            return "writes"
+        return "stream" if path in STREAMS else "swept"
+    if Principal.ADMIN in allowed:
+        return "admins"
+    if allowed & {Principal.DEVICE_OWN, Principal.DEVICE_OTHER}:
+        return "devices"
+    return "participants"
+
+
+_VOLATILE = (
+    (
+        re.compile(r"\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}(?::\d{2}(?:\.\d+)?)?(?:Z|[+-]\d{2}:?\d{2})?"),
+        "<when>",
+    ),
+    (re.compile(r"\d{2} [A-Z][a-z]{2} \d{2}\d{2}:\d{2}:\d{2}"), "<when>"),  # an SPSS file's header
+    (re.compile(r"\b\d{1,2}:\d{2}:\d{2}\b"), "<time>"),
+)
+
+
+STATION_READS = ("/api/v1/stations", "/stations")
+"""Not swept for the devices' last contact (stations have no site yet, see
+docs/data-protection.md "Sites"): a free station of another site and its robot's last contact
+stay in every experimenter's list. Everything else they answer is swept."""
+_LAST_SEEN = (
+    (re.compile(r'"last_seen_at":(?:null|"<when>")'), '"last_seen_at":"<seen>"'),
+    (re.compile(r"<td>(?:—|<when> UTC)</td>"), "<td><seen></td>"),
+)
+
+
+def _normalised(text: str, url: str = "") -> str:
+    for pattern, replacement in _VOLATILE:
+        text = pattern.sub(replacement, text)
+    if url in STATION_READS:
+        for pattern, replacement in _LAST_SEEN:
+            text = pattern.sub(replacement, text)
+    return text
+
+
+def _run_at(lab: Lab, code: str) -> None:
+    """Seat ``code`` at the lab's station and run the familiarisation and one session."""
+    seated = lab.experimenter.put(
+        f"/api/v1/stations/{lab.station}/participant", json={"study": lab.study, "code": code}
+    )
+    assert seated.status_code == 200, seated.text
+    lab.tablets[code] = tablet_client(lab.app, lab, code)
+    fill_pre_study(lab.tablets[code])
+    for _ in range(2):
+        lab.start_session()
+        lab.run_session()
+    lab.experimenter.post(f"/api/v1/stations/{lab.station}/sessions/current/end")
+    lab.fill_pending_questionnaires()
+
+
+class _Listener:
+    """A limited account's live stream read in a thread until its login ends."""
+
+    def __init__(self, client: TestClient, path: str) -> None:
+        self.client, self.path, self.lines = client, path, []  # type: list[str]
+        self.opened = threading.Event()
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+        assert self.opened.wait(10), f"{path} did not open"
+
+    def _read(self) -> None:
+        with self.client.stream("GET", self.path) as response:
+            assert response.status_code == 200, self.path
+            for line in response.iter_lines():
+                self.opened.set()
+                self.lines.append(line)
+
+    def types(self) -> list[list[str]]:
+        """Each message's event types, once the stream has ended."""
+        self.thread.join(10)
+        assert not self.thread.is_alive(), f"{self.path} did not end with its login"
+        return [json.loads(line[6:])["types"] for line in self.lines if line.startswith("data: ")]
+
+
+@SQLITE
+def test_nothing_a_limited_account_reads_or_hears_depends_on_another_site(
+    app: FastAPI,
+    client: TestClient,
+    database: Database,
+    database_url: str,
+    user_client: UserClientFactory,
+    tmp_path: Path,
+) -> None:
+    """Every page, JSON read, export and stream a limited experimenter or analyst may use (the
+    app's routes, by the access policy) answers the same, after the times are taken out, before
+    and after another site enrols, runs sessions and answers questionnaires; its streams hear
+    nothing of that site; and the command line's site option writes the same files."""
+    from tests.app.test_cli import run
+
+    create_sites_study(database)
+    admin = user_client(Role.ADMIN, "pi")
+    everyone = user_client(Role.EXPERIMENTER, "both")
+    labs = {
+        station: Lab(
+            app, database, "multi", station, "", everyone, _station(admin, client, station), {}
+        )
+        for station in ("lab-sto", "lab-upp", "lab-3")
+    }
+    ours = [_enrol(everyone, MINE), _enrol(everyone, MINE)]
+    _run_at(labs["lab-sto"], ours[0])
+    readers = {
+        Principal.EXPERIMENTER: user_client(Role.EXPERIMENTER, "sto"),
+        Principal.ANALYST: user_client(Role.ANALYST, "sto-analyst"),
+    }
+    limit(database, "sto", MINE)
+    limit(database, "sto-analyst", MINE)
+
+    routes = sorted(app_routes(app))
+    kinds = {route: _classify(*route) for route in routes}
+    swept = [path for (method, path), kind in kinds.items() if kind == "swept"]
+    assert {path for (_, path), kind in kinds.items() if kind == "stream"} == set(STREAMS)
+    assert set(kinds.values()) <= {"swept", "stream", *NOT_SWEPT_FOR_THE_OTHER_SITE}
+    assert "/studies/{name}/analysis/power" in swept and "/api/v1/stations" in swept
+
+    def snapshot() -> dict[str, str]:
+        app.state.activity.flush()  # robots' and logins' last contact, written now
+        answers = {}
+        for role, reader in readers.items():
+            for path in swept:
+                if role not in POLICY[("GET", path)]:
+                    continue
+                for export in list(EXPORT_FORMATS) if "{export}" in path else ["-"]:
+                    url = _fill(path, station="lab-sto", code=ours[0], export=export)
+                    response = reader.get(url)
+                    texts = _texts(response) if response.status_code < 400 else [response.text]
+                    answers[f"{role} {url}"] = "\n".join(
+                        [str(response.status_code), *(_normalised(t, url) for t in texts)]
+                    )
+        for export in EXPORT_FORMATS:
+            out = tmp_path / uuid.uuid4().hex / export
+            code, _, err = run(
+                database_url, "export", "--study", "multi", "--format", export,
+                "--out", str(out), "--site", MINE,
+            )  # fmt: skip
+            files = sorted(out.rglob("*")) if out.is_dir() else [out] if out.exists() else []
+            answers[f"cli export {export}"] = "\n".join(
+                [str(code), _normalised(err)]
+                + [_normalised(f.read_text("utf-8", "replace")) for f in files if f.is_file()]
+            )
+        return answers
+
+    before = snapshot()
+    # The limited experimenter's streams: the study's, and a free station's.
+    listener = client_of(client)
+    sign_in_api(listener, "sto")
+    streams = [
+        _Listener(listener, "/studies/multi/events"),
+        _Listener(listener, "/stations/lab-3/events"),
+    ]
+
+    # Uppsala: enrolment, a session at its own station, and one at the free station.
+    theirs = [_enrol(everyone, THEIRS), _enrol(everyone, THEIRS)]
+    _run_at(labs["lab-upp"], theirs[0])
+    _run_at(labs["lab-3"], theirs[1])
+    assert everyone.delete("/api/v1/stations/lab-3/participant").status_code == 200
+    time.sleep(0.3)  # longer than a stream's coalescing window: Uppsala's burst is over
+    # What the streams must hear: Stockholm's second participant seated at the free station.
+    seated = everyone.put(
+        "/api/v1/stations/lab-3/participant", json={"study": "multi", "code": ours[1]}
+    )
+    assert seated.status_code == 200
+    time.sleep(0.3)
+    assert listener.post("/logout", follow_redirects=False).status_code == 303
+    heard = [stream.types() for stream in streams]
+    assert heard == [[["participant_assigned"]], [["participant_assigned"]]], heard
+    # Back to Stockholm's state before; Uppsala's participants leave the stations they used.
+    for station in ("lab-3", "lab-upp"):
+        freed = everyone.delete(f"/api/v1/stations/{station}/participant")
+        assert freed.status_code == 200, freed.text
+
+    after = snapshot()
+    differing = {key: _diff(before[key], after[key]) for key in before if before[key] != after[key]}
+    assert differing == {}, json.dumps(differing, indent=1, ensure_ascii=False)
+    # the sweep would have seen it: the PI's answers did change
+    assert admin.get("/api/v1/studies/multi/participants").json()[-1]["code"] == theirs[-1]
+
+
+def _diff(before: str, after: str) -> str:
+    """The first lines that differ (for the failure message)."""
+    lines = difflib.unified_diff(before.splitlines(), after.splitlines(), lineterm="", n=0)
+    return "\n".join(list(lines)[2:12])
+
+
+@SQLITE
+def test_the_power_planning_of_a_limited_analyst_counts_its_sites_only(
+    database: Database, user_client: UserClientFactory
+) -> None:
+    """The power page prefills ρ, ε, f and N from the participants the account may see."""
+    create_sites_study(database)  # declares the sites the analyst is limited to
+    seed_study(database, name="pilot", participants=20, seed=4)
+    with database.writing() as db:
+        rows = db.execute(
+            select(Participant.id, Allocation.condition)
+            .join(Allocation, Allocation.participant_id == Participant.id)
+            .join(Study, Study.id == Participant.study_id)
+            .where(Study.name == "pilot")
+            .order_by(Participant.id)
+        ).all()
+        seen: dict[str, int] = {}
+        for participant_id, condition in rows:  # every other one of each condition
+            seen[condition] = seen.get(condition, 0) + 1
+            site = MINE if seen[condition] % 2 else THEIRS
+            db.execute(
+                update(Participant).where(Participant.id == participant_id).values(site=site)
+            )
+        db.commit()
+    mine = sum((n + 1) // 2 for n in seen.values())
+    assert min(seen.values()) >= 8 and mine < len(rows)
+    analyst = user_client(Role.ANALYST, "sto-analyst")
+    limit(database, "sto-analyst", MINE)
+    pi = user_client(Role.ADMIN, "pi")
+    prefilled = re.compile(r"Prefilled from this study&#39;s own data: (\d+) complete participants")
+    assert prefilled.findall(pi.get("/studies/pilot/analysis/power").text) == [str(len(rows))]
+    own = analyst.get("/studies/pilot/analysis/power").text
+    assert prefilled.findall(own) == [str(mine)]
+    # the same as the analysis page of the account (which was already limited)
+    assert prefilled.findall(analyst.get("/studies/pilot/analysis").text) == [str(mine)]
+
+
+@SQLITE
+def test_a_code_in_use_at_another_site_is_not_told(
+    world: dict[str, Any], database_url: str
+) -> None:
+    """A typed code at a site begins with the site's name, so "already used" is only said of a
+    participant the account sees: another site's code, used or not, gets one answer."""
+    from tests.app.test_cli import run
+
+    staff, everyone = world["mine"], world["labs"][MINE].experimenter
+    used_there, used_here = world["codes"][THEIRS][0], world["codes"][MINE][0]
+    answers = []
+    for code in (used_there, "uppsala-999", "P001", "Q9"):
+        refused = staff.post(
+            "/api/v1/studies/multi/participants", json={"site": MINE, "code": code}
+        )
+        answers.append((refused.status_code, refused.json()["detail"].replace(code, "CODE")))
+    assert (
+        answers
+        == [
+            (
+                422,
+                "participant code 'CODE': a code at site 'stockholm' begins with 'stockholm-' "
+                "(e.g. stockholm-017), or leave it out for the next one",
+            )
+        ]
+        * 4
+    )
+    page = staff.post("/studies/multi/participants", data={"site": MINE, "code": used_there})
+    assert page.status_code == 422 and "begins with &#39;stockholm-&#39;" in page.text
+    # at its own site "already used" is said, of a participant the account sees
+    clash = staff.post("/api/v1/studies/multi/participants", json={"site": MINE, "code": used_here})
+    assert clash.status_code == 409 and "already used" in clash.json()["detail"]
+    assert staff.get(f"/studies/multi/participants/{used_here}").status_code == 200
+    # the rule is the study's, for every account and the command line alike
+    assert (
+        everyone.post(
+            "/api/v1/studies/multi/participants", json={"site": THEIRS, "code": "stockholm-050"}
+        ).status_code
+        == 422
+    )
+    enrolled = staff.post(
+        "/api/v1/studies/multi/participants", json={"site": MINE, "code": "stockholm-x7"}
+    )
+    assert enrolled.status_code == 201 and enrolled.json()["code"] == "stockholm-x7"
+    code, _, err = run(
+        database_url, "participant", "enroll", "--study", "multi", "--site", THEIRS,
+        "--code", "u-1",
+    )  # fmt: skip
+    assert code != 0 and "a code at site 'uppsala' begins with 'uppsala-'" in err
+
+
+def test_two_sites_may_not_share_the_start_of_their_codes() -> None:
+    long = "university_hospital_north_wing"
+    text = sites_protocol(
+        **{'names = ["stockholm", "uppsala"]': f'names = ["{long}", "{long[:-4]}_east"]'}
+    )
+    with pytest.raises(ProtocolError, match="begin with the same 24 characters"):
+        parse_protocol(text)
