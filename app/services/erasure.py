@@ -16,7 +16,9 @@ values, and every personal detail of the audit events about them. What stays, an
 
 The pseudonym is a keyed hash (the server's secret) of the study and the code: it cannot be
 turned back into the code without the key, and it lets a second erasure of the same code be
-refused as "already erased" instead of "unknown".
+refused as "already erased" instead of "unknown". A code may be enrolled again after its erasure
+(another person, or the same one back): that participant's erasure gets the hash with ``-2``
+(``-3`` …) after it, so every erasure of every enrolment succeeds and the rows stay unique.
 
 The prompt, answer and audit tables are append-only for everyone else: an erasure marks its
 participant in ``erasure_in_progress`` inside its own transaction, which opens their guards for
@@ -35,7 +37,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import String, cast, delete, or_, select, update
+from sqlalchemy import ColumnElement, String, cast, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
 from app import events
@@ -72,8 +74,30 @@ ERASED_PREFIX = "~erased-"
 
 
 def erased_code(secret: bytes, study: Study, code: str) -> str:
-    """The pseudonym an erased participant's row carries instead of ``code``."""
+    """The pseudonym the first erased participant of ``code`` carries instead of the code; later
+    ones carry it with a number after it (:func:`free_erased_code`)."""
     return ERASED_PREFIX + pseudonyms.pseudonym(secret, study.name, code)[len(pseudonyms.PREFIX) :]
+
+
+def _erased_rows_of(study: Study, first: str) -> ColumnElement[bool]:
+    """The study's rows erased under ``code``'s pseudonym: the first, and ``-2``, ``-3`` …"""
+    return (Participant.study_id == study.id) & or_(
+        Participant.code == first, Participant.code.startswith(f"{first}-", autoescape=True)
+    )
+
+
+def free_erased_code(db: Session, secret: bytes, study: Study, code: str) -> str:
+    """The pseudonym for erasing the current participant of ``code``: :func:`erased_code`, or,
+    when that code was erased before (and enrolled again), the first of ``-2``, ``-3`` … not
+    taken, so the second person's erasure never meets the first's row (UNIQUE(study, code))."""
+    first = erased_code(secret, study, code)
+    taken = set(db.scalars(select(Participant.code).where(_erased_rows_of(study, first))))
+    if first not in taken:
+        return first
+    number = 2
+    while f"{first}-{number}" in taken:
+        number += 1
+    return f"{first}-{number}"
 
 
 def is_erased_code(code: str) -> bool:
@@ -141,15 +165,12 @@ def erase_participant(
     was already erased, a participant who does not exist."""
     study = get_study(db, study_name)
     require_withdrawal_option(study, ERASE)
-    pseudonym = erased_code(secret, study, code)
     try:
         participant = get_participant(db, study, code, actor=actor, for_update=True)
     except NotFound:
         earlier = db.scalar(
-            select(Participant.erased_at).where(
-                Participant.study_id == study.id,
-                Participant.code == pseudonym,
-                sites.visible(actor),
+            select(func.max(Participant.erased_at)).where(
+                _erased_rows_of(study, erased_code(secret, study, code)), sites.visible(actor)
             )
         )
         if earlier is not None:
@@ -163,6 +184,7 @@ def erase_participant(
     if len(reason) > 2000:
         raise InvalidInput("the reason is longer than 2000 characters")
     now = utcnow()
+    pseudonym = free_erased_code(db, secret, study, code)
     earlier_copies = list(_earlier_copies(db, study, participant, code))
     with opened_guards(db, study, [participant]):
         removed = erase(db, study, participant, now=now, pseudonym=pseudonym)

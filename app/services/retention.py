@@ -173,7 +173,7 @@ def _apply(
     with erasure.opened_guards(db, study, participants):
         for participant in participants:
             if then == "erase":
-                pseudonym = erasure.erased_code(secret, study, participant.code)
+                pseudonym = erasure.free_erased_code(db, secret, study, participant.code)
                 removed = erasure.erase(db, study, participant, now=now, pseudonym=pseudonym)
             else:
                 removed = _anonymise(db, study, protocol, participant, now=now)

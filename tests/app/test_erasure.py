@@ -10,8 +10,11 @@ import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import delete, func, select
 from sqlalchemy.exc import DBAPIError
+from typer.testing import CliRunner
 
+from app.cli import cli
 from app.services import erasure, verify
+from app.settings import Settings
 from app.tables import (
     Allocation,
     Answer,
@@ -252,3 +255,35 @@ def test_the_api_needs_the_code_repeated(lab: Lab, client: TestClient) -> None:
     assert again.status_code == 409 and "already erased" in again.json()["detail"]
     listed = lab.experimenter.get(f"/api/v1/studies/{lab.study}/participants").json()
     assert all(p["code"] != "P-API" and not p["code"].startswith("~") for p in listed)
+
+
+def test_a_code_enrolled_again_after_its_erasure_can_be_erased_again_and_again(
+    lab: Lab, database_url: str, settings: Settings
+) -> None:
+    """The pseudonym is a hash of the code: the second person's erasure must not meet the
+    first's row (it was a 500 from the API and a traceback from the command line)."""
+    lab.study = personal_data_study(lab.database)
+    url = f"/api/v1/studies/{lab.study}/participants/AGAIN-7/erase"
+    enrol_with_data(lab, "AGAIN-7")
+    assert lab.experimenter.post(url, json={"confirm": "AGAIN-7"}).status_code == 200
+    enrol_with_data(lab, "AGAIN-7")
+    secret = settings.secret.decode()
+    by_cli = CliRunner().invoke(
+        cli,
+        ["participant", "withdraw", "--study", lab.study, "--code", "AGAIN-7", "--erase", "--yes"],
+        env={"TRUSTLAB_DATABASE_URL": database_url, "TRUSTLAB_SECRET_KEY": secret},
+    )
+    assert by_cli.exit_code == 0, by_cli.output
+    assert "erased AGAIN-7" in by_cli.output
+    enrol_with_data(lab, "AGAIN-7")
+    third = lab.experimenter.post(url, json={"confirm": "AGAIN-7"})
+    assert third.status_code == 200, third.text
+    again = lab.experimenter.post(url, json={"confirm": "AGAIN-7"})
+    assert again.status_code == 409 and "already erased" in again.json()["detail"]
+    with lab.database.read_session() as db:
+        slots = list(db.scalars(select(Participant).where(Participant.erased_at.is_not(None))))
+        report = verify.verify_study(db, study_name=lab.study)
+    assert len(slots) == 3 and len({slot.code for slot in slots}) == 3
+    assert all(erasure.is_erased_code(slot.code) for slot in slots)
+    assert report.ok, report.to_json()
+    assert mentions(dump_database(lab.database, lab.app.state.database), "AGAIN-7") == []
