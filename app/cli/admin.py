@@ -200,7 +200,11 @@ def db_backup(
     written = backup.backup(settings.database_url, out)
     with open_database(settings).writing() as db:
         audit.record(
-            db, actor=Actor.command_line(), action="db.backed_up", details={"file": str(written)}
+            db,
+            actor=Actor.command_line(),
+            action="db.backed_up",
+            # Absolute: an erasure run from another folder lists it (app.services.erasure).
+            details={"file": str(written.resolve())},
         )
         db.commit()
     typer.echo(

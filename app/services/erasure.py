@@ -376,17 +376,32 @@ def _earlier_copies(
     )
     for event in db.scalars(query):
         if event.action == "db.backed_up":
-            where = str(event.details.get("file", "?"))
-            yield EarlierCopy("backup", event.occurred_at, where, Path(where).exists())
+            where, exists = _on_disk(str(event.details.get("file", "?")))
+            yield EarlierCopy("backup", event.occurred_at, where, exists)
         elif event.study_id != study.id:
             continue
         elif event.action == "export.written":
             for spec in (event.details.get("files") or {}).values():
-                where = str(spec.get("path", "?"))
-                yield EarlierCopy("export", event.occurred_at, where, Path(where).exists())
+                where, exists = _on_disk(str(spec.get("path", "?")))
+                yield EarlierCopy("export", event.occurred_at, where, exists)
         elif event.action == "export.downloaded":
             where = f"{event.subject} downloaded by {event.actor}"
             yield EarlierCopy("download", event.occurred_at, where, None)
         elif event.subject == code:
             where = f"their own data, written by {event.actor}"
             yield EarlierCopy("subject-access export", event.occurred_at, where, None)
+
+
+def _on_disk(recorded: str) -> tuple[str, bool | None]:
+    """Where an audited backup or export is, and whether it is still there.
+
+    Backups and exports are recorded with absolute paths. Entries made before (issue 48) hold
+    the path as typed, relative to a folder the audit log does not know: found from the folder
+    this command runs in, it is shown absolute; otherwise trustlab cannot tell (None) and says
+    so, rather than calling a copy that may well exist "no longer there"."""
+    path = Path(recorded)
+    if path.is_absolute():
+        return recorded, path.exists()
+    if path.exists():
+        return str(path.resolve()), True
+    return f"{recorded} (relative to the folder it was written from)", None

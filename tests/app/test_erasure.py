@@ -13,7 +13,8 @@ from sqlalchemy.exc import DBAPIError
 from typer.testing import CliRunner
 
 from app.cli import cli
-from app.services import erasure, verify
+from app.services import audit, erasure, verify
+from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import (
     Allocation,
@@ -287,3 +288,43 @@ def test_a_code_enrolled_again_after_its_erasure_can_be_erased_again_and_again(
     assert all(erasure.is_erased_code(slot.code) for slot in slots)
     assert report.ok, report.to_json()
     assert mentions(dump_database(lab.database, lab.app.state.database), "AGAIN-7") == []
+
+
+@sqlite_only("paths on disk; the audit rows they come from are the same on both engines")
+def test_earlier_backups_are_found_from_any_folder(
+    lab: Lab, database_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A backup made with a relative --out was listed as "no longer there" by an erasure run
+    from another folder: backups and exports are recorded with absolute paths."""
+    lab.study = personal_data_study(lab.database)
+    enrol_with_data(lab, "P-COPIED")
+    made_in = tmp_path / "made-here"
+    made_in.mkdir()
+    monkeypatch.chdir(made_in)
+    for name in ("kept.db", "deleted.db"):
+        made = run_cli(database_url, "db", "backup", "--out", f"backups/{name}")
+        assert made.exit_code == 0, made.output
+    (made_in / "backups" / "deleted.db").unlink()
+    exported = run_cli(
+        database_url, "export", "--study", lab.study, "--format", "wide-csv", "--out", "w.csv"
+    )
+    assert exported.exit_code == 0, exported.output
+    with lab.database.writing() as db:  # as recorded before: the path as typed
+        audit.record(
+            db, actor=Actor.command_line(), action="db.backed_up", details={"file": "old/b.db"}
+        )
+        db.commit()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    done = lab.experimenter.post(
+        f"/api/v1/studies/{lab.study}/participants/P-COPIED/erase", json={"confirm": "P-COPIED"}
+    )
+    assert done.status_code == 200, done.text
+    copies = {copy["where"]: copy["exists"] for copy in done.json()["earlier_copies"]}
+    assert copies == {
+        str(made_in / "backups" / "kept.db"): True,
+        str(made_in / "backups" / "deleted.db"): False,
+        str(made_in / "w.csv"): True,
+        "old/b.db (relative to the folder it was written from)": None,
+    }
