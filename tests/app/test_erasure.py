@@ -4,6 +4,7 @@ else untouched; each refusal in one line with nothing changed."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -328,3 +329,31 @@ def test_earlier_backups_are_found_from_any_folder(
         str(made_in / "w.csv"): True,
         "old/b.db (relative to the folder it was written from)": None,
     }
+
+
+@sqlite_only("the form's rendering; no query differs")
+def test_a_refused_withdraw_form_comes_back_with_every_choice_made(
+    lab: Lab, user_client: UserClientFactory
+) -> None:
+    """A mistyped code brought the form back on "Keep it", so the next submit kept the data."""
+    lab.study = personal_data_study(lab.database)
+    enrol_with_data(lab, "P-TYPO")
+    experimenter = user_client(Role.EXPERIMENTER, "typo-experimenter")
+    url = f"/studies/{lab.study}/participants/P-TYPO/withdraw"
+    fresh = experimenter.get(url).text
+    assert _checked(fresh) == ["keep"] and "autofocus" not in fresh
+    refused = experimenter.post(
+        url, data={"data": "erase", "confirm_code": "P-TYP", "reason": "moved <away>"}
+    )
+    assert refused.status_code == 422
+    assert _checked(refused.text) == ["erase"]
+    assert ">moved &lt;away&gt;</textarea>" in refused.text
+    assert 'autofocus aria-invalid="true"' in refused.text
+    # The layout: each choice a row of its own (radio beside its words), the code's caption
+    # one piece of text beside the field.
+    assert refused.text.count('<label class="check choice"><input type="radio"') == 2
+    assert "<span>To erase, type the code <strong>P-TYPO</strong> again</span>" in refused.text
+
+
+def _checked(page: str) -> list[str]:
+    return re.findall(r'<input type="radio" name="data" value="(\w+)" checked>', page)
