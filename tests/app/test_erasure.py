@@ -22,6 +22,7 @@ from app.tables import (
     Answer,
     AuditEvent,
     ErasureInProgress,
+    LearnerState,
     Participant,
     Prompt,
     Role,
@@ -357,3 +358,28 @@ def test_a_refused_withdraw_form_comes_back_with_every_choice_made(
 
 def _checked(page: str) -> list[str]:
     return re.findall(r'<input type="radio" name="data" value="(\w+)" checked>', page)
+
+
+def test_an_erased_participants_ids_are_never_given_again(lab: Lab) -> None:
+    """Robots, console forms and exports name steps by id: after the participant with the
+    highest step id is erased, the next step must not get that id again (SQLite did, with no
+    AUTOINCREMENT), nor the next answer or learner theirs."""
+    lab.study = personal_data_study(lab.database)
+    enrol_with_data(lab, "P-FIRST")
+    enrol_with_data(lab, "P-HIGHEST")
+
+    def highest() -> tuple[int | None, ...]:
+        with lab.database.read_session() as db:
+            return tuple(
+                db.scalar(select(func.max(table.id))) for table in (Prompt, Answer, LearnerState)
+            )
+
+    before = highest()
+    erased = lab.experimenter.post(
+        f"/api/v1/studies/{lab.study}/participants/P-HIGHEST/erase", json={"confirm": "P-HIGHEST"}
+    )
+    assert erased.status_code == 200, erased.text
+    assert highest() < before  # the highest rows are gone
+    enrol_with_data(lab, "P-NEXT")
+    after = highest()
+    assert all(new > old for new, old in zip(after, before, strict=True)), (before, after)
