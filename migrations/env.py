@@ -8,8 +8,11 @@ advisory lock so that several workers starting at once migrate one after another
 
 from __future__ import annotations
 
+from collections.abc import Collection, Mapping
+from typing import Any
+
 from alembic import context
-from alembic.runtime.migration import MigrationContext
+from alembic.runtime.migration import MigrationContext, MigrationInfo
 from sqlalchemy import Connection, text
 
 from app.db import create_db_engine
@@ -27,7 +30,7 @@ def _run(connection: Connection) -> None:
         target_metadata=Base.metadata,
         render_as_batch=is_sqlite,
         compare_type=True,
-        on_version_apply=[_check_foreign_keys] if is_sqlite else [],
+        on_version_apply=_check_foreign_keys if is_sqlite else None,
     )
     if not is_sqlite:
         connection.execute(text("SELECT pg_advisory_xact_lock(:id)"), {"id": MIGRATION_LOCK_ID})
@@ -50,7 +53,9 @@ def _run(connection: Connection) -> None:
         _sqlite_foreign_keys(connection, on=True)
 
 
-def _check_foreign_keys(*, ctx: MigrationContext, **_: object) -> None:
+def _check_foreign_keys(
+    ctx: MigrationContext, step: MigrationInfo, heads: Collection[Any], run_args: Mapping[str, Any]
+) -> None:
     """After each SQLite migration, inside its transaction: refuse it if any key points nowhere."""
     assert ctx.connection is not None
     broken = ctx.connection.exec_driver_sql("PRAGMA foreign_key_check").all()

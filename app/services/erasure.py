@@ -1,9 +1,10 @@
 """Withdrawal with erasure: everything a participant gave a study, removed in one transaction.
 
-What goes: every prompt and answer (with transcripts and recorded audio), session and run, learner
-state, questionnaire answer and submission (free text included), consent record, the room
-presence of the station they were at, their tablet token, their language and stratification
-values, and every personal detail of the audit events about them. What stays, and why:
+What goes is what the personal data registry (app.services.personal_data) says: every prompt and
+answer (with transcripts and recorded audio), session and run, learner state, questionnaire
+answer and submission (free text included), consent record, their room presence (seated or no
+longer), their tablet token, their language and stratification values, a robot's notice naming
+them, and every personal detail of the audit events about them. What stays, and why:
 
 - **The allocation row and a participant row under a pseudonym** (``~erased-…``), because the
   concealed sequence is checked slot by slot (app.services.verify): removing a revealed slot would
@@ -43,29 +44,20 @@ from sqlalchemy.orm import Session
 from app import events
 from app.db import WalCheckpointer
 from app.errors import Conflict, InvalidInput, NotFound
-from app.services import audit, learner_cache, pseudonyms, sites
+from app.services import audit, learner_cache, personal_data, pseudonyms, sites
 from app.services.audit import Actor
 from app.services.enrolment import ERASE, get_participant, require_withdrawal_option
 from app.services.stations import study_topic
 from app.services.studies import get_study
 from app.tables import (
-    Answer,
-    AnswerAudio,
     AuditEvent,
-    ConsentRecord,
     Device,
     ErasureInProgress,
     LearnerState,
     Participant,
     ParticipantStatus,
-    Prompt,
-    Response,
-    RoomPresence,
-    Run,
     Station,
     Study,
-    StudySession,
-    Submission,
     utcnow,
 )
 
@@ -274,26 +266,13 @@ def _empty_sqlite_wal(db: Session) -> None:
 
 
 def _remove_data(db: Session, participant: Participant) -> dict[str, int]:
-    """Delete every row of the participant's data, children first; counts per table."""
+    """Delete every row of the participant's data (the registry's tables whose rows erasure
+    deletes, children first) and unseat them; counts per table."""
     owned = participant.id
-    sessions = select(StudySession.id).where(StudySession.participant_id == owned)
-    stations = select(Station.id).where(Station.participant_id == owned)
-    statements = {
-        "answer_audio": delete(AnswerAudio).where(AnswerAudio.participant_id == owned),
-        "answer": delete(Answer).where(Answer.participant_id == owned),
-        "prompt": delete(Prompt).where(Prompt.participant_id == owned),
-        "run": delete(Run).where(Run.session_id.in_(sessions)),
-        "study_session": delete(StudySession).where(StudySession.participant_id == owned),
-        "learner": delete(LearnerState).where(LearnerState.participant_id == owned),
-        "response": delete(Response).where(Response.participant_id == owned),
-        "submission": delete(Submission).where(Submission.participant_id == owned),
-        "consent_record": delete(ConsentRecord).where(ConsentRecord.participant_id == owned),
-        "room_presence": delete(RoomPresence).where(RoomPresence.station_id.in_(stations)),
-    }
     removed = {}
-    for table, statement in statements.items():
-        result = db.execute(statement, execution_options={"synchronize_session": False})
-        removed[table] = int(result.rowcount or 0)  # type: ignore[attr-defined]
+    for entry in personal_data.erased_by_deletion():
+        result = db.execute(delete(entry.sql).where(entry.sql.c.participant_id == owned))
+        removed[entry.name] = int(result.rowcount or 0)  # type: ignore[attr-defined]
     db.execute(
         update(Station)
         .where(Station.participant_id == owned)
@@ -364,32 +343,29 @@ def _earlier_copies(
     db: Session, study: Study, participant: Participant, code: str
 ) -> Iterator[EarlierCopy]:
     """Backups and exports made since the participant enrolled, as the audit log records them."""
+    kinds = personal_data.copy_actions()
     query = (
         select(AuditEvent)
-        .where(
-            AuditEvent.occurred_at >= participant.enrolled_at,
-            AuditEvent.action.in_(
-                ("db.backed_up", "export.written", "export.downloaded", "participant.exported")
-            ),
-        )
+        .where(AuditEvent.occurred_at >= participant.enrolled_at, AuditEvent.action.in_(kinds))
         .order_by(AuditEvent.occurred_at)
     )
     for event in db.scalars(query):
+        kind = kinds[event.action]
         if event.action == "db.backed_up":
             where, exists = _on_disk(str(event.details.get("file", "?")))
-            yield EarlierCopy("backup", event.occurred_at, where, exists)
+            yield EarlierCopy(kind, event.occurred_at, where, exists)
         elif event.study_id != study.id:
             continue
         elif event.action == "export.written":
             for spec in (event.details.get("files") or {}).values():
                 where, exists = _on_disk(str(spec.get("path", "?")))
-                yield EarlierCopy("export", event.occurred_at, where, exists)
+                yield EarlierCopy(kind, event.occurred_at, where, exists)
         elif event.action == "export.downloaded":
             where = f"{event.subject} downloaded by {event.actor}"
-            yield EarlierCopy("download", event.occurred_at, where, None)
+            yield EarlierCopy(kind, event.occurred_at, where, None)
         elif event.subject == code:
             where = f"their own data, written by {event.actor}"
-            yield EarlierCopy("subject-access export", event.occurred_at, where, None)
+            yield EarlierCopy(kind, event.occurred_at, where, None)
 
 
 def _on_disk(recorded: str) -> tuple[str, bool | None]:

@@ -14,7 +14,7 @@ from sqlalchemy.exc import DBAPIError
 from typer.testing import CliRunner
 
 from app.cli import cli
-from app.services import audit, erasure, verify
+from app.services import audit, erasure, subject_access, verify
 from app.services.audit import Actor
 from app.settings import Settings
 from app.tables import (
@@ -26,11 +26,13 @@ from app.tables import (
     Participant,
     Prompt,
     Role,
+    RoomPresence,
 )
 from tests.app.personal_data import (
     STRATUM,
     dump_database,
     enrol_with_data,
+    heard_in_the_room_then_unseated,
     mentions,
     personal_data_study,
     run_cli,
@@ -383,3 +385,22 @@ def test_an_erased_participants_ids_are_never_given_again(lab: Lab) -> None:
     enrol_with_data(lab, "P-NEXT")
     after = highest()
     assert all(new > old for new, old in zip(after, before, strict=True)), (before, after)
+
+
+def test_the_room_presence_of_an_unseated_participant_is_erased(lab: Lab) -> None:
+    """What the recogniser heard stayed in room_presence when the participant had been
+    unseated before the erasure (only the station they still sat at was cleared)."""
+    lab.study = personal_data_study(lab.database)
+    enrol_with_data(lab, "P-LEFT")
+    heard_in_the_room_then_unseated(lab, "P-LEFT")
+    with lab.database.read_session() as db:
+        assert db.scalar(select(func.count()).select_from(RoomPresence)) == 1
+        # Theirs, so in their own copy too (the registry's "room" section).
+        record = subject_access.participant_record(db, study_name=lab.study, code="P-LEFT")
+    assert record["room"]["last_said"]["words"] == "yes zebrafish certainly p-left"
+    erased = lab.experimenter.post(
+        f"/api/v1/studies/{lab.study}/participants/P-LEFT/erase", json={"confirm": "P-LEFT"}
+    )
+    assert erased.status_code == 200, erased.text
+    assert erased.json()["removed"]["room_presence"] == 1
+    assert mentions(dump_database(lab.database, lab.app.state.database), "P-LEFT") == []
