@@ -12,7 +12,7 @@ from typing import Annotated
 
 import typer
 
-from app import backup, schema
+from app import access_log, backup, schema
 from app.db import Database, describe_url
 from app.demo import pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
@@ -156,6 +156,9 @@ def serve(
         workers=workers,
         proxy_headers=False,  # the app trusts only TRUSTLAB_TRUSTED_PROXIES (app.main)
         log_level="info",
+        # No participant codes or tablet tokens in the access log unless asked (app.access_log).
+        log_config=access_log.log_config(settings.access_log),
+        access_log=settings.access_log != access_log.AccessLog.OFF,
         timeout_graceful_shutdown=settings.shutdown_grace_seconds,
     )
 
