@@ -16,6 +16,8 @@ from typing import Annotated
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from app.access_log import AccessLog
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 """The checkout (or image) root: migrations/, templates/ and static/ live beside the packages."""
 
@@ -103,6 +105,14 @@ class Settings(BaseSettings):
             "How long `trustlab serve` waits, when told to stop, for requests still running: an "
             "answer takes milliseconds, but the consoles' and tablets' live streams never end by "
             "themselves, so they are cut after this (the pages reconnect to the next server)."
+        ),
+    )
+    access_log: AccessLog = Field(
+        default=AccessLog.REDACTED,
+        description=(
+            "What `trustlab serve`'s access log shows of each request: `redacted` (participant "
+            "codes in paths and tablet or kiosk tokens replaced by [hidden]), `off`, or `full` "
+            "(the paths as requested, codes included: for debugging; docs/data-protection.md)."
         ),
     )
     trusted_proxies: Annotated[tuple[str, ...], NoDecode] = Field(

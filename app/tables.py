@@ -81,6 +81,13 @@ class Base(DeclarativeBase):
     }
 
 
+NEVER_REUSED_IDS = {"sqlite_autoincrement": True}
+"""Table arguments of the tables whose ids must never be given twice (0021): a step's id
+(``prompt``) is what robots answer and exports key on, an answer's keys its recording, a learner's
+keys the process's learner cache, and an erasure deletes such rows. SQLite without AUTOINCREMENT
+gives the highest id again once its row is deleted; PostgreSQL's sequences never do."""
+
+
 def _one_of(column: str, values: type[StrEnum]) -> CheckConstraint:
     allowed = ", ".join(f"'{member.value}'" for member in values)
     return CheckConstraint(f"{column} IN ({allowed})", name=f"{column}_known")
@@ -391,6 +398,9 @@ class RoomPresence(Base):
 
     station_id: Mapped[int] = mapped_column(ForeignKey("station.id"), primary_key=True)
     device_id: Mapped[int | None] = mapped_column(ForeignKey("device.id"))
+    participant_id: Mapped[int | None] = mapped_column(ForeignKey("participant.id"))
+    """Who was seated at the station when the room last reported (0021): an erasure or a
+    retention run finds their presence by it after they were unseated. None: nobody was."""
     x: Mapped[float]
     z: Mapped[float]
     heading: Mapped[float] = mapped_column(doc="Degrees, 0 facing the far wall, clockwise.")
@@ -407,7 +417,7 @@ class LearnerState(Base):
     """A participant's learner for one category: its stored state and a version per update."""
 
     __tablename__ = "learner"
-    __table_args__ = (UniqueConstraint("participant_id", "category"),)
+    __table_args__ = (UniqueConstraint("participant_id", "category"), NEVER_REUSED_IDS)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"))
@@ -467,7 +477,7 @@ class Prompt(Base):
     """
 
     __tablename__ = "prompt"
-    __table_args__ = (UniqueConstraint("run_id", "category"),)
+    __table_args__ = (UniqueConstraint("run_id", "category"), NEVER_REUSED_IDS)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     participant_id: Mapped[int] = mapped_column(ForeignKey("participant.id"), index=True)
@@ -493,6 +503,7 @@ class Answer(Base):
     """The participant's answer to a prompt and the robot's reply: the second half. Append-only."""
 
     __tablename__ = "answer"
+    __table_args__ = (NEVER_REUSED_IDS,)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     prompt_id: Mapped[int] = mapped_column(ForeignKey("prompt.id"), unique=True)

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from app import backup, schema
+from app import access_log, backup, schema
 from app.db import Database, describe_url
 from app.demo import QuietWhileFilling, pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
@@ -166,6 +166,9 @@ def serve(
         workers=workers,
         proxy_headers=False,  # the app trusts only TRUSTLAB_TRUSTED_PROXIES (app.main)
         log_level="info",
+        # No participant codes or tablet tokens in the access log unless asked (app.access_log).
+        log_config=access_log.log_config(settings.access_log),
+        access_log=settings.access_log != access_log.AccessLog.OFF,
         timeout_graceful_shutdown=settings.shutdown_grace_seconds,
     )
 
@@ -210,7 +213,11 @@ def db_backup(
     written = backup.backup(settings.database_url, out)
     with open_database(settings).writing() as db:
         audit.record(
-            db, actor=Actor.command_line(), action="db.backed_up", details={"file": str(written)}
+            db,
+            actor=Actor.command_line(),
+            action="db.backed_up",
+            # Absolute: an erasure run from another folder lists it (app.services.erasure).
+            details={"file": str(written.resolve())},
         )
         db.commit()
     typer.echo(

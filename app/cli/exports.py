@@ -107,7 +107,9 @@ def export(
             write_export(dataset, format, draft)
         written = {format: out}
     files = {
-        name: {"path": str(path), "sha256": sha256_file(path)} for name, path in written.items()
+        # Absolute: an erasure run from another folder lists them (app.services.erasure).
+        name: {"path": str(path.resolve()), "sha256": sha256_file(path)}
+        for name, path in written.items()
     }
     with database.writing() as db:
         audit.record(

@@ -1,9 +1,10 @@
 """Withdrawal with erasure: everything a participant gave a study, removed in one transaction.
 
-What goes: every prompt and answer (with transcripts and recorded audio), session and run, learner
-state, questionnaire answer and submission (free text included), consent record, the room
-presence of the station they were at, their tablet token, their language and stratification
-values, and every personal detail of the audit events about them. What stays, and why:
+What goes is what the personal data registry (app.services.personal_data) says: every prompt and
+answer (with transcripts and recorded audio), session and run, learner state, questionnaire
+answer and submission (free text included), consent record, their room presence (seated or no
+longer), their tablet token, their language and stratification values, a robot's notice naming
+them, and every personal detail of the audit events about them. What stays, and why:
 
 - **The allocation row and a participant row under a pseudonym** (``~erased-…``), because the
   concealed sequence is checked slot by slot (app.services.verify): removing a revealed slot would
@@ -16,7 +17,9 @@ values, and every personal detail of the audit events about them. What stays, an
 
 The pseudonym is a keyed hash (the server's secret) of the study and the code: it cannot be
 turned back into the code without the key, and it lets a second erasure of the same code be
-refused as "already erased" instead of "unknown".
+refused as "already erased" instead of "unknown". A code may be enrolled again after its erasure
+(another person, or the same one back): that participant's erasure gets the hash with ``-2``
+(``-3`` …) after it, so every erasure of every enrolment succeeds and the rows stay unique.
 
 The prompt, answer and audit tables are append-only for everyone else: an erasure marks its
 participant in ``erasure_in_progress`` inside its own transaction, which opens their guards for
@@ -35,35 +38,26 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import String, cast, delete, or_, select, update
+from sqlalchemy import ColumnElement, String, cast, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
 from app import events
 from app.db import WalCheckpointer
 from app.errors import Conflict, InvalidInput, NotFound
-from app.services import audit, learner_cache, pseudonyms, sites
+from app.services import audit, learner_cache, personal_data, pseudonyms, sites
 from app.services.audit import Actor
 from app.services.enrolment import ERASE, get_participant, require_withdrawal_option
 from app.services.stations import study_topic
 from app.services.studies import get_study
 from app.tables import (
-    Answer,
-    AnswerAudio,
     AuditEvent,
-    ConsentRecord,
     Device,
     ErasureInProgress,
     LearnerState,
     Participant,
     ParticipantStatus,
-    Prompt,
-    Response,
-    RoomPresence,
-    Run,
     Station,
     Study,
-    StudySession,
-    Submission,
     utcnow,
 )
 
@@ -72,8 +66,30 @@ ERASED_PREFIX = "~erased-"
 
 
 def erased_code(secret: bytes, study: Study, code: str) -> str:
-    """The pseudonym an erased participant's row carries instead of ``code``."""
+    """The pseudonym the first erased participant of ``code`` carries instead of the code; later
+    ones carry it with a number after it (:func:`free_erased_code`)."""
     return ERASED_PREFIX + pseudonyms.pseudonym(secret, study.name, code)[len(pseudonyms.PREFIX) :]
+
+
+def _erased_rows_of(study: Study, first: str) -> ColumnElement[bool]:
+    """The study's rows erased under ``code``'s pseudonym: the first, and ``-2``, ``-3`` …"""
+    return (Participant.study_id == study.id) & or_(
+        Participant.code == first, Participant.code.startswith(f"{first}-", autoescape=True)
+    )
+
+
+def free_erased_code(db: Session, secret: bytes, study: Study, code: str) -> str:
+    """The pseudonym for erasing the current participant of ``code``: :func:`erased_code`, or,
+    when that code was erased before (and enrolled again), the first of ``-2``, ``-3`` … not
+    taken, so the second person's erasure never meets the first's row (UNIQUE(study, code))."""
+    first = erased_code(secret, study, code)
+    taken = set(db.scalars(select(Participant.code).where(_erased_rows_of(study, first))))
+    if first not in taken:
+        return first
+    number = 2
+    while f"{first}-{number}" in taken:
+        number += 1
+    return f"{first}-{number}"
 
 
 def is_erased_code(code: str) -> bool:
@@ -141,15 +157,12 @@ def erase_participant(
     was already erased, a participant who does not exist."""
     study = get_study(db, study_name)
     require_withdrawal_option(study, ERASE)
-    pseudonym = erased_code(secret, study, code)
     try:
         participant = get_participant(db, study, code, actor=actor, for_update=True)
     except NotFound:
         earlier = db.scalar(
-            select(Participant.erased_at).where(
-                Participant.study_id == study.id,
-                Participant.code == pseudonym,
-                sites.visible(actor),
+            select(func.max(Participant.erased_at)).where(
+                _erased_rows_of(study, erased_code(secret, study, code)), sites.visible(actor)
             )
         )
         if earlier is not None:
@@ -163,6 +176,7 @@ def erase_participant(
     if len(reason) > 2000:
         raise InvalidInput("the reason is longer than 2000 characters")
     now = utcnow()
+    pseudonym = free_erased_code(db, secret, study, code)
     earlier_copies = list(_earlier_copies(db, study, participant, code))
     with opened_guards(db, study, [participant]):
         removed = erase(db, study, participant, now=now, pseudonym=pseudonym)
@@ -257,26 +271,13 @@ def _empty_sqlite_wal(db: Session) -> None:
 
 
 def _remove_data(db: Session, participant: Participant) -> dict[str, int]:
-    """Delete every row of the participant's data, children first; counts per table."""
+    """Delete every row of the participant's data (the registry's tables whose rows erasure
+    deletes, children first) and unseat them; counts per table."""
     owned = participant.id
-    sessions = select(StudySession.id).where(StudySession.participant_id == owned)
-    stations = select(Station.id).where(Station.participant_id == owned)
-    statements = {
-        "answer_audio": delete(AnswerAudio).where(AnswerAudio.participant_id == owned),
-        "answer": delete(Answer).where(Answer.participant_id == owned),
-        "prompt": delete(Prompt).where(Prompt.participant_id == owned),
-        "run": delete(Run).where(Run.session_id.in_(sessions)),
-        "study_session": delete(StudySession).where(StudySession.participant_id == owned),
-        "learner": delete(LearnerState).where(LearnerState.participant_id == owned),
-        "response": delete(Response).where(Response.participant_id == owned),
-        "submission": delete(Submission).where(Submission.participant_id == owned),
-        "consent_record": delete(ConsentRecord).where(ConsentRecord.participant_id == owned),
-        "room_presence": delete(RoomPresence).where(RoomPresence.station_id.in_(stations)),
-    }
     removed = {}
-    for table, statement in statements.items():
-        result = db.execute(statement, execution_options={"synchronize_session": False})
-        removed[table] = int(result.rowcount or 0)  # type: ignore[attr-defined]
+    for entry in personal_data.erased_by_deletion():
+        result = db.execute(delete(entry.sql).where(entry.sql.c.participant_id == owned))
+        removed[entry.name] = int(result.rowcount or 0)  # type: ignore[attr-defined]
     db.execute(
         update(Station)
         .where(Station.participant_id == owned)
@@ -347,29 +348,41 @@ def _earlier_copies(
     db: Session, study: Study, participant: Participant, code: str
 ) -> Iterator[EarlierCopy]:
     """Backups and exports made since the participant enrolled, as the audit log records them."""
+    kinds = personal_data.copy_actions()
     query = (
         select(AuditEvent)
-        .where(
-            AuditEvent.occurred_at >= participant.enrolled_at,
-            AuditEvent.action.in_(
-                ("db.backed_up", "export.written", "export.downloaded", "participant.exported")
-            ),
-        )
+        .where(AuditEvent.occurred_at >= participant.enrolled_at, AuditEvent.action.in_(kinds))
         .order_by(AuditEvent.occurred_at)
     )
     for event in db.scalars(query):
+        kind = kinds[event.action]
         if event.action == "db.backed_up":
-            where = str(event.details.get("file", "?"))
-            yield EarlierCopy("backup", event.occurred_at, where, Path(where).exists())
+            where, exists = _on_disk(str(event.details.get("file", "?")))
+            yield EarlierCopy(kind, event.occurred_at, where, exists)
         elif event.study_id != study.id:
             continue
         elif event.action == "export.written":
             for spec in (event.details.get("files") or {}).values():
-                where = str(spec.get("path", "?"))
-                yield EarlierCopy("export", event.occurred_at, where, Path(where).exists())
+                where, exists = _on_disk(str(spec.get("path", "?")))
+                yield EarlierCopy(kind, event.occurred_at, where, exists)
         elif event.action == "export.downloaded":
             where = f"{event.subject} downloaded by {event.actor}"
-            yield EarlierCopy("download", event.occurred_at, where, None)
+            yield EarlierCopy(kind, event.occurred_at, where, None)
         elif event.subject == code:
             where = f"their own data, written by {event.actor}"
-            yield EarlierCopy("subject-access export", event.occurred_at, where, None)
+            yield EarlierCopy(kind, event.occurred_at, where, None)
+
+
+def _on_disk(recorded: str) -> tuple[str, bool | None]:
+    """Where an audited backup or export is, and whether it is still there.
+
+    Backups and exports are recorded with absolute paths. Entries made before (issue 48) hold
+    the path as typed, relative to a folder the audit log does not know: found from the folder
+    this command runs in, it is shown absolute; otherwise trustlab cannot tell (None) and says
+    so, rather than calling a copy that may well exist "no longer there"."""
+    path = Path(recorded)
+    if path.is_absolute():
+        return recorded, path.exists()
+    if path.exists():
+        return str(path.resolve()), True
+    return f"{recorded} (relative to the folder it was written from)", None

@@ -22,6 +22,7 @@ import pandas as pd
 
 from analysis.dataset import StudyDataset
 from app.errors import InvalidInput
+from app.services import personal_data
 
 PREFIX = "ps-"
 PSEUDONYMISED = "pseudonymised"
@@ -51,7 +52,8 @@ def pseudonym(key: bytes, study: str, code: str) -> str:
 
 
 def pseudonymised(dataset: StudyDataset, *, key: bytes, study: str) -> StudyDataset:
-    """The same dataset with every participant code replaced by its pseudonym, and the
+    """The same dataset with every participant code replaced by its pseudonym in each frame the
+    personal data registry exports participants' rows by (app.services.personal_data), and the
     manifest saying so (the codebook then calls the column a pseudonym)."""
     codes = dataset.participants["participant"].astype(str)
     names = {code: pseudonym(key, study, code) for code in codes}
@@ -62,10 +64,5 @@ def pseudonymised(dataset: StudyDataset, *, key: bytes, study: str) -> StudyData
         return frame.assign(participant=frame["participant"].astype(str).map(names))
 
     manifest = {**dataset.manifest, "participants": PSEUDONYMISED}
-    return dataclasses.replace(
-        dataset,
-        participants=renamed(dataset.participants),
-        responses=renamed(dataset.responses),
-        steps=renamed(dataset.steps),
-        manifest=manifest,
-    )
+    frames = {name: renamed(getattr(dataset, name)) for name in personal_data.exported_frames()}
+    return dataclasses.replace(dataset, **frames, manifest=manifest)

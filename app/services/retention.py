@@ -9,11 +9,12 @@ shows what is due without changing anything, and every run that changes somethin
 
 **Anonymising** keeps the study's results analysable and removes what links them to a person:
 each participant's code becomes a random id (``~anon-`` and 12 hex digits; no enrolment code can
-look like that), and free-text answers, spoken transcripts and recordings, room presence, tablet
-links and withdrawal reasons are dropped; in the audit log the random id replaces the code and
-events about them keep no details. Nothing keeps the old code, so nobody — the lab included — can
-link the data back. **Erasing** removes each participant as a withdrawal with erasure does
-(app.services.erasure), allocation slots kept.
+look like that), and free-text answers, spoken transcripts and recordings, room presence (seated
+or no longer), tablet links and withdrawal reasons are dropped (the tables and columns are the
+personal data registry's, app.services.personal_data); in the audit log the random id replaces
+the code and events about them keep no details. Nothing keeps the old code, so nobody — the lab
+included — can link the data back. **Erasing** removes each participant as a withdrawal with
+erasure does (app.services.erasure), allocation slots kept.
 
 The clock is a parameter (``now``) so tests, and a lab checking its plan, can ask "what is due
 on that day?" without waiting for it.
@@ -25,26 +26,21 @@ import secrets
 from dataclasses import dataclass, field
 from datetime import datetime
 
-from sqlalchemy import and_, delete, or_, select, update
+from sqlalchemy import Executable, and_, delete, or_, select, update
 from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import InvalidInput
 from app.protocol import ItemKind, Protocol
-from app.services import audit, erasure
+from app.services import audit, erasure, personal_data
 from app.services.audit import Actor
+from app.services.personal_data import Anonymised
 from app.services.stations import study_topic
 from app.services.studies import get_study, list_studies, protocol_of
 from app.tables import (
-    Answer,
-    AnswerAudio,
     Participant,
-    Prompt,
     Response,
-    RoomPresence,
-    Station,
     Study,
-    StudySession,
     StudyStatus,
 )
 
@@ -173,7 +169,7 @@ def _apply(
     with erasure.opened_guards(db, study, participants):
         for participant in participants:
             if then == "erase":
-                pseudonym = erasure.erased_code(secret, study, participant.code)
+                pseudonym = erasure.free_erased_code(db, secret, study, participant.code)
                 removed = erasure.erase(db, study, participant, now=now, pseudonym=pseudonym)
             else:
                 removed = _anonymise(db, study, protocol, participant, now=now)
@@ -198,17 +194,6 @@ def _apply(
     return {"participants": len(participants), **done}
 
 
-_NAMING_COLUMNS: tuple[
-    tuple[type[Prompt] | type[Answer] | type[StudySession], tuple[str, ...]], ...
-] = (
-    (Prompt, ("actor",)),
-    (Answer, ("actor", "idempotency_key")),
-    (StudySession, ("started_by", "ended_by")),
-)
-"""Where the participant's own code can appear in their kept rows: a kiosk or the room acting
-as them ("P017 (kiosk lab-1)"), a client's idempotency key made from it."""
-
-
 def _anonymous_id(db: Session, study: Study) -> str:
     while True:
         candidate = ANONYMOUS_PREFIX + secrets.token_hex(6)
@@ -225,7 +210,8 @@ def _anonymise(
     db: Session, study: Study, protocol: Protocol, participant: Participant, *, now: datetime
 ) -> dict[str, int]:
     """Inside :func:`erasure.opened_guards`: a random id for the code, and free text,
-    transcripts, recordings, presence, tablet link and reasons gone; rows changed per kind."""
+    transcripts, recordings, presence, tablet link and reasons gone, as the personal data
+    registry says (app.services.personal_data); rows changed per kind."""
     owned = participant.id
     code = participant.code
     anonymous = _anonymous_id(db, study)
@@ -236,33 +222,46 @@ def _anonymise(
         if item.kind == ItemKind.TEXT
     ]
     changed: dict[str, int] = {}
-    statements = {
-        "free_text": (
-            delete(Response).where(Response.participant_id == owned, or_(*text_items))
-            if text_items
-            else None
-        ),
-        "answer_audio": delete(AnswerAudio).where(AnswerAudio.participant_id == owned),
-        "transcript": update(Answer)
-        .where(Answer.participant_id == owned, Answer.transcript.is_not(None))
-        .values(transcript=None),
-        "room_presence": delete(RoomPresence).where(
-            RoomPresence.station_id.in_(select(Station.id).where(Station.participant_id == owned))
-        ),
-    }
+    statements: dict[str, Executable] = {}
+    for entry in personal_data.anonymised(Anonymised.FREE_TEXT_DELETED):
+        assert entry.table is Response, entry  # the free-text items are questionnaire items
+        if text_items:
+            statements["free_text"] = delete(Response).where(
+                Response.participant_id == owned, or_(*text_items)
+            )
+    for entry in personal_data.anonymised(Anonymised.DELETED):
+        table = entry.sql
+        statements[entry.name] = delete(table).where(table.c.participant_id == owned)
+    for entry in personal_data.TABLES:
+        table = entry.sql
+        for column in entry.cleared:
+            statements[column] = (
+                update(table)
+                .where(table.c.participant_id == owned, table.c[column].is_not(None))
+                .values({column: None})
+            )
     for kind, statement in statements.items():
-        if statement is None:
-            continue
-        result = db.execute(statement, execution_options={"synchronize_session": False})
+        result = db.execute(statement)
         if result.rowcount:  # type: ignore[attr-defined]
             changed[kind] = int(result.rowcount)  # type: ignore[attr-defined]
-    for model, columns in _NAMING_COLUMNS:  # their own rows: any occurrence is their code
-        for row in db.scalars(select(model).where(model.participant_id == owned)):
-            for column in columns:
-                value = getattr(row, column)
-                if value and code in value:
-                    setattr(row, column, value.replace(code, anonymous))
-                    changed["names"] = changed.get("names", 0) + 1
+    for entry in personal_data.TABLES:  # their own rows: any occurrence is their code
+        if not entry.naming:
+            continue
+        table = entry.sql
+        rows = db.execute(
+            select(table.c.id, *(table.c[c] for c in entry.naming)).where(
+                table.c.participant_id == owned
+            )
+        )
+        for row_id, *values in rows:
+            renamed = {
+                column: value.replace(code, anonymous)
+                for column, value in zip(entry.naming, values, strict=True)
+                if value and code in value
+            }
+            if renamed:
+                db.execute(update(table).where(table.c.id == row_id).values(renamed))
+                changed["names"] = changed.get("names", 0) + len(renamed)
     erasure.scrub_audit(db, study, code, anonymous, about={"anonymised": True})
     erasure.scrub_devices(db, code)
     db.expire_all()

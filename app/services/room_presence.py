@@ -2,22 +2,25 @@
 
 A browser room client (static/js/room.js) reports the participant's position, heading and trigger
 zone, and each line spoken, at most twice a second. Each report overwrites the station's one
-``room_presence`` row and announces itself on the station's *room* topic, which only the operator
-console listens to: robots' WebSockets and the study's dashboards (on the station and study
-topics) are not woken twice a second by someone walking.
+``room_presence`` row, which names the participant seated at the time (so that erasure and
+retention find it after they have left: app.services.personal_data), and announces itself on
+the station's *room* topic, which only the operator console listens to: robots' WebSockets and
+the study's dashboards (on the station and study topics) are not woken twice a second by someone
+walking.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sqlalchemy import select
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
 from app import events
 from app.services import sites
 from app.services.stations import station_topic_of
-from app.tables import RoomPresence, utcnow
+from app.tables import RoomPresence, Station, utcnow
 
 PRESENCE_CHANGED = "room_presence"
 ZONE_ENTERED = "zone_entered"
@@ -56,9 +59,11 @@ def record(
     previous = db.get(RoomPresence, station_id)
     entered = zone is not None and zone != (previous.zone if previous is not None else None)
     now = utcnow()
+    seated = db.scalar(select(Station.participant_id).where(Station.id == station_id))
     values: dict[str, object] = {
         "station_id": station_id,
         "device_id": device_id,
+        "participant_id": seated,
         "x": x,
         "z": z,
         "heading": heading % 360.0,
@@ -67,6 +72,9 @@ def record(
     }
     if said is not None:
         values |= {"utterance_kind": said.kind, "utterance": said.text, "utterance_at": now}
+    elif previous is not None and previous.participant_id != seated:
+        # The row names whoever sits there now: the last line said is the previous one's.
+        values |= {"utterance_kind": None, "utterance": None, "utterance_at": None}
     dialect = postgresql if db.get_bind().dialect.name == "postgresql" else sqlite
     statement = dialect.insert(RoomPresence).values(values)
     changed = {name: statement.excluded[name] for name in values if name != "station_id"}

@@ -2,11 +2,12 @@
 
 Data-protection law (the GDPR's article 15 and its equivalents) gives participants the right to
 a copy of what is held about them. :func:`participant_record` gathers it from every table that
-holds it: the enrolment, every answer to a version of the consent text (which version, its
-SHA-256, when), every questionnaire answer, every question the robot asked with the answer and
-what was heard, audio recordings (described, and included when asked), and the audit entries
-about them. ``trustlab participant export`` writes it as JSON (complete,
-for a machine) and HTML (readable, for the participant).
+holds it, in the sections the personal data registry names (app.services.personal_data): the
+enrolment, every answer to a version of the consent text (which version, its SHA-256, when),
+every questionnaire answer, every question the robot asked with the answer and what was heard,
+audio recordings (described, and included when asked), where the room last saw them and what
+was said there, and the audit entries about them. ``trustlab participant export`` writes it as
+JSON (complete, for a machine) and HTML (readable, for the participant).
 
 In a blinded study that has not been unblinded, the condition is left out and marked sealed: the
 lab may tell the participant after the study, as its protocol says.
@@ -21,7 +22,7 @@ from typing import Any
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
 
-from app.services import blinding, consent, enrolment, studies
+from app.services import blinding, consent, enrolment, personal_data, studies
 from app.services.audit import Actor
 from app.tables import (
     Answer,
@@ -29,7 +30,9 @@ from app.tables import (
     AuditEvent,
     Prompt,
     Response,
+    RoomPresence,
     Run,
+    Station,
     StudySession,
     Submission,
 )
@@ -130,11 +133,8 @@ def participant_record(
         )
         .order_by(AuditEvent.id)
     )
-    return {
-        "study": study.name,
-        "study_title": study.title,
-        "participant": participant.code,
-        "exported_at": _when(datetime.now().astimezone()),
+    station = db.scalar(select(Station.name).where(Station.participant_id == pid))
+    sections: dict[str, Any] = {
         "enrolment": {
             "enrolled_at": _when(participant.enrolled_at),
             "status": participant.status,
@@ -143,6 +143,7 @@ def participant_record(
             "language": participant.language,
             "withdrawn_at": _when(participant.withdrawn_at),
             "withdrawal_reason": participant.withdrawal_reason or None,
+            "station": station,
         },
         "consent": [
             {
@@ -166,4 +167,35 @@ def participant_record(
             }
             for entry in audit
         ],
+        "room": _room(db, pid, sealed),
+    }
+    # Every section the personal data registry names, in its order (a KeyError here is a
+    # table registered with a section nobody builds).
+    return {
+        "study": study.name,
+        "study_title": study.title,
+        "participant": participant.code,
+        "exported_at": _when(datetime.now().astimezone()),
+        **{section: sections[section] for section in personal_data.SUBJECT_ACCESS_SECTIONS},
+    }
+
+
+def _room(db: Session, participant_id: int, sealed: bool) -> dict[str, Any] | None:
+    """Where the room client last saw them and the last line said there (a robot's reply
+    sealed while the study is: its level would show the condition)."""
+    presence = db.scalar(select(RoomPresence).where(RoomPresence.participant_id == participant_id))
+    if presence is None:
+        return None
+    said = presence.utterance
+    if sealed and presence.utterance_kind == "reply":
+        said = SEALED
+    return {
+        "seen_at": _when(presence.updated_at),
+        "x": presence.x,
+        "z": presence.z,
+        "heading": presence.heading,
+        "zone": presence.zone,
+        "last_said": None
+        if said is None
+        else {"by": presence.utterance_kind, "words": said, "at": _when(presence.utterance_at)},
     }

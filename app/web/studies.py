@@ -178,7 +178,11 @@ def _withdraw_page(
     *,
     form_error: str | None = None,
     status_code: int = 200,
+    chosen: str = "",
+    reason: str = "",
 ) -> Response:
+    """The form; a refused one comes back with every choice made (``chosen`` data option, the
+    reason), so that submitting it again does what was chosen, not the first option."""
     study = studies.get_study(db, name)
     participant = enrolment.get_participant(db, study, code, actor=Actor.of_user(user))
     options = enrolment.withdrawal_options(study)
@@ -194,6 +198,8 @@ def _withdraw_page(
             "participant": participant,
             "options": options,
             "form_error": form_error,
+            "chosen": chosen,
+            "reason": reason,
         },
         status_code=status_code,
     )
@@ -230,6 +236,8 @@ def withdraw(
             code,
             form_error=f"Type {code} to confirm that everything they gave is to be erased.",
             status_code=422,
+            chosen=data,
+            reason=reason,
         )
     result = erasure.erase_participant(
         db, study_name=name, code=code, actor=actor, secret=settings.secret, reason=reason

@@ -83,6 +83,18 @@ def enrol_with_data(lab: Lab, code: str) -> None:
         assert answered.status_code == 200, answered.text
 
 
+def heard_in_the_room_then_unseated(lab: Lab, code: str) -> None:
+    """The room client reports the seated participant's words (the recogniser's), then the
+    station is freed: their presence must go with them all the same."""
+    said = {"kind": "participant", "text": f"{TRANSCRIPT} {code.lower()}"}
+    reported = lab.robot.put(
+        "/api/v1/station/presence", json={"x": 1.0, "z": 2.0, "heading": 0, "utterance": said}
+    )
+    assert reported.status_code == 204, reported.text
+    freed = lab.experimenter.delete(f"/api/v1/stations/{lab.station}/participant")
+    assert freed.status_code in (200, 204), freed.text
+
+
 def run_cli(database_url: str, *args: str) -> Result:
     return CliRunner().invoke(cli, list(args), env={"TRUSTLAB_DATABASE_URL": database_url})
 

@@ -19,6 +19,7 @@ from app.tables import Answer, AuditEvent, Participant, Response, StudyStatus
 from tests.app.personal_data import (
     dump_database,
     enrol_with_data,
+    heard_in_the_room_then_unseated,
     mentions,
     note_of,
     personal_data_study,
@@ -71,6 +72,7 @@ def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
     lab.study = personal_data_study(lab.database, **_with_retention("1 year"))
     enrol_with_data(lab, "ANON-ME-1")
     enrol_with_data(lab, "ANON-ME-2")
+    heard_in_the_room_then_unseated(lab, "ANON-ME-2")  # their presence must go all the same
     with lab.database.read_session() as db:
         answers = db.scalar(select(func.count()).select_from(Answer))
         likert = db.scalar(
@@ -89,6 +91,7 @@ def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
     done = _run(lab, closed + timedelta(days=366))
 
     assert done.done["participants"] == 2 and done.done["transcript"] == 6
+    assert done.done["room_presence"] == 1  # ANON-ME-2's, though they sit at no station now
     assert published == ["participants_anonymised"]  # nobody was erased
     content = dump_database(lab.database, lab.app.state.database)
     for code in ("ANON-ME-1", "ANON-ME-2"):

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from functools import partial
 
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.runtime.migration import MigrationContext
-from sqlalchemy import MetaData, Table, inspect, select, text
+from sqlalchemy import JSON, Connection, MetaData, Table, inspect, select, text
 from sqlalchemy.exc import DBAPIError
 
 from app import schema
@@ -17,6 +18,7 @@ from app.protocol import default_protocol
 from app.services import audit
 from app.services.audit import Actor
 from app.tables import AuditEvent, Base
+from tests.conftest import sqlite_only
 
 
 def _differences(database: Database) -> list[object]:
@@ -416,4 +418,116 @@ def test_0017_keeps_earlier_consents_as_version_1(blank_database_url: str) -> No
         connection.execute(text("DELETE FROM consent_version"))
     schema.downgrade(database, "0016")
     assert "consent_record" not in inspect(database.engine).get_table_names()
+    database.dispose()
+
+
+def test_0021_never_reuses_ids_and_ties_presence_to_whoever_was_seated(
+    blank_database_url: str,
+) -> None:
+    """0021 copies prompt, answer and learner into AUTOINCREMENT tables on SQLite (rows, keys
+    and the append-only guards kept) and gives room presence its participant: a row reported
+    since the station's participant sat down is theirs (a line said before is cleared), any
+    other row is deleted."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0020")
+    earlier, seated, report = (datetime(2026, 1, 1, hour, tzinfo=UTC) for hour in (9, 10, 11))
+    with database.engine.begin() as connection:
+        row = partial(_insert_row, connection)
+        row("study", id=1, name="s", status="open")
+        for code in (7, 8):
+            row("participant", id=code, study_id=1, code=f"P{code}", status="active")
+        row("station", id=1, name="seated", participant_id=7, assigned_at=seated)
+        row("station", id=2, name="free")
+        row("station", id=3, name="reseated", participant_id=8, assigned_at=report)
+        for station, said_at, updated_at in (
+            (1, earlier, report),
+            (2, earlier, earlier),
+            (3, earlier, seated),
+        ):
+            row(
+                "room_presence",
+                station_id=station,
+                utterance_kind="participant",
+                utterance=f"said at {station}",
+                utterance_at=said_at,
+                updated_at=updated_at,
+            )
+        row("study_session", id=1, participant_id=7, station_id=1, status="running")
+        row("run", id=1, session_id=1, participant_id=7, status="running")
+        row("prompt", id=41, participant_id=7, run_id=1, probabilities=[0.5])
+        row("answer", id=42, prompt_id=41, participant_id=7, probabilities_after=[0.5])
+        row("learner", id=43, participant_id=7, category="c")
+    schema.upgrade(database)
+    with database.engine.connect() as connection:
+        presence = connection.execute(
+            text("SELECT station_id, participant_id, utterance FROM room_presence")
+        ).all()
+        assert presence == [(1, 7, None)]
+        assert connection.execute(text("SELECT id FROM prompt")).scalars().all() == [41]
+        if database.is_sqlite:
+            for table, highest in (("prompt", 41), ("answer", 42), ("learner", 43)):
+                sql = connection.execute(
+                    text("SELECT sql FROM sqlite_master WHERE name = :t"), {"t": table}
+                ).scalar_one()
+                assert "AUTOINCREMENT" in sql, sql
+                seq = text("SELECT seq FROM sqlite_sequence WHERE name = :t")
+                assert connection.execute(seq, {"t": table}).scalar_one() == highest
+    for statement in ("UPDATE prompt SET question = 'x'", "DELETE FROM answer"):
+        with database.engine.begin() as connection, pytest.raises(DBAPIError, match="append"):
+            connection.execute(text(statement))
+    schema.downgrade(database, "0020")
+    with database.engine.connect() as connection:
+        assert connection.execute(text("SELECT id FROM answer")).scalars().all() == [42]
+        if database.is_sqlite:
+            sql = connection.execute(
+                text("SELECT sql FROM sqlite_master WHERE name = 'prompt'")
+            ).scalar_one()
+            assert "AUTOINCREMENT" not in sql
+    with database.engine.begin() as connection, pytest.raises(DBAPIError, match="append"):
+        connection.execute(text("DELETE FROM prompt"))
+    database.dispose()
+
+
+def _insert_row(connection: Connection, table_name: str, **values: object) -> None:
+    """One row of a table as the schema has it at this revision: the values given, and a
+    placeholder of the right type in every other column that needs one."""
+    table = Table(table_name, MetaData(), autoload_with=connection)
+    row = dict(values)
+    for column in table.columns:
+        if column.name in row or column.nullable or column.primary_key:
+            continue
+        if isinstance(column.type, JSON):
+            row[column.name] = {}
+        else:
+            placeholder = {int: 0, float: 0.0, bool: False, str: "x"}
+            kind = column.type.python_type
+            row[column.name] = (
+                datetime(2026, 1, 1, tzinfo=UTC) if kind is datetime else placeholder[kind]
+            )
+    connection.execute(table.insert().values(row))
+
+
+@sqlite_only("SQLite's key enforcement is off during its migrations; PostgreSQL's never is")
+def test_sqlite_migrations_check_every_key_and_leave_enforcement_on(
+    blank_database_url: str,
+) -> None:
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0020")
+    _insert_without_foreign_keys(
+        database,
+        "INSERT INTO learner (id, participant_id, category, kind, n_arms, config, "
+        "initial_state, state, version, updated_at) "
+        "VALUES (1, 99, 'c', 'exp3', 4, '{{}}', '{{}}', '{{}}', 0, CURRENT_TIMESTAMP)",
+    )
+    with pytest.raises(Conflict, match="1 rows' keys would point nowhere"):
+        schema.upgrade(database)
+    assert schema.current_revision(database) == "0020"
+    with database.engine.connect() as connection:
+        assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+        connection.exec_driver_sql("DELETE FROM learner")
+        connection.commit()
+    schema.upgrade(database)
+    assert schema.current_revision(database) == schema.head_revision()
+    with database.engine.connect() as connection:
+        assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
     database.dispose()
