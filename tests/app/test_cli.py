@@ -265,6 +265,13 @@ def test_help_texts_name_defaults_and_no_issue_numbers() -> None:
         assert not re.search(r"\bissues? \d", shown.stdout, re.IGNORECASE), words
 
 
+def test_the_readme_shows_the_schema_a_new_database_gets() -> None:
+    """The README's sample of `make run` names the newest migration (it said 0018 at 0020)."""
+    readme = (REPO_ROOT / "README.md").read_text(encoding="utf-8")
+    shown = re.findall(r"schema at (\d{4}) \(was empty\)", readme)
+    assert shown == [schema.head_revision()]
+
+
 def test_help_texts_keep_their_bracketed_words() -> None:
     """A help text's ``[sites]`` or ``[speech]`` (a protocol table) reaches the terminal: the help
     is printed through rich, whose markup took such words for styles and dropped them
