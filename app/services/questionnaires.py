@@ -568,7 +568,7 @@ def accept_consent(
         raise ConsentChanged(f"the consent text changed (now version {text.number}): read it again")
     record = {
         "accepted": "yes",
-        "version": text.label,
+        "protocol_version": text.label,
         "consent_version": str(text.number),
         # Named apart from the participant's own `language` column in the wide export.
         "consent_language": text.language,
@@ -593,7 +593,8 @@ def accept_consent(
         action="participant.reconsented" if again else "participant.consented",
         study_id=participant.study_id,
         subject=participant.code,
-        details={k: record[k] for k in ("version", "consent_language", "consent_sha256")}
+        details={"version": text.label}
+        | {k: record[k] for k in ("consent_language", "consent_sha256")}
         | {"consent_version": text.number}
         | ({"previous_version": where.consent_accepted} if again else {}),
     )

@@ -109,7 +109,11 @@ def instruments_of(protocol: Protocol) -> tuple[AnalysisInstrument, ...]:
             AnalysisItem(
                 "accepted", "Consent given", "categorical", value_labels=(("yes", "yes"),)
             ),
-            AnalysisItem("version", "Version of the consent text", "text"),
+            AnalysisItem(
+                "protocol_version",
+                "Version of the consent text accepted, as its protocol names it (e.g. 1.0)",
+                "text",
+            ),
             AnalysisItem("consent_language", "Language of the consent text accepted", "text"),
             AnalysisItem("consent_sha256", "SHA-256 of the exact consent text accepted", "text"),
             AnalysisItem(

@@ -117,6 +117,9 @@ def test_every_download(
         rows = list(csv.DictReader(io.StringIO(response.text)))
         assert len(rows) == 24
         assert {"trust_1_s1", "trust_2_s4", "tipi_extraversion"} <= set(rows[0])
+        # The consent text's own version by the name that says which version it is.
+        assert {"protocol_version", "consent_version"} <= set(rows[0])
+        assert "version" not in rows[0]
     with database.read_session() as db:
         event = db.scalars(select(AuditEvent).where(AuditEvent.action == "export.downloaded")).one()
     assert event.subject == export and event.actor.startswith("admin")

@@ -114,7 +114,7 @@ def test_a_new_version_is_accepted_before_the_next_session(
             .where(AuditEvent.action.like("%consent%"))
             .order_by(AuditEvent.id)
         ).all()
-    assert stored["consent_version"] == "2" and stored["version"] == "2"
+    assert stored["consent_version"] == "2" and stored["protocol_version"] == "2"
     assert stored["consent_sha256"] == consent.digest(NEW_TEXT)
     assert actions == [
         "participant.consented",

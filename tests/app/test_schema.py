@@ -488,6 +488,37 @@ def test_0021_never_reuses_ids_and_ties_presence_to_whoever_was_seated(
     database.dispose()
 
 
+def test_0022_names_the_consent_texts_own_version_protocol_version(
+    blank_database_url: str,
+) -> None:
+    """The consent answer ``version`` (the text's version as its protocol names it) becomes
+    ``protocol_version``; other instruments' items of that name and the downgrade are kept."""
+    database = Database(blank_database_url)
+    schema.upgrade(database, "0021")
+    with database.engine.begin() as connection:
+        row = partial(_insert_row, connection)
+        row("study", id=1, name="s", status="open")
+        row("participant", id=1, study_id=1, code="P1", status="active")
+        row("response", participant_id=1, instrument="consent", item="version", value="1.0")
+        row("response", participant_id=1, instrument="consent", item="consent_version", value="1")
+        row("response", participant_id=1, instrument="device", item="version", value="7")
+
+    def items() -> list[tuple[str, str]]:
+        with database.engine.connect() as connection:
+            rows = connection.execute(text("SELECT instrument, item FROM response ORDER BY id"))
+            return [(r[0], r[1]) for r in rows]
+
+    schema.upgrade(database, "0022")
+    assert items() == [
+        ("consent", "protocol_version"),
+        ("consent", "consent_version"),
+        ("device", "version"),
+    ]
+    schema.downgrade(database, "0021")
+    assert items()[0] == ("consent", "version")
+    database.dispose()
+
+
 def _insert_row(connection: Connection, table_name: str, **values: object) -> None:
     """One row of a table as the schema has it at this revision: the values given, and a
     placeholder of the right type in every other column that needs one."""
