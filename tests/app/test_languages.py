@@ -27,6 +27,7 @@ from app.protocol import Protocol, ProtocolError, default_protocol, parse_protoc
 from app.services import enrolment, languages, questionnaires, studies, study_data, verify
 from app.services.audit import Actor
 from app.tables import Role
+from tests import participant_words as words
 from tests.app.test_cli import run as cli_run
 from tests.conftest import (
     EXP3_ONLY,
@@ -350,9 +351,12 @@ def test_a_participant_chooses_swedish_and_the_tablet_speaks_it(
     assert page.url.path == "/tablet/wait"
     pages.append(page)
     assert "Vänta på försöksledaren." in page.text
+    swedish_words = words.known_texts("sv", parse_protocol(_swedish_text()).protocol)
     for shown in pages:
         assert 'lang="sv"' in shown.text
         assert _leaks(shown.text, english) == [], shown.url.path
+        # Only Swedish: every word shown is the catalogue's or the protocol's (or a form's).
+        assert words.unexplained(words.fragments(shown.text), swedish_words) == [], shown.url.path
     again = tablet.post("/tablet/language", data={"csrf_token": token[1], "language": "en"})
     assert again.status_code == 409  # chosen once; staff change it after that
     assert "Språket är redan valt." in again.text
@@ -369,6 +373,119 @@ def test_a_participant_chooses_swedish_and_the_tablet_speaks_it(
         stored["consent_sha256"]
         == hashlib.sha256(swedish.questionnaires.consent.text.encode()).hexdigest()
     )
+
+
+# ------------------------------------------------------------- every participant word (class D)
+
+
+def test_every_participant_template_is_declared_and_marks_its_words() -> None:
+    """A new tablet page (or anything a participant route renders, extends or includes) must be
+    a declared participant template, whose words are all marked for translation: a literal word
+    would reach a Swedish participant in English."""
+    found = words.participant_templates()
+    assert {"room.html", "tablet_base.html", "tablet_message.html", "_rules.html"} <= found
+    undeclared = sorted(name for name in found if not words.is_participant_template(name))
+    assert undeclared == [], "add them to app.i18n.extract.PARTICIPANT_TEMPLATES"
+    literal = {name: words.literal_words(name) for name in sorted(found)}
+    assert {name: found for name, found in literal.items() if found} == {}
+
+
+def test_the_template_sweep_finds_a_literal_word_and_an_undeclared_page(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The sweep's own check: a literal word, a literal label, a staff form, and a new page."""
+    base = "<title>{{ t }}</title>{% block content %}{% endblock %}"
+    (tmp_path / "tablet_base.html").write_text(base)
+    (tmp_path / "tablet_new.html").write_text(
+        '{% extends "tablet_base.html" %}{% block content %}<p>{% trans %}Thanks{% endtrans %}'
+        '</p><p>Thank you!</p><button aria-label="Close it">{{ _("x") }}</button>'
+        "<form data-staff><label>Device key</label></form>{% endblock %}"
+    )
+    (tmp_path / "kiosk_start.html").write_text('{% extends "tablet_base.html" %}')
+    monkeypatch.setattr(words, "TEMPLATES", tmp_path)
+    monkeypatch.setattr(words, "PARTICIPANT_ROUTES", ())
+    found = words.participant_templates()
+    assert found == {"tablet_base.html", "tablet_new.html", "kiosk_start.html"}
+    assert not words.is_participant_template("kiosk_start.html")
+    assert words.literal_words("tablet_new.html") == ["Thank you!", "Close it"]
+
+
+def test_every_sentence_of_the_participant_scripts_goes_through_the_catalogue() -> None:
+    """The room's and the tablet's scripts: a sentence is the message of _() or show(), or
+    staff() says it is the operator's English on purpose."""
+    scripts = words.participant_scripts()
+    names = {str(path.relative_to(words.REPO_ROOT)) for path in scripts}
+    assert {"static/js/room.js", "static/js/room/words.js", "static/js/tablet.js"} <= names
+    assert [found for path in sorted(scripts) for found in words.bypassing_sentences(path)] == []
+
+
+def test_the_script_sweep_finds_sentences_that_bypass_the_catalogue(tmp_path: Path) -> None:
+    script = words.REPO_ROOT / "static" / "js" / "room" / "__sweep_check.js"
+    script.write_text(
+        'const a = _("Fine words"); show(el("x"), "Connected"); staff(`Key of ${station}`);\n'
+        'el("b").textContent = "Connected";  // a badge in English\n'
+        'const words = { online: "Online", code: "KeyY" }; const re = /"[a-z]+ [a-z]"/g;\n'
+        'showNotice(_("Welcome"), `Hello ${name}, welcome`); console.warn(`no words for ${x}`);\n'
+    )
+    try:
+        found = words.bypassing_sentences(script)
+    finally:
+        script.unlink()
+    assert [line.split(": ", 1)[1] for line in found] == [
+        "'Connected'",
+        "'Online'",
+        "'Hello x, welcome'",
+    ]
+
+
+def _swedish_tablet(lab: Lab, app: FastAPI, code: str, **body: Any) -> tuple[TestClient, str]:
+    _enrol(lab, code=code, **body)
+    link = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/{code}/link").json()
+    tablet = TestClient(app)
+    first = tablet.get(f"/t/{link['token']}")
+    token = FORM_TOKEN.search(first.text)
+    assert token, first.text
+    return tablet, token[1]
+
+
+@sqlite_only("rendering only; the pages' SQL is covered by the robot test")
+def test_the_tablets_error_and_choice_pages_speak_only_the_participants_language(
+    swedish_lab: Lab, app: FastAPI, user_client: UserClientFactory
+) -> None:
+    """The tablet's refusals (an unknown page, an expired form, locked answers, a replaced link)
+    in Swedish show Swedish only: the catalogue's sentence, or none but the heading; and the
+    language-choice page asks in every language offered, each in its own words."""
+    lab = swedish_lab
+    protocol = parse_protocol(_swedish_text()).protocol
+    swedish = words.known_texts("sv", protocol)
+    tablet, token = _swedish_tablet(lab, app, "S1", language="sv")
+    unknown = tablet.get("/tablet/nothing-here")
+    assert unknown.status_code == 404 and "Den här sidan finns inte" in unknown.text
+    expired = tablet.post("/tablet/consent", data={"csrf_token": "x", "accept": "yes"})
+    assert expired.status_code == 403
+    admin = user_client(Role.ADMIN)
+    assert admin.post(f"/studies/{lab.study}/participants/S1/lock").status_code == 200
+    locked = tablet.post("/tablet/consent", data={"csrf_token": token, "accept": "yes"})
+    assert locked.status_code == 409 and "Svaren för S1 är låsta" in locked.text
+    lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/S1/link")  # replaced
+    replaced = tablet.get("/tablet")
+    assert replaced.status_code == 401 and "Den här länken till surfplattan gäller inte" in (
+        replaced.text
+    )
+    for page in (unknown, expired, locked, replaced):
+        assert 'lang="sv"' in page.text and 'class="tablet-page"' in page.text
+        assert words.unexplained(words.fragments(page.text), swedish, also=["S1"]) == [], (
+            page.request.url
+        )
+
+    chooser, _ = _swedish_tablet(lab, app, "S2")
+    choice = chooser.get("/tablet")
+    assert choice.url.path == "/tablet/language"
+    assert '<span lang="sv">Välj ditt språk</span>' in choice.text
+    assert '<span lang="en">Choose your language</span>' in choice.text
+    both = words.known_texts("sv", protocol) + words.known_texts("en", protocol)
+    shown = words.fragments(choice.text)
+    assert words.unexplained(shown, both, also=["Svenska", "English"]) == []
 
 
 # ------------------------------------------------------------------------- the command line
