@@ -30,6 +30,17 @@ def protocol_for(participant_language: str | None, protocol: Protocol) -> Protoc
     return protocol.in_language(language_of(participant_language, protocol))
 
 
+def gloss(protocol: Protocol, *, category: str, action: int, asked: str) -> str:
+    """The question ``asked`` (as stored: in the participant's words) in the protocol's own
+    language, for staff who do not read the participant's; '' when it is already in it (or the
+    protocol no longer has that question)."""
+    try:
+        own = protocol.category(category).questions[action]
+    except (KeyError, IndexError):
+        return ""
+    return "" if own == asked else own
+
+
 def offered(protocol: Protocol, language: str, *, study_name: str) -> str:
     """``language`` if the study offers it; InvalidInput naming the ones it does otherwise."""
     try:

@@ -610,3 +610,35 @@ def test_the_console_shows_the_seated_participants_language(swedish_lab: Lab) ->
     console = swedish_lab.experimenter.get(f"/stations/{swedish_lab.station}")
     assert console.status_code == 200
     assert 'class="console-language"' in console.text and ">sv</span>" in console.text
+
+
+@sqlite_only("rendering only; the step SQL is covered by the robot test")
+def test_staff_read_the_protocols_language_beside_a_participants_translated_words(
+    swedish_lab: Lab,
+) -> None:
+    """The console's "Next:" line names instruments in the protocol's own language (an English
+    sentence with Swedish titles in it helps nobody), and a question asked in Swedish has its
+    English beside it on the console and in the participant's timeline (issue 48, item 14)."""
+    lab = swedish_lab
+    _enrol(lab, code="S1", language="sv")
+    _seat(lab, "S1")
+    tablet = tablet_client(lab.app, lab, "S1")
+    assert tablet.post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
+    console = lab.experimenter.get(f"/stations/{lab.station}")
+    expected = re.search(r"<strong>Next:</strong> ([^<]*)</p>", console.text)
+    assert expected, console.text
+    assert html.unescape(expected[1]) == (
+        "waiting for S1 to fill in on the tablet: About you, Your experience, "
+        "Ten-Item Personality Inventory, Attitudes towards robots"
+    )
+    fill_pre_study(tablet)
+    lab.start_session()
+    prompt = lab.prompt("cognition")
+    english = parse_protocol(_swedish_text()).protocol.category("cognition").questions
+    gloss = f'<span class="gloss muted">({english[int(str(prompt["action"]))]})</span>'
+    asked = lab.experimenter.get(f"/stations/{lab.station}").text
+    assert f"“{prompt['question']}”</strong> {gloss}" in asked  # the Wizard-of-Oz card
+    assert f"Robot: “{prompt['question']}” {gloss}" in asked  # the last step
+    lab.answer(prompt["step_id"], "yes")
+    record = lab.experimenter.get(f"/studies/{lab.study}/participants/S1").text
+    assert f"{prompt['question']} {gloss.replace('muted', 'muted small')}</td>" in record
