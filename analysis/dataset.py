@@ -88,6 +88,12 @@ class ProtocolSummary(TypedDict):
     reply_levels: NotRequired[list[str]]
     """Names of the robot's reply levels, least to most confident (the step log's
     ``reply_level`` indexes them)."""
+    languages: NotRequired[list[str]]
+    """The study's languages, its protocol's own first (absent: one language only)."""
+    translations: NotRequired[dict[str, dict[str, Any]]]
+    """Per further language: ``source`` (where the translation comes from; '' when not given)
+    and ``instruments``: instrument key → ``title``, ``citation`` and ``items`` (item key → its
+    wording) in that language. The codebook lists the wordings, the report cites the sources."""
     record_audio: NotRequired[bool]
     """Whether the participants' spoken answers were recorded as audio (``[speech]
     record_audio``; the codebook lists the recordings)."""

@@ -32,7 +32,13 @@ from analysis.figures import (
     trajectories_payload,
     trust_confidence_payload,
 )
-from analysis.methods import analysis_paragraph, design_paragraph, participants_paragraph
+from analysis.methods import (
+    analysis_paragraph,
+    design_paragraph,
+    languages_paragraph,
+    participants_paragraph,
+    translation_references,
+)
 from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
 from analysis.mixed_prose import (
     adaptation_sentences,
@@ -283,9 +289,11 @@ def _methods(result: StudyAnalysis, confidence: float) -> tuple[str, str, str]:
         design_paragraph(protocol, result.dataset.instruments),
         analysis_paragraph(protocol, len(protocol["conditions"]), result.ss_type, confidence),
     ]
+    paragraphs += [p for p in (languages_paragraph(protocol),) if p]  # several languages
     citations = sorted(
         {spec.citation for spec in result.dataset.instruments if spec.citation}
         | {scale.citation for scale in result.dataset.scales if scale.citation}
+        | set(translation_references(protocol))
     )
     refs = "".join(f"<li>{html.escape(c)}</li>" for c in citations)
     content = (

@@ -15,8 +15,9 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from analysis.exports import codebook_table, long_table, steps_table, wide_table
-from analysis.report import _per_language
+from analysis.exports import codebook_json, codebook_table, long_table, steps_table, wide_table
+from analysis.methods import languages_paragraph, translation_references
+from analysis.report import _per_language, build_report
 from app.db import Database
 from app.errors import Conflict, PermissionDenied
 from app.i18n import catalogues
@@ -133,6 +134,25 @@ def test_a_missing_empty_or_misshapen_translation_is_refused_with_its_key_path()
 def test_languages_that_cannot_be_used_are_refused(languages: str, expected: str) -> None:
     problems = _problems(_swedish_text(**{'languages = ["en", "sv"]': f"languages = {languages}"}))
     assert expected in problems
+
+
+def test_a_translation_says_where_it_comes_from_or_nothing() -> None:
+    """``source`` is the translation's own key (not a text to translate): the shipped Swedish
+    one says it is a working translation; an empty one is refused, a missing one allowed (a
+    study created before the key existed stays valid, and its report says it was not given)."""
+    source = 'source = "Working translation made for trustlab'
+    assert source in _swedish_text()
+    empty = _swedish_text(
+        **{source: 'source = " "\nunused = "Working translation made for trustlab'}
+    )
+    assert "translations.sv.source: must be a non-empty text in 'sv'" in _problems(empty)
+    misspelt = _swedish_text(**{source: 'comment = "Working translation made for trustlab'})
+    assert "translations.sv.comment: not a participant-facing text" in _problems(misspelt)
+    lines = _swedish_text().splitlines()
+    without = "\n".join(line for line in lines if not line.startswith("source ="))
+    protocol = parse_protocol(without).protocol
+    assert protocol.in_language("sv").study.title.startswith("Snabb anpassning")
+    assert languages.translation_summary(protocol)["sv"]["source"] == ""
 
 
 def test_a_translation_of_the_protocols_own_language_is_refused() -> None:
@@ -580,6 +600,29 @@ def test_exports_carry_each_participants_language(swedish_lab: Lab) -> None:
     counts = _per_language(dataset.participants)
     assert "<h3>Languages</h3>" in counts and ">sv<" in counts and ">en<" in counts
     assert _per_language(dataset.participants[dataset.participants.language == "sv"]) == ""
+
+    # Each item's Swedish wording and the translation's source (issue 48, item 13).
+    swedish = parse_protocol(_swedish_text()).protocol.in_language("sv")
+    tipi = book[(book.file == "wide") & (book.column == "tipi_1")].iloc[0]
+    assert tipi.label_sv == swedish.questionnaires.instruments[2].items[0].text
+    assert (
+        tipi.citation_sv.startswith("Gosling, S. D.") and "Arbetsöversättning" in tipi.citation_sv
+    )
+    assert "Translation: Working translation made for trustlab's example" in tipi.citation_sv
+    assert set(book[book.file == "steps"].label_sv) == {""}  # no wording: not an item
+    described = codebook_json(dataset)
+    assert described["languages"] == ["en", "sv"]
+    assert described["translations"]["sv"]["source"].startswith("Working translation")
+    nars = next(i for i in described["instruments"] if i["name"] == "nars")
+    assert nars["translations"]["sv"]["items"]["nars_1"] == (
+        swedish.questionnaires.instruments[3].items[0].text
+    )
+    methods = languages_paragraph(dataset.protocol)
+    assert "one of two languages: en and sv" in methods
+    assert "sv: Working translation made for trustlab's example protocol" in methods
+    assert any("Arbetsöversättning" in r for r in translation_references(dataset.protocol))
+    report = build_report(dataset)
+    assert html.escape(methods) in report and "[sv]</li>" in report
 
 
 @sqlite_only("the page's form and refusals; the service's SQL is tested above")
