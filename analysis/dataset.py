@@ -88,12 +88,16 @@ class ProtocolSummary(TypedDict):
     reply_levels: NotRequired[list[str]]
     """Names of the robot's reply levels, least to most confident (the step log's
     ``reply_level`` indexes them)."""
+    languages: NotRequired[list[str]]
+    """The study's languages, its protocol's own first; with two or more the linear mixed models
+    adjust for language (:mod:`analysis.specification`) and the report names each translation."""
+    translations: NotRequired[dict[str, dict[str, Any]]]
+    """Per further language: ``source`` (where the translation comes from; '' when not given)
+    and ``instruments``: instrument key → ``title``, ``citation`` and ``items`` (item key → its
+    wording) in that language. The codebook lists the wordings, the report cites the sources."""
     record_audio: NotRequired[bool]
     """Whether the participants' spoken answers were recorded as audio (``[speech]
     record_audio``; the codebook lists the recordings)."""
-    languages: NotRequired[list[str]]
-    """The languages participants may take part in (the protocol's first); with two or more
-    the linear mixed models adjust for language (:mod:`analysis.specification`)."""
     sites: NotRequired[list[str]]
     """The sites of a multi-site study; with two or more the linear mixed models adjust for
     site (:mod:`analysis.specification`)."""

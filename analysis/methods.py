@@ -19,8 +19,10 @@ __all__ = [
     "analysis_paragraph",
     "design_paragraph",
     "exclusion_sentence",
+    "languages_paragraph",
     "participants_paragraph",
     "population_sentence",
+    "translation_references",
 ]
 
 _NUMBER_WORDS = {
@@ -109,6 +111,41 @@ def exclusion_sentence(exclusions: Sequence[Mapping[str, Any]], *, everywhere: s
         )
     text = _join(parts)
     return text[0].upper() + text[1:] + "; each is listed with the reason below."
+
+
+NO_SOURCE = "the protocol does not say where it comes from"
+
+
+def languages_paragraph(protocol: ProtocolSummary) -> str:
+    """Which languages the study ran in and where each translation comes from ('' for a study
+    in one language): a questionnaire answered in a translation is that translation's
+    instrument, so a reader must know which was used."""
+    languages = protocol.get("languages", [])
+    if len(languages) < 2:
+        return ""
+    translations = protocol.get("translations", {})
+    sources = [
+        f"{code}: {(translations.get(code) or {}).get('source') or NO_SOURCE}"
+        for code in languages[1:]
+    ]
+    return (
+        f"Each participant took part in one of {_count(len(languages))} languages: "
+        f"{_join(languages)} (ISO 639 codes; {languages[0]} is the protocol's own). Every text "
+        "a participant read or heard (consent, rules, questions, replies, questionnaires) was "
+        "given in their language, from the protocol's translations. Translations: "
+        + "; ".join(sources)
+        + ". The codebook lists each item's wording per language (label_<code>)."
+    )
+
+
+def translation_references(protocol: ProtocolSummary) -> list[str]:
+    """The translated instruments' citations, as the protocol's translations name them."""
+    found = []
+    for code, translation in protocol.get("translations", {}).items():
+        for instrument in translation.get("instruments", {}).values():
+            if instrument.get("citation"):
+                found.append(f"{instrument['citation']} [{code}]")
+    return found
 
 
 def design_paragraph(protocol: ProtocolSummary, instruments: Sequence[InstrumentSpec]) -> str:

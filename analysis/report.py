@@ -36,7 +36,9 @@ from analysis.methods import (
     analysis_paragraph,
     design_paragraph,
     exclusion_sentence,
+    languages_paragraph,
     participants_paragraph,
+    translation_references,
 )
 from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
 from analysis.mixed_prose import (
@@ -292,9 +294,11 @@ def _methods(result: StudyAnalysis, confidence: float) -> tuple[str, str, str]:
         + " "
         + _exclusion_sentence(result),
     ]
+    paragraphs += [p for p in (languages_paragraph(protocol),) if p]  # several languages
     citations = sorted(
         {spec.citation for spec in result.dataset.instruments if spec.citation}
         | {scale.citation for scale in result.dataset.scales if scale.citation}
+        | set(translation_references(protocol))
     )
     refs = "".join(f"<li>{html.escape(c)}</li>" for c in citations)
     content = (

@@ -146,7 +146,9 @@ def _error_response(
             "heading": words.say(
                 TABLET_HEADINGS.get(status, catalogues.Message("Something went wrong"))
             ),
-            "message": words.say(message),
+            # Only a sentence of the catalogue reaches a participant: any other refusal is the
+            # server's English for staff (a path, a validation detail), so the heading says it.
+            "message": words.say(message) if isinstance(message, catalogues.Message) else "",
             "catalogue": words,
         }
         return render(request, "tablet_message.html", context, status_code=status)

@@ -19,6 +19,7 @@ from starlette.concurrency import run_in_threadpool
 
 from app.deps import SessionDep, bearer_key, identify
 from app.errors import Conflict, NotAuthenticated
+from app.i18n.catalogues import Message
 from app.protocol import Protocol
 from app.security import sign
 from app.services import languages, tablet_tokens
@@ -65,7 +66,11 @@ def resolve(db: Session, credential: str) -> Tablet:
         station, seated, seated_study = tablet_tokens.station_for_kiosk_token(db, credential)
         if seated is None or seated_study is None:
             raise Conflict(
-                f"nobody is at station {station.name!r} yet: the experimenter assigns a participant"
+                Message(
+                    "nobody is at station '%(station)s' yet: "
+                    "the experimenter assigns a participant",
+                    station=station.name,
+                )
             )
         participant, study = seated, seated_study
     else:
@@ -83,7 +88,7 @@ async def cookie_tablet(request: Request, db: SessionDep) -> Tablet:
     credential = request.cookies.get(TABLET_COOKIE, "")
     if not credential:
         raise NotAuthenticated(
-            "open the tablet link (or scan the QR code) the experimenter gave you"
+            Message("open the tablet link (or scan the QR code) the experimenter gave you")
         )
     return await _resolved(db, credential)
 

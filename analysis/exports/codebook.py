@@ -39,7 +39,37 @@ CODEBOOK_COLUMNS = (
     "derivation",
     "citation",
 )
-"""Columns of :func:`codebook_table`."""
+"""Columns of :func:`codebook_table` (a study in several languages adds two per further
+language: see :func:`translation_columns`)."""
+
+
+def translation_columns(dataset: StudyDataset) -> list[str]:
+    """``label_<code>`` and ``citation_<code>`` for each further language of the study: an
+    item's wording as that language's participants read it, and the translation's source."""
+    return [
+        f"{kind}_{code}"
+        for code in dataset.protocol.get("languages", [])[1:]
+        for kind in ("label", "citation")
+    ]
+
+
+def _translation_citation(translation: dict[str, Any], citation: str) -> str:
+    """The translated instrument's citation and where the translation comes from."""
+    source = translation.get("source") or "the protocol does not say where it comes from"
+    return f"{citation} Translation: {source}" if citation else f"Translation: {source}"
+
+
+def _translated(dataset: StudyDataset, instrument: str, item: str | None) -> dict[str, str]:
+    """An item's (or, ``item`` None, an instrument's) translation columns of the codebook."""
+    out = {}
+    for code, translation in dataset.protocol.get("translations", {}).items():
+        spec = translation.get("instruments", {}).get(instrument)
+        if spec is None:  # not a protocol instrument (the consent record)
+            continue
+        if item is not None:
+            out[f"label_{code}"] = spec.get("items", {}).get(item, "")
+        out[f"citation_{code}"] = _translation_citation(translation, spec.get("citation", ""))
+    return out
 
 
 def _range(low: float | None, high: float | None) -> str:
@@ -53,7 +83,7 @@ def _labels_text(item: ItemSpec) -> str:
 
 
 def _item_entry(
-    column: WideColumn, spec: InstrumentSpec, item: ItemSpec, file: str
+    dataset: StudyDataset, column: WideColumn, spec: InstrumentSpec, item: ItemSpec, file: str
 ) -> dict[str, Any]:
     reversed_value = column.source == "reversed"
     kind = item.kind
@@ -93,6 +123,7 @@ def _item_entry(
             else ""
         ),
         "citation": spec.citation,
+        **_translated(dataset, spec.name, item.key),
     }
 
 
@@ -235,8 +266,11 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
     Columns :data:`CODEBOOK_COLUMNS`: the file (``wide``, ``long``, ``steps``), column name,
     label (item wording as administered), type, SPSS measure level, allowed values, value
     labels (``1=Strongly disagree; …``), reverse key, instrument, item, session, how a derived
-    column is computed, and the instrument's citation. The derivation of every column that can
-    hold text states the CSV files' formula rule (:data:`~analysis.exports.csvfile.CSV_TEXT_RULE`).
+    column is computed, and the instrument's citation. A study in several languages adds, for
+    each further language, the item's wording in it (``label_sv``) and the translated
+    instrument's citation with the translation's source (``citation_sv``). The derivation of
+    every column that can hold text states the CSV files' formula rule
+    (:data:`~analysis.exports.csvfile.CSV_TEXT_RULE`).
     """
     columns = wide_columns(dataset)
     specs = {
@@ -247,7 +281,7 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
     for column in columns:
         if column.source in ("raw", "reversed"):
             spec, item = specs[(column.instrument, column.key)]
-            rows.append(_item_entry(column, spec, item, "wide"))
+            rows.append(_item_entry(dataset, column, spec, item, "wide"))
         elif column.source == "scale":
             rows.append(_scale_entry(column, scales[column.key]))
     participant = (_participant_label(dataset), "string")
@@ -267,8 +301,9 @@ def codebook_table(dataset: StudyDataset) -> pd.DataFrame:
         ]
     if dataset.protocol.get("record_audio"):
         rows.append(_recordings_entry())
-    out = pd.DataFrame(rows, columns=list(CODEBOOK_COLUMNS))
+    out = pd.DataFrame(rows, columns=[*CODEBOOK_COLUMNS, *translation_columns(dataset)])
     out["session"] = out["session"].astype("Int64")
+    out[translation_columns(dataset)] = out[translation_columns(dataset)].fillna("")
     return _with_csv_rule(out)
 
 
@@ -299,11 +334,22 @@ def _with_csv_rule(book: pd.DataFrame) -> pd.DataFrame:
     return book
 
 
+def _instrument_translations(dataset: StudyDataset, instrument: str) -> dict[str, Any]:
+    """Language → the instrument's ``title``, ``citation`` and ``items`` in it."""
+    return {
+        code: translation["instruments"][instrument]
+        for code, translation in dataset.protocol.get("translations", {}).items()
+        if instrument in translation.get("instruments", {})
+    }
+
+
 def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
     """The codebook as a JSON-able dict: study, instruments, and the columns of each file.
 
-    ``{"study", "protocol_version", "instruments": [{"name", "label", "citation", "stem",
-    "per_session", "items": [{"key", "text", "kind", "minimum", "maximum", "reverse",
+    ``{"study", "protocol_version", "languages", "translations": {code: {"source"}},
+    "instruments": [{"name", "label", "citation", "stem", "per_session", "translations":
+    {code: {"title", "citation", "items": {key: text}}}, "items": [{"key", "text", "kind",
+    "minimum", "maximum", "reverse",
     "value_labels": {code: label}}]}], "scales": [...], "files": {"wide": [...], "long": [...],
     "steps": [...]}}``; file entries have the keys of :data:`CODEBOOK_COLUMNS` (``session``
     null when not per session). ``csv_text_cells`` states how the CSV files write text cells that
@@ -320,6 +366,11 @@ def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
         "conditions": [dict(c) for c in dataset.protocol["conditions"]],
         "participants": dataset.manifest.get("participants", "codes"),
         "csv_text_cells": CSV_TEXT_RULE,
+        "languages": list(dataset.protocol.get("languages", [])),
+        "translations": {
+            code: {"source": translation.get("source", "")}
+            for code, translation in dataset.protocol.get("translations", {}).items()
+        },
         "instruments": [
             {
                 "name": spec.name,
@@ -327,6 +378,7 @@ def codebook_json(dataset: StudyDataset) -> dict[str, Any]:
                 "citation": spec.citation,
                 "stem": spec.stem,
                 "per_session": spec.per_session,
+                "translations": _instrument_translations(dataset, spec.name),
                 "items": [
                     {
                         "key": item.key,

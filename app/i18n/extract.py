@@ -14,13 +14,20 @@ from babel.messages.pofile import write_po
 from app.i18n.catalogues import DOMAIN, SOURCE_LANGUAGE, path_of, read_catalog
 from app.settings import REPO_ROOT
 
+PARTICIPANT_TEMPLATES = ("tablet_*.html", "_tablet_progress.html", "_rules.html", "room.html")
+"""The templates (under templates/) whose words participants read. Every template a tablet or
+room route renders, and everything it extends or includes, must be one of these, and their only
+words are marked for translation (or, the room's device-key form, marked ``data-staff``):
+tests/app/test_languages.py fails on a new one left out or a literal word in one."""
+
+PARTICIPANT_SCRIPTS = ("static/js/room.js", "static/js/room/*.js", "static/js/tablet.js")
+"""The scripts participant pages load: every sentence in them goes through ``_()``/``show()``
+(or ``staff()``, English on purpose for the lab's staff); tests/app/test_languages.py scans them
+and the scripts the participant templates load for any other."""
+
 SOURCES: list[tuple[str, str]] = [
-    ("templates/tablet_*.html", "jinja2.ext:babel_extract"),
-    ("templates/_tablet_progress.html", "jinja2.ext:babel_extract"),
-    ("templates/_rules.html", "jinja2.ext:babel_extract"),
-    ("templates/room.html", "jinja2.ext:babel_extract"),
-    ("static/js/room.js", "javascript"),
-    ("static/js/room/*.js", "javascript"),
+    *((f"templates/{pattern}", "jinja2.ext:babel_extract") for pattern in PARTICIPANT_TEMPLATES),
+    *((pattern, "javascript") for pattern in PARTICIPANT_SCRIPTS),
     ("app/**.py", "python"),
 ]
 """Where participants' words are written, and how to read each kind of file. Staff pages are
@@ -38,6 +45,7 @@ KEYWORDS = {
     "gettext": None,
     "ngettext": (1, 2),
     "Message": None,  # Python: app.i18n.catalogues.Message
+    "show": (2,),  # the room's scripts: show(node, message) (static/js/room/words.js)
 }
 
 

@@ -28,6 +28,12 @@ from app.speech.vocabulary import normalise
 TRANSLATIONS = "translations"
 """The protocol's table of translations, one sub-table per further language."""
 
+SOURCE = "source"
+"""A translation's own key that is not a text of the protocol: where the translation comes from
+(who made it, or which published versions it uses, and whether it is validated). Optional, so
+that studies created before it stay valid; the codebook and the report cite it (or say that it
+was not given)."""
+
 Shape = Literal["text", "lines", "phrases"]
 """A single text; a list whose entries correspond one to one (questions, scale labels, rules:
 the same length in every language); a list of alternatives (speech phrases: any length, >= 1)."""
@@ -144,6 +150,15 @@ def translation_problems(data: dict[str, Any], languages: list[str]) -> list[tup
             problems.append((base, f"missing: every participant-facing text in {language!r}"))
             continue
         given = flatten(table)
+        source = given.pop(SOURCE, None)
+        if source is not None and not (isinstance(source, str) and source.strip()):
+            problems.append(
+                (
+                    f"{base}.{SOURCE}",
+                    f"must be a non-empty text in {language!r}: who made the translation, or "
+                    "the published versions it uses",
+                )
+            )
         for slot in slots:
             reason = _slot_problem(slot, given.get(slot.path), language)
             if reason:
@@ -192,6 +207,7 @@ def translated(data: dict[str, Any], language: str) -> dict[str, Any]:
     language is ``language``: it comes first in ``study.languages`` (the others still listed,
     so the tablet can offer them) and it carries no translations."""
     given = flatten(data[TRANSLATIONS][language])
+    given.pop(SOURCE, None)
     result = copy.deepcopy(data)
     for slot in text_slots(data):
         _set(result, slot.location, copy.deepcopy(given[slot.path]))

@@ -9,10 +9,13 @@ languages are not comparable, unless an admin overrides it with a recorded reaso
 
 from __future__ import annotations
 
+from typing import Any
+
 from sqlalchemy import exists, select
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, PermissionDenied
+from app.i18n import protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
 from app.protocol import Protocol
 from app.services import audit
@@ -28,6 +31,39 @@ def language_of(participant_language: str | None, protocol: Protocol) -> str:
 def protocol_for(participant_language: str | None, protocol: Protocol) -> Protocol:
     """The protocol as this participant sees and hears it."""
     return protocol.in_language(language_of(participant_language, protocol))
+
+
+def translation_summary(protocol: Protocol) -> dict[str, dict[str, Any]]:
+    """Each further language's translation as the codebook and the report cite it: its
+    ``source`` ('' when the protocol does not say) and, per instrument, its title, citation
+    and items in that language."""
+    summary: dict[str, dict[str, Any]] = {}
+    for code in protocol.study.languages[1:]:
+        localised = protocol.in_language(code)
+        source = protocol.translations.get(code, {}).get(protocol_texts.SOURCE, "")
+        summary[code] = {
+            "source": source.strip() if isinstance(source, str) else "",
+            "instruments": {
+                instrument.key: {
+                    "title": instrument.title,
+                    "citation": instrument.citation,
+                    "items": {item.key: item.text for item in instrument.items},
+                }
+                for instrument in localised.questionnaires.instruments
+            },
+        }
+    return summary
+
+
+def gloss(protocol: Protocol, *, category: str, action: int, asked: str) -> str:
+    """The question ``asked`` (as stored: in the participant's words) in the protocol's own
+    language, for staff who do not read the participant's; '' when it is already in it (or the
+    protocol no longer has that question)."""
+    try:
+        own = protocol.category(category).questions[action]
+    except (KeyError, IndexError):
+        return ""
+    return "" if own == asked else own
 
 
 def offered(protocol: Protocol, language: str, *, study_name: str) -> str:

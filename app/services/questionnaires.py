@@ -533,9 +533,14 @@ def _publish(
 def _refuse_if_locked(participant: Participant) -> None:
     """Refuse any submission (new or a revision) for a locked or withdrawn participant."""
     if participant.locked_at is not None:
-        raise Conflict(f"{participant.code}'s answers are locked; the experimenter can unlock them")
+        raise Conflict(
+            Message(
+                "%(code)s's answers are locked; the experimenter can unlock them",
+                code=participant.code,
+            )
+        )
     if participant.status == ParticipantStatus.WITHDRAWN:
-        raise Conflict(f"{participant.code} has withdrawn")
+        raise Conflict(Message("%(code)s has withdrawn", code=participant.code))
 
 
 class ConsentChanged(Conflict):

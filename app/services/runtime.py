@@ -100,6 +100,14 @@ class Context:
     participant: Seated
     protocol: Protocol
     run: RunState | None
+    own: Protocol | None = None
+    """The protocol in its first language, for the staff's words (the console's "Next:" line
+    names instruments in it, not in the participant's language); None: ``protocol`` is."""
+
+    @property
+    def staff_protocol(self) -> Protocol:
+        """The protocol whose texts staff read (its first language)."""
+        return self.own or self.protocol
 
     @property
     def learners_shown(self) -> bool:
@@ -136,14 +144,12 @@ def _context(
         status = step_store.lock_timeline(cursor, participant_id=participant.id)
         if status is not None and status != participant.status:  # changed before the lock
             participant = dataclasses.replace(participant, status=status)
-    protocol = languages.protocol_for(
-        participant.language,
-        protocol_by_id(
-            db, study_id=participant.study_id, protocol_sha256=participant.protocol_sha256
-        ),
+    own = protocol_by_id(
+        db, study_id=participant.study_id, protocol_sha256=participant.protocol_sha256
     )
+    protocol = languages.protocol_for(participant.language, own)
     run = step_store.latest_run(cursor, participant_id=participant.id) if latest_run else None
-    return Context(cursor, seat, participant, protocol, run)
+    return Context(cursor, seat, participant, protocol, run, own)
 
 
 @dataclass(frozen=True)
@@ -183,7 +189,8 @@ def session_gate(ctx: Context, number: int) -> str:
     new consent text the protocol wants accepted before the next session."""
     participant = ctx.participant
     done = step_store.submitted(ctx.cursor, participant_id=participant.id)
-    blocker = questionnaires.blocker_given(done, participant.code, ctx.protocol, number)
+    # Staff read it: instruments by their titles in the protocol's own language.
+    blocker = questionnaires.blocker_given(done, participant.code, ctx.staff_protocol, number)
     if blocker or not ctx.protocol.questionnaires.consent.reconsent_before_next_session:
         return blocker
     current, accepted = step_store.consent_versions(

@@ -25,7 +25,7 @@ from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
 from analysis.scoring import ScaleSpec
 from app.protocol import SITE_FACTOR, InstrumentSpec, ItemKind, Protocol
-from app.services import learners, registrations
+from app.services import languages, learners, registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
 from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
 from app.services.sites import Scope
@@ -194,6 +194,8 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
     }
     if protocol.speech.record_audio:
         summary["record_audio"] = True
+    if len(protocol.study.languages) > 1:  # the codebook lists, and the report cites, each one
+        summary["translations"] = languages.translation_summary(protocol)
     return summary
 
 

@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session
 
 from app import events
 from app.errors import Conflict, NotAuthenticated
+from app.i18n.catalogues import Message
 from app.security import token_digest
 from app.services import audit
 from app.services.audit import Actor
@@ -113,7 +114,7 @@ def participant_for_token(db: Session, token: str) -> tuple[Participant, Study]:
         else None
     )
     if found is None:
-        raise NotAuthenticated("this tablet link is not valid (it may have been replaced)")
+        raise NotAuthenticated(Message("this tablet link is not valid (it may have been replaced)"))
     return found[0], found[1]
 
 
@@ -161,5 +162,5 @@ def station_for_kiosk_token(
         else None
     )
     if found is None:
-        raise NotAuthenticated("this kiosk link is not valid (it may have been replaced)")
+        raise NotAuthenticated(Message("this kiosk link is not valid (it may have been replaced)"))
     return found[0], found[1], found[2]

@@ -14,6 +14,7 @@ from sqlalchemy.orm import Session
 
 from app.protocol import ItemKind, ItemSpec, Protocol
 from app.services.blinding import shows_learners
+from app.services.languages import gloss
 from app.services.studies import protocol_of
 from app.tables import Answer, Participant, Prompt, Response, Run, Study, StudySession, Submission
 
@@ -34,6 +35,8 @@ class Step:
     confidence: str | None = None
     probability: float | None = None
     answered_at: datetime | None = None
+    gloss: str = ""
+    """The question in the protocol's own language when it was asked in another ('' if not)."""
 
 
 @dataclass
@@ -183,6 +186,9 @@ def participant_timeline(db: Session, *, study: Study, participant: Participant)
                 shown.confidence if shown else None,
                 shown.probability if shown else None,
                 answer.answered_at if answer else None,
+                gloss(
+                    protocol, category=prompt.category, action=prompt.action, asked=prompt.question
+                ),
             )
         )
     by_number = {s.number: s for s in sessions.values()}

@@ -34,6 +34,7 @@ from app.security import sign, unsign
 from app.services import (
     blinding,
     enrolment,
+    languages,
     learners,
     room_presence,
     runtime,
@@ -336,11 +337,33 @@ def _console(
             "answer_key": uuid.uuid4().hex,
             "room_panel": room_panel_context(db, station),
             "tablet": _tablet_of(request, participant) if view.expected.action == "wait" else None,
+            "glosses": _glosses(participant, view.open_prompts, last),
         },
         block="console",
         status_code=status_code,
     )
     return response
+
+
+def _glosses(
+    participant: Participant | None,
+    open_prompts: list[Any],
+    last: tuple[Any, Any] | None,
+) -> dict[int, str]:
+    """Step id → its question in the protocol's own language, for the questions the console
+    shows that were asked in another (staff read the protocol's language, not necessarily the
+    participant's)."""
+    if participant is None:
+        return {}
+    protocol = studies.protocol_of(participant.study)
+    asked = [*open_prompts, *([last[0]] if last else [])]
+    glosses = {
+        step.id: languages.gloss(
+            protocol, category=step.category, action=step.action, asked=step.question
+        )
+        for step in asked
+    }
+    return {step: words for step, words in glosses.items() if words}
 
 
 def _tablet_of(request: Request, participant: Participant | None) -> TabletLink | None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Annotated, Any
 
 from fastapi import Form, Request
@@ -350,7 +351,12 @@ def language_page(
     current = _current_or_redirect(db, tablet, "language")
     if isinstance(current, Response):
         return current
-    choices = [(code, native_name(code)) for code in tablet.protocol.study.languages]
+    # Nobody knows the participant's language yet: the page asks in every language offered,
+    # each in its own words, as each button names its language in itself.
+    choices = [
+        LanguageChoice(code, native_name(code), catalogue(code).gettext(CHOOSE_LANGUAGE))
+        for code in tablet.protocol.study.languages
+    ]
     return _no_store(
         render(
             request,
@@ -358,6 +364,18 @@ def language_page(
             {**_context(request, tablet, settings), "choices": choices},
         )
     )
+
+
+CHOOSE_LANGUAGE = Message("Choose your language")
+
+
+@dataclass(frozen=True)
+class LanguageChoice:
+    """A language the participant may choose: its code, its name and the page's question in it."""
+
+    code: str
+    name: str
+    question: str
 
 
 @router.post("/tablet/language")

@@ -12,7 +12,7 @@ import { RoomScene, webglAvailable } from "./room/scene.js";
 import { ServerListener } from "./room/microphone.js";
 import { StationSocket } from "./room/socket.js";
 import { Listener, Voice } from "./room/speech.js";
-import { _, language, useLanguage } from "./room/words.js";
+import { _, answerKey, language, show, staff, unavailable, useLanguage } from "./room/words.js";
 import {
   inside,
   normaliseHeading,
@@ -35,7 +35,7 @@ const PRESENCE_INTERVAL_MS = 500; // the console's room panel: at most two repor
 const PRESENCE_KEEPALIVE_MS = 10000; // and at least one every ten seconds
 const DRAG_DEGREES = 0.25; // a mouse drag turns the participant this much per pixel
 const RETRY_REFUSED_MS = 3000; // a refused prompt is not asked again sooner (standing in its zone)
-const ASK_AGAIN = "Sorry, I did not catch that. Please answer yes or no."; // until [speech] is read
+const ASK_AGAIN = () => _("Sorry, I did not catch that. Please answer yes or no."); // until [speech] is read
 const TO_THE_EXIT = () => _("Now walk to the exit: the solid circle.");
 const el = (id) => document.getElementById(id);
 const options = new URLSearchParams(location.search);
@@ -72,6 +72,9 @@ const room = {
   loading: false,
   everOnline: false,
   lastReport: 0,
+  said: null, // the last caption said ({kind, text}): the browser tests' view of it
+  switching: null, // the language switch under way, and the newest state waiting for it
+  waiting: null,
 };
 
 // ---------------------------------------------------------------- what the server says
@@ -106,11 +109,28 @@ function canWalk() {
 }
 
 /** Make the room what the server's state says, whatever led here: the room's own request, a
- * push about something done elsewhere (Wizard-of-Oz, the console), a reload or a reconnection. */
+ * push about something done elsewhere (Wizard-of-Oz, the console), a reload or a reconnection.
+ * A state in another language waits for that language's words: nothing of it (a caption, the
+ * way out, a banner) is drawn in the previous language first. */
 function applyState(state) {
+  if (state.language && state.language !== language() && !unavailable(state.language)) {
+    room.waiting = state; // the newest state is drawn once the words are here
+    if (!room.switching) {
+      room.switching = switchLanguage(state.language).finally(() => {
+        const waiting = room.waiting;
+        room.switching = null;
+        room.waiting = null;
+        if (waiting) drawState(waiting); // (a network failure: drawn as it is, asked again next time)
+      });
+    }
+    return;
+  }
+  drawState(state);
+}
+
+function drawState(state) {
   const before = room.state;
   room.state = state;
-  if (state.language && state.language !== language()) switchLanguage(state.language);
   if (state.study && room.study && state.study !== room.study) closeRoom(); // another study's room
   if (!room.scene && state.study && !room.loading) loadRoom(); // e.g. a seating we did not hear of
   if ((before && before.participant) !== state.participant) newParticipant();
@@ -258,7 +278,7 @@ function maybePrompt(zone) {
     .catch((error) => {
       room.promptInFlight = null;
       room.refused.set(zone.category, performance.now()); // e.g. the run was ended meanwhile
-      showDetail(error.detail || "");
+      showDetail(serverWords(error.detail));
       refreshState();
     });
 }
@@ -360,7 +380,7 @@ function sendAnswer(pending) {
       room.answering = false;
       if (error.status === 409 || error.status === 404) {
         closeQuestion(); // the run ended before the answer arrived: nothing to record
-        showDetail(error.detail || "");
+        showDetail(serverWords(error.detail));
       } else {
         el("answer").hidden = false;
         showDetail(_("The answer was not taken. Please answer again."));
@@ -392,11 +412,12 @@ function resumeStoredAnswer() {
 
 function say(kind, text, { speak, hint } = {}) {
   el("captions").hidden = false;
-  const speaker = { question: _("Robot"), reply: _("Robot"), robot: _("Robot"), participant: _("You") }[kind];
-  el("caption-speaker").textContent = `${speaker}:`;
+  if (kind === "participant") show(el("caption-speaker"), "You:");
+  else show(el("caption-speaker"), "Robot:");
   el("caption-text").textContent = hint ? `${text} ${hint}` : text;
   el("captions").dataset.kind = kind;
   room.presence.said = { kind, text: text.slice(0, 300) };
+  room.said = { kind, text };
   if (speak) room.voice.say(text);
 }
 
@@ -444,10 +465,11 @@ function render() {
     const s = state.session;
     const session = _("Session %(number)s", { number: s.number });
     const run = state.run ? _("run %(number)s of %(runs)s", { number: state.run.number, runs: s.runs }) : "";
-    label.textContent = s.familiarisation ? _("Practice run (not counted)") : [session, run].filter(Boolean).join(" · ");
+    if (s.familiarisation) show(label, "Practice run (not counted)");
+    else put(label, [session, run].filter(Boolean).join(" · "));
     label.classList.toggle("practice", s.familiarisation);
   } else {
-    label.textContent = _("Escape room");
+    show(label, "Escape room");
     label.classList.remove("practice");
   }
   if (room.layout && room.scene) {
@@ -457,6 +479,8 @@ function render() {
     if (state) hideNotice();
     return;
   }
+  // A card in front of the room: the last reply's caption goes (it would linger under the card).
+  hideCaption();
   const action = state.expected.action;
   if (action === "start_session") {
     const next = state.expected.session;
@@ -466,8 +490,7 @@ function render() {
     const [title, text] = WAITING[action] ? WAITING[action]() : [_("Please wait"), ""];
     showNotice(title, text, { rules: action === "assign" });
   }
-  // The server's hint is for the experimenter, in English: shown to English rooms only.
-  showDetail(language() === "en" ? state.expected.message : "");
+  showDetail(serverWords(state.expected.message));
 }
 
 function zoneState(category) {
@@ -480,8 +503,8 @@ function zoneState(category) {
 
 function showNotice(title, text, { rules = false, form = false, forget = false } = {}) {
   el("notice").hidden = false;
-  el("notice-title").textContent = title;
-  el("notice-text").textContent = text;
+  put(el("notice-title"), title);
+  put(el("notice-text"), text);
   el("rules").hidden = !(rules && el("rules").childElementCount > 0);
   el("key-form").hidden = !form;
   // Not on the participant's cards: one click would close the room for the day.
@@ -489,8 +512,22 @@ function showNotice(title, text, { rules = false, form = false, forget = false }
   if (form) el("key-input").focus();
 }
 
+/** Put ``text``, already in the current language (or staff English), in ``node``: no longer a
+ * marked sentence, so a language switch leaves it (render() draws the participant's anew). */
+function put(node, text) {
+  delete node.dataset.t;
+  delete node.dataset.tValues;
+  node.textContent = text;
+}
+
 function hideNotice() {
   el("notice").hidden = true;
+}
+
+/** The server's own words (a refusal's detail, its hint of what comes next) are English, for the
+ * experimenter: shown to English rooms only, never to a participant in another language. */
+function serverWords(text) {
+  return language() === "en" ? text || "" : "";
 }
 
 function showDetail(text) {
@@ -498,8 +535,11 @@ function showDetail(text) {
 }
 
 function setConnection(status) {
-  const words = { connecting: _("Connecting…"), online: _("Connected"), offline: _("Offline"), closed: _("Closed") };
-  el("connection").textContent = words[status] || status;
+  const badge = el("connection");
+  if (status === "connecting") show(badge, "Connecting…");
+  else if (status === "online") show(badge, "Connected");
+  else if (status === "offline") show(badge, "Offline");
+  else show(badge, "Closed");
   el("connection").dataset.status = status;
   // shown from a lost connection until the next is up (not while the very first one opens)
   el("offline").hidden = !(status === "offline" || (status === "connecting" && room.everOnline));
@@ -508,7 +548,7 @@ function setConnection(status) {
 // ---------------------------------------------------------------- starting, keys and refusals
 
 function askForKey(problem) {
-  showNotice("Open the escape room", "Enter a device key of this station to connect it.", { form: true });
+  showNotice(staff("Open the escape room"), staff("Enter a device key of this station to connect it."), { form: true });
   el("key-error").textContent = problem || "";
 }
 
@@ -524,7 +564,7 @@ function refuse(problem) {
   if (room.listener.close) room.listener.close(); // its socket and the microphone too
   room.listener = NOT_LISTENING;
   el("captions").hidden = true;
-  el("run-label").textContent = "Escape room";
+  show(el("run-label"), "Escape room");
   el("run-label").classList.remove("practice");
   showDetail("");
   setConnection("closed");
@@ -553,15 +593,15 @@ async function loadRoom() {
   // station) while the body was still being read, and its room must not be drawn then.
   if (room.key !== key || room.scene) return; // answered for a key (or a room) no longer in use
   if (response.status === 401) {
-    refuse("The room was closed: this key is unknown or has been revoked. Ask an admin for a new key on the Stations page.");
+    refuse(staff("The room was closed: this key is unknown or has been revoked. Ask an admin for a new key on the Stations page."));
     return;
   }
   if (response.status === 409) {
-    showNotice("No study here yet", "This station runs no study yet: the experimenter seats a participant on its console first.", { forget: true });
+    showNotice(staff("No study here yet"), staff("This station runs no study yet: the experimenter seats a participant on its console first."), { forget: true });
     return; // a participant_assigned push loads it
   }
   if (!response.ok) {
-    showNotice("The room could not be loaded", body.detail || `The server answered ${response.status}.`, { forget: true });
+    showNotice(staff("The room could not be loaded"), body.detail || staff(`The server answered ${response.status}.`), { forget: true });
     setTimeout(loadRoom, 5000);
     return;
   }
@@ -596,7 +636,7 @@ function showRules(rules) {
 }
 
 function speechSettings() {
-  return room.speech || { listen_seconds: 8, reprompt: ASK_AGAIN, cloud_recognizer: false };
+  return room.speech || { listen_seconds: 8, reprompt: ASK_AGAIN(), cloud_recognizer: false };
 }
 
 /** Read the study's [speech] settings and choose how the room listens: the trustlab server's
@@ -655,7 +695,7 @@ function closeRoom() {
 function buildRoom(description) {
   if (room.scene) return;
   if (!webglAvailable()) {
-    showNotice("This browser cannot draw the room", "WebGL is switched off or missing. Use a current Chrome, Edge or Firefox, or the console's Wizard-of-Oz mode.");
+    showNotice(staff("This browser cannot draw the room"), staff("WebGL is switched off or missing. Use a current Chrome, Edge or Firefox, or the console's Wizard-of-Oz mode."));
     return;
   }
   room.layout = description.layout;
@@ -678,7 +718,7 @@ function connect() {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
   room.socket = new StationSocket(`${scheme}://${location.host}/api/v1/station/ws`, room.key, {
     status: setConnection,
-    refused: () => refuse("The room was closed: this device's key was revoked or is unknown. Ask an admin for a new key on the Stations page."),
+    refused: () => refuse(staff("The room was closed: this device's key was revoked or is unknown. Ask an admin for a new key on the Stations page.")),
     hello: (message) => {
       room.everOnline = true;
       if (message.station !== station) {
@@ -686,7 +726,7 @@ function connect() {
         localStorage.removeItem(stores.key);
         room.key = "";
         closeRoom();
-        showNotice("This key is for another station", `It belongs to station ${message.station}: open /stations/${message.station}/room, or enter a key of ${station}.`, { form: true });
+        showNotice(staff("This key is for another station"), staff(`It belongs to station ${message.station}: open /stations/${message.station}/room, or enter a key of ${station}.`), { form: true });
         return;
       }
       if (!room.resumed) {
@@ -707,7 +747,7 @@ function start() {
     askForKey("");
     return;
   }
-  showNotice("Escape room", "Connecting…");
+  showNotice(_("Escape room"), _("Connecting…"));
   loadRoom();
   connect();
 }
@@ -729,8 +769,11 @@ window.addEventListener("keydown", (event) => {
   if (KEYS[event.code]) {
     room.held.add(KEYS[event.code]);
     event.preventDefault();
-  } else if (!event.repeat && (event.code === "KeyY" || event.code === "KeyN")) {
-    answer(event.code === "KeyY" ? "yes" : "no", "key");
+  } else if (!event.repeat && !event.ctrlKey && !event.metaKey && !event.altKey) {
+    // The keys the catalogue names (Y/N, J/N in Swedish and German), whatever the keyboard's layout.
+    const key = event.key.toUpperCase();
+    if (key === answerKey("yes")) answer("yes", "key");
+    else if (key === answerKey("no")) answer("no", "key");
   }
 });
 window.addEventListener("keyup", (event) => {
@@ -771,7 +814,7 @@ el("key-form").addEventListener("submit", (event) => {
   event.preventDefault();
   const key = el("key-input").value.trim();
   if (!key.startsWith("tlk_")) {
-    el("key-error").textContent = "A device key starts with tlk_.";
+    el("key-error").textContent = staff("A device key starts with tlk_.");
     return;
   }
   localStorage.setItem(stores.key, key);
@@ -782,7 +825,7 @@ el("key-form").addEventListener("submit", (event) => {
 });
 
 el("forget-key").addEventListener("click", () => {
-  if (confirm("Forget this device's key? The room closes until a key is entered again.")) refuse("");
+  if (confirm(staff("Forget this device's key? The room closes until a key is entered again."))) refuse("");
 });
 
 async function offerHeadset() {
@@ -793,7 +836,7 @@ async function offerHeadset() {
     el("headset").hidden = false;
     el(button).hidden = false;
     el(button).addEventListener("click", () => {
-      room.scene.enterHeadset(mode, root).catch((error) => showDetail(`The headset session did not start: ${error.message}`));
+      room.scene.enterHeadset(mode, root).catch((error) => showDetail(staff(`The headset session did not start: ${error.message}`)));
     });
   }
 }
@@ -808,6 +851,10 @@ window.trustlabRoom = {
   },
   get question() {
     return room.question ? { ...room.question } : null;
+  },
+  /** The last caption said ({kind, text}), shown or since cleared by a card in front of it. */
+  get said() {
+    return room.said ? { ...room.said } : null;
   },
   get frames() {
     return room.frames;

@@ -15,8 +15,9 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from analysis.exports import codebook_table, long_table, steps_table, wide_table
-from analysis.report import _per_language
+from analysis.exports import codebook_json, codebook_table, long_table, steps_table, wide_table
+from analysis.methods import languages_paragraph, translation_references
+from analysis.report import _per_language, build_report
 from app.db import Database
 from app.errors import Conflict, PermissionDenied
 from app.i18n import catalogues
@@ -28,6 +29,7 @@ from app.services import enrolment, languages, questionnaires, studies, study_da
 from app.services.audit import Actor
 from app.services.sites import Scope
 from app.tables import Role
+from tests import participant_words as words
 from tests.app.test_cli import run as cli_run
 from tests.conftest import (
     EXP3_ONLY,
@@ -133,6 +135,25 @@ def test_a_missing_empty_or_misshapen_translation_is_refused_with_its_key_path()
 def test_languages_that_cannot_be_used_are_refused(languages: str, expected: str) -> None:
     problems = _problems(_swedish_text(**{'languages = ["en", "sv"]': f"languages = {languages}"}))
     assert expected in problems
+
+
+def test_a_translation_says_where_it_comes_from_or_nothing() -> None:
+    """``source`` is the translation's own key (not a text to translate): the shipped Swedish
+    one says it is a working translation; an empty one is refused, a missing one allowed (a
+    study created before the key existed stays valid, and its report says it was not given)."""
+    source = 'source = "Working translation made for trustlab'
+    assert source in _swedish_text()
+    empty = _swedish_text(
+        **{source: 'source = " "\nunused = "Working translation made for trustlab'}
+    )
+    assert "translations.sv.source: must be a non-empty text in 'sv'" in _problems(empty)
+    misspelt = _swedish_text(**{source: 'comment = "Working translation made for trustlab'})
+    assert "translations.sv.comment: not a participant-facing text" in _problems(misspelt)
+    lines = _swedish_text().splitlines()
+    without = "\n".join(line for line in lines if not line.startswith("source ="))
+    protocol = parse_protocol(without).protocol
+    assert protocol.in_language("sv").study.title.startswith("Snabb anpassning")
+    assert languages.translation_summary(protocol)["sv"]["source"] == ""
 
 
 def test_a_translation_of_the_protocols_own_language_is_refused() -> None:
@@ -351,9 +372,12 @@ def test_a_participant_chooses_swedish_and_the_tablet_speaks_it(
     assert page.url.path == "/tablet/wait"
     pages.append(page)
     assert "Vänta på försöksledaren." in page.text
+    swedish_words = words.known_texts("sv", parse_protocol(_swedish_text()).protocol)
     for shown in pages:
         assert 'lang="sv"' in shown.text
         assert _leaks(shown.text, english) == [], shown.url.path
+        # Only Swedish: every word shown is the catalogue's or the protocol's (or a form's).
+        assert words.unexplained(words.fragments(shown.text), swedish_words) == [], shown.url.path
     again = tablet.post("/tablet/language", data={"csrf_token": token[1], "language": "en"})
     assert again.status_code == 409  # chosen once; staff change it after that
     assert "Språket är redan valt." in again.text
@@ -370,6 +394,119 @@ def test_a_participant_chooses_swedish_and_the_tablet_speaks_it(
         stored["consent_sha256"]
         == hashlib.sha256(swedish.questionnaires.consent.text.encode()).hexdigest()
     )
+
+
+# ------------------------------------------------------------- every participant word (class D)
+
+
+def test_every_participant_template_is_declared_and_marks_its_words() -> None:
+    """A new tablet page (or anything a participant route renders, extends or includes) must be
+    a declared participant template, whose words are all marked for translation: a literal word
+    would reach a Swedish participant in English."""
+    found = words.participant_templates()
+    assert {"room.html", "tablet_base.html", "tablet_message.html", "_rules.html"} <= found
+    undeclared = sorted(name for name in found if not words.is_participant_template(name))
+    assert undeclared == [], "add them to app.i18n.extract.PARTICIPANT_TEMPLATES"
+    literal = {name: words.literal_words(name) for name in sorted(found)}
+    assert {name: found for name, found in literal.items() if found} == {}
+
+
+def test_the_template_sweep_finds_a_literal_word_and_an_undeclared_page(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The sweep's own check: a literal word, a literal label, a staff form, and a new page."""
+    base = "<title>{{ t }}</title>{% block content %}{% endblock %}"
+    (tmp_path / "tablet_base.html").write_text(base)
+    (tmp_path / "tablet_new.html").write_text(
+        '{% extends "tablet_base.html" %}{% block content %}<p>{% trans %}Thanks{% endtrans %}'
+        '</p><p>Thank you!</p><button aria-label="Close it">{{ _("x") }}</button>'
+        "<form data-staff><label>Device key</label></form>{% endblock %}"
+    )
+    (tmp_path / "kiosk_start.html").write_text('{% extends "tablet_base.html" %}')
+    monkeypatch.setattr(words, "TEMPLATES", tmp_path)
+    monkeypatch.setattr(words, "PARTICIPANT_ROUTES", ())
+    found = words.participant_templates()
+    assert found == {"tablet_base.html", "tablet_new.html", "kiosk_start.html"}
+    assert not words.is_participant_template("kiosk_start.html")
+    assert words.literal_words("tablet_new.html") == ["Thank you!", "Close it"]
+
+
+def test_every_sentence_of_the_participant_scripts_goes_through_the_catalogue() -> None:
+    """The room's and the tablet's scripts: a sentence is the message of _() or show(), or
+    staff() says it is the operator's English on purpose."""
+    scripts = words.participant_scripts()
+    names = {str(path.relative_to(words.REPO_ROOT)) for path in scripts}
+    assert {"static/js/room.js", "static/js/room/words.js", "static/js/tablet.js"} <= names
+    assert [found for path in sorted(scripts) for found in words.bypassing_sentences(path)] == []
+
+
+def test_the_script_sweep_finds_sentences_that_bypass_the_catalogue(tmp_path: Path) -> None:
+    script = words.REPO_ROOT / "static" / "js" / "room" / "__sweep_check.js"
+    script.write_text(
+        'const a = _("Fine words"); show(el("x"), "Connected"); staff(`Key of ${station}`);\n'
+        'el("b").textContent = "Connected";  // a badge in English\n'
+        'const words = { online: "Online", code: "KeyY" }; const re = /"[a-z]+ [a-z]"/g;\n'
+        'showNotice(_("Welcome"), `Hello ${name}, welcome`); console.warn(`no words for ${x}`);\n'
+    )
+    try:
+        found = words.bypassing_sentences(script)
+    finally:
+        script.unlink()
+    assert [line.split(": ", 1)[1] for line in found] == [
+        "'Connected'",
+        "'Online'",
+        "'Hello x, welcome'",
+    ]
+
+
+def _swedish_tablet(lab: Lab, app: FastAPI, code: str, **body: Any) -> tuple[TestClient, str]:
+    _enrol(lab, code=code, **body)
+    link = lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/{code}/link").json()
+    tablet = TestClient(app)
+    first = tablet.get(f"/t/{link['token']}")
+    token = FORM_TOKEN.search(first.text)
+    assert token, first.text
+    return tablet, token[1]
+
+
+@sqlite_only("rendering only; the pages' SQL is covered by the robot test")
+def test_the_tablets_error_and_choice_pages_speak_only_the_participants_language(
+    swedish_lab: Lab, app: FastAPI, user_client: UserClientFactory
+) -> None:
+    """The tablet's refusals (an unknown page, an expired form, locked answers, a replaced link)
+    in Swedish show Swedish only: the catalogue's sentence, or none but the heading; and the
+    language-choice page asks in every language offered, each in its own words."""
+    lab = swedish_lab
+    protocol = parse_protocol(_swedish_text()).protocol
+    swedish = words.known_texts("sv", protocol)
+    tablet, token = _swedish_tablet(lab, app, "S1", language="sv")
+    unknown = tablet.get("/tablet/nothing-here")
+    assert unknown.status_code == 404 and "Den här sidan finns inte" in unknown.text
+    expired = tablet.post("/tablet/consent", data={"csrf_token": "x", "accept": "yes"})
+    assert expired.status_code == 403
+    admin = user_client(Role.ADMIN)
+    assert admin.post(f"/studies/{lab.study}/participants/S1/lock").status_code == 200
+    locked = tablet.post("/tablet/consent", data={"csrf_token": token, "accept": "yes"})
+    assert locked.status_code == 409 and "Svaren för S1 är låsta" in locked.text
+    lab.experimenter.post(f"/api/v1/studies/{lab.study}/participants/S1/link")  # replaced
+    replaced = tablet.get("/tablet")
+    assert replaced.status_code == 401 and "Den här länken till surfplattan gäller inte" in (
+        replaced.text
+    )
+    for page in (unknown, expired, locked, replaced):
+        assert 'lang="sv"' in page.text and 'class="tablet-page"' in page.text
+        assert words.unexplained(words.fragments(page.text), swedish, also=["S1"]) == [], (
+            page.request.url
+        )
+
+    chooser, _ = _swedish_tablet(lab, app, "S2")
+    choice = chooser.get("/tablet")
+    assert choice.url.path == "/tablet/language"
+    assert '<span lang="sv">Välj ditt språk</span>' in choice.text
+    assert '<span lang="en">Choose your language</span>' in choice.text
+    both = words.known_texts("sv", protocol) + words.known_texts("en", protocol)
+    shown = words.fragments(choice.text)
+    assert words.unexplained(shown, both, also=["Svenska", "English"]) == []
 
 
 # ------------------------------------------------------------------------- the command line
@@ -467,6 +604,29 @@ def test_exports_carry_each_participants_language(swedish_lab: Lab) -> None:
     assert "<h3>Languages</h3>" in counts and ">sv<" in counts and ">en<" in counts
     assert _per_language(dataset.participants[dataset.participants.language == "sv"]) == ""
 
+    # Each item's Swedish wording and the translation's source (issue 48, item 13).
+    swedish = parse_protocol(_swedish_text()).protocol.in_language("sv")
+    tipi = book[(book.file == "wide") & (book.column == "tipi_1")].iloc[0]
+    assert tipi.label_sv == swedish.questionnaires.instruments[2].items[0].text
+    assert (
+        tipi.citation_sv.startswith("Gosling, S. D.") and "Arbetsöversättning" in tipi.citation_sv
+    )
+    assert "Translation: Working translation made for trustlab's example" in tipi.citation_sv
+    assert set(book[book.file == "steps"].label_sv) == {""}  # no wording: not an item
+    described = codebook_json(dataset)
+    assert described["languages"] == ["en", "sv"]
+    assert described["translations"]["sv"]["source"].startswith("Working translation")
+    nars = next(i for i in described["instruments"] if i["name"] == "nars")
+    assert nars["translations"]["sv"]["items"]["nars_1"] == (
+        swedish.questionnaires.instruments[3].items[0].text
+    )
+    methods = languages_paragraph(dataset.protocol)
+    assert "one of two languages: en and sv" in methods
+    assert "sv: Working translation made for trustlab's example protocol" in methods
+    assert any("Arbetsöversättning" in r for r in translation_references(dataset.protocol))
+    report = build_report(dataset)
+    assert html.escape(methods) in report and "[sv]</li>" in report
+
 
 @sqlite_only("the page's form and refusals; the service's SQL is tested above")
 def test_staff_change_the_language_on_the_participant_page(
@@ -496,3 +656,35 @@ def test_the_console_shows_the_seated_participants_language(swedish_lab: Lab) ->
     console = swedish_lab.experimenter.get(f"/stations/{swedish_lab.station}")
     assert console.status_code == 200
     assert 'class="console-language"' in console.text and ">sv</span>" in console.text
+
+
+@sqlite_only("rendering only; the step SQL is covered by the robot test")
+def test_staff_read_the_protocols_language_beside_a_participants_translated_words(
+    swedish_lab: Lab,
+) -> None:
+    """The console's "Next:" line names instruments in the protocol's own language (an English
+    sentence with Swedish titles in it helps nobody), and a question asked in Swedish has its
+    English beside it on the console and in the participant's timeline (issue 48, item 14)."""
+    lab = swedish_lab
+    _enrol(lab, code="S1", language="sv")
+    _seat(lab, "S1")
+    tablet = tablet_client(lab.app, lab, "S1")
+    assert tablet.post("/api/v1/tablet/consent", json={"accept": True}).status_code == 200
+    console = lab.experimenter.get(f"/stations/{lab.station}")
+    expected = re.search(r"<strong>Next:</strong> ([^<]*)</p>", console.text)
+    assert expected, console.text
+    assert html.unescape(expected[1]) == (
+        "waiting for S1 to fill in on the tablet: About you, Your experience, "
+        "Ten-Item Personality Inventory, Attitudes towards robots"
+    )
+    fill_pre_study(tablet)
+    lab.start_session()
+    prompt = lab.prompt("cognition")
+    english = parse_protocol(_swedish_text()).protocol.category("cognition").questions
+    gloss = f'<span class="gloss muted">({english[int(str(prompt["action"]))]})</span>'
+    asked = lab.experimenter.get(f"/stations/{lab.station}").text
+    assert f"“{prompt['question']}”</strong> {gloss}" in asked  # the Wizard-of-Oz card
+    assert f"Robot: “{prompt['question']}” {gloss}" in asked  # the last step
+    lab.answer(prompt["step_id"], "yes")
+    record = lab.experimenter.get(f"/studies/{lab.study}/participants/S1").text
+    assert f"{prompt['question']} {gloss.replace('muted', 'muted small')}</td>" in record

@@ -250,11 +250,11 @@ def answer_by_rules(page: Page, category: str, question: str, *, how: str = "key
 
 
 def wait_reply(page: Page, *, timeout: float | None = None) -> None:
-    """Until the question is closed and the robot's reply to its answer is shown (the answer is
-    stored by then: the server replies after it commits)."""
+    """Until the question is closed and the robot's reply to its answer is said (the answer is
+    stored by then: the server replies after it commits). Its caption may be gone already: the
+    card that follows a session's last answer clears it."""
     page.wait_for_function(
-        "() => !window.trustlabRoom.question && "
-        "document.getElementById('captions').dataset.kind === 'reply'",
+        "() => !window.trustlabRoom.question && (window.trustlabRoom.said || {}).kind === 'reply'",
         timeout=timeout,
     )
 

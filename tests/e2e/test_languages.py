@@ -19,6 +19,7 @@ from app.protocol import parse_protocol
 from app.services import enrolment, stations, studies, tablet_tokens
 from app.services.audit import Actor
 from app.tables import Answer, Prompt, Role
+from tests import participant_words as words
 from tests.conftest import EXP3_ONLY, PASSWORD, PRE_STUDY_ANSWERS, make_user
 from tests.e2e import room_driver as drive
 from tests.e2e.conftest import SECRET
@@ -68,6 +69,20 @@ def _fill_pre_study(page: Page, english: set[str]) -> None:
                 field.fill(value)
         page.get_by_role("button", name="Fortsätt").click()
         page.wait_for_url(lambda url, before=instrument: not url.endswith(before))
+
+
+def _only_swedish(page: Page, known: list[str], where: str) -> None:
+    """Every word the room shows, in its tab title, labels and key hints, is the Swedish
+    catalogue's or the protocol's Swedish (or the station's name)."""
+    shown = page.evaluate(
+        """() => [document.title, ...document.body.innerText.split("\\n"),
+             ...[...document.querySelectorAll("[aria-label], [aria-keyshortcuts]")]
+               .filter((el) => el.checkVisibility())
+               .flatMap((el) => ["aria-label", "aria-keyshortcuts"].map((a) => el.getAttribute(a)))
+               .filter(Boolean)]"""
+    )
+    left = words.unexplained(shown, known, also=["rum-1"])
+    assert left == [], f"{where}: not Swedish: {left}"
 
 
 @pytest.mark.e2e
@@ -128,6 +143,10 @@ def test_a_swedish_participant_on_the_tablet_and_in_the_room(
     expect(room.locator("html")).to_have_attribute("lang", "sv")
     expect(room.locator("#notice")).to_contain_text("Först kommer en övningsrunda")
     expect(room.locator("#rules")).to_contain_text("Ditt mål är att ta dig ut ur rummet.")
+    # Drawn before the Swedish words arrived, and said again once they did (issue 48, item 12).
+    expect(room.locator("#connection")).to_have_text("Ansluten")
+    swedish_words = words.known_texts("sv", parse_protocol(protocol_text).protocol)
+    _only_swedish(room, swedish_words, "the room before the session")
 
     make_user(database, "e2e-admin", Role.ADMIN)
     staff = httpx.Client(base_url=live_server.url, timeout=30)
@@ -141,13 +160,28 @@ def test_a_swedish_participant_on_the_tablet_and_in_the_room(
     assert question.startswith("Här är nycklarna.")
     expect(room.locator("#caption-text")).to_have_text(question)
     expect(room.locator("#caption-speaker")).to_have_text("Robot:")
-    room.get_by_role("button", name="Ja").click()
+    # The answer keys are the catalogue's: J and N in Swedish, on the buttons and the keyboard.
+    expect(room.locator("#answer-yes kbd")).to_have_text("J")
+    expect(room.get_by_role("button", name="Ja")).to_have_attribute("aria-keyshortcuts", "J")
+    room.reload()  # the question again, with every word drawn after a reload in Swedish too
+    room.wait_for_function("() => window.trustlabRoom && window.trustlabRoom.ready")
+    expect(room.locator("#caption-text")).to_have_text(question)
+    expect(room.locator("#caption-speaker")).to_have_attribute("data-t", "Robot:")
+    expect(room.locator("#connection")).to_have_text("Ansluten")
+    _only_swedish(room, swedish_words, "the room asking")
+    room.keyboard.press("KeyJ")
     expect(room.locator("#captions")).to_have_attribute("data-kind", "reply")
     swedish = parse_protocol(protocol_text).protocol.in_language("sv")
     replies = {level.line(True) for level in swedish.replies.levels}
     assert room.locator("#caption-text").inner_text() in replies
     room.screenshot(path=str(artifacts / "03-room.png"))
     _no_english(room, english, "room")
+    _only_swedish(room, swedish_words, "the room replying")
+    with database.read_session() as db:
+        keyed = db.scalars(
+            select(Answer).join(Prompt).where(Prompt.id == prompted.json()["step_id"])
+        )
+        assert [(a.answer, a.modality) for a in keyed] == [(True, "key")]
 
     # Answered aloud in Swedish: the protocol's Swedish phrases are what the recogniser listens for.
     room.evaluate("() => { window.__heard.push(['Ja, absolut.', 0.9]); }")

@@ -185,6 +185,7 @@ def test_a_participant_walks_through_a_session(
     expect(page.locator("#run-label")).to_have_text("Session 1 · run 1 of 2")
     assert drive.run_through(page, drive.AFFECTION_FIRST) == ["affection", "conation", "cognition"]
     expect(page.locator("#notice")).to_contain_text("Please use the tablet")  # the gate holds
+    expect(page.locator("#captions")).to_be_hidden()  # no reply lingers under the card
     page.screenshot(path=str(artifacts / "04-session-done.png"))
 
     steps = _steps(database, lab.code)
@@ -364,7 +365,9 @@ def test_a_session_finished_from_the_console_shows_what_comes_next_also_after_a_
     _wizard_run(page, lab, CATEGORIES)
     expect(page.locator("#notice")).to_contain_text("Session 1 comes next")
     expect(page.locator("#run-label")).to_have_text("Escape room")
-    expect(page.locator("#captions")).not_to_have_attribute("data-kind", "question")
+    # The last reply was said, and its caption does not linger under the card (issue 48, item 2).
+    page.wait_for_function("() => (window.trustlabRoom.said || {}).kind === 'reply'")
+    expect(page.locator("#captions")).to_be_hidden()
     assert not _walkable(page)
     page.screenshot(path=str(artifacts / "01-finished-by-wizard.png"))
 
