@@ -87,7 +87,9 @@ def _admin_reads(study: str, station: str, username: str) -> list[str]:
             paths += [path.format(name=study, export=export) for export in EXPORT_FORMATS]
             continue
         name = station if path.startswith(("/stations", "/api/v1/stations")) else study
-        paths.append(path.format(name=name, code="P001", username=username, language="sv"))
+        paths.append(
+            path.format(name=name, code="P001", username=username, language="sv", device_id=1)
+        )
     return paths
 
 
