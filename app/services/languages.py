@@ -15,8 +15,9 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n.languages import UnknownLanguage, check_code
 from app.protocol import Protocol
-from app.services import audit
+from app.services import audit, participant_changes
 from app.services.audit import Actor
+from app.services.participant_changes import Change
 from app.tables import Participant, ParticipantStatus, Role, StudySession
 
 
@@ -97,5 +98,7 @@ def set_language(
         subject=participant.code,
         details={"from": previous, "to": language, **({"override": reason} if reason else {})},
     )
+    # the tablet and the room now speak it; the console and the study's pages show it
+    participant_changes.participant_changed(db, participant, Change.LANGUAGE)
     db.commit()
     return participant
