@@ -95,7 +95,10 @@
     });
     // A change that happened before the stream was listening sends no event: once it is
     // listening, ask where the server would send this tablet now, and go there if it moved on.
-    source.addEventListener("open", followIfMoved);
+    source.addEventListener("open", () => {
+      document.body.dataset.listening = "yes"; // for people and tests: changes will reach it
+      followIfMoved();
+    });
     // Belt and braces: look again once a minute even if the event stream is down.
     timer = setInterval(() => (onForm ? followIfMoved() : go("/tablet")), 60000);
   }
