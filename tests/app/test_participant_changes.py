@@ -20,6 +20,7 @@ from datetime import timedelta
 from importlib import resources
 
 import pytest
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app import events
@@ -40,9 +41,9 @@ from app.services import (
 from app.services.audit import Actor
 from app.services.participant_changes import Change
 from app.settings import REPO_ROOT
-from app.tables import Participant, StudyStatus, utcnow
+from app.tables import AuditEvent, Participant, StudyStatus, utcnow
 from app.tablet import resolve
-from tests.conftest import EXP3_ONLY
+from tests.conftest import EXP3_ONLY, Lab
 
 SYSTEM = Actor.system("lifecycle")
 SECRET = b"participant-changes-test-secret"
@@ -338,3 +339,34 @@ def test_a_change_reaches_every_view_of_the_participant(
     assert all("site" in e.data for e in announcing)  # app.services.sites.reaches
     if change in (Change.ERASED, Change.ANONYMISED):  # the code is what they removed
         assert all(CODE not in str(e.data) for e in announcing), announcing
+
+
+def test_a_withdrawal_mid_session_ends_it_and_the_station_shows_it(lab: Lab) -> None:
+    """The room and the robots stop offering the session of someone who withdrew: it ends early
+    with the withdrawal (audited with it); they stay seated, so an answer acknowledged before
+    still replays, and the console offers to free the station."""
+    code = lab.enrol_and_assign()
+    lab.start_session()
+    step = lab.prompt("conation")
+    answered = {"answer": "yes", "idempotency_key": "before-withdrawal"}
+    first = lab.robot.post(f"/api/v1/station/steps/{step['step_id']}/answer", json=answered)
+    assert first.status_code == 200, first.text
+
+    withdrawn = lab.experimenter.post(
+        f"/api/v1/studies/{lab.study}/participants/{code}/withdraw", json={}
+    )
+    assert withdrawn.status_code == 200, withdrawn.text
+
+    state = lab.robot.get("/api/v1/station").json()
+    assert state["participant"] == code and state["expected"]["action"] == "none"
+    assert state["session"]["status"] == "ended_early"
+    assert state["run"]["status"] == "ended_early"
+    replay = lab.robot.post(f"/api/v1/station/steps/{step['step_id']}/answer", json=answered)
+    assert replay.status_code == 200 and replay.json()["reply"] == first.json()["reply"]
+    with lab.database.read_session() as db:
+        audited = db.scalars(
+            select(AuditEvent).where(AuditEvent.action == "participant.withdrawn")
+        ).one()
+    assert audited.details["session_ended_early"] == state["session"]["number"]
+    console = lab.experimenter.get(f"/stations/{lab.station}")
+    assert "Free the station" in console.text and "End session early" not in console.text
