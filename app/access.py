@@ -59,6 +59,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/t/{token}"): EVERYONE,
     ("GET", "/k/{token}"): EVERYONE,
     ("GET", "/stations/{name}/room"): EVERYONE,  # a shell: the device key typed into it is the key
+    ("GET", "/tablet/left"): EVERYONE,  # an erased participant's thank-you page: names nobody
     ("GET", "/api/v1/languages/{language}/words"): EVERYONE,  # interface sentences only
     # signed-in people
     ("POST", "/logout"): USERS,

@@ -21,14 +21,26 @@ from app.errors import Conflict, InvalidInput
 from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
 from app.protocol import SITE_FACTOR, AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
-from app.services import audit, blinding, languages, learners, sites
+from app.services import (
+    audit,
+    blinding,
+    languages,
+    learners,
+    participant_changes,
+    sites,
+    step_store,
+)
 from app.services.audit import Actor
+from app.services.participant_changes import Change
 from app.services.studies import enrolment_counts, get_study, protocol_of
+from app.sql import Cursor
 from app.tables import (
     Allocation,
     LearnerState,
     Participant,
     ParticipantStatus,
+    RunStatus,
+    SessionStatus,
     Study,
     StudyStatus,
     utcnow,
@@ -286,6 +298,7 @@ def enroll_participant(
             "replaces_participant_id": allocation.replaces_participant_id,
         },
     )
+    participant_changes.participant_changed(db, participant, Change.ENROLLED)
     try:
         db.commit()
     except IntegrityError as exc:
@@ -341,7 +354,12 @@ def withdraw_participant(
     db: Session, *, study_name: str, code: str, actor: Actor, reason: str = ""
 ) -> Participant:
     """Mark a participant withdrawn (they keep their allocation and data); commits. Refused
-    when the protocol erases everyone who withdraws (app.services.erasure does that)."""
+    when the protocol erases everyone who withdraws (app.services.erasure does that).
+
+    A session of theirs still running ends early with the withdrawal: the room stops offering
+    its zones and the console its run buttons. They stay seated, so that a robot retrying an
+    answer acknowledged before the withdrawal still gets its stored reply and a kiosk tablet
+    shows them the thank-you page; the console then offers to free the station."""
     study = get_study(db, study_name)
     require_withdrawal_option(study, KEEP)
     participant = get_participant(db, study, code, actor=actor, for_update=True)
@@ -350,16 +368,35 @@ def withdraw_participant(
     participant.status = ParticipantStatus.WITHDRAWN
     participant.withdrawn_at = utcnow()
     participant.withdrawal_reason = reason.strip()[:2000]
+    ended = _end_running_session(db, participant, actor)
     audit.record(
         db,
         actor=actor,
         action="participant.withdrawn",
         study_id=study.id,
         subject=code,
-        details={"reason": participant.withdrawal_reason},
+        details={"reason": participant.withdrawal_reason}
+        | ({"session_ended_early": ended} if ended is not None else {}),
     )
+    participant_changes.participant_changed(db, participant, Change.WITHDRAWN)
     db.commit()
     return participant
+
+
+def _end_running_session(db: Session, participant: Participant, actor: Actor) -> int | None:
+    """End the participant's running session (and its run) early, as the console's "End session
+    early" does; its number, or None when none was running. The caller holds the participant's
+    row lock, which serialises this with their prompts and answers (app.services.runtime)."""
+    cursor = Cursor.of(db)
+    run = step_store.latest_run(cursor, participant_id=participant.id)
+    if run is None or run.session_status != SessionStatus.RUNNING:
+        return None
+    if run.run_status == RunStatus.RUNNING:
+        step_store.close_run(cursor, run_id=run.run_id, status=RunStatus.ENDED_EARLY)
+    step_store.close_session(
+        cursor, session_id=run.session_id, status=SessionStatus.ENDED_EARLY, actor=actor.name
+    )
+    return run.session_number
 
 
 def list_participants(db: Session, study: Study, *, actor: Actor) -> list[Participant]:

@@ -41,13 +41,12 @@ from typing import Any
 from sqlalchemy import ColumnElement, String, cast, delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
-from app import events
 from app.db import WalCheckpointer
 from app.errors import Conflict, InvalidInput, NotFound
-from app.services import audit, learner_cache, personal_data, pseudonyms, sites
+from app.services import audit, learner_cache, participant_changes, personal_data, pseudonyms, sites
 from app.services.audit import Actor
 from app.services.enrolment import ERASE, get_participant, require_withdrawal_option
-from app.services.stations import study_topic
+from app.services.participant_changes import Change
 from app.services.studies import get_study
 from app.tables import (
     AuditEvent,
@@ -178,6 +177,7 @@ def erase_participant(
     now = utcnow()
     pseudonym = free_erased_code(db, secret, study, code)
     earlier_copies = list(_earlier_copies(db, study, participant, code))
+    seat = seat_of(db, participant)
     with opened_guards(db, study, [participant]):
         removed = erase(db, study, participant, now=now, pseudonym=pseudonym)
     audit.record(
@@ -188,12 +188,9 @@ def erase_participant(
         subject=pseudonym,
         details={"removed": removed, "reason_given": bool(reason.strip())},
     )
-    events.publish(
-        db,
-        topics=[study_topic(study.id)],
-        type="participant_erased",
-        site=sites.event_site(participant),
-    )
+    # The console and the room of the station they sat at, and their tablet, learn it too: the
+    # tablet shows its thank-you page before its link stops working (static/js/tablet.js).
+    participant_changes.participant_changed(db, participant, Change.ERASED, station=seat)
     db.commit()
     after_erasures(db)
     return Erasure(
@@ -203,6 +200,11 @@ def erase_participant(
         removed=removed,
         earlier_copies=earlier_copies,
     )
+
+
+def seat_of(db: Session, participant: Participant) -> Station | None:
+    """The station the participant sits at (erasure frees it: its views are told after)."""
+    return db.scalar(select(Station).where(Station.participant_id == participant.id))
 
 
 @contextmanager

@@ -18,8 +18,9 @@ from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n import protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
 from app.protocol import Protocol
-from app.services import audit
+from app.services import audit, participant_changes
 from app.services.audit import Actor
+from app.services.participant_changes import Change
 from app.tables import Participant, ParticipantStatus, Role, StudySession
 
 
@@ -133,5 +134,7 @@ def set_language(
         subject=participant.code,
         details={"from": previous, "to": language, **({"override": reason} if reason else {})},
     )
+    # the tablet and the room now speak it; the console and the study's pages show it
+    participant_changes.participant_changed(db, participant, Change.LANGUAGE)
     db.commit()
     return participant

@@ -34,8 +34,9 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.i18n.catalogues import Message
 from app.protocol import InstrumentSpec, ItemKind, ItemSpec, Protocol
-from app.services import audit, consent, languages, sites
+from app.services import audit, consent, languages, participant_changes, sites
 from app.services.audit import Actor
+from app.services.participant_changes import Change
 from app.services.stations import participant_topic, station_topic, study_topic
 from app.tables import (
     ConsentRecord,
@@ -603,7 +604,10 @@ def accept_consent(
         | {"consent_version": text.number}
         | ({"previous_version": where.consent_accepted} if again else {}),
     )
-    _publish(db, participant, station, CONSENT, None)
+    if again:  # a change of the participant's standing: every view of them learns it
+        participant_changes.participant_changed(db, participant, Change.RECONSENTED)
+    else:
+        _publish(db, participant, station, CONSENT, None)
     where.done.add((CONSENT, None))
     where.consent_accepted = where.consent_current = text.number
     page = page_for(participant, protocol, where)
@@ -624,7 +628,7 @@ def decline_consent(
     Nothing else changes: staff see the refusal and may withdraw them (trustlab does not), and
     the participant may still accept later. Only a participant who accepted an earlier version
     can decline a later one; the first consent is given or not given, not declined."""
-    participant, station = _as_now(db, participant)
+    participant, _ = _as_now(db, participant)
     _refuse_if_locked(participant)
     where = progress(db, participant)
     if not where.consent_outdated:
@@ -651,7 +655,7 @@ def decline_consent(
             "accepted_version": where.consent_accepted,
         },
     )
-    _publish(db, participant, station, CONSENT, None)
+    participant_changes.participant_changed(db, participant, Change.CONSENT_DECLINED)
     page = page_for(participant, protocol, where)
     db.commit()
     return page
@@ -721,6 +725,8 @@ def set_locked(db: Session, *, participant: Participant, locked: bool, actor: Ac
         study_id=participant.study_id,
         subject=participant.code,
     )
+    change = Change.LOCKED if locked else Change.UNLOCKED
+    participant_changes.participant_changed(db, participant, change)
     db.commit()
 
 

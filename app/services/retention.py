@@ -29,13 +29,12 @@ from datetime import datetime
 from sqlalchemy import Executable, and_, delete, or_, select, update
 from sqlalchemy.orm import Session
 
-from app import events
 from app.errors import InvalidInput
 from app.protocol import ItemKind, Protocol
-from app.services import audit, erasure, personal_data
+from app.services import audit, erasure, participant_changes, personal_data
 from app.services.audit import Actor
+from app.services.participant_changes import Change
 from app.services.personal_data import Anonymised
-from app.services.stations import study_topic
 from app.services.studies import get_study, list_studies, protocol_of
 from app.tables import (
     Participant,
@@ -168,13 +167,18 @@ def _apply(
     done: dict[str, int] = {}
     with erasure.opened_guards(db, study, participants):
         for participant in participants:
+            seat = erasure.seat_of(db, participant)
             if then == "erase":
                 pseudonym = erasure.free_erased_code(db, secret, study, participant.code)
                 removed = erasure.erase(db, study, participant, now=now, pseudonym=pseudonym)
+                change = Change.ERASED
             else:
                 removed = _anonymise(db, study, protocol, participant, now=now)
+                change = Change.ANONYMISED
             for table, n in removed.items():
                 done[table] = done.get(table, 0) + n
+            # every view of each participant (the study's pages, a tablet, a station) learns it
+            participant_changes.participant_changed(db, participant, change, station=seat)
     audit.record(
         db,
         actor=actor,
@@ -182,14 +186,6 @@ def _apply(
         study_id=study.id,
         subject=study.name,
         details={"participants": len(participants), "rows": done},
-    )
-    # The study's live pages only redraw; the type still names what happened.
-    events.publish(
-        db,
-        topics=[study_topic(study.id)],
-        type="participant_erased" if then == "erase" else "participants_anonymised",
-        # Heard by the accounts limited to these participants' sites (app.services.sites).
-        site=sorted({p.site for p in participants if p.site is not None}),
     )
     return {"participants": len(participants), **done}
 

@@ -19,18 +19,14 @@ from sqlalchemy.orm import Session
 
 from app import events
 from app.services import sites
-from app.services.stations import station_topic_of
+from app.services.topics import room_topic_of as room_topic_of
+from app.services.topics import station_topic_of
 from app.tables import RoomPresence, Station, utcnow
 
 PRESENCE_CHANGED = "room_presence"
 ZONE_ENTERED = "zone_entered"
 """Pushed to the station's robots when the participant steps into a trigger zone: a robot bridge
 whose trigger is the room's presence asks that zone's category then."""
-
-
-def room_topic_of(station_id: int) -> str:
-    """The event topic of a station's room (the operator console's room panel listens to it)."""
-    return f"room:{station_id}"
 
 
 @dataclass(frozen=True)

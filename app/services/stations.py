@@ -19,8 +19,12 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
 from app.inputs import STATION_NAME
 from app.security import new_token, token_digest
-from app.services import audit, sites, step_store
+from app.services import audit, participant_changes, sites, step_store
 from app.services.audit import Actor
+from app.services.participant_changes import Change
+from app.services.topics import participant_topic as participant_topic
+from app.services.topics import station_topic_of as station_topic_of
+from app.services.topics import study_topic as study_topic
 from app.sql import Cursor
 from app.tables import (
     Device,
@@ -52,21 +56,6 @@ that passes the first check is never turned away by the second."""
 def station_topic(station: Station) -> str:
     """The event topic of a station (robot WebSockets and operator consoles listen to it)."""
     return station_topic_of(station.id)
-
-
-def station_topic_of(station_id: int) -> str:
-    """The event topic of the station with this id."""
-    return f"station:{station_id}"
-
-
-def study_topic(study_id: int) -> str:
-    """The event topic of a study (live dashboards listen to it)."""
-    return f"study:{study_id}"
-
-
-def participant_topic(participant_id: int) -> str:
-    """The event topic of a participant (their tablet listens to it)."""
-    return f"participant:{participant_id}"
 
 
 def get_station(db: Session, name: str, *, for_update: bool = False) -> Station:
@@ -282,6 +271,7 @@ def assign_participant(
         raise Conflict(f"participant {participant.code!r} has withdrawn")
     if station.participant_id == participant.id:
         return station
+    current = None
     if station.participant_id is not None:
         current = db.get(Participant, station.participant_id)
         if current is not None and _running_session(db, current.id) is not None:
@@ -298,35 +288,34 @@ def assign_participant(
         elsewhere.participant_id = None
         elsewhere.assigned_at = None
         db.flush()
+        # the views of the station they leave, and theirs, learn it too
+        participant_changes.participant_changed(db, participant, Change.UNSEATED, station=elsewhere)
     station.participant_id = participant.id
+    db.flush()
+    if current is not None:  # whoever sat here is unseated by this seating: their views learn it
+        participant_changes.participant_changed(db, current, Change.UNSEATED, station=station)
     station.assigned_at = utcnow()
     if tie_untied_to is not None and station.study_id is None:
         _tie(db, station, tie_untied_to, actor)
-    _seating_changed(db, station, participant, actor, "assigned")
+    _seating_changed(db, station, participant, actor, Change.SEATED)
     db.commit()
     return station
 
 
 def _seating_changed(
-    db: Session, station: Station, participant: Participant, actor: Actor, change: str
+    db: Session, station: Station, participant: Participant, actor: Actor, change: Change
 ) -> None:
-    """Audit a seating change and tell the station's and the study's pages (before commit)."""
+    """Audit a seating change and tell every view of the participant and of the station
+    (before commit)."""
     audit.record(
         db,
         actor=actor,
-        action=f"station.{change}",
+        action=f"station.{change.value}",
         study_id=participant.study_id,
         subject=participant.code,
         details={"station": station.name},
     )
-    events.publish(
-        db,
-        topics=[station_topic(station), study_topic(participant.study_id)],
-        type=f"participant_{change}",
-        station=station.name,
-        participant=participant.code,
-        site=sites.event_site(participant),
-    )
+    participant_changes.participant_changed(db, participant, change, station=station)
 
 
 def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
@@ -340,7 +329,7 @@ def unassign(db: Session, *, station_name: str, actor: Actor) -> Station:
         raise Conflict(f"{participant.code!r} is in a session: end it before freeing the station")
     station.participant_id = None
     station.assigned_at = None
-    _seating_changed(db, station, participant, actor, "unassigned")
+    _seating_changed(db, station, participant, actor, Change.UNSEATED)
     db.commit()
     return station
 

@@ -30,7 +30,7 @@ from app.services.sites import Scope
 from app.tables import ActorKind
 from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
 from app.web.streams import event_stream
-from app.web.templating import render
+from app.web.templating import render, tablet_catalogue
 
 router = OneHopRouter(tags=["tablet"], include_in_schema=False)
 
@@ -79,6 +79,10 @@ def _context(request: Request, tablet: Tablet, settings: SettingsDep) -> dict[st
         "form_token": form_token(settings.secret, tablet.credential),
         "study_title": tablet.protocol.study.title,
         "catalogue": _catalogue(tablet),
+        # Every page of a participant listens for their changes (static/js/tablet.js): a
+        # withdrawal moves even the consent page on. The withdrawn page does not: nothing
+        # after it is for them, and it must not reload into a link their erasure ended.
+        "tablet_events": True,
     }
 
 
@@ -413,7 +417,30 @@ def choose(db: SessionDep, tablet: Tablet, language: str) -> None:
 
 router.get("/tablet/wait")(_simple_page("wait", "tablet_wait.html"))
 router.get("/tablet/done")(_simple_page("done", "tablet_done.html"))
-router.get("/tablet/withdrawn")(_simple_page("withdrawn", "tablet_withdrawn.html"))
+
+
+@router.get("/tablet/withdrawn")
+def withdrawn_page(
+    request: Request, db: SessionDep, tablet: CookieTablet, settings: SettingsDep
+) -> Response:
+    """The withdrawn page: thanks, and the tablet goes back to the experimenter."""
+    current = _current_or_redirect(db, tablet, "withdrawn")
+    if isinstance(current, Response):
+        return current
+    context = {**_context(request, tablet, settings), "tablet_events": False}
+    return _no_store(render(request, "tablet_withdrawn.html", context))
+
+
+@router.get("/tablet/left")
+def left_page(request: Request) -> Response:
+    """The same thanks for a participant whose data was erased, whose link died with it.
+
+    Their tablet comes here when the erasure's event reaches it (static/js/tablet.js), so the
+    server keeps nothing of theirs to show it: the page needs no link, names nobody, and is in
+    the language this browser last showed a participant page in (app.web.templating). Keeping
+    the link's hash and language on the erased row instead would keep what erasure removes."""
+    context = {"catalogue": tablet_catalogue(request), "study_title": ""}
+    return _no_store(render(request, "tablet_withdrawn.html", context))
 
 
 @router.get("/tablet/events")

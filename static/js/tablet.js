@@ -49,21 +49,57 @@
 
   const stream = document.body.dataset.events;
   if (stream) {
+    // Participant changes the page acts on by name (app/services/participant_changes.py): an
+    // erasure ends the tablet's link, so the tablet says its thanks on a page that needs none,
+    // in the language it shows; an anonymisation ends it too, and the page shown stays right.
+    const ERASED = "participant_erased";
+    const ANONYMISED = "participant_anonymised";
+    // On a page with a form, only a change of the participant (or of the consent text) reloads
+    // it: typed answers are kept as drafts, but a reload on every event of a kiosk's station
+    // would take the participant's place in the page away. Other events move it only when the
+    // server would now show another page.
+    const onForm = Boolean(document.querySelector("main form"));
     const source = new EventSource(stream);
-    source.addEventListener("changed", () => window.location.replace("/tablet"));
-    // A change that happened before the stream was listening sends no event: once it is
-    // listening, ask where the server would send this tablet now, and go there if it moved on.
-    source.addEventListener("open", async () => {
+    let leaving = false;
+    let timer = null;
+    const stop = () => {
+      leaving = true;
+      source.close();
+      clearInterval(timer);
+    };
+    const go = (path) => {
+      if (leaving) return;
+      stop();
+      window.location.replace(path);
+    };
+    // Where the server would send this tablet now: go there if it moved on.
+    const followIfMoved = async () => {
       try {
         const now = await fetch("/tablet", { credentials: "same-origin" });
-        if (new URL(now.url).pathname !== window.location.pathname) {
-          window.location.replace("/tablet");
-        }
+        if (new URL(now.url).pathname !== window.location.pathname) go("/tablet");
       } catch (error) {
-        // the interval below looks again
+        // the next event, or the interval below, looks again
       }
+    };
+    source.addEventListener("changed", (event) => {
+      let types = [];
+      try {
+        types = JSON.parse(event.data).types || [];
+      } catch (error) {
+        // an event without its types: treated as any change
+      }
+      if (types.includes(ERASED)) go("/tablet/left");
+      else if (types.includes(ANONYMISED)) stop();
+      else if (!onForm || types.some((type) => type.startsWith("participant_") || type === "consent_changed")) go("/tablet");
+      else followIfMoved();
+    });
+    // A change that happened before the stream was listening sends no event: once it is
+    // listening, ask where the server would send this tablet now, and go there if it moved on.
+    source.addEventListener("open", () => {
+      document.body.dataset.listening = "yes"; // for people and tests: changes will reach it
+      followIfMoved();
     });
     // Belt and braces: look again once a minute even if the event stream is down.
-    setInterval(() => window.location.replace("/tablet"), 60000);
+    timer = setInterval(() => (onForm ? followIfMoved() : go("/tablet")), 60000);
   }
 })();

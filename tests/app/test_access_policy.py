@@ -315,6 +315,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/tablet/wait"): get("/tablet/wait"),
     ("GET", "/tablet/done"): get("/tablet/done"),
     ("GET", "/tablet/withdrawn"): get("/tablet/withdrawn"),
+    ("GET", "/tablet/left"): get("/tablet/left"),
     ("GET", "/tablet/events"): stream("/tablet/events"),
 }
 OWNERSHIP_CHECKED = {("POST", "/api/v1/station/steps/{step_id}/answer")}

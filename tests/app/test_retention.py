@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 from sqlalchemy import func, select
 
+from app import events as live_events
 from app.protocol import ProtocolError, parse_protocol
 from app.services import retention, studies, verify
 from app.services.audit import Actor
@@ -46,15 +47,16 @@ def _close(lab: Lab) -> datetime:
 
 @pytest.fixture
 def published(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """The types of the events published from now on (retention's: for the study's live pages)."""
+    """The types of the events published from now on (retention's: one per participant, for
+    every view of them, app.services.participant_changes)."""
     types: list[str] = []
-    publish = retention.events.publish
+    publish = live_events.publish
 
     def recording(*args: Any, **kwargs: Any) -> None:
         types.append(kwargs["type"])
         publish(*args, **kwargs)
 
-    monkeypatch.setattr(retention.events, "publish", recording)
+    monkeypatch.setattr(live_events, "publish", recording)
     return types
 
 
@@ -92,7 +94,7 @@ def test_anonymising_when_due_leaves_analysable_data_and_nothing_that_links_it(
 
     assert done.done["participants"] == 2 and done.done["transcript"] == 6
     assert done.done["room_presence"] == 1  # ANON-ME-2's, though they sit at no station now
-    assert published == ["participants_anonymised"]  # nobody was erased
+    assert published == ["participant_anonymised"] * 2  # nobody was erased
     content = dump_database(lab.database, lab.app.state.database)
     for code in ("ANON-ME-1", "ANON-ME-2"):
         assert mentions(content, code) == [], code
