@@ -219,6 +219,8 @@ MARKED = re.compile(
     # The socket's own words (a close reason, a refusal's detail): the room shows them to
     # English rooms only (serverWords in static/js/room.js), as it does the server's.
     r"|\.close\(\s*\d+\s*,\s*$|\b(?:reason|detail)(?:\s*:|\s*\|\|)\s*$"
+    # A CSS selector ("main form"): words for the browser, not for a person.
+    r"|\b(?:querySelector(?:All)?|closest|matches)\(\s*$"
 )
 
 TECHNICAL = {"Bearer x"}
