@@ -26,13 +26,22 @@ def register(cli: typer.Typer) -> None:
 
 
 @station_cli.command("create")
-def station_create(name: Annotated[str, typer.Argument(help="e.g. lab-1")]) -> None:
-    """Create a station."""
+def station_create(
+    name: Annotated[str, typer.Argument(help="e.g. lab-1")],
+    site: Annotated[
+        str,
+        typer.Option(
+            help="The site it belongs to (one a study declares): only its participants are "
+            "seated there, and accounts limited to other sites do not see it. Default: shared."
+        ),
+    ] = "",
+) -> None:
+    """Create a station, of a site or shared by every site."""
     database = open_database(Settings())
     require_current_schema(database)
     with database.writing() as db:
-        stations.create_station(db, name=name, actor=Actor.command_line())
-    typer.echo(f"created station {name!r}")
+        stations.create_station(db, name=name, site=site, actor=Actor.command_line())
+    typer.echo(f"created station {name!r}" + (f" of site {site.strip()!r}" if site.strip() else ""))
 
 
 @station_cli.command("list")
