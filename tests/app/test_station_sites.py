@@ -10,10 +10,10 @@ from datetime import timedelta
 from fastapi.testclient import TestClient
 from sqlalchemy import select, text, update
 
-from app import schema
+from app import events, schema
 from app.db import Database
 from app.events import Event
-from app.services import sites
+from app.services import sites, stations
 from app.tables import AuditEvent, Device, Role, Station, utcnow
 from tests.app.test_cli import run
 from tests.app.test_schema import _insert_row
@@ -194,14 +194,21 @@ def test_a_robots_events_reach_those_who_may_see_its_contact(
     _station(admin, client, "lab-upp", THEIRS)
     _station(admin, client, "lab-shared")
     theirs = _enrol(everyone, THEIRS)
-    with database.read_session() as db:
-        ids = dict(db.execute(select(Station.name, Station.id)).all())
-        free = sites.device_event_site(db, ids["lab-shared"])
-        own = sites.device_event_site(db, ids["lab-upp"])
-    assert (free, own) == (None, THEIRS)
+
+    def robot_event_site(station: str) -> object:
+        """The site the event of the station's robot disconnecting names."""
+        with database.writing() as db:
+            device = db.scalar(select(Device).join(Station).where(Station.name == station))
+            assert device is not None
+            stations.socket_closed(db, device_id=device.id, socket_id="gone")
+            (event,) = db.info[events.PENDING_KEY]
+            db.rollback()
+        assert event.type == stations.DEVICE_CONNECTION
+        return event.data["site"]
+
+    assert (robot_event_site("lab-shared"), robot_event_site("lab-upp")) == (None, THEIRS)
     everyone.put("/api/v1/stations/lab-shared/participant", json={"study": "multi", "code": theirs})
-    with database.read_session() as db:
-        assert sites.device_event_site(db, ids["lab-shared"]) == THEIRS
+    assert robot_event_site("lab-shared") == THEIRS
 
     def heard_by(scope: sites.Scope, site: str | None) -> bool:
         return sites.reaches(
