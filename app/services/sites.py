@@ -26,6 +26,14 @@ its own sites' events and the study-wide ones). Participant codes are a study's,
 and in a study with sites each begins with its site's name (:func:`check_code`), so a code typed
 at one site can never meet another site's: "already used" is only ever said of a participant
 the account can see, and nobody can test whether a code exists elsewhere.
+
+Stations may belong to a site (``station.site``): such a station seats only its site's
+participants (:func:`check_seating`) and does not exist for an account limited to other sites
+(:func:`station_hidden`, :func:`visible_stations`). A shared station (no site) is seen by every
+account, but what its robots did (last heard, connected, notices) tells when another site used
+it, so a limited account sees that only from the moment one of its own participants is seated
+there (:class:`Contact`), and the robots' live events name the site that may hear them
+(:func:`device_event_site`).
 """
 
 from __future__ import annotations
