@@ -46,12 +46,16 @@ def station_create(
 
 @station_cli.command("list")
 def station_list(as_json: JsonFlag = False) -> None:
-    """List stations and who is assigned to them."""
+    """List stations, their sites and who is assigned to them."""
     database = open_database(Settings())
     require_current_schema(database)
     with database.read_session() as db:
         rows = [
-            {"name": s.name, "participant": s.participant.code if s.participant else None}
+            {
+                "name": s.name,
+                "site": s.site,
+                "participant": s.participant.code if s.participant else None,
+            }
             for s in stations.list_stations(db)
         ]
     if as_json:
@@ -60,7 +64,8 @@ def station_list(as_json: JsonFlag = False) -> None:
     if not rows:
         typer.echo("no stations yet: `trustlab station create NAME`")
     for row in rows:
-        typer.echo(f"{row['name']:<24} {row['participant'] or '(free)'}")
+        site = row["site"] or "(shared)"
+        typer.echo(f"{row['name']:<24} {site:<16} {row['participant'] or '(free)'}")
 
 
 @device_cli.command("create")

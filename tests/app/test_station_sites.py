@@ -138,6 +138,8 @@ def test_a_station_site_is_one_a_study_declares(
     assert (code, out.strip()) == (0, "created station 'lab-c' of site 'stockholm'")
     code, _, err = run(database_url, "station", "create", "lab-d", "--site", "nowhere")
     assert code != 0 and "no study declares site 'nowhere'" in err
+    code, out, _ = run(database_url, "station", "list")
+    assert "lab-c                    stockholm        (free)" in out.splitlines()
     sites_of = {s["name"]: s["site"] for s in admin.get("/api/v1/stations").json()}
     assert sites_of == {"lab-c": MINE, "lab-f": THEIRS}
 
