@@ -128,6 +128,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("POST", "/api/v1/studies/{name}/status"): ADMINS,
     ("POST", "/api/v1/studies/{name}/unblind"): ADMINS,
     ("POST", "/api/v1/stations"): ADMINS,
+    ("PATCH", "/api/v1/stations/{name}"): ADMINS,
     ("POST", "/api/v1/stations/{name}/devices"): ADMINS,
     ("POST", "/api/v1/stations/{name}/kiosk"): ADMINS,
     ("POST", "/api/v1/devices/{device_id}/revoke"): ADMINS,

@@ -333,6 +333,10 @@ class Station(Base):
     study_id: Mapped[int | None] = mapped_column(ForeignKey("study.id"))
     # Hidden from the station list (the bots' stations after the demo); keys and logs stay.
     archived_at: Mapped[datetime | None]
+    site: Mapped[str | None] = mapped_column(String(40))
+    """The site this station belongs to (a name some study's ``[sites]`` declares): only its
+    participants are seated here, and an account limited to other sites does not see it. None:
+    shared, seen by everyone (app.services.sites)."""
 
     participant: Mapped[Participant | None] = relationship()
 

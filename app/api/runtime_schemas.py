@@ -159,10 +159,24 @@ class Assignment(RequestBody):
     code: str = Field(max_length=32)
 
 
+STATION_SITE = (
+    "The site the station belongs to (one some study's [sites] declares): only its participants "
+    "are seated there, and accounts limited to other sites do not see it. Null: shared by every "
+    "site (docs/experimenter-guide.md, Sites)."
+)
+
+
 class StationCreate(RequestBody):
     """A new station."""
 
     name: str = Field(max_length=64, examples=["lab-1"])
+    site: str | None = Field(default=None, max_length=40, description=STATION_SITE)
+
+
+class StationUpdate(RequestBody):
+    """A station's site, changed (admin)."""
+
+    site: str | None = Field(max_length=40, description=STATION_SITE)
 
 
 class DeviceCreate(RequestBody):
@@ -353,6 +367,12 @@ class DeviceNotice(BaseModel):
     at: Any = Field(description="When it was put (UTC).")
 
 
+WITHHELD_CONTACT = (
+    "withheld from an account limited to some sites at a shared station, unless one of its own "
+    "participants is seated there (then: since they were seated)."
+)
+
+
 class DeviceOut(BaseModel):
     """A device key's public facts, whether it is connected now, and its console notice."""
 
@@ -362,13 +382,15 @@ class DeviceOut(BaseModel):
     key_prefix: str
     created_at: Any
     revoked_at: Any | None
-    last_seen_at: Any | None
-    connected: bool = Field(
+    last_seen_at: Any | None = Field(
+        description="When it was last heard; null: never, or " + WITHHELD_CONTACT
+    )
+    connected: bool | None = Field(
         description="A station WebSocket of this key is open now, on any of the server's "
-        "workers (as the console's connected badge)."
+        "workers (as the console's connected badge); null: " + WITHHELD_CONTACT
     )
     notice: DeviceNotice | None = Field(
-        description="The device's line on the operator console; null: none."
+        description="The device's line on the operator console; null: none, or " + WITHHELD_CONTACT
     )
 
 
@@ -382,6 +404,7 @@ class StationOut(BaseModel):
     """A station, who is assigned and its devices."""
 
     name: str
+    site: str | None = Field(description=STATION_SITE)
     participant: str | None
     study: str | None
     devices: list[DeviceOut]

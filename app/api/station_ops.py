@@ -28,7 +28,7 @@ from app.api.runtime_schemas import (
 )
 from app.errors import Conflict, NotFound
 from app.protocol import Protocol
-from app.services import answer_audio, languages, room_presence, runtime, stations
+from app.services import answer_audio, languages, room_presence, runtime, sites, stations
 from app.services.audit import Actor
 from app.services.step_store import Seat, Step
 from app.services.studies import protocol_of
@@ -315,12 +315,13 @@ def state_out(view: runtime.StationView) -> StationStateOut:
     )
 
 
-def device_out(device: Device, station: Station) -> DeviceOut:
+def device_out(device: Device, station: Station, contact: sites.Contact) -> DeviceOut:
     """Serialise a device (never its key), with what the console shows of it: connected or not,
-    and its notice, so that a JSON client sees what the operator sees."""
+    and its notice, so that a JSON client sees what the operator sees — as much of its contact as
+    the reader may see (``contact``: app.services.sites.Contact)."""
     notice = (
         DeviceNotice(text=device.notice, attention=device.notice_attention, at=device.notice_at)
-        if device.notice is not None
+        if device.notice is not None and contact.when(device.notice_at) is not None
         else None
     )
     return DeviceOut(
@@ -330,8 +331,8 @@ def device_out(device: Device, station: Station) -> DeviceOut:
         key_prefix=device.key_prefix,
         created_at=device.created_at,
         revoked_at=device.revoked_at,
-        last_seen_at=device.last_seen_at,
-        connected=device.connected and device.revoked_at is None,
+        last_seen_at=contact.when(device.last_seen_at),
+        connected=contact.connected(device.connected and device.revoked_at is None),
         notice=notice,
     )
 

@@ -24,6 +24,7 @@ from app.api.runtime_schemas import (
     StaffStationStateOut,
     StationCreate,
     StationOut,
+    StationUpdate,
     StepIdPath,
 )
 from app.api.schemas import TabletLink
@@ -39,7 +40,7 @@ from app.deps import (
 from app.inputs import RowId
 from app.services import enrolment, runtime, sites, stations, studies, tablet_tokens
 from app.services.audit import Actor
-from app.tables import Device, Participant, Station, Study
+from app.tables import Device, Participant, Station, Study, User
 
 router = OneHopRouter(
     prefix="/stations", tags=["stations"], dependencies=[Depends(station_in_scope)]
@@ -47,13 +48,14 @@ router = OneHopRouter(
 devices_router = OneHopRouter(prefix="/devices", tags=["stations"])
 
 
-def _stations_out(db: SessionDep, found: list[Station]) -> list[StationOut]:
-    """Stations with who is seated there and their devices: two queries, however many."""
+def _stations_out(db: SessionDep, found: list[Station], actor: Actor) -> list[StationOut]:
+    """Stations with who is seated there and their devices, as much of their robots' contact as
+    ``actor`` may see (app.services.sites.Contact): two queries, however many."""
     ids = [station.id for station in found]
     seated = {
-        station_id: (code, study)
-        for station_id, code, study in db.execute(
-            select(Station.id, Participant.code, Study.name)
+        station_id: (code, study, site)
+        for station_id, code, study, site in db.execute(
+            select(Station.id, Participant.code, Study.name, Participant.site)
             .join(Participant, Participant.id == Station.participant_id)
             .join(Study, Study.id == Participant.study_id)
             .where(Station.id.in_(ids))
@@ -62,34 +64,49 @@ def _stations_out(db: SessionDep, found: list[Station]) -> list[StationOut]:
     devices: dict[int, list[Device]] = defaultdict(list)
     for device in db.scalars(select(Device).where(Device.station_id.in_(ids)).order_by(Device.id)):
         devices[device.station_id].append(device)
-    return [
-        StationOut(
-            name=station.name,
-            participant=seated.get(station.id, (None, None))[0],
-            study=seated.get(station.id, (None, None))[1],
-            devices=[device_out(d, station) for d in devices[station.id]],
+    out = []
+    for station in found:
+        code, study, site = seated.get(station.id, (None, None, None))
+        contact = sites.contact(station, site, actor)
+        out.append(
+            StationOut(
+                name=station.name,
+                site=station.site,
+                participant=code,
+                study=study,
+                devices=[device_out(d, station, contact) for d in devices[station.id]],
+            )
         )
-        for station in found
-    ]
+    return out
 
 
-def _station_out(db: SessionDep, station_name: str) -> StationOut:
-    return _stations_out(db, [stations.get_station(db, station_name)])[0]
+def _station_out(db: SessionDep, station_name: str, user: User) -> StationOut:
+    station = stations.get_station(db, station_name)
+    return _stations_out(db, [station], Actor.of_user(user))[0]
 
 
 @router.get("")
 def list_stations(db: SessionDep, user: ExperimenterUser) -> list[StationOut]:
-    """Every station, who is assigned and its devices."""
-    return _stations_out(
-        db, sites.visible_stations(db, stations.list_stations(db), Actor.of_user(user))
-    )
+    """Every station the account may see (an account limited to some sites: those of its sites
+    and the shared ones), who is assigned and its devices."""
+    actor = Actor.of_user(user)
+    return _stations_out(db, sites.visible_stations(db, stations.list_stations(db), actor), actor)
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
 def create_station(body: StationCreate, db: SessionDep, admin: AdminUser) -> StationOut:
-    """Create a station (admin)."""
-    station = stations.create_station(db, name=body.name, actor=Actor.of_user(admin))
-    return _station_out(db, station.name)
+    """Create a station (admin), of a site or shared."""
+    station = stations.create_station(
+        db, name=body.name, site=body.site, actor=Actor.of_user(admin)
+    )
+    return _station_out(db, station.name, admin)
+
+
+@router.patch("/{name}")
+def update_station(name: str, body: StationUpdate, db: SessionDep, admin: AdminUser) -> StationOut:
+    """Give the station a site, or make it shared (``site`` null) (admin)."""
+    stations.set_station_site(db, station_name=name, site=body.site, actor=Actor.of_user(admin))
+    return _station_out(db, name, admin)
 
 
 @router.get("/{name}/state")
@@ -113,14 +130,14 @@ def assign(name: str, body: Assignment, db: SessionDep, user: ExperimenterUser) 
         actor=Actor.of_user(user),
         tie_untied_to=study,
     )
-    return _station_out(db, name)
+    return _station_out(db, name, user)
 
 
 @router.delete("/{name}/participant")
 def unassign(name: str, db: SessionDep, user: ExperimenterUser) -> StationOut:
     """Free the station (refused while a session runs)."""
     stations.unassign(db, station_name=name, actor=Actor.of_user(user))
-    return _station_out(db, name)
+    return _station_out(db, name, user)
 
 
 @router.post("/{name}/sessions", status_code=status.HTTP_201_CREATED)
@@ -186,7 +203,8 @@ def issue_key(name: str, body: DeviceCreate, db: SessionDep, admin: AdminUser) -
     issued = stations.issue_device_key(
         db, station_name=name, label=body.label, actor=Actor.of_user(admin)
     )
-    public = device_out(issued.device, issued.device.station)
+    # an admin's route, and admins see every site: all of the contact
+    public = device_out(issued.device, issued.device.station, sites.Contact())
     return IssuedDeviceOut(**public.model_dump(), key=issued.key)
 
 
@@ -194,7 +212,7 @@ def issue_key(name: str, body: DeviceCreate, db: SessionDep, admin: AdminUser) -
 def revoke_key(device_id: RowId, db: SessionDep, admin: AdminUser) -> DeviceOut:
     """Revoke a device key at once (admin)."""
     device = stations.revoke_device(db, device_id=device_id, actor=Actor.of_user(admin))
-    return device_out(device, device.station)
+    return device_out(device, device.station, sites.Contact())  # an admin's, as above
 
 
 @router.post("/{name}/kiosk")

@@ -26,23 +26,36 @@ def register(cli: typer.Typer) -> None:
 
 
 @station_cli.command("create")
-def station_create(name: Annotated[str, typer.Argument(help="e.g. lab-1")]) -> None:
-    """Create a station."""
+def station_create(
+    name: Annotated[str, typer.Argument(help="e.g. lab-1")],
+    site: Annotated[
+        str,
+        typer.Option(
+            help="The site it belongs to (one a study declares): only its participants are "
+            "seated there, and accounts limited to other sites do not see it. Default: shared."
+        ),
+    ] = "",
+) -> None:
+    """Create a station, of a site or shared by every site."""
     database = open_database(Settings())
     require_current_schema(database)
     with database.writing() as db:
-        stations.create_station(db, name=name, actor=Actor.command_line())
-    typer.echo(f"created station {name!r}")
+        stations.create_station(db, name=name, site=site, actor=Actor.command_line())
+    typer.echo(f"created station {name!r}" + (f" of site {site.strip()!r}" if site.strip() else ""))
 
 
 @station_cli.command("list")
 def station_list(as_json: JsonFlag = False) -> None:
-    """List stations and who is assigned to them."""
+    """List stations, their sites and who is assigned to them."""
     database = open_database(Settings())
     require_current_schema(database)
     with database.read_session() as db:
         rows = [
-            {"name": s.name, "participant": s.participant.code if s.participant else None}
+            {
+                "name": s.name,
+                "site": s.site,
+                "participant": s.participant.code if s.participant else None,
+            }
             for s in stations.list_stations(db)
         ]
     if as_json:
@@ -51,7 +64,8 @@ def station_list(as_json: JsonFlag = False) -> None:
     if not rows:
         typer.echo("no stations yet: `trustlab station create NAME`")
     for row in rows:
-        typer.echo(f"{row['name']:<24} {row['participant'] or '(free)'}")
+        site = row["site"] or "(shared)"
+        typer.echo(f"{row['name']:<24} {site:<16} {row['participant'] or '(free)'}")
 
 
 @device_cli.command("create")

@@ -26,6 +26,14 @@ its own sites' events and the study-wide ones). Participant codes are a study's,
 and in a study with sites each begins with its site's name (:func:`check_code`), so a code typed
 at one site can never meet another site's: "already used" is only ever said of a participant
 the account can see, and nobody can test whether a code exists elsewhere.
+
+Stations may belong to a site (``station.site``): such a station seats only its site's
+participants (:func:`check_seating`) and does not exist for an account limited to other sites
+(:func:`station_hidden`, :func:`visible_stations`). A shared station (no site) is seen by every
+account, but what its robots did (last heard, connected, notices) tells when another site used
+it, so a limited account sees that only from the moment one of its own participants is seated
+there (:class:`Contact`), and the robots' live events name the site that may hear them
+(:func:`device_event_site`).
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
+from datetime import datetime
 
 from sqlalchemy import ColumnElement, select, true
 from sqlalchemy.orm import Session
@@ -250,16 +259,20 @@ def _narrowed(sites: frozenset[str] | None, site: str, study: Study) -> frozense
 
 
 def station_hidden(db: Session, station: Station, actor: Actor) -> bool:
-    """Whether the participant seated at ``station`` is one ``actor`` may not see: the station
-    is then, for them, as if it did not exist."""
-    if actor.sites is None or station.participant_id is None:
+    """Whether ``station`` is, for ``actor``, as if it did not exist: a station of a site the
+    account is not limited to, or one seating a participant it may not see."""
+    if actor.sites is None:
+        return False
+    if station.site is not None and station.site not in actor.sites:
+        return True
+    if station.participant_id is None:
         return False
     site = db.scalar(select(Participant.site).where(Participant.id == station.participant_id))
     return site not in actor.sites
 
 
 def visible_stations(db: Session, found: list[Station], actor: Actor) -> list[Station]:
-    """``found`` without the stations whose seated participant ``actor`` may not see."""
+    """``found`` without the stations :func:`station_hidden` hides from ``actor``."""
     if actor.sites is None:
         return found
     seated = dict(
@@ -269,7 +282,94 @@ def visible_stations(db: Session, found: list[Station], actor: Actor) -> list[St
             .where(Station.id.in_([station.id for station in found]))
         ).all()
     )
-    return [s for s in found if s.id not in seated or seated[s.id] in actor.sites]
+    return [
+        s
+        for s in found
+        if (s.site is None or s.site in actor.sites)
+        and (s.id not in seated or seated[s.id] in actor.sites)
+    ]
+
+
+@dataclass(frozen=True)
+class Contact:
+    """What a reader sees of a station's robots' contact: when each was last heard, whether it is
+    connected, its console notice.
+
+    A station of a site is used by that site only, so whoever sees it sees all of it. A shared
+    station (no site) is used by every site, and its robots' contact tells when it was last
+    used: an account limited to some sites sees it only while one of its own participants is
+    seated there, and only from the moment they were seated (``since``); otherwise none of it
+    (``withheld``). Unlimited accounts see everything.
+    """
+
+    withheld: bool = False
+    since: datetime | None = None
+
+    def when(self, moment: datetime | None) -> datetime | None:
+        """``moment`` (a last contact, a notice's time) if shown, else None."""
+        if moment is None or self.withheld:
+            return None
+        if self.since is not None and moment < self.since:
+            return None
+        return moment
+
+    def connected(self, connected: bool) -> bool | None:
+        """Whether the robot is connected now (None: withheld)."""
+        return None if self.withheld else connected
+
+
+def contact(station: Station, seated_site: str | None, actor: Actor) -> Contact:
+    """What ``actor`` sees of the contact of ``station``'s robots (:class:`Contact`);
+    ``seated_site``: the site of the participant seated there (None: nobody, or a participant of
+    a study without sites)."""
+    if actor.sites is None or station.site is not None:
+        return Contact()
+    if station.participant_id is not None and seated_site in actor.sites:
+        return Contact(since=station.assigned_at)
+    return Contact(withheld=True)
+
+
+def device_event_site(db: Session, station_id: int) -> str | None:
+    """The ``site`` of a live event about a station's robot (connected, a notice): the
+    station's site, else its seated participant's (None: a free shared station, heard by
+    unlimited accounts only, as :class:`Contact` shows it)."""
+    station = db.get(Station, station_id)
+    if station is None:
+        return None
+    if station.site is not None:
+        return station.site
+    if station.participant_id is None:
+        return None
+    return db.scalar(select(Participant.site).where(Participant.id == station.participant_id))
+
+
+def station_site(db: Session, site: str | None) -> str | None:
+    """A station's site, checked: empty for a shared station, else a site some study declares
+    (a typo would hide the station from everyone limited)."""
+    site = (site or "").strip() or None
+    if site is None:
+        return None
+    declared = declared_anywhere(db)
+    if site not in declared:
+        known = ", ".join(declared) if declared else "none yet: create the study first"
+        raise InvalidInput(f"site: no study declares site {site!r} (sites declared: {known})")
+    return site
+
+
+def check_seating(station: Station, participant: Participant, site: str | None) -> None:
+    """Refuse seating ``participant`` at ``station`` of ``site`` (its own, or the one it is
+    about to have) when that is another site: a station of a site seats only its participants."""
+    if site is None or participant.site == site:
+        return
+    theirs = (
+        f"is enrolled at {participant.site!r}"
+        if participant.site is not None
+        else "is of a study without sites"
+    )
+    raise Conflict(
+        f"station {station.name!r} belongs to site {site!r} and seats only its "
+        f"participants: {participant.code!r} {theirs}"
+    )
 
 
 def declared_anywhere(db: Session) -> dict[str, list[str]]:

@@ -148,19 +148,44 @@ def seating_questions(db: Session, *, station: Station, participant: Participant
     return questions
 
 
-def create_station(db: Session, *, name: str, actor: Actor) -> Station:
-    """Create a station; commits."""
+def create_station(db: Session, *, name: str, actor: Actor, site: str | None = None) -> Station:
+    """Create a station, of ``site`` (empty: shared by every site); commits."""
     STATION_NAME.check(name)
+    site = sites.station_site(db, site)
     if db.scalar(select(Station.id).where(Station.name == name)) is not None:
         raise Conflict(f"a station named {name!r} already exists")
-    station = Station(name=name)
+    station = Station(name=name, site=site)
     db.add(station)
     try:
         db.flush()  # PostgreSQL: a concurrent creation of the same name is refused here
     except IntegrityError:
         db.rollback()
         raise Conflict(f"a station named {name!r} already exists") from None
-    audit.record(db, actor=actor, action="station.created", subject=name)
+    audit.record(db, actor=actor, action="station.created", subject=name, details={"site": site})
+    db.commit()
+    return station
+
+
+def set_station_site(db: Session, *, station_name: str, site: str | None, actor: Actor) -> Station:
+    """Give a station a site, or make it shared (``site`` empty); commits. Refused while a
+    participant of another site is seated there, as seating them would be."""
+    station = get_station(db, station_name, for_update=True)
+    site = sites.station_site(db, site)
+    if station.site == site:
+        return station
+    if station.participant_id is not None:
+        seated = db.get(Participant, station.participant_id)
+        assert seated is not None
+        sites.check_seating(station, seated, site)
+    before = station.site
+    station.site = site
+    audit.record(
+        db,
+        actor=actor,
+        action="station.site_set",
+        subject=station.name,
+        details={"from": before, "to": site},
+    )
     db.commit()
     return station
 
@@ -271,6 +296,7 @@ def assign_participant(
         raise Conflict(f"participant {participant.code!r} has withdrawn")
     if station.participant_id == participant.id:
         return station
+    sites.check_seating(station, participant, station.site)
     current = None
     if station.participant_id is not None:
         current = db.get(Participant, station.participant_id)
@@ -387,5 +413,6 @@ def _update_device(db: Session, device_id: int, event: str, values: dict[Any, An
             topics=[station_topic_of(station_id)],
             type=event,
             device_id=device_id,
-            site=sites.STUDY_WIDE,  # a device's state, not a participant's activity
+            # when a robot is heard tells when its station is used (app.services.sites.Contact)
+            site=sites.device_event_site(db, station_id),
         )

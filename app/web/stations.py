@@ -68,9 +68,8 @@ router = OneHopRouter(
 def _stations_context(
     request: Request, db: SessionDep, settings: SettingsDep, user: User, *, archived: bool = False
 ) -> dict[str, Any]:
-    found = sites.visible_stations(
-        db, stations.list_stations(db, archived=archived), Actor.of_user(user)
-    )
+    actor = Actor.of_user(user)
+    found = sites.visible_stations(db, stations.list_stations(db, archived=archived), actor)
     ids = [station.id for station in found]
     seated = {
         station_id: (participant, study)
@@ -90,18 +89,25 @@ def _stations_context(
             tablet_tokens.kiosk_token(settings.secret, station) if user.role == "admin" else None
         )
         participant, study = seated.get(station.id, (None, None))
+        contact = sites.contact(station, participant.site if participant else None, actor)
         rows.append(
             {
                 "station": station,
                 "participant": participant,
                 "study": study,
                 "devices": devices[station.id],
+                "contact": contact,
                 "kiosk": tablet_link(request, f"/k/{kiosk}") if kiosk else None,
             }
         )
-    hidden = len(stations.list_stations(db, archived=True)) if not archived else 0
+    hidden = (
+        len(sites.visible_stations(db, stations.list_stations(db, archived=True), actor))
+        if not archived
+        else 0
+    )
     return {
         "rows": rows,
+        "site_choices": sites.declared_anywhere(db) if user.role == "admin" else {},
         "archived": archived,
         "archived_count": hidden,
         "form_error": "",
@@ -130,14 +136,16 @@ def create_station(
     settings: SettingsDep,
     admin: AdminUser,
     name: Annotated[str, Form(max_length=64)],
+    site: Annotated[str, Form(max_length=40)] = "",
 ) -> Response:
-    """Create a station; a refused name is explained next to the form, as the server words it."""
+    """Create a station, of a site or shared; a refusal is explained next to the form, as the
+    server words it."""
     try:
-        stations.create_station(db, name=name.strip(), actor=Actor.of_user(admin))
+        stations.create_station(db, name=name.strip(), site=site, actor=Actor.of_user(admin))
     except (InvalidInput, Conflict) as exc:
         db.rollback()
         context = _stations_context(request, db, settings, admin)
-        context |= {"form_error": exc.message, "form_values": {"name": name}}
+        context |= {"form_error": exc.message, "form_values": {"name": name, "site": site}}
         return render(request, "stations.html", context, status_code=exc.status_code)
     return redirect_with_notice(request, "/stations", f"Created station {name.strip()}.")
 
@@ -326,6 +334,9 @@ def _console(
             "view": view,
             "participant": participant,
             "devices": devices,
+            "contact": sites.contact(
+                station, participant.site if participant else None, Actor.of_user(user)
+            ),
             "station_study": station_study,
             "study_choices": choices,
             "codes": _active_codes(db, station_study, Actor.of_user(user)) if station_study else [],

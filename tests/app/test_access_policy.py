@@ -234,6 +234,9 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("POST", "/api/v1/studies/{name}/unblind"): send("POST", "/api/v1/studies/ghost/unblind"),
     ("POST", "/api/v1/stations"): send("POST", "/api/v1/stations", json={}),
+    ("PATCH", "/api/v1/stations/{name}"): send(
+        "PATCH", "/api/v1/stations/ghost", json={"site": None}
+    ),
     ("POST", "/api/v1/stations/{name}/devices"): send(
         "POST", "/api/v1/stations/ghost/devices", json={}
     ),

@@ -23,7 +23,7 @@ def test_device_create_makes_the_station_and_prints_one_json_object(database_url
     assert code == 0
     assert "created station" not in out and "tlk_" in out
     code, out, _ = run(database_url, "station", "list", "--json")
-    assert json.loads(out) == {"stations": [{"name": "lab-9", "participant": None}]}
+    assert json.loads(out) == {"stations": [{"name": "lab-9", "site": None, "participant": None}]}
     code, out, _ = run(database_url, "device", "revoke", str(issued["device_id"]))
     assert (code, out.strip()) == (0, f"revoked device {issued['device_id']}")
     code, _, err = run(database_url, "device", "revoke", str(issued["device_id"]))
