@@ -2,7 +2,7 @@
 came from and a hash of its content, and read back verified (issue 20).
 
 The fit itself is the adaptation engine's model (models/population.py); the app joins the two
-(app/services/population_fit.py), since analysis knows only pandas and statistics.
+(app/services/sessions/population_fit.py), since analysis knows only pandas and statistics.
 
 The file is JSON::
 

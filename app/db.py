@@ -34,7 +34,7 @@ from starlette.concurrency import run_in_threadpool
 from app.errors import DatabaseUnavailable
 from app.events import EventHub, attach_publishing
 from app.private_files import create_private
-from app.services import learner_cache
+from app.services.sessions import learner_cache
 
 log = logging.getLogger(__name__)
 
@@ -116,8 +116,8 @@ def _configure_sqlite(engine: Engine, synchronous: str, autocheckpoint_pages: in
     checkpoints. The default (app.settings) is FULL.
 
     ``secure_delete`` zeroes what a DELETE removes instead of leaving it in free pages, so an
-    erased participant's answers (app.services.erasure) cannot be read back out of the file with
-    a hex editor; trustlab deletes rarely, so its cost does not show.
+    erased participant's answers (app.services.privacy.erasure) cannot be read back out of the file
+    with a hex editor; trustlab deletes rarely, so its cost does not show.
     """
     writers = threading.Lock()
 

@@ -28,8 +28,10 @@ from app.bots import BotConfig, BotSummary, run_bots
 from app.db import Database
 from app.errors import Conflict
 from app.protocol import default_protocol
-from app.services import accounts, stations, studies, users
+from app.services import studies
 from app.services.audit import Actor
+from app.services.sessions import stations
+from app.services.staff import accounts, users
 from app.settings import Settings
 from app.tables import Role
 
@@ -75,7 +77,7 @@ def retire(plan: DemoPlan, settings: Settings, echo: Callable[[str], None]) -> N
     """After the demo: disable the bots' account, archive the bots' stations (a lab's station
     list shows its own) and remove the plan (it holds the password). Should the bots' account
     have become the only active admin meanwhile, it stays enabled: there is always an active
-    admin (app.services.accounts)."""
+    admin (app.services.staff.accounts)."""
     database = Database(settings.database_url)
     actor = Actor.system("demo")
     try:

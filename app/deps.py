@@ -13,7 +13,7 @@ one step, app/api/device_work.py):
    number of slots, so an admitted request always finds a connection and a thread (app.db).
 2. **Who is asking is read first**, in one thread-pool hop, through :func:`identify`: the login
    cookie (:func:`current_login`) or a tablet's token (app.tablet). (A sign-in instead counts its
-   attempt in a short write transaction of its own: app.services.login_throttle.) The
+   attempt in a short write transaction of its own: app.services.staff.login_throttle.) The
    dependencies that check it (CSRF, idle timeout, roles) are coroutines around that one hop, so
    refusals still come before the request body is validated. For a write request that read is a
    transaction of its own, ended before the handler runs: a write session's transaction is, on
@@ -36,7 +36,7 @@ one step, app/api/device_work.py):
 A login revoked, or a participant's tablet link reissued, between step 2 and step 3 does not stop
 the request already admitted; the next one is refused. Whatever the handler *decides on* is read
 inside its own transaction (a questionnaire submission re-reads whether the participant's answers
-are locked: app.services.questionnaires).
+are locked: app.services.participants.questionnaires).
 """
 
 from __future__ import annotations
@@ -57,8 +57,9 @@ from starlette.concurrency import run_in_threadpool
 from app.db import WRITE_OPTION, Database
 from app.errors import NotAuthenticated, NotFound, PermissionDenied
 from app.security import same
-from app.services import sites, users
 from app.services.audit import Actor
+from app.services.privacy import sites
+from app.services.staff import users
 from app.settings import Settings
 from app.sql import WROTE_KEY, SecondWrite
 from app.tables import LoginSession, Role, Station, User
@@ -336,7 +337,7 @@ def bearer_key(request: Request) -> str:
 async def station_in_scope(request: Request, db: SessionDep, user: CurrentUser) -> None:
     """Every staff route of a station (``/stations/{name}…``) depends on this: for an account
     limited to some sites, a station whose seated participant is of another site does not exist
-    (app.services.sites). Unlimited accounts pass without a read."""
+    (app.services.privacy.sites). Unlimited accounts pass without a read."""
     name = request.path_params.get("name")
     actor = Actor.of_user(user)
     # Only experimenters reach these routes limited (admins never are; an analyst meets the
@@ -353,8 +354,8 @@ async def station_in_scope(request: Request, db: SessionDep, user: CurrentUser) 
 
 
 async def reader_scope(user: CurrentUser) -> sites.Scope:
-    """The participants the signed-in account may see (app.services.sites): its sites when it
-    is limited, else every site. Pages reading participant data without an actor to record
+    """The participants the signed-in account may see (app.services.privacy.sites): its sites when
+    it is limited, else every site. Pages reading participant data without an actor to record
     (the analysis, exports, the power planning) take this, and pass it to the query, which
     requires it."""
     return sites.Scope.of(Actor.of_user(user))
@@ -367,7 +368,7 @@ SiteFilter = Annotated[
     str,
     Query(max_length=40, description="One of the study's sites: only its participants."),
 ]
-"""A page's ``?site=`` filter (app.services.sites.narrowed checks it)."""
+"""A page's ``?site=`` filter (app.services.privacy.sites.narrowed checks it)."""
 
 
 AdminUser = Annotated[User, Depends(require(Role.ADMIN))]

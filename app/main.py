@@ -31,8 +31,8 @@ from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
 from app.events import PostgresListener
 from app.http import BodyLimit, SecurityHeaders, install_error_handlers
-from app.services import login_throttle
-from app.services.freshness import FreshnessCache
+from app.services.analysis_views.freshness import FreshnessCache
+from app.services.staff import login_throttle
 from app.settings import Settings
 from app.speech.pool import RecognizerPool
 from app.speech.synthesis import Synthesiser
@@ -65,16 +65,16 @@ page's 300 ms refetch delay, which that write's own event triggers)."""
 DASHBOARD_DATA_MIN_INTERVAL = 0.2
 """Seconds between the starts of two computations of a study's dashboard data: requests that need
 a newer one wait for its turn and share it, so a busy study costs at most five a second however
-many dashboards watch it (app/services/freshness.py). A dashboard still redraws well within a
-second of an answer (issue 6): 100 ms event coalescing + 300 ms refetch delay + at most this wait
-and two computations."""
+many dashboards watch it (app/services/analysis_views/freshness.py). A dashboard still redraws well
+within a second of an answer (issue 6): 100 ms event coalescing + 300 ms refetch delay + at most
+this wait and two computations."""
 
 log = logging.getLogger(__name__)
 
 
 def _abandon_unfinished_sign_ins(database: Database) -> None:
     """A start: the password checks the last server began will never finish, so they must
-    neither count nor be waited for (app.services.login_throttle)."""
+    neither count nor be waited for (app.services.staff.login_throttle)."""
     try:
         with database.writing() as db:
             abandoned = login_throttle.abandon_unfinished(db)

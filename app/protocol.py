@@ -361,8 +361,9 @@ SITE_FACTOR = "site"
 
 
 class SitesSpec(_Strict):
-    """The places a multi-site study enrols at (app/services/sites.py): every participant belongs
-    to one, staff accounts may be limited to some, and allocation may be stratified by them."""
+    """The places a multi-site study enrols at (app/services/privacy/sites.py): every participant
+    belongs to one, staff accounts may be limited to some, and allocation may be stratified by
+    them."""
 
     names: list[Key] = Field(
         min_length=1,
@@ -389,8 +390,8 @@ _BOTH_WITHDRAWAL_OPTIONS: list[WithdrawalOption] = ["keep", "erase"]
 
 
 class WithdrawalSpec(_Strict):
-    """What a withdrawal may do with the data collected so far (app/services/erasure.py): keep
-    it (the participant stays in the analysis as withdrawn) or erase it. The staff member who
+    """What a withdrawal may do with the data collected so far (app/services/privacy/erasure.py):
+    keep it (the participant stays in the analysis as withdrawn) or erase it. The staff member who
     withdraws someone chooses among these; an ethics board may require either one alone."""
 
     options: list[WithdrawalOption] = Field(
@@ -410,8 +411,8 @@ class WithdrawalSpec(_Strict):
 
 class RetentionSpec(_Strict):
     """How long identifiable data is kept after the study closes, and what happens to it then
-    (app/services/retention.py, ``trustlab retention run``). Not declared: kept until someone
-    erases it."""
+    (app/services/privacy/retention.py, ``trustlab retention run``). Not declared: kept until
+    someone erases it."""
 
     identifiable_for: Text | None = Field(
         default=None,
@@ -504,7 +505,7 @@ class ConsentSpec(_Strict):
     """The consent text participants must accept; its version is stored with the acceptance.
 
     This is version 1 of the study's consent text; an admin adds later versions while the study
-    runs (app.services.consent)."""
+    runs (app.services.privacy.consent)."""
 
     version: Text
     text: Text
@@ -885,7 +886,7 @@ def _check_sites(protocol: Protocol) -> list[Problem]:
     ]
     # A participant's code begins with the first 24 characters of its site's name (codes have
     # at most 32): two sites sharing them would share codes, and an account limited to one could
-    # learn from "already used" of the other's (app.services.sites.check_code).
+    # learn from "already used" of the other's (app.services.privacy.sites.check_code).
     first: dict[str, str] = {}
     for index, name in enumerate(sites.names):
         other = first.setdefault(name[:24], name)

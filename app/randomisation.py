@@ -5,7 +5,8 @@ of randomly mixed sizes, each holding every condition equally often in random or
 comes from HMAC-SHA256 in counter mode rather than a library generator, so the sequence cannot
 change with a Python or NumPy upgrade and an auditor can recompute it from the seed alone.
 
-Nothing here touches the database: :mod:`app.services.enrolment` reveals one entry at a time.
+Nothing here touches the database: :mod:`app.services.participants.enrolment` reveals one entry at a
+time.
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def drop_append_only_guard(table: str) -> None:
 
 ERASURE_MARKER = "erasure_in_progress"
 """The table whose rows, present only inside an erasure's transaction, open the guards of
-:func:`create_erasable_guard` for one participant (app.services.erasure)."""
+:func:`create_erasable_guard` for one participant (app.services.privacy.erasure)."""
 
 ERASABLE_TABLES = {
     "prompt": "participant_id",

@@ -1,6 +1,6 @@
 """Hand-written SQL on the driver cursor of a session's transaction.
 
-For the few statements that run on every robot request (app.services.step_store) and every
+For the few statements that run on every robot request (app.services.sessions.step_store) and every
 PostgreSQL commit with live events (app.events): through SQLAlchemy's execution machinery each
 cost several times what the database spends on it. A :class:`Cursor` belongs to the session's
 current transaction, so its statements commit or roll back with the session's other work; it

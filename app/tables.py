@@ -140,7 +140,7 @@ class User(Base):
     created_at: Mapped[datetime] = mapped_column(default=utcnow)
     last_login_at: Mapped[datetime | None]
     sites: Mapped[list[str] | None] = mapped_column(JSONDocument)
-    """The sites whose participants this account may see (app.services.sites); None: all.
+    """The sites whose participants this account may see (app.services.privacy.sites); None: all.
     Admins always see all."""
 
 
@@ -222,11 +222,11 @@ class Participant(Base):
     """One of the study's ``[sites]``; None in a study without sites. Kept after an erasure (a
     place, not a person): the slot still counts at its site."""
     erased_at: Mapped[datetime | None]
-    """Set when the participant's data was erased (app.services.erasure): the row stays, under a
-    pseudonym, only so that their allocation slot keeps the sequence whole."""
+    """Set when the participant's data was erased (app.services.privacy.erasure): the row stays,
+    under a pseudonym, only so that their allocation slot keeps the sequence whole."""
     anonymised_at: Mapped[datetime | None]
-    """Set when a retention deadline anonymised the participant (app.services.retention): the
-    code is a random id, free text and transcripts are gone."""
+    """Set when a retention deadline anonymised the participant (app.services.privacy.retention):
+    the code is a random id, free text and transcripts are gone."""
 
     study: Mapped[Study] = relationship()
     allocation: Mapped[Allocation] = relationship(
@@ -336,7 +336,7 @@ class Station(Base):
     site: Mapped[str | None] = mapped_column(String(40))
     """The site this station belongs to (a name some study's ``[sites]`` declares): only its
     participants are seated here, and an account limited to other sites does not see it. None:
-    shared, seen by everyone (app.services.sites)."""
+    shared, seen by everyone (app.services.privacy.sites)."""
 
     participant: Mapped[Participant | None] = relationship()
 
@@ -637,8 +637,8 @@ class ConsentVersion(Base):
     """One version of a study's consent text, in every one of its languages.
 
     Version 1 is the protocol's own text; it is stored here when the first later version is
-    added (until then :mod:`app.services.consent` reads it from the protocol). Every change of
-    the wording makes a new version; none is ever edited or deleted, so every acceptance can be
+    added (until then :mod:`app.services.privacy.consent` reads it from the protocol). Every change
+    of the wording makes a new version; none is ever edited or deleted, so every acceptance can be
     traced to the exact words."""
 
     __tablename__ = "consent_version"
@@ -673,7 +673,7 @@ class ConsentRecord(Base):
 
 
 class AttemptOutcome(StrEnum):
-    """Where a password check stands (app.services.login_throttle): only ``failed`` counts
+    """Where a password check stands (app.services.staff.login_throttle): only ``failed`` counts
     towards a lockout."""
 
     PENDING = "pending"
@@ -687,7 +687,7 @@ class AttemptOutcome(StrEnum):
 class LoginAttempt(Base):
     """A password check (a sign-in or a password change), kept to slow down password guessing
     per account and per address: recorded pending before the check, then failed or succeeded
-    (app.services.login_throttle)."""
+    (app.services.staff.login_throttle)."""
 
     __tablename__ = "login_attempt"
     __table_args__ = (

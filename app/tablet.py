@@ -22,7 +22,7 @@ from app.errors import Conflict, NotAuthenticated
 from app.i18n.catalogues import Message
 from app.protocol import Protocol
 from app.security import sign
-from app.services import languages, tablet_tokens
+from app.services.participants import languages, tablet_tokens
 from app.services.studies import protocol_of
 from app.tables import Participant, Station, Study
 

@@ -228,8 +228,8 @@ def main() -> None:
         device_work._work = measured_work  # type: ignore[assignment]
 
         async def run() -> dict[str, Any]:
-            from app.services import runtime
             from app.services.audit import Actor
+            from app.services.sessions import runtime
 
             database = app.state.database
 

@@ -42,8 +42,11 @@ sys.path.insert(0, str(ROOT))
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.protocol import default_protocol, parse_protocol  # noqa: E402
-from app.services import enrolment, questionnaires, stations, studies, users  # noqa: E402
+from app.services import studies  # noqa: E402
 from app.services.audit import Actor  # noqa: E402
+from app.services.participants import enrolment, questionnaires  # noqa: E402
+from app.services.sessions import stations  # noqa: E402
+from app.services.staff import users  # noqa: E402
 from app.tables import Role  # noqa: E402
 from bench.rawhttp import RawHttp  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402

@@ -34,7 +34,8 @@ sys.path.insert(0, str(ROOT))
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.protocol import default_protocol  # noqa: E402
-from app.services import enrolment, studies  # noqa: E402
+from app.services import studies  # noqa: E402
+from app.services.participants import enrolment  # noqa: E402
 from tests.e2e import room_driver as drive  # noqa: E402
 from tests.robots.harness import BOUND, RunningBridge  # noqa: E402
 from tests.robots.kinds import KINDS  # noqa: E402

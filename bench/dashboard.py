@@ -40,8 +40,10 @@ sys.path.insert(0, str(ROOT))
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.main import create_app  # noqa: E402
-from app.services import stations, studies, users  # noqa: E402
-from app.services.freshness import FreshnessCache  # noqa: E402
+from app.services import studies  # noqa: E402
+from app.services.analysis_views.freshness import FreshnessCache  # noqa: E402
+from app.services.sessions import stations  # noqa: E402
+from app.services.staff import users  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.tables import Role  # noqa: E402
 from bench.api import bench_database  # noqa: E402

@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 from app import db as app_db  # noqa: E402
 from app.bots import ResponseModel, questionnaire_answers  # noqa: E402
 from app.main import create_app  # noqa: E402
-from app.services import users  # noqa: E402
+from app.services.staff import users  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.tables import User  # noqa: E402
 from bench.answer_cost import Asgi, Statements  # noqa: E402

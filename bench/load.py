@@ -49,16 +49,11 @@ from app import schema  # noqa: E402
 from app.bots import ResponseModel, questionnaire_answers  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.protocol import default_protocol, parse_protocol  # noqa: E402
-from app.services import (  # noqa: E402
-    enrolment,
-    questionnaires,
-    stations,
-    studies,
-    tablet_tokens,
-    users,
-    verify,
-)
+from app.services import studies  # noqa: E402
 from app.services.audit import Actor  # noqa: E402
+from app.services.participants import enrolment, questionnaires, tablet_tokens  # noqa: E402
+from app.services.sessions import stations, verify  # noqa: E402
+from app.services.staff import users  # noqa: E402
 from app.tables import Role  # noqa: E402
 from bench.api import PASSWORD, bench_database, percentile, sign_in  # noqa: E402
 from bench.rawhttp import RawHttp  # noqa: E402

@@ -34,7 +34,7 @@ from playwright.sync_api import Page, sync_playwright  # noqa: E402
 
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
-from app.services import users  # noqa: E402
+from app.services.staff import users  # noqa: E402
 from app.tables import Role  # noqa: E402
 from bench.seed import SYSTEM, seed_study  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402

@@ -10,12 +10,12 @@ routes, each measured against the no-op in the same run, as bench/api.py measure
 - ``write``: the same, plus the cheapest durable record of an answer there is: one answer row
   inserted and committed, in one round trip;
 - ``floor``: the same, plus everything else every answer must do on PostgreSQL, with the product's
-  own SQL (app.services.step_store) and nothing more: the device key's seat, the participant's
-  timeline lock, the step's run, the run's prompts and the learner's version, all five and the
-  BEGIN in one pipelined round trip (as if every id were known in advance: the product learns the
-  participant from the seat, so it cannot do better); then the learner's new state (the stored
-  Exp3 state again, the same size), the audit row, one ``pg_notify``, the answer row and the COMMIT
-  in a second round trip.
+  own SQL (app.services.sessions.step_store) and nothing more: the device key's seat, the
+  participant's timeline lock, the step's run, the run's prompts and the learner's version, all five
+  and the BEGIN in one pipelined round trip (as if every id were known in advance: the product
+  learns the participant from the seat, so it cannot do better); then the learner's new state (the
+  stored Exp3 state again, the same size), the audit row, one ``pg_notify``, the answer row and the
+  COMMIT in a second round trip.
 
 Answer rows go to a copy of the ``answer`` table without its indexes and constraints, so a step can
 be "answered" again and again and each route stays a lower bound of the real one. No ORM session,
@@ -58,7 +58,7 @@ from app import events  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.main import create_app  # noqa: E402
 from app.security import token_digest  # noqa: E402
-from app.services import runtime, step_store  # noqa: E402
+from app.services.sessions import runtime, step_store  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.sql import Cursor  # noqa: E402
 from bench.api import SYSTEM, Samples, alternate, bench_database, percentile, prepare  # noqa: E402

@@ -8,10 +8,10 @@ Run from the repository root (eight trainings, two at a time, 3–5 minutes each
 
 For each held-out population (K = 4, 12 answers): a pilot study of N participants is simulated
 (questions asked at random, as an Exp3 pilot nearly does), its steps fitted with
-``app.services.population_fit.fit_population``, and C2 meta-trained on the fitted population's
-smoothed prior (``Population.training_prior``) for the shipped protocol's feedback model, exactly
-as ``trustlab pretrain --population`` does. Then, on 10,000 fresh participants of the true
-population, answers to .95 for:
+``app.services.sessions.population_fit.fit_population``, and C2 meta-trained on the fitted
+population's smoothed prior (``Population.training_prior``) for the shipped protocol's feedback
+model, exactly as ``trustlab pretrain --population`` does. Then, on 10,000 fresh participants of the
+true population, answers to .95 for:
 
 - ``fitted``: C2 trained on the pilot's population;
 - ``uniform``: C2 trained on the uniform prior (the shipped generic K = 4 checkpoint);
@@ -69,7 +69,7 @@ from app.cli.simulated_population import (  # noqa: E402
     PopulationDraw,
     population_participants,
 )
-from app.services.population_fit import fit_population, sequences_from_steps  # noqa: E402
+from app.services.sessions.population_fit import fit_population, sequences_from_steps  # noqa: E402
 from bench.analysis import cpu_model  # noqa: E402
 from bench.population_fit import simulated_steps  # noqa: E402
 from models.checkpoints import (  # noqa: E402

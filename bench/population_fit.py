@@ -7,9 +7,9 @@ Run from the repository root::
 
 Simulates participants of a known population (three categories, K = 4, 12 answers each, prior
 .7/.1/.1/.1, slip .06, hazard .02) answering questions asked at random, writes them as a steps
-table, and times ``app.services.population_fit.fit_population``: the point fit of every category
-(the target) and, separately, the bootstrap. Prints the figures and how far the fit is from the
-truth. Never a test assertion.
+table, and times ``app.services.sessions.population_fit.fit_population``: the point fit of every
+category (the target) and, separately, the bootstrap. Prints the figures and how far the fit is from
+the truth. Never a test assertion.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ sys.path.insert(0, str(_ROOT))
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from app.services.population_fit import fit_population, sequences_from_steps  # noqa: E402
+from app.services.sessions.population_fit import fit_population, sequences_from_steps  # noqa: E402
 from bench.analysis import cpu_model  # noqa: E402
 from models.feedback import FeedbackModel  # noqa: E402
 from models.population import fit_category  # noqa: E402

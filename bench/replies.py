@@ -32,7 +32,7 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _ROOT / "bench
 sys.path.insert(0, str(_ROOT))
 
 from app.protocol import Protocol, default_protocol  # noqa: E402
-from app.services.learners import feedback_model  # noqa: E402
+from app.services.sessions.learners import feedback_model  # noqa: E402
 from bench.analysis import cpu_model  # noqa: E402
 from models.checkpoints import load_checkpoint, shipped_checkpoint  # noqa: E402
 from models.feedback import FeedbackModel  # noqa: E402

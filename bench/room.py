@@ -41,8 +41,9 @@ from playwright.sync_api import Page, sync_playwright  # noqa: E402
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.protocol import default_protocol  # noqa: E402
-from app.services import enrolment, questionnaires, studies  # noqa: E402
+from app.services import studies  # noqa: E402
 from app.services.audit import Actor  # noqa: E402
+from app.services.participants import enrolment, questionnaires  # noqa: E402
 from tests.conftest import TRUST_ANSWERS  # noqa: E402
 from tests.e2e import room_driver as drive  # noqa: E402
 from tests.servers import ServerProcess  # noqa: E402

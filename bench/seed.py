@@ -19,10 +19,11 @@ from sqlalchemy import insert, text
 from app.db import Database
 from app.protocol import LearnerKind, default_protocol, parse_protocol
 from app.randomisation import entry_at
-from app.services import stations, studies
+from app.services import studies
 from app.services.audit import Actor
-from app.services.learners import LearnerSpec
-from app.services.replies import choose_reply
+from app.services.sessions import stations
+from app.services.sessions.learners import LearnerSpec
+from app.services.sessions.replies import choose_reply
 from app.tables import (
     Allocation,
     Answer,

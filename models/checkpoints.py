@@ -785,7 +785,7 @@ def shipped_set(feedback: FeedbackModel) -> Path:
     """The shipped set trained for ``feedback``: :data:`REPLICATION_DIR` for the paper's
     Gaussian model, the default set (yes/no answers with slips and a hazard) otherwise. A
     protocol's model that neither was trained for is refused where the learner is built, with
-    the difference in words (app/services/learners.py)."""
+    the difference in words (app/services/sessions/learners.py)."""
     return REPLICATION_DIR if feedback.kind == "gaussian" else PRETRAINED_DIR
 
 

@@ -29,8 +29,10 @@ from app import schema, security
 from app.db import Database
 from app.main import create_app
 from app.protocol import default_protocol, parse_protocol
-from app.services import questionnaires, studies, users
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import questionnaires
+from app.services.staff import users
 from app.settings import Settings
 from app.tables import Participant, Role
 

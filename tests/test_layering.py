@@ -1,5 +1,6 @@
-"""The house's arrows (docs: DESIGN "Layout"): app → models, app → analysis, never back, and no
-circle of imports among the app's modules.
+"""The house's arrows (docs: DESIGN "Layout"): app → models, app → analysis, never back, no
+circle of imports among the app's modules, and app/services/ grouped by domain with the analysis
+views above the other domains.
 
 Read from the source (every ``import`` anywhere in a module, a function's own included, and
 ``importlib.import_module`` of a literal name), so a lazy import cannot hide an arrow that points
@@ -137,7 +138,7 @@ def test_the_cycle_finder_finds_a_circle() -> None:
     """The check above would pass on an empty answer: it must see a circle when there is one."""
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert _cycles(graph) == [["a", "b", "c"]]
-    assert "app.services.learners" in _app_graph()  # the graph is of the real modules
+    assert "app.services.sessions.learners" in _app_graph()  # the graph is of the real modules
 
 
 def test_an_import_by_importlib_is_an_import() -> None:
@@ -145,3 +146,30 @@ def test_an_import_by_importlib_is_an_import() -> None:
     assert [
         node.args[0].value for node in ast.walk(ast.parse(source)) if _is_import_module_call(node)
     ] == ["app.speech.engines"]
+
+
+SERVICE_DOMAINS = ("participants", "sessions", "privacy", "analysis_views", "staff")
+SHARED_SERVICES = {"__init__", "audit", "studies", "blinding", "topics"}
+"""app/services/ is grouped by domain (DESIGN "Growing the house, wave 4"); only what every domain
+uses stays at its top."""
+
+
+def test_every_service_module_lives_in_its_domain() -> None:
+    services = REPO_ROOT / "app" / "services"
+    flat = sorted(p.name for p in services.glob("*.py") if p.stem not in SHARED_SERVICES)
+    assert flat == [], f"put each in one of app/services/{{{','.join(SERVICE_DOMAINS)}}}/"
+    packages = sorted(p.name for p in services.iterdir() if (p / "__init__.py").exists())
+    assert packages == sorted(SERVICE_DOMAINS)
+
+
+def test_analysis_views_read_the_domains_and_no_domain_reads_them() -> None:
+    """The views turn every domain's data into pages and files; a domain that imported a view
+    would make its rules depend on how a page shows them."""
+    wrong = sorted(
+        f"{name} imports {target}"
+        for name, targets in _app_graph().items()
+        if name.startswith("app.services.") and not name.startswith("app.services.analysis_views")
+        for target in targets
+        if target.startswith("app.services.analysis_views")
+    )
+    assert wrong == []

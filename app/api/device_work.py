@@ -23,9 +23,9 @@ from starlette.types import ASGIApp
 from app.activity import ActivityRecorder
 from app.db import Database
 from app.errors import NotAuthenticated
-from app.services import stations
 from app.services.audit import Actor
-from app.services.step_store import DeviceSeat
+from app.services.sessions import stations
+from app.services.sessions.step_store import DeviceSeat
 from app.tables import ActorKind
 
 T = TypeVar("T")

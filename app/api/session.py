@@ -25,7 +25,7 @@ from app.deps import (
     set_session_cookie,
 )
 from app.errors import InvalidInput, NotAuthenticated, PermissionDenied
-from app.services import users
+from app.services.staff import users
 
 router = OneHopRouter(prefix="/session", tags=["session"])
 

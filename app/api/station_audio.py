@@ -24,7 +24,7 @@ leaves the lab. Protocol (docs/robot-integration.md, "The audio socket"):
 
 Audio is held in memory while its answer is recognised and dropped with it; only a study whose
 protocol sets ``[speech] record_audio = true`` stores the utterance of each recognised answer
-(app.services.answer_audio). Recognition runs in worker threads: the event loop never waits
+(app.services.sessions.answer_audio). Recognition runs in worker threads: the event loop never waits
 for it.
 """
 
@@ -57,7 +57,7 @@ from app.api.station_ws import (
 )
 from app.errors import Conflict, NotAuthenticated, TrustlabError
 from app.inputs import RowId
-from app.services.step_store import DeviceSeat
+from app.services.sessions.step_store import DeviceSeat
 from app.speech.engines import SAMPLE_RATE, EngineSettings, RecognitionLike, UtteranceLike
 from app.speech.pool import RecognizerPool
 from app.speech.vocabulary import Vocabulary

@@ -28,9 +28,11 @@ from app.api.runtime_schemas import (
 )
 from app.errors import Conflict, NotFound
 from app.protocol import Protocol
-from app.services import answer_audio, languages, room_presence, runtime, sites, stations
 from app.services.audit import Actor
-from app.services.step_store import Seat, Step
+from app.services.participants import languages
+from app.services.privacy import sites
+from app.services.sessions import answer_audio, room_presence, runtime, stations
+from app.services.sessions.step_store import Seat, Step
 from app.services.studies import protocol_of
 from app.speech.lines import RECOGNISED_LANGUAGES, spoken_lines
 from app.tables import Device, Station, Study
@@ -318,7 +320,7 @@ def state_out(view: runtime.StationView) -> StationStateOut:
 def device_out(device: Device, station: Station, contact: sites.Contact) -> DeviceOut:
     """Serialise a device (never its key), with what the console shows of it: connected or not,
     and its notice, so that a JSON client sees what the operator sees — as much of its contact as
-    the reader may see (``contact``: app.services.sites.Contact)."""
+    the reader may see (``contact``: app.services.privacy.sites.Contact)."""
     notice = (
         DeviceNotice(text=device.notice, attention=device.notice_attention, at=device.notice_at)
         if device.notice is not None and contact.when(device.notice_at) is not None

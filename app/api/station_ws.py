@@ -55,7 +55,7 @@ from app.errors import NotAuthenticated, TrustlabError
 from app.events import Event
 from app.http import refused_value_message
 from app.inputs import MAX_DIGITS, Count, RowId
-from app.services import stations
+from app.services.sessions import stations
 
 log = logging.getLogger(__name__)
 
@@ -384,7 +384,8 @@ class _Connection:
                 except NotAuthenticated:
                     await self.close_revoked()
                     return
-                # ``site`` only routes the event to staff pages (app.services.sites.reaches).
+                # ``site`` only routes the event to staff pages
+                # (app.services.privacy.sites.reaches).
                 data = {key: value for key, value in event.data.items() if key != "site"}
                 await self.send(
                     {"type": "event", "event": event.type, "data": data, "state": state}

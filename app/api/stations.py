@@ -38,8 +38,11 @@ from app.deps import (
     station_in_scope,
 )
 from app.inputs import RowId
-from app.services import enrolment, runtime, sites, stations, studies, tablet_tokens
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, tablet_tokens
+from app.services.privacy import sites
+from app.services.sessions import runtime, stations
 from app.tables import Device, Participant, Station, Study, User
 
 router = OneHopRouter(
@@ -50,7 +53,7 @@ devices_router = OneHopRouter(prefix="/devices", tags=["stations"])
 
 def _stations_out(db: SessionDep, found: list[Station], actor: Actor) -> list[StationOut]:
     """Stations with who is seated there and their devices, as much of their robots' contact as
-    ``actor`` may see (app.services.sites.Contact): two queries, however many."""
+    ``actor`` may see (app.services.privacy.sites.Contact): two queries, however many."""
     ids = [station.id for station in found]
     seated = {
         station_id: (code, study, site)

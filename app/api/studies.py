@@ -25,17 +25,10 @@ from app.api.schemas import (
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import (
-    blinding,
-    consent,
-    enrolment,
-    erasure,
-    questionnaires,
-    sites,
-    studies,
-    tablet_tokens,
-)
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, questionnaires, tablet_tokens
+from app.services.privacy import consent, erasure, sites
 from app.tables import Participant, Study, StudyStatus
 
 router = APIRouter(prefix="/studies", tags=["studies"])

@@ -16,8 +16,8 @@ from app.deps import OneHopRouter, SessionDep
 from app.errors import InvalidInput
 from app.i18n.languages import native_name
 from app.inputs import SessionNumber, VersionNumber
-from app.services import consent as consent_versions
-from app.services import questionnaires
+from app.services.participants import questionnaires
+from app.services.privacy import consent as consent_versions
 from app.tablet import BearerTablet, Tablet
 from app.web import tablet_pages
 from app.web.tablet_pages import participant_actor

@@ -1,8 +1,8 @@
 """``trustlab user …``: dashboard accounts from the server's command line.
 
 The command line acts as an admin (app.services.audit.Actor.command_line) and shares every rule
-with the admin pages through app.services.accounts: the last active admin stays, disabling ends
-sessions, and every change is audited. It is also the way back in when no admin can sign in:
+with the admin pages through app.services.staff.accounts: the last active admin stays, disabling
+ends sessions, and every change is audited. It is also the way back in when no admin can sign in:
 ``trustlab user unlock NAME`` ends a lockout after failed sign-ins, ``set-password`` resets a
 forgotten password. Passwords are never taken from the command's arguments (they would stay in
 the shell's history and show in the process list): they come from a hidden prompt on a terminal,
@@ -19,8 +19,9 @@ import typer
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.db import Database
 from app.errors import InvalidInput
-from app.services import accounts, sites, users
 from app.services.audit import Actor
+from app.services.privacy import sites
+from app.services.staff import accounts, users
 from app.settings import Settings
 from app.tables import Role
 

@@ -18,8 +18,11 @@ from app.db import Database, describe_url
 from app.demo import QuietWhileFilling, pending_demo, plan_demo, run_demo
 from app.errors import InvalidInput
 from app.protocol import default_protocol, load_protocol_file
-from app.services import audit, blinding, enrolment, erasure, languages, studies, users
+from app.services import audit, blinding, studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, languages
+from app.services.privacy import erasure
+from app.services.staff import users
 from app.settings import Settings
 from app.tables import Role
 
@@ -216,7 +219,7 @@ def db_backup(
             db,
             actor=Actor.command_line(),
             action="db.backed_up",
-            # Absolute: an erasure run from another folder lists it (app.services.erasure).
+            # Absolute: an erasure run from another folder lists it (app.services.privacy.erasure).
             details={"file": str(written.resolve())},
         )
         db.commit()
@@ -450,7 +453,7 @@ def participant_export(
     """Everything stored about one participant, as JSON and a readable HTML page (for their
     subject-access request). Owner-only files; audited."""
     from app.private_files import new_private_file, refuse_existing, refuse_link
-    from app.services import subject_access
+    from app.services.privacy import subject_access
     from app.web.templating import environment
 
     targets = [out / f"{code}.json", out / f"{code}.html"]

@@ -9,8 +9,8 @@ import typer
 
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema, study_cli
 from app.errors import InvalidInput
-from app.services import consent
 from app.services.audit import Actor
+from app.services.privacy import consent
 from app.settings import Settings
 
 

@@ -574,7 +574,7 @@ def training_feedback(
     override these defaults.
     """
     from app.protocol import default_protocol, load_protocol_file
-    from app.services.learners import feedback_model
+    from app.services.sessions.learners import feedback_model
 
     if mode != "online" or paper:
         if protocol is not None:

@@ -22,9 +22,11 @@ from analysis.prereg import FORMAT
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
 from app.private_files import new_private_file, refuse_existing, refuse_link
-from app.services import audit, pseudonyms, sites, studies, study_data
+from app.services import audit, studies
+from app.services.analysis_views import study_data
 from app.services.audit import Actor
 from app.services.blinding import is_sealed
+from app.services.privacy import pseudonyms, sites
 from app.settings import Settings
 
 ALL = "all"
@@ -107,7 +109,7 @@ def export(
             write_export(dataset, format, draft)
         written = {format: out}
     files = {
-        # Absolute: an erasure run from another folder lists them (app.services.erasure).
+        # Absolute: an erasure run from another folder lists them (app.services.privacy.erasure).
         name: {"path": str(path.resolve()), "sha256": sha256_file(path)}
         for name, path in written.items()
     }

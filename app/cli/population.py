@@ -2,7 +2,7 @@
 
 Reads the steps of one or more stored studies (or an exported steps CSV), fits each category's
 prior over the preferred question, slip rate and hazard by EM with bootstrap intervals over
-participants (app/services/population_fit.py), writes the population file and, beside it, a
+participants (app/services/sessions/population_fit.py), writes the population file and, beside it, a
 figure of the fitted prior with its intervals (``FILE-stem.prior.html``), and prints a one-page
 summary. Nothing is written when the input is unusable.
 """
@@ -19,9 +19,10 @@ from analysis.exports.tables import steps_table
 from analysis.population import STEP_COLUMNS, Population, write_population, write_prior_figure
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.services import studies, study_data
-from app.services.population_fit import fit_population
-from app.services.sites import Scope
+from app.services import studies
+from app.services.analysis_views import study_data
+from app.services.privacy.sites import Scope
+from app.services.sessions.population_fit import fit_population
 from app.settings import Settings
 from app.tables import StudyStatus
 

@@ -454,8 +454,9 @@ def read_pilot(
         }
     from analysis.study import analyse_study
     from app.cli.admin import open_database, require_current_schema
-    from app.services import studies, study_data
-    from app.services.sites import Scope
+    from app.services import studies
+    from app.services.analysis_views import study_data
+    from app.services.privacy.sites import Scope
     from app.settings import Settings
 
     database = open_database(Settings())

@@ -10,7 +10,7 @@ report checked against it repeats it. The files are the study's plan, attached t
 registration; they are written as exports are (owner-only, never through a link, never over an
 existing file without ``--force``) and the writing is audited with prereg.json's SHA-256 and the
 analysis plan, which every later report of the study checks its analyses against
-(:mod:`app.services.registrations`).
+(:mod:`app.services.analysis_views.registrations`).
 """
 
 from __future__ import annotations
@@ -36,9 +36,10 @@ from app.cli.admin import JsonFlag, emit_json, open_database, require_current_sc
 from app.cli.power import answer_question
 from app.errors import InvalidInput
 from app.private_files import new_private_file, refuse_existing, refuse_link
-from app.services import audit, registrations, studies, study_data
+from app.services import audit, studies
+from app.services.analysis_views import registrations, study_data
 from app.services.audit import Actor
-from app.services.sites import Scope
+from app.services.privacy.sites import Scope
 from app.settings import Settings
 from app.tables import utcnow
 

@@ -15,8 +15,8 @@ import typer
 
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.services import retention
 from app.services.audit import Actor
+from app.services.privacy import retention
 from app.settings import Settings
 from app.tables import utcnow
 

@@ -17,7 +17,7 @@ from app.cli.admin import JsonFlag, emit_json
 from app.cli.errors import fail
 from app.client import ApiError, DeviceKeyRefused, StationSocket
 from app.errors import InvalidInput
-from app.services.runtime import session_label
+from app.services.sessions.runtime import session_label
 
 
 def register(cli: typer.Typer) -> None:

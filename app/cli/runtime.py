@@ -9,8 +9,8 @@ import typer
 from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import NotFound
 from app.inputs import MAX_ROW_ID
-from app.services import stations, verify
 from app.services.audit import Actor
+from app.services.sessions import stations, verify
 from app.settings import Settings
 from app.wording import counted
 

@@ -19,7 +19,7 @@ class Actor:
     name: str
     role: Role | None = None
     sites: frozenset[str] | None = None
-    """The only sites whose participants this actor may see and act on (app.services.sites);
+    """The only sites whose participants this actor may see and act on (app.services.privacy.sites);
     None: every site."""
 
     @classmethod

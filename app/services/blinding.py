@@ -42,9 +42,10 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict
 from app.protocol import Protocol
-from app.services import audit, stations
+from app.services import audit
 from app.services.audit import Actor
-from app.services.sites import STUDY_WIDE
+from app.services.privacy.sites import STUDY_WIDE
+from app.services.sessions import stations
 from app.services.studies import get_study, protocol_of
 from app.tables import Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
@@ -57,7 +58,7 @@ LEARNERS_SEALED = (
 
 def sealed(protocol: Protocol, *, unblinded: bool) -> bool:
     """The rule itself: a blinded protocol whose study has not been unblinded (the runtime asks
-    with the seat it has read, app.services.step_store; pages with the study row)."""
+    with the seat it has read, app.services.sessions.step_store; pages with the study row)."""
     return protocol.study.blinded and not unblinded
 
 

@@ -12,8 +12,9 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import STUDY_NAME
 from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
-from app.services import audit, learners, populations
+from app.services import audit
 from app.services.audit import Actor
+from app.services.sessions import learners, populations
 from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
 DEFAULT_STUDY_NAME = "default"
@@ -87,8 +88,8 @@ def create_study(
 def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | None:
     """Check the protocol's population before a study is created from it; what the audit log
     records of it (None when the protocol names no population). Here, above both, because it
-    joins the population (app.services.populations) with the learners' checkpoints
-    (app.services.learners), which are built from the population.
+    joins the population (app.services.sessions.populations) with the learners' checkpoints
+    (app.services.sessions.learners), which are built from the population.
 
     Raises
     ------
@@ -202,7 +203,7 @@ def count_studies(db: Session) -> int:
 
 def enrolment_counts(db: Session, study: Study, *, actor: Actor) -> dict[str, dict[str, int]]:
     """Participants per condition and status: ``{condition: {status: n}}``, of the sites
-    ``actor`` may see (app.services.sites)."""
+    ``actor`` may see (app.services.privacy.sites)."""
     query = (
         select(Allocation.condition, Participant.status, func.count())
         .join(Participant, Participant.id == Allocation.participant_id)

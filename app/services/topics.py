@@ -3,8 +3,8 @@
 Who listens to which: a study's pages and dashboard to its study topic; a station's operator
 console, its robots' WebSockets, its room and a kiosk tablet to the station topic (the console's
 room panel also to the room topic); a participant's tablet to the participant topic. They live
-here, below every service, so that app.services.participant_changes can name them all while the
-services that publish changes (stations, questionnaires, erasure …) import it.
+here, below every service, so that app.services.participants.participant_changes can name them all
+while the services that publish changes (stations, questionnaires, erasure …) import it.
 """
 
 from __future__ import annotations

@@ -1,11 +1,12 @@
 """Account pages: an admin's page per account (role, password, disable or enable, unlock) and
 every user's own page (change their password).
 
-Accounts are named by username in URLs (exactly: app.services.users.named). Every change goes
-through app.services.accounts, which the command line shares, so the rules (the last active admin
-stays, disabling ends sessions at once) and the audit log are the same. Changes that end someone's
-sign-ins are made from a page of their own that says so (disabling asks "Disable ada?" first), as
-plain forms: a refusal is a page with a 4xx status, which a browser shows (htmx would not swap it).
+Accounts are named by username in URLs (exactly: app.services.staff.users.named). Every change goes
+through app.services.staff.accounts, which the command line shares, so the rules (the last active
+admin stays, disabling ends sessions at once) and the audit log are the same. Changes that end
+someone's sign-ins are made from a page of their own that says so (disabling asks "Disable ada?"
+first), as plain forms: a refusal is a page with a 4xx status, which a browser shows (htmx would not
+swap it).
 """
 
 from __future__ import annotations
@@ -17,8 +18,9 @@ from fastapi.responses import Response
 
 from app.deps import AdminUser, CurrentLogin, DatabaseDep, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput, PermissionDenied, TooManyAttempts, TrustlabError
-from app.services import accounts, sites, users
 from app.services.audit import Actor
+from app.services.privacy import sites
+from app.services.staff import accounts, users
 from app.tables import Role
 from app.web.templating import redirect_with_notice, render
 

@@ -12,8 +12,9 @@ from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
 from app.inputs import STUDY_NAME
 from app.protocol import ProtocolError, parse_protocol
-from app.services import accounts, blinding, studies, users
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.staff import accounts, users
 from app.tables import Role, StudyStatus
 from app.web.templating import redirect_with_notice, render
 

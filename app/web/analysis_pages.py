@@ -17,11 +17,13 @@ from analysis.study import analyse_study
 from app.deps import AnalystUser, OneHopRouter, ReaderScope, SessionDep, SiteFilter
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
-from app.services import audit, blinding, pseudonyms, sites, studies, study_data
-from app.services.analysis_view import analysis_view
+from app.services import audit, blinding, studies
+from app.services.analysis_views import study_data
+from app.services.analysis_views.analysis_view import analysis_view
+from app.services.analysis_views.mixed_view import mixed_view
+from app.services.analysis_views.power_view import PlanForm, plan_view, prefilled
 from app.services.audit import Actor
-from app.services.mixed_view import mixed_view
-from app.services.power_view import PlanForm, plan_view, prefilled
+from app.services.privacy import pseudonyms, sites
 from app.web.templating import is_htmx, render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)

@@ -4,9 +4,10 @@ The sign-in form is protected against cross-site posts by a signed double-submit
 sets a random nonce cookie and embeds the nonce's HMAC in the form; a post is accepted only when
 the two match. After sign-in, forms use the login's own CSRF token (see app.deps). A sign-in first
 counts the attempt and reads the account in a short write transaction of its own
-(app.services.login_throttle: so that no more attempts than the limit are ever checked), checks the
-password (Argon2id, slow by design) with no transaction open, and then records the outcome and the
-new login in the request's write transaction, so it never holds SQLite's write lock while hashing.
+(app.services.staff.login_throttle: so that no more attempts than the limit are ever checked),
+checks the password (Argon2id, slow by design) with no transaction open, and then records the
+outcome and the new login in the request's write transaction, so it never holds SQLite's write lock
+while hashing.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from app.deps import (
 )
 from app.errors import TooManyAttempts
 from app.security import new_token, same, sign, unsign
-from app.services import users
+from app.services.staff import users
 from app.web.templating import render
 
 router = OneHopRouter(tags=["pages"], include_in_schema=False)

@@ -11,9 +11,12 @@ from starlette.concurrency import run_in_threadpool
 from analysis.population import source_label
 from app.db import Database
 from app.deps import CurrentUser, SessionDep, SiteFilter, StreamingUser
-from app.services import blinding, dashboard, learners, sites, stations, studies
+from app.services import blinding, studies
+from app.services.analysis_views import dashboard
+from app.services.analysis_views.freshness import FreshnessCache
 from app.services.audit import Actor
-from app.services.freshness import FreshnessCache
+from app.services.privacy import sites
+from app.services.sessions import learners, stations
 from app.web.templating import render
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
@@ -61,9 +64,9 @@ async def dashboard_data(
     Dashboards share one computation, and its encoded body, whenever it includes every change of
     the study this process had counted when they asked and is at most ``DASHBOARD_DATA_MAX_AGE``
     old; a newer one starts at most every ``DASHBOARD_DATA_MIN_INTERVAL`` (app/main.py,
-    app/services/freshness.py). Waiting for one holds no admission slot, connection or snapshot:
-    only the reads and the computation itself are admitted like any request's database work
-    (while a dashboard waited holding a slot, other requests queued behind it).
+    app/services/analysis_views/freshness.py). Waiting for one holds no admission slot, connection
+    or snapshot: only the reads and the computation itself are admitted like any request's database
+    work (while a dashboard waited holding a slot, other requests queued behind it).
     """
     database: Database = request.app.state.database
     actor = Actor.of_user(user)

@@ -2,7 +2,7 @@
 
 Streams are long-lived, so they check the user and the name in a short unit of work and then hold
 no database connection while they wait for events; each ends when its login does. Each carries
-the account's scope (app.services.sites): an account limited to some sites hears nothing of
+the account's scope (app.services.privacy.sites): an account limited to some sites hears nothing of
 another site's participants, and a station seating one does not exist for it, as on every other
 route of the station.
 """
@@ -16,8 +16,11 @@ from starlette.concurrency import run_in_threadpool
 from app.db import Database
 from app.deps import OneHopRouter, StreamingLogin
 from app.errors import NotFound
-from app.services import room_presence, sites, stations, studies, users
+from app.services import studies
 from app.services.audit import Actor
+from app.services.privacy import sites
+from app.services.sessions import room_presence, stations
+from app.services.staff import users
 from app.web.streams import event_stream
 
 ROOM_EVENT = "room"

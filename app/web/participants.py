@@ -15,17 +15,10 @@ from app.deps import (
 )
 from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n.languages import native_name
-from app.services import (
-    blinding,
-    consent,
-    enrolment,
-    languages,
-    questionnaires,
-    studies,
-    tablet_tokens,
-    timeline,
-)
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, languages, questionnaires, tablet_tokens, timeline
+from app.services.privacy import consent
 from app.tables import Role
 from app.web.qr import tablet_link
 from app.web.templating import redirect_with_notice, render

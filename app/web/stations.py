@@ -1,8 +1,8 @@
 """Stations, device keys and the operator console (with Wizard-of-Oz).
 
 The console's buttons go through exactly the operations the robot API uses (app/api/station_ops.py
-and app/services/runtime.py): a Wizard-of-Oz prompt or answer is indistinguishable from a robot's,
-apart from who the step log says did it.
+and app/services/sessions/runtime.py): a Wizard-of-Oz prompt or answer is indistinguishable from a
+robot's, apart from who the step log says did it.
 """
 
 from __future__ import annotations
@@ -31,19 +31,11 @@ from app.deps import (
 from app.errors import Conflict, InvalidInput, NotFound, TrustlabError
 from app.inputs import RowId
 from app.security import sign, unsign
-from app.services import (
-    blinding,
-    enrolment,
-    languages,
-    learners,
-    room_presence,
-    runtime,
-    sites,
-    stations,
-    studies,
-    tablet_tokens,
-)
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, languages, tablet_tokens
+from app.services.privacy import sites
+from app.services.sessions import learners, room_presence, runtime, stations
 from app.tables import (
     Device,
     LearnerState,
@@ -59,7 +51,7 @@ from app.web.qr import TabletLink, tablet_link
 from app.web.templating import redirect_with_notice, render
 
 # A site-limited account meets a station seating another site's participant as if it did not
-# exist (app.services.sites), on every route of a named station.
+# exist (app.services.privacy.sites), on every route of a named station.
 router = OneHopRouter(
     tags=["pages"], include_in_schema=False, dependencies=[Depends(station_in_scope)]
 )
@@ -276,7 +268,7 @@ def _probabilities(db: SessionDep, participant: Participant) -> list[dict[str, A
 
 @dataclass(frozen=True)
 class SeatingQuestion:
-    """A seating the console asks about before doing it (app.services.stations.
+    """A seating the console asks about before doing it (app.services.sessions.stations.
     seating_questions): the reasons, and the form's study and code that "Seat anyway" sends
     again, confirmed."""
 

@@ -3,8 +3,8 @@
 Pages listen with EventSource (or htmx's SSE extension) and fetch what they show again; events
 carry only their type, so a page never renders from a push it could not have fetched itself.
 Nor does a page hear *when* something it could not fetch happened: every stream takes the
-reader's scope (app.services.sites.Scope, required), and an event about a participant of a site
-out of scope never reaches it, not even as a bare "changed".
+reader's scope (app.services.privacy.sites.Scope, required), and an event about a participant of a
+site out of scope never reaches it, not even as a bare "changed".
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator, Iterable, Mapping
 from fastapi.responses import StreamingResponse
 
 from app.events import EventHub
-from app.services.sites import Scope, reaches
+from app.services.privacy.sites import Scope, reaches
 
 KEEPALIVE_SECONDS = 15.0
 COALESCE_SECONDS = 0.1
@@ -37,15 +37,15 @@ def event_stream(
 ) -> StreamingResponse:
     """An endless ``text/event-stream`` of ``changed`` events for ``topics`` (with keep-alives),
     which ends as soon as an event arrives on the topic ``ends_with``: a signed-in page's stream
-    ends with its login (app.services.users.login_topic), so a browser signed out, or whose
+    ends with its login (app.services.staff.users.login_topic), so a browser signed out, or whose
     account is disabled, hears nothing more (the EventSource's reconnection is refused).
 
     ``named`` maps further topics to an SSE event name of their own, so that a part of the page
     that changes often (the console's room panel) refreshes alone instead of the whole page.
 
-    ``scope``: whose activity the reader may hear of (app.services.sites.reaches); the events
-    of other sites' participants are dropped before they are counted, so a burst of them sends
-    nothing at all."""
+    ``scope``: whose activity the reader may hear of (app.services.privacy.sites.reaches); the
+    events of other sites' participants are dropped before they are counted, so a burst of them
+    sends nothing at all."""
     named = dict(named or {})
     subscribed = [*topics, *named, *([ends_with] if ends_with else [])]
 

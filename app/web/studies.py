@@ -19,17 +19,11 @@ from app.deps import (
 )
 from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n.languages import native_name
-from app.services import (
-    blinding,
-    consent,
-    enrolment,
-    erasure,
-    overview,
-    retention,
-    sites,
-    studies,
-)
+from app.services import blinding, studies
+from app.services.analysis_views import overview
 from app.services.audit import Actor
+from app.services.participants import enrolment
+from app.services.privacy import consent, erasure, retention, sites
 from app.tables import ParticipantStatus, Role, User
 from app.web.templating import is_htmx, redirect_with_notice, render
 

@@ -24,9 +24,10 @@ from app.i18n.languages import native_name
 from app.inputs import SessionNumber, VersionNumber
 from app.protocol import InstrumentSpec
 from app.security import same
-from app.services import consent, languages, questionnaires
 from app.services.audit import Actor
-from app.services.sites import Scope
+from app.services.participants import languages, questionnaires
+from app.services.privacy import consent
+from app.services.privacy.sites import Scope
 from app.tables import ActorKind
 from app.tablet import TABLET_COOKIE, CookieTablet, Tablet, form_token, resolve
 from app.web.streams import event_stream

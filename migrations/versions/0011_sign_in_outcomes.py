@@ -8,7 +8,8 @@ Before this revision an attempt was recorded as a failure *before* its password 
 (``succeeded`` false), and marked succeeded afterwards: parallel right passwords were refused,
 and a server that stopped during a check left a failure that locked the account for the window.
 ``login_attempt.outcome`` replaces the flag: ``pending`` while the check runs, then ``failed``
-or ``succeeded``; a start turns pending attempts into ``abandoned`` (app.services.login_throttle).
+or ``succeeded``; a start turns pending attempts into ``abandoned``
+(app.services.staff.login_throttle).
 
 Upgrade: succeeded attempts become ``succeeded``, every other one ``failed`` (the old rows cannot
 tell a real failure from an interrupted check, so the failures recorded in the last 15 minutes

@@ -4,10 +4,10 @@ Revision ID: 0016
 Revises: 0015
 Create Date: 2026-12-06
 
-- ``participant.erased_at``: set when a participant's data was erased (app.services.erasure).
-  The row itself stays, under a pseudonym instead of the code, because its allocation must stay:
-  the randomisation sequence, its balance and dropout replacements are checked against every
-  revealed slot.
+- ``participant.erased_at``: set when a participant's data was erased
+  (app.services.privacy.erasure). The row itself stays, under a pseudonym instead of the code,
+  because its allocation must stay: the randomisation sequence, its balance and dropout replacements
+  are checked against every revealed slot.
 - ``erasure_in_progress``: marker rows that exist only inside an erasure's transaction.
 - The append-only guards of ``prompt``, ``answer`` and ``audit_event`` let an erasure delete or
   rewrite the marked participant's rows (app.schema.create_erasable_guard); everyone else still

@@ -5,7 +5,7 @@ Revises: 0017
 Create Date: 2026-12-06
 
 ``participant.anonymised_at`` is set when ``trustlab retention run`` anonymised the participant
-after their study's retention period ran out (app.services.retention): their code is then a
+after their study's retention period ran out (app.services.privacy.retention): their code is then a
 random id and their free text, transcripts and recordings are gone. Downgrade drops the column
 (anonymised participants stay anonymised; a later run would only find nothing left to drop).
 """

@@ -6,7 +6,7 @@ Create Date: 2026-12-06
 
 - ``participant.site``: one of the study's ``[sites] names`` (NULL in a study without sites).
 - ``user.sites``: a JSON list of site names the account's participants are limited to; NULL
-  means every site (app.services.sites). Admins see every site whatever it holds.
+  means every site (app.services.privacy.sites). Admins see every site whatever it holds.
 
 Downgrade drops both columns: every account then sees every participant again.
 """

@@ -7,7 +7,7 @@ Create Date: 2026-12-07
 A station of a site is, for an account limited to other sites, as if it did not exist, and only
 that site's participants are seated there; a shared station (NULL, every station so far) is
 listed for everyone, its robots' contact shown to a limited account only while one of its own
-participants is seated there (app.services.sites).
+participants is seated there (app.services.privacy.sites).
 
 Downgrade drops the column: every station is shared again.
 """

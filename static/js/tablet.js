@@ -49,7 +49,7 @@
 
   const stream = document.body.dataset.events;
   if (stream) {
-    // Participant changes the page acts on by name (app/services/participant_changes.py): an
+    // Participant changes the page acts on by name (app/services/participants/participant_changes.py): an
     // erasure ends the tablet's link, so the tablet says its thanks on a page that needs none,
     // in the language it shows; an anonymisation ends it too, and the page shown stays right.
     const ERASED = "participant_erased";

@@ -15,7 +15,7 @@ from analysis.population import (
     steps_sha256,
     write_population,
 )
-from app.services.population_fit import fit_population
+from app.services.sessions.population_fit import fit_population
 
 
 def _steps(

@@ -20,7 +20,7 @@ from analysis.report import build_report
 from analysis.specification import analysis_specification, study_covariates
 from analysis.study import OutcomeAnalysis, StudyAnalysis, analyse_study
 from analysis.synthetic import synthetic_study
-from app.services.mixed_view import mixed_view
+from app.services.analysis_views.mixed_view import mixed_view
 
 NOT_FITS = {
     "OutcomeAnalysis": {

@@ -2,8 +2,8 @@
 
 Kept as the oracle of tests/app/test_dashboard_data.py: two SQL aggregations read into pandas
 frames, moments turned into cells with pandas, and the analysis builders' DataFrame path (the one
-the PI's report takes). The fast path in app/services/dashboard.py must give the same payloads.
-Not used by the application.
+the PI's report takes). The fast path in app/services/analysis_views/dashboard.py must give the same
+payloads. Not used by the application.
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ from analysis.figures import (
     mean_ci_payload_from_cells,
 )
 from app.protocol import Protocol
+from app.services.analysis_views.dashboard import SessionItem, session_items
 from app.services.audit import Actor
 from app.services.blinding import LEARNERS_SEALED, shows_learners
-from app.services.dashboard import SessionItem, session_items
-from app.services.enrolment import condition_label
+from app.services.participants.enrolment import condition_label
 from app.services.studies import protocol_of
 from app.tables import (
     Allocation,

@@ -11,8 +11,9 @@ from fastapi.testclient import TestClient
 
 from app.access import Principal
 from app.db import Database
-from app.services import enrolment, runtime, stations, tablet_tokens
 from app.services.audit import Actor
+from app.services.participants import enrolment, tablet_tokens
+from app.services.sessions import runtime, stations
 from app.tables import Role
 from app.tablet import TABLET_COOKIE
 from tests.conftest import give_pre_study, make_user, sign_in_api

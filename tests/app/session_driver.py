@@ -15,8 +15,9 @@ import httpx
 from sqlalchemy import select
 
 from app.db import Database
-from app.services import enrolment, stations, tablet_tokens, verify
 from app.services.audit import Actor
+from app.services.participants import enrolment, tablet_tokens
+from app.services.sessions import stations, verify
 from app.tables import Answer, LearnerState, Prompt, Role, Submission
 from tests.conftest import (
     PASSWORD,

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from app.db import Database
-from app.services import login_throttle
+from app.services.staff import login_throttle
 from app.tables import AuditEvent, Role
 from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in_api
 

@@ -12,8 +12,8 @@ from sqlalchemy import select
 
 from app.db import Database
 from app.errors import Conflict, NotFound, PermissionDenied, TooManyAttempts
-from app.services import accounts, login_throttle, users
 from app.services.audit import Actor
+from app.services.staff import accounts, login_throttle, users
 from app.tables import AuditEvent, LoginAttempt, LoginSession, Role, User
 from tests.conftest import PASSWORD, make_user
 

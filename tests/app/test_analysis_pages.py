@@ -22,7 +22,7 @@ from analysis.scoring import TIPI_SCALES, nars_scales
 from app.cli import cli
 from app.db import Database
 from app.protocol import default_protocol
-from app.services import study_data
+from app.services.analysis_views import study_data
 from app.tables import AuditEvent, Role, Study
 from bench.seed import seed_study
 from tests.conftest import Lab, UserClientFactory, create_blinded_study

@@ -29,7 +29,7 @@ from schemathesis.specs.openapi.checks import (
 
 from app.access import Principal
 from app.db import Database
-from app.services import verify
+from app.services.sessions import verify
 from tests.app.lab_world import World, build_world, client_for
 
 EXAMPLES_PER_OPERATION = 25

@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import event, select, update
 
 from app.db import Database
-from app.services import accounts, users
 from app.services.audit import Actor
+from app.services.staff import accounts, users
 from app.tables import AttemptOutcome, AuditEvent, LoginAttempt, LoginSession, Role, utcnow
 from tests.conftest import CSRF_INPUT, PASSWORD, UserClientFactory, make_user, sign_in, sqlite_only
 

@@ -20,11 +20,12 @@ from analysis.report import build_report
 from analysis.study import analyse_study
 from app.db import Database
 from app.protocol import ProtocolError, parse_protocol
-from app.services import learner_cache, learners, populations, studies, verify
+from app.services import studies
+from app.services.analysis_views.study_data import load_dataset
 from app.services.audit import Actor
-from app.services.enrolment import enroll_participant
-from app.services.sites import Scope
-from app.services.study_data import load_dataset
+from app.services.participants.enrolment import enroll_participant
+from app.services.privacy.sites import Scope
+from app.services.sessions import learner_cache, learners, populations, verify
 from app.tables import Answer, LearnerState, Participant, Prompt, Role
 from models.feedback import FeedbackModel
 from models.learners.bayes import BayesLearner

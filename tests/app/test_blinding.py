@@ -20,7 +20,7 @@ from app.events import Event, EventHub
 from app.protocol import parse_protocol
 from app.services import studies
 from app.services.audit import Actor
-from app.services.sites import Scope
+from app.services.privacy.sites import Scope
 from app.tables import Answer, AuditEvent, Prompt, Role, StudyStatus
 from app.web.streams import event_stream
 from tests.conftest import (

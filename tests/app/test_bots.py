@@ -20,8 +20,11 @@ from app.cli import cli
 from app.client import ApiError, ExperimenterClient
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import accounts, enrolment, stations, studies, users, verify
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import enrolment
+from app.services.sessions import stations, verify
+from app.services.staff import accounts, users
 from app.settings import Settings
 from app.tables import Answer, Device, Participant, Prompt, Response, Role, Station
 from tests.conftest import PASSWORD, make_user, sqlite_only

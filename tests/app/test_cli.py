@@ -18,7 +18,7 @@ from analysis.exports import EXPORT_FORMATS
 from app import demo, schema
 from app.cli import cli
 from app.db import Database
-from app.services import users
+from app.services.staff import users
 from app.settings import REPO_ROOT, Settings
 from tests.conftest import protocol_text, sqlite_only
 

@@ -10,7 +10,7 @@ from sqlalchemy import select
 
 from app.cli import accounts as accounts_cli
 from app.db import Database
-from app.services import login_throttle, users
+from app.services.staff import login_throttle, users
 from app.tables import AuditEvent, LoginSession, Role
 from tests.app.test_cli import run
 from tests.conftest import PASSWORD, make_user

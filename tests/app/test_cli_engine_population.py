@@ -11,7 +11,7 @@ import typer
 
 from analysis.population import Population, read_population, write_population
 from app.cli.engine import EXIT_BAD_INPUT
-from app.services.population_fit import fit_population
+from app.services.sessions.population_fit import fit_population
 from models.checkpoints import load_checkpoint
 from models.learners.meta_policy import MetaPolicyLearner
 from tests.analysis.test_population_file import _steps

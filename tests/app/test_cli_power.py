@@ -15,8 +15,9 @@ from analysis.study import analyse_study
 from app.cli.analysis import EXIT_BAD_INPUT
 from app.cli.power import register
 from app.db import Database
-from app.services import studies, study_data
-from app.services.sites import Scope
+from app.services import studies
+from app.services.analysis_views import study_data
+from app.services.privacy.sites import Scope
 from bench.seed import seed_study
 from tests.conftest import sqlite_only
 

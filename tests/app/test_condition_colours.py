@@ -10,8 +10,8 @@ from analysis.figures import PALETTE
 from analysis.report import build_report
 from analysis.study import analyse_study
 from app.services import studies
-from app.services.sites import Scope
-from app.services.study_data import load_dataset
+from app.services.analysis_views.study_data import load_dataset
+from app.services.privacy.sites import Scope
 from tests.conftest import Lab
 
 

@@ -14,8 +14,9 @@ from sqlalchemy import func, select, update
 from app.db import Database
 from app.errors import InvalidInput, NotFound
 from app.protocol import parse_protocol
-from app.services import consent, studies, subject_access
+from app.services import studies
 from app.services.audit import Actor
+from app.services.privacy import consent, subject_access
 from app.settings import REPO_ROOT
 from app.tables import AuditEvent, ConsentRecord, ConsentVersion, Response, Role
 from tests.conftest import (
@@ -167,7 +168,7 @@ def test_without_reconsent_the_flag_only_informs(app: FastAPI, lab: Lab) -> None
 
 
 def _participant(db: object, study: str, code: str) -> tuple[object, object]:
-    from app.services import enrolment
+    from app.services.participants import enrolment
 
     found = studies.get_study(db, study)  # type: ignore[arg-type]
     return enrolment.get_participant(db, found, code, actor=Actor.system()), found  # type: ignore[arg-type]
@@ -261,7 +262,7 @@ def test_unchanged_unknown_and_unmentioned_recording_are_refused(database: Datab
 
 
 def test_verify_checks_each_consent_against_its_version(lab: Lab) -> None:
-    from app.services import verify
+    from app.services.sessions import verify
 
     lab = dataclasses.replace(lab, study=_create(lab.database, "checked", **RECONSENT))
     code = lab.enrol_and_assign()

@@ -16,9 +16,10 @@ from sqlalchemy.orm import Session
 
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import dashboard, studies
+from app.services import studies
+from app.services.analysis_views import dashboard
+from app.services.analysis_views.freshness import FreshnessCache
 from app.services.audit import Actor
-from app.services.freshness import FreshnessCache
 from app.tables import (
     ActorKind,
     Answer,

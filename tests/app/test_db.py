@@ -10,7 +10,7 @@ from typing import Any
 from sqlalchemy import event, text
 
 from app.db import WAL_AUTOCHECKPOINT_PAGES, Database
-from app.services import learner_cache
+from app.services.sessions import learner_cache
 from models.learners.exp3 import Exp3
 
 

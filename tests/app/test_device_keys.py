@@ -6,7 +6,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from app.security import token_digest
-from app.services.stations import KEY_MAX_LENGTH
+from app.services.sessions.stations import KEY_MAX_LENGTH
 from app.tables import Device, Station
 from tests.conftest import Lab
 

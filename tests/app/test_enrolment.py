@@ -18,8 +18,9 @@ from app.db import Database
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import parse_protocol
 from app.randomisation import entry_at
-from app.services import audit, enrolment, studies
+from app.services import audit, studies
 from app.services.audit import Actor
+from app.services.participants import enrolment
 from app.tables import Allocation, AuditEvent, Participant, Role, StudyStatus
 from tests.conftest import Lab, UserClientFactory, protocol_text, sqlite_only
 

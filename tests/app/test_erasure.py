@@ -14,8 +14,10 @@ from sqlalchemy.exc import DBAPIError
 from typer.testing import CliRunner
 
 from app.cli import cli
-from app.services import audit, erasure, subject_access, verify
+from app.services import audit
 from app.services.audit import Actor
+from app.services.privacy import erasure, subject_access
+from app.services.sessions import verify
 from app.settings import Settings
 from app.tables import (
     Allocation,

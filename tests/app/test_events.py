@@ -12,7 +12,7 @@ from sqlalchemy import text
 from app import events
 from app.db import Database
 from app.events import RESYNC, Event, EventHub
-from app.services.sites import Scope
+from app.services.privacy.sites import Scope
 
 
 def _deliver(

@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import pytest
 
-from app.services.freshness import FreshnessCache
+from app.services.analysis_views.freshness import FreshnessCache
 
 
 class FakeClock:

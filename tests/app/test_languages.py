@@ -25,9 +25,12 @@ from app.i18n.catalogues import catalogue
 from app.i18n.extract import extract
 from app.i18n.protocol_texts import TRANSLATIONS, text_slots
 from app.protocol import Protocol, ProtocolError, default_protocol, parse_protocol
-from app.services import enrolment, languages, questionnaires, studies, study_data, verify
+from app.services import studies
+from app.services.analysis_views import study_data
 from app.services.audit import Actor
-from app.services.sites import Scope
+from app.services.participants import enrolment, languages, questionnaires
+from app.services.privacy.sites import Scope
+from app.services.sessions import verify
 from app.tables import Role
 from tests import participant_words as words
 from tests.app.test_cli import run as cli_run

@@ -10,7 +10,7 @@ import pytest
 
 from app.errors import Conflict
 from app.protocol import Protocol, default_protocol, parse_protocol
-from app.services.learners import (
+from app.services.sessions.learners import (
     LearnerSpec,
     build,
     feedback_model,

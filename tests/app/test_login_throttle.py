@@ -16,7 +16,7 @@ from sqlalchemy import select
 from app.db import Database
 from app.errors import TooManyAttempts
 from app.main import create_app
-from app.services import login_throttle, users
+from app.services.staff import login_throttle, users
 from app.settings import Settings
 from app.tables import AttemptOutcome, AuditEvent, LoginAttempt, Role, utcnow
 from tests.conftest import PASSWORD, make_user

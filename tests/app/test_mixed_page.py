@@ -6,8 +6,9 @@ import pytest
 
 from analysis.adaptation_trust import session_adaptation
 from app.db import Database
-from app.services import studies, study_data
-from app.services.sites import Scope
+from app.services import studies
+from app.services.analysis_views import study_data
+from app.services.privacy.sites import Scope
 from app.tables import Role
 from bench.seed import seed_study
 from models.replies import exp3_belief, heard_probability

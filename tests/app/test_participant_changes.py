@@ -5,8 +5,8 @@ The views' topics are taken from the code the views listen with: the study's pag
 stream the study topic (app.web.live), the console the station topic (app.web.live), the room and
 the robots the station topic (app.api.station_ws), a tablet the topics its link resolves to
 (app.tablet.Tablet.topics), personal and kiosk alike. A change added to
-app.services.participant_changes.Change fails here until an entry point below applies it and it
-reaches them all.
+app.services.participants.participant_changes.Change fails here until an entry point below applies
+it and it reaches them all.
 """
 
 from __future__ import annotations
@@ -27,19 +27,12 @@ from app import events
 from app.db import Database
 from app.events import RESYNC, Event
 from app.protocol import parse_protocol
-from app.services import (
-    consent,
-    enrolment,
-    erasure,
-    languages,
-    questionnaires,
-    retention,
-    stations,
-    studies,
-    tablet_tokens,
-)
+from app.services import studies
 from app.services.audit import Actor
-from app.services.participant_changes import Change
+from app.services.participants import enrolment, languages, questionnaires, tablet_tokens
+from app.services.participants.participant_changes import Change
+from app.services.privacy import consent, erasure, retention
+from app.services.sessions import stations
 from app.settings import REPO_ROOT
 from app.tables import AuditEvent, Participant, StudyStatus, utcnow
 from app.tablet import resolve
@@ -272,7 +265,7 @@ def test_every_change_has_its_entry_points_and_a_publisher() -> None:
     assert set(ENTRY_POINTS) == set(Change)
     services = [
         path.read_text()
-        for path in (REPO_ROOT / "app" / "services").glob("*.py")
+        for path in (REPO_ROOT / "app" / "services").rglob("*.py")
         if path.name != "participant_changes.py"
     ]
     for change in Change:
@@ -336,7 +329,7 @@ def test_a_change_reaches_every_view_of_the_participant(
     ]
     assert missed == [], f"{entry.name}: {change.event_type} never reached {missed}: {heard}"
     announcing = [e for e in heard if e.type == change.event_type]
-    assert all("site" in e.data for e in announcing)  # app.services.sites.reaches
+    assert all("site" in e.data for e in announcing)  # app.services.privacy.sites.reaches
     if change in (Change.ERASED, Change.ANONYMISED):  # the code is what they removed
         assert all(CODE not in str(e.data) for e in announcing), announcing
 

@@ -13,8 +13,8 @@ import dataclasses
 from sqlalchemy import JSON, Column, ForeignKey, Integer, MetaData, String, Table, Text
 
 from analysis.dataset import StudyDataset
-from app.services import personal_data
-from app.services.personal_data import NOT_PERSONAL, TABLES, Erased
+from app.services.privacy import personal_data
+from app.services.privacy.personal_data import NOT_PERSONAL, TABLES, Erased
 from app.tables import Base
 
 
@@ -69,7 +69,8 @@ def registry_problems(metadata: MetaData) -> list[str]:
             declared = set(not_personal[table.name].free_text)
         else:
             problems.append(
-                f"{table.name}: not in the personal data registry (app.services.personal_data)"
+                f"{table.name}: not in the personal data registry "
+                "(app.services.privacy.personal_data)"
                 + (f"; participant key {', '.join(keys)}" if keys else "")
             )
             continue
@@ -98,7 +99,7 @@ def test_a_new_table_with_a_participant_key_or_free_text_is_caught() -> None:
     metadata.tables["study"].append_column(Column("scratch_notes", Text))
     assert registry_problems(metadata) == [
         "study.scratch_notes: free text the registry does not declare",
-        "scratch_note: not in the personal data registry (app.services.personal_data); "
+        "scratch_note: not in the personal data registry (app.services.privacy.personal_data); "
         "participant key participant_id",
     ]
 

@@ -15,12 +15,12 @@ from app.db import Database
 from app.errors import Conflict, InvalidInput
 from app.protocol import default_protocol, parse_protocol
 from app.services import studies
+from app.services.analysis_views.study_data import load_dataset
 from app.services.audit import Actor
-from app.services.enrolment import enroll_participant
-from app.services.learners import feedback_model, restore
-from app.services.population_fit import fit_population
-from app.services.sites import Scope
-from app.services.study_data import load_dataset
+from app.services.participants.enrolment import enroll_participant
+from app.services.privacy.sites import Scope
+from app.services.sessions.learners import feedback_model, restore
+from app.services.sessions.population_fit import fit_population
 from app.tables import AuditEvent, LearnerState, Role, StudyStatus
 from models.checkpoints import checkpoint_name, observation_for, write_checkpoint
 from models.learners.mlp_policy import init_params

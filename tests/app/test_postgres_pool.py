@@ -3,7 +3,7 @@
 app.db pings a pooled connection before reuse only when it was idle for IDLE_PING_SECONDS (a ping
 on every checkout cost each request a round trip); a connection lost while in use fails its
 request once, and the pool is invalidated so the next request connects afresh — also when the
-loss surfaces in the robot's hot path (app.services.step_store's driver cursor).
+loss surfaces in the robot's hot path (app.services.sessions.step_store's driver cursor).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from sqlalchemy.exc import OperationalError
 
 import app.db
 from app.db import Database
-from app.services import step_store
+from app.services.sessions import step_store
 from app.sql import Cursor
 from tests.conftest import POSTGRES_SKIP_REASON, POSTGRES_URL
 

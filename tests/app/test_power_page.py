@@ -15,9 +15,10 @@ from analysis.power import PowerDesign, eta2_from_f, f_from_eta2, n_for_power, p
 from analysis.power_pilot import estimate_pilot
 from analysis.study import analyse_study
 from app.db import Database
-from app.services import studies, study_data
-from app.services.power_view import PlanForm, answer_plan
-from app.services.sites import Scope
+from app.services import studies
+from app.services.analysis_views import study_data
+from app.services.analysis_views.power_view import PlanForm, answer_plan
+from app.services.privacy.sites import Scope
 from app.tables import Role
 from app.web.templating import REFUSAL_HEADER
 from bench.seed import seed_study

@@ -22,10 +22,11 @@ from analysis.study import analyse_study
 from app.cli import cli
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import registrations, studies, study_data
+from app.services import studies
+from app.services.analysis_views import registrations, study_data
 from app.services.audit import Actor
-from app.services.enrolment import enroll_participant
-from app.services.sites import Scope
+from app.services.participants.enrolment import enroll_participant
+from app.services.privacy.sites import Scope
 from app.tables import AuditEvent
 from bench.seed import seed_study
 from tests.conftest import sqlite_only

@@ -18,8 +18,10 @@ from analysis.exports import EXPORT_FORMATS
 from app.cli import cli
 from app.db import Database
 from app.main import create_app
-from app.services import pseudonyms, studies, study_data
-from app.services.sites import Scope
+from app.services import studies
+from app.services.analysis_views import study_data
+from app.services.privacy import pseudonyms
+from app.services.privacy.sites import Scope
 from app.settings import Settings
 from app.tables import AuditEvent, Role
 from bench.seed import seed_study

@@ -4,7 +4,7 @@ participant timelines with each item's text and the words for the answer chosen.
 from __future__ import annotations
 
 from app.protocol import default_protocol
-from app.services.timeline import _meaning
+from app.services.participants.timeline import _meaning
 from app.tables import Role
 from app.web.audit_pages import detail_pairs
 from tests.conftest import Lab, UserClientFactory

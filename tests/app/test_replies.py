@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from app.protocol import Protocol, default_protocol
-from app.services.learners import LearnerSpec, probabilities_list
-from app.services.replies import choose_reply
+from app.services.sessions.learners import LearnerSpec, probabilities_list
+from app.services.sessions.replies import choose_reply
 from models.checkpoints import PRETRAINED_DIR, WEIGHTS_FILE, load_checkpoint
 from models.learners.base import Learner
 from models.learners.exp3 import Exp3

@@ -20,8 +20,10 @@ from app.api import station_ops
 from app.db import WRITE_OPTION, WriterThread
 from app.deps import OneHopRouter, SecondWrite, SessionDep
 from app.errors import Conflict
-from app.services import questionnaires, runtime, stations, studies, tablet_tokens
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import questionnaires, tablet_tokens
+from app.services.sessions import runtime, stations
 from app.sql import Cursor, Statement
 from app.tables import Participant, Role, User, utcnow
 from app.tablet import TABLET_COOKIE
@@ -114,7 +116,7 @@ class Watch:
 
     def request(self, send: Callable[[], Any], *, most_writes: int = 1) -> Any:
         """Send one request; check it wrote at most ``most_writes`` times (once, but for a
-        password check, which counts its attempt first: app.services.login_throttle) and never
+        password check, which counts its attempt first: app.services.staff.login_throttle) and never
         across a hop."""
         self.reset()
         response = send()

@@ -14,8 +14,10 @@ from sqlalchemy import func, select
 
 from app import events as live_events
 from app.protocol import ProtocolError, parse_protocol
-from app.services import retention, studies, verify
+from app.services import studies
 from app.services.audit import Actor
+from app.services.privacy import retention
+from app.services.sessions import verify
 from app.tables import Answer, AuditEvent, Participant, Response, StudyStatus
 from tests.app.personal_data import (
     dump_database,
@@ -48,7 +50,7 @@ def _close(lab: Lab) -> datetime:
 @pytest.fixture
 def published(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The types of the events published from now on (retention's: one per participant, for
-    every view of them, app.services.participant_changes)."""
+    every view of them, app.services.participants.participant_changes)."""
     types: list[str] = []
     publish = live_events.publish
 

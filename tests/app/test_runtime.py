@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import event, func, select, text, update
 from sqlalchemy.exc import DBAPIError
 
-from app.services import verify
+from app.services.sessions import verify
 from app.tables import (
     Allocation,
     Answer,

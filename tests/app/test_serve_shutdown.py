@@ -14,8 +14,8 @@ from pathlib import Path
 import httpx
 
 from app.db import Database
-from app.services import stations
 from app.services.audit import Actor
+from app.services.sessions import stations
 from app.tables import Role
 from tests.conftest import PASSWORD, make_user
 from tests.servers import TrustlabServe

@@ -1,6 +1,7 @@
-"""Sites (app/services/sites.py): participants belong to a site, allocation can be stratified by
-site, and an account limited to some sites never sees another site's participants — swept over
-every staff route of the access policy, like the blinding sweep (tests/app/test_blinding.py)."""
+"""Sites (app/services/privacy/sites.py): participants belong to a site, allocation can be
+stratified by site, and an account limited to some sites never sees another site's participants —
+swept over every staff route of the access policy, like the blinding sweep
+(tests/app/test_blinding.py)."""
 
 from __future__ import annotations
 
@@ -26,8 +27,10 @@ from app.access import POLICY, Principal
 from app.db import Database
 from app.errors import Conflict, InvalidInput
 from app.protocol import ProtocolError, parse_protocol
-from app.services import sites, studies, verify
+from app.services import studies
 from app.services.audit import Actor
+from app.services.privacy import sites
+from app.services.sessions import verify
 from app.tables import (
     Allocation,
     AuditEvent,

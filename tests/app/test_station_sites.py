@@ -1,5 +1,5 @@
-"""Stations have a site (app.services.sites, ``station.site``): a station of a site is only its
-site's, and a shared one shows a limited account its robots' contact only while one of its own
+"""Stations have a site (app.services.privacy.sites, ``station.site``): a station of a site is only
+its site's, and a shared one shows a limited account its robots' contact only while one of its own
 participants sits there. Run on SQLite and PostgreSQL; the sites sweep
 (tests/app/test_sites.py) covers the station list with a station of each kind."""
 
@@ -13,7 +13,8 @@ from sqlalchemy import select, text, update
 from app import events, schema
 from app.db import Database
 from app.events import Event
-from app.services import sites, stations
+from app.services.privacy import sites
+from app.services.sessions import stations
 from app.tables import AuditEvent, Device, Role, Station, utcnow
 from tests.app.test_cli import run
 from tests.app.test_schema import _insert_row

@@ -16,7 +16,7 @@ from app.api import station_ws
 from app.db import Database
 from app.security import token_digest
 from app.services.audit import Actor
-from app.services.stations import revoke_device
+from app.services.sessions.stations import revoke_device
 from app.tables import Device, Role
 from tests.conftest import Lab, UserClientFactory, postgres_for_some, sqlite_only
 

@@ -1,8 +1,8 @@
 """The robot's hot path writes rows exactly as the ORM would, and behaves like ORM work.
 
-app.services.step_store runs hand-written SQL on the driver's cursor; everything else in trustlab
-reads those rows through the ORM. These tests pin the contract on both engines: the stored form
-of every column type, errors surfacing as SQLAlchemy's, one cursor per transaction, ORM objects
+app.services.sessions.step_store runs hand-written SQL on the driver's cursor; everything else in
+trustlab reads those rows through the ORM. These tests pin the contract on both engines: the stored
+form of every column type, errors surfacing as SQLAlchemy's, one cursor per transaction, ORM objects
 never served stale after a raw write, and the statement counts of a prompt and an answer.
 """
 
@@ -16,7 +16,7 @@ import pytest
 from sqlalchemy import event, select, text
 from sqlalchemy.exc import IntegrityError
 
-from app.services import step_store
+from app.services.sessions import step_store
 from app.sql import Cursor, Statement
 from app.tables import Answer, AuditEvent, LearnerState, Prompt, Run, Station, StudySession
 from tests.conftest import Lab

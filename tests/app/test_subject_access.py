@@ -11,8 +11,9 @@ from sqlalchemy import select
 from typer.testing import CliRunner, Result
 
 from app.cli import cli
-from app.services import enrolment, questionnaires, studies
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, questionnaires
 from app.tables import AuditEvent
 from tests.conftest import Lab, create_blinded_study, sqlite_only
 

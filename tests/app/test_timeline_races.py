@@ -14,8 +14,8 @@ from sqlalchemy import event, select, text
 from sqlalchemy.orm import Session
 
 from app.errors import Conflict
-from app.services import runtime, verify
 from app.services.audit import Actor
+from app.services.sessions import runtime, verify
 from app.tables import AuditEvent, Run, StudySession
 from tests.conftest import Lab
 

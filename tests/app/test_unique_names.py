@@ -12,8 +12,9 @@ from sqlalchemy.orm import Session
 from app.db import Database
 from app.errors import Conflict
 from app.protocol import default_protocol
-from app.services import stations, studies
+from app.services import studies
 from app.services.audit import Actor
+from app.services.sessions import stations
 from app.tables import AuditEvent, Station, Study
 
 ACTOR = Actor.system("tests")

@@ -12,8 +12,9 @@ import pytest
 from sqlalchemy import select, update
 
 from app.protocol import parse_protocol
-from app.services import learners, replies, studies, verify
+from app.services import studies
 from app.services.audit import Actor
+from app.services.sessions import learners, replies, verify
 from app.tables import Answer, LearnerState, Prompt, Run, RunStatus, StudySession
 from models.checkpoints import (
     HASH_FILE,

@@ -17,8 +17,9 @@ from playwright.sync_api import Page
 
 from app.db import Database
 from app.protocol import default_protocol
-from app.services import enrolment, stations
 from app.services.audit import Actor
+from app.services.participants import enrolment
+from app.services.sessions import stations
 from app.tables import Role
 from tests.conftest import PASSWORD, give_pre_study, make_user
 

@@ -13,8 +13,10 @@ from sqlalchemy import select
 
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import enrolment, stations, studies
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import enrolment
+from app.services.sessions import stations
 from app.tables import ConsentRecord
 from tests.conftest import EXP3_ONLY, PRE_STUDY_ANSWERS, protocol_text
 from tests.e2e.conftest import sign_in_page

@@ -16,8 +16,10 @@ from app.db import Database
 from app.i18n.catalogues import catalogue
 from app.i18n.protocol_texts import text_slots
 from app.protocol import parse_protocol
-from app.services import enrolment, stations, studies, tablet_tokens
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, tablet_tokens
+from app.services.sessions import stations
 from app.tables import Answer, Prompt, Role
 from tests import participant_words as words
 from tests.conftest import EXP3_ONLY, PASSWORD, PRE_STUDY_ANSWERS, make_user

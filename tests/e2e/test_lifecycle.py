@@ -13,7 +13,8 @@ from playwright.sync_api import Browser, BrowserContext, Page, expect
 
 from app.db import Database
 from app.protocol import parse_protocol
-from app.services import enrolment, languages, questionnaires, studies, tablet_tokens
+from app.services import studies
+from app.services.participants import enrolment, languages, questionnaires, tablet_tokens
 from app.tables import Participant
 from tests.conftest import EXP3_ONLY, TRUST_ANSWERS
 from tests.e2e import room_driver as drive

@@ -26,8 +26,9 @@ from sqlalchemy import func, select
 
 from app.db import Database
 from app.protocol import default_protocol, parse_protocol
-from app.services import studies, verify
-from app.services.answer_audio import as_wav
+from app.services import studies
+from app.services.sessions import verify
+from app.services.sessions.answer_audio import as_wav
 from app.speech.synthesis import with_true_sizes
 from app.speech.wav import decode_wav
 from app.tables import Answer, Participant, Prompt

@@ -9,8 +9,10 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 
 from app.db import Database
-from app.services import enrolment, stations, studies, tablet_tokens
+from app.services import studies
 from app.services.audit import Actor
+from app.services.participants import enrolment, tablet_tokens
+from app.services.sessions import stations
 from app.tables import Role
 from tests.conftest import PASSWORD, make_user
 from tests.e2e.conftest import SECRET

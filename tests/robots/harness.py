@@ -17,7 +17,7 @@ from sqlalchemy import select
 
 from app.robots.bridge import Bridge, BridgeSettings, Trigger
 from app.robots.robot import Robot
-from app.services import verify
+from app.services.sessions import verify
 from app.tables import Answer
 from tests.conftest import Lab
 from tests.servers import free_port

@@ -15,7 +15,7 @@ from sqlalchemy import func, select
 from typer.testing import CliRunner
 
 from app.cli import cli
-from app.services import verify
+from app.services.sessions import verify
 from app.tables import Answer, Prompt
 from tests.conftest import Lab
 from tests.robots.harness import BOUND, console_badge, wait_for

@@ -16,7 +16,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from app import events
 from app.protocol import ProtocolError, parse_protocol
-from app.services import stations
+from app.services.sessions import stations
 from app.tables import Device, DeviceSocket, utcnow
 from tests.conftest import Lab, protocol_text
 from tests.robots.harness import BOUND, console_badge, wait_for

@@ -25,7 +25,7 @@ from analysis.mixed_prose import (
 )
 from analysis.prose import item_title
 from analysis.study import OutcomeAnalysis, StudyAnalysis
-from app.services.dashboard import json_safe
+from app.services.analysis_views.dashboard import json_safe
 
 
 def _num(value: Any, decimals: int = 2) -> str:

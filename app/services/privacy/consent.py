@@ -10,8 +10,8 @@ Every acceptance (and, asked again, every refusal) is a :class:`~app.tables.Cons
 version, the language, the SHA-256 of the exact words shown, and when. A participant who accepted
 an older version than the current one needs to consent again; with the protocol's
 ``reconsent_before_next_session`` the tablet asks them first and their next session waits for it
-(app.services.questionnaires, app.services.runtime), otherwise staff pages only say so. A refusal
-does not withdraw anyone: staff see it and decide.
+(app.services.participants.questionnaires, app.services.sessions.runtime), otherwise staff pages
+only say so. A refusal does not withdraw anyone: staff see it and decide.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ from app.errors import Conflict, InvalidInput
 from app.protocol import Protocol, mentions_audio_recording
 from app.services import audit, studies
 from app.services.audit import Actor
-from app.services.sites import STUDY_WIDE
-from app.services.stations import participant_topic, station_topic_of, study_topic
+from app.services.privacy.sites import STUDY_WIDE
+from app.services.sessions.stations import participant_topic, station_topic_of, study_topic
 from app.tables import (
     ConsentRecord,
     ConsentVersion,
@@ -123,7 +123,7 @@ def versions(db: Session, study: Study) -> list[Version]:
 
 def shown(db: Session, *, study_id: int, protocol: Protocol) -> Shown:
     """The current consent text as a participant reading ``protocol`` (the study's protocol in
-    their language, app.services.languages.protocol_for) sees it."""
+    their language, app.services.participants.languages.protocol_for) sees it."""
     language = protocol.default_language
     row = db.execute(
         select(ConsentVersion.version, ConsentVersion.label, ConsentVersion.texts)

@@ -6,8 +6,8 @@ filter for the protocol's feedback model for a ``bayes`` condition (:func:`bayes
 keeps the initial state, the current state and a version that increments with every update, so
 ``trustlab verify`` can replay the step log from the initial state and compare bit for bit.
 
-Restoring a learner from JSON on every answer is the hot path: app.services.learner_cache keeps
-live learners between answers, one cache per database.
+Restoring a learner from JSON on every answer is the hot path: app.services.sessions.learner_cache
+keeps live learners between answers, one cache per database.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from app.errors import Conflict
 from app.protocol import CategorySpec, LearnerKind, Protocol, feedback_model
-from app.services import populations
+from app.services.sessions import populations
 from app.tables import LearnerState
 from models.checkpoints import (
     PRETRAINED_DIR,
@@ -259,7 +259,7 @@ def restore(row: LearnerState, *, initial: bool = False) -> Learner:
 
 
 def plain_state(state: dict[str, Any]) -> dict[str, Any]:
-    """A stored state in the one form :func:`app.services.verify` compares, whatever format
+    """A stored state in the one form :func:`app.services.sessions.verify` compares, whatever format
     version wrote it (only the meta-policy has had two; other states come back unchanged)."""
     return meta_policy.plain_state(state) if state.get("kind") == "meta" else state
 

@@ -11,10 +11,10 @@ shows what is due without changing anything, and every run that changes somethin
 each participant's code becomes a random id (``~anon-`` and 12 hex digits; no enrolment code can
 look like that), and free-text answers, spoken transcripts and recordings, room presence (seated
 or no longer), tablet links and withdrawal reasons are dropped (the tables and columns are the
-personal data registry's, app.services.personal_data); in the audit log the random id replaces
-the code and events about them keep no details. Nothing keeps the old code, so nobody — the lab
-included — can link the data back. **Erasing** removes each participant as a withdrawal with
-erasure does (app.services.erasure), allocation slots kept.
+personal data registry's, app.services.privacy.personal_data); in the audit log the random id
+replaces the code and events about them keep no details. Nothing keeps the old code, so nobody — the
+lab included — can link the data back. **Erasing** removes each participant as a withdrawal with
+erasure does (app.services.privacy.erasure), allocation slots kept.
 
 The clock is a parameter (``now``) so tests, and a lab checking its plan, can ask "what is due
 on that day?" without waiting for it.
@@ -31,10 +31,12 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
 from app.protocol import ItemKind, Protocol
-from app.services import audit, erasure, participant_changes, personal_data
+from app.services import audit
 from app.services.audit import Actor
-from app.services.participant_changes import Change
-from app.services.personal_data import Anonymised
+from app.services.participants import participant_changes
+from app.services.participants.participant_changes import Change
+from app.services.privacy import erasure, personal_data
+from app.services.privacy.personal_data import Anonymised
 from app.services.studies import get_study, list_studies, protocol_of
 from app.tables import (
     Participant,
@@ -207,7 +209,7 @@ def _anonymise(
 ) -> dict[str, int]:
     """Inside :func:`erasure.opened_guards`: a random id for the code, and free text,
     transcripts, recordings, presence, tablet link and reasons gone, as the personal data
-    registry says (app.services.personal_data); rows changed per kind."""
+    registry says (app.services.privacy.personal_data); rows changed per kind."""
     owned = participant.id
     code = participant.code
     anonymous = _anonymous_id(db, study)

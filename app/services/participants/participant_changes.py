@@ -16,8 +16,8 @@ Before this module each service chose its own topics, and some chose too few: an
 the study's pages only, so a console kept offering the next session of someone erased, the room
 kept saying "Session 2 comes next" and the tablet stayed where it was (issue 48).
 
-The event carries the participant's site (app.services.sites.reaches: accounts limited to other
-sites hear nothing of it) and, unless the change removed it, their code and station; an erased
+The event carries the participant's site (app.services.privacy.sites.reaches: accounts limited to
+other sites hear nothing of it) and, unless the change removed it, their code and station; an erased
 or anonymised participant's event names nobody.
 """
 
@@ -30,7 +30,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app import events
-from app.services import sites
+from app.services.privacy import sites
 from app.services.topics import participant_topic, station_topic_of, study_topic
 from app.tables import Participant, Station
 
@@ -48,7 +48,7 @@ class Change(StrEnum):
     ERASED = "erased"
     ANONYMISED = "anonymised"
     RECONSENTED = "reconsented"
-    """They accepted a new version of the consent text (app.services.consent)."""
+    """They accepted a new version of the consent text (app.services.privacy.consent)."""
     CONSENT_DECLINED = "consent_declined"
     """They declined a new version of the consent text."""
 

@@ -14,8 +14,9 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotFound, TooManyAttempts
 from app.inputs import USERNAME
 from app.security import hash_password, new_token, password_problem, token_digest, verify_password
-from app.services import audit, login_throttle
+from app.services import audit
 from app.services.audit import Actor
+from app.services.staff import login_throttle
 from app.tables import LoginSession, Role, User, utcnow
 
 
@@ -126,7 +127,7 @@ def begin_password_check(
 
     Raises TooManyAttempts while the account or the address has failed too often; that refusal
     is audited as ``failed_action`` with the reason ``locked``. The password is checked next, with
-    no transaction open (:func:`finish_sign_in`, app.services.accounts.change_own_password).
+    no transaction open (:func:`finish_sign_in`, app.services.staff.accounts.change_own_password).
     """
     name = normalise_username(username)[:64]
     address = client_address[:64]

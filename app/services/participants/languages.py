@@ -18,9 +18,10 @@ from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.i18n import protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
 from app.protocol import Protocol
-from app.services import audit, participant_changes
+from app.services import audit
 from app.services.audit import Actor
-from app.services.participant_changes import Change
+from app.services.participants import participant_changes
+from app.services.participants.participant_changes import Change
 from app.tables import Participant, ParticipantStatus, Role, StudySession
 
 

@@ -25,10 +25,12 @@ from analysis.instruments import ItemSpec as AnalysisItem
 from analysis.population import source_label
 from analysis.scoring import ScaleSpec
 from app.protocol import SITE_FACTOR, InstrumentSpec, ItemKind, Protocol
-from app.services import languages, learners, registrations
+from app.services.analysis_views import registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
-from app.services.questionnaires import CONSENT, DESCRIPTION_SUFFIX
-from app.services.sites import Scope
+from app.services.participants import languages
+from app.services.participants.questionnaires import CONSENT, DESCRIPTION_SUFFIX
+from app.services.privacy.sites import Scope
+from app.services.sessions import learners
 from app.services.studies import protocol_of
 from app.tables import (
     Allocation,
@@ -237,7 +239,7 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
 
 
 def _of_scope(study: Study, scope: Scope) -> ColumnElement[bool]:
-    """The study's participants in ``scope`` (app.services.sites)."""
+    """The study's participants in ``scope`` (app.services.privacy.sites)."""
     return (Participant.study_id == study.id) & scope.where()
 
 
@@ -393,8 +395,8 @@ def load_dataset(
     for analysts and admins). ``for_staff``: for a signed-in person, so while the study is
     blinded the step log is withheld (app.services.blinding); the command line passes False.
     ``scope``: whose participants (a site-limited account's sites, a page's site filter, or
-    every site on the command line: app.services.sites), required, so that no page can forget
-    it; the manifest names the sites of a limited one."""
+    every site on the command line: app.services.privacy.sites), required, so that no page can
+    forget it; the manifest names the sites of a limited one."""
     protocol = protocol_of(study)
     instruments = instruments_of(protocol)
     summary = protocol_summary(study, protocol)

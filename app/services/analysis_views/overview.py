@@ -19,11 +19,11 @@ from datetime import datetime, timedelta
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.services import consent, sites
 from app.services.audit import Actor
 from app.services.blinding import condition_labels
-from app.services.enrolment import condition_label
-from app.services.runtime import session_label
+from app.services.participants.enrolment import condition_label
+from app.services.privacy import consent, sites
+from app.services.sessions.runtime import session_label
 from app.services.studies import protocol_of
 from app.tables import (
     Allocation,
@@ -98,7 +98,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
     """Progress of every participant, group sizes and warnings."""
     protocol = protocol_of(study)
     now = utcnow()
-    # Only the participants of the sites the actor may see (app.services.sites), everywhere.
+    # Only the participants of the sites the actor may see (app.services.privacy.sites), everywhere.
     mine = (Participant.study_id == study.id) & sites.visible(actor)
     in_study = select(Participant.id).where(mine)
     participants = db.execute(

@@ -1,15 +1,15 @@
 """Withdrawal with erasure: everything a participant gave a study, removed in one transaction.
 
-What goes is what the personal data registry (app.services.personal_data) says: every prompt and
-answer (with transcripts and recorded audio), session and run, learner state, questionnaire
+What goes is what the personal data registry (app.services.privacy.personal_data) says: every prompt
+and answer (with transcripts and recorded audio), session and run, learner state, questionnaire
 answer and submission (free text included), consent record, their room presence (seated or no
 longer), their tablet token, their language and stratification values, a robot's notice naming
 them, and every personal detail of the audit events about them. What stays, and why:
 
 - **The allocation row and a participant row under a pseudonym** (``~erased-…``), because the
-  concealed sequence is checked slot by slot (app.services.verify): removing a revealed slot would
-  leave a gap, and a later enrolment would then be given an entry someone already had. The slot
-  counts as withdrawn, so balance, concealment and dropout replacement hold.
+  concealed sequence is checked slot by slot (app.services.sessions.verify): removing a revealed
+  slot would leave a gap, and a later enrolment would then be given an entry someone already had.
+  The slot counts as withdrawn, so balance, concealment and dropout replacement hold.
 - **The audit events**, rewritten: the participant's code becomes the pseudonym wherever it
   appears, and the details of events about them (answers, free-text edits, reasons) are dropped,
   so the log still shows that things happened, and when, but holds no personal data. The erasure
@@ -43,10 +43,13 @@ from sqlalchemy.orm import Session
 
 from app.db import WalCheckpointer
 from app.errors import Conflict, InvalidInput, NotFound
-from app.services import audit, learner_cache, participant_changes, personal_data, pseudonyms, sites
+from app.services import audit
 from app.services.audit import Actor
-from app.services.enrolment import ERASE, get_participant, require_withdrawal_option
-from app.services.participant_changes import Change
+from app.services.participants import participant_changes
+from app.services.participants.enrolment import ERASE, get_participant, require_withdrawal_option
+from app.services.participants.participant_changes import Change
+from app.services.privacy import personal_data, pseudonyms, sites
+from app.services.sessions import learner_cache
 from app.services.studies import get_study
 from app.tables import (
     AuditEvent,

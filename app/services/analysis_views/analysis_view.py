@@ -14,7 +14,7 @@ from analysis.apa import format_number, format_p, format_proportion, sphericity_
 from analysis.figures import adaptation_payload_from_curves, mean_ci_payload_from_cells
 from analysis.prose import count, item_title
 from analysis.study import StudyAnalysis
-from app.services.dashboard import json_safe
+from app.services.analysis_views.dashboard import json_safe
 
 
 def _num(value: Any, decimals: int = 2) -> str:

@@ -22,7 +22,7 @@ import pandas as pd
 
 from analysis.dataset import StudyDataset
 from app.errors import InvalidInput
-from app.services import personal_data
+from app.services.privacy import personal_data
 
 PREFIX = "ps-"
 PSEUDONYMISED = "pseudonymised"
@@ -53,8 +53,8 @@ def pseudonym(key: bytes, study: str, code: str) -> str:
 
 def pseudonymised(dataset: StudyDataset, *, key: bytes, study: str) -> StudyDataset:
     """The same dataset with every participant code replaced by its pseudonym in each frame the
-    personal data registry exports participants' rows by (app.services.personal_data), and the
-    manifest saying so (the codebook then calls the column a pseudonym)."""
+    personal data registry exports participants' rows by (app.services.privacy.personal_data), and
+    the manifest saying so (the codebook then calls the column a pseudonym)."""
     codes = dataset.participants["participant"].astype(str)
     names = {code: pseudonym(key, study, code) for code in codes}
 

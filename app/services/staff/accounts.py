@@ -24,8 +24,9 @@ from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, PermissionDenied
 from app.security import hash_password, password_problem
-from app.services import audit, login_throttle, users
+from app.services import audit
 from app.services.audit import Actor
+from app.services.staff import login_throttle, users
 from app.tables import ActorKind, LoginSession, Role, User
 
 
@@ -39,9 +40,9 @@ class Account:
     created_at: datetime
     last_login_at: datetime | None
     locked_until: datetime | None
-    """Until when failed sign-ins lock it out (app.services.login_throttle), or None."""
+    """Until when failed sign-ins lock it out (app.services.staff.login_throttle), or None."""
     sites: list[str] | None = None
-    """The sites the account is limited to (app.services.sites); None: every site."""
+    """The sites the account is limited to (app.services.privacy.sites); None: every site."""
 
 
 def _account(db: Session, user: User) -> Account:
@@ -135,7 +136,7 @@ def set_role(db: Session, *, username: str, role: Role | str, actor: Actor) -> s
     user.role = new_role
     details: dict[str, object] = {"from": old_role, "to": new_role.value}
     if new_role == Role.ADMIN and user.sites is not None:
-        # Admins see every site (app.services.sites): a limit kept would only mislead.
+        # Admins see every site (app.services.privacy.sites): a limit kept would only mislead.
         details["sites_cleared"] = user.sites
         user.sites = None
     audit.record(

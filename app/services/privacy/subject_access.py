@@ -2,7 +2,7 @@
 
 Data-protection law (the GDPR's article 15 and its equivalents) gives participants the right to
 a copy of what is held about them. :func:`participant_record` gathers it from every table that
-holds it, in the sections the personal data registry names (app.services.personal_data): the
+holds it, in the sections the personal data registry names (app.services.privacy.personal_data): the
 enrolment, every answer to a version of the consent text (which version, its SHA-256, when),
 every questionnaire answer, every question the robot asked with the answer and what was heard,
 audio recordings (described, and included when asked), where the room last saw them and what
@@ -22,8 +22,10 @@ from typing import Any
 from sqlalchemy import or_, select
 from sqlalchemy.orm import Session
 
-from app.services import blinding, consent, enrolment, personal_data, studies
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.participants import enrolment
+from app.services.privacy import consent, personal_data
 from app.tables import (
     Answer,
     AnswerAudio,
@@ -56,7 +58,7 @@ def participant_record(
 ) -> dict[str, Any]:
     """What is stored about participant ``code`` of ``study_name``, as plain JSON-able data."""
     study = studies.get_study(db, study_name)
-    # The command line's (whoever holds the server sees every site: app.services.sites).
+    # The command line's (whoever holds the server sees every site: app.services.privacy.sites).
     participant = enrolment.get_participant(db, study, code, actor=Actor.command_line())
     pid = participant.id
     sealed = blinding.is_sealed(study)

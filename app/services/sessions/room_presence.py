@@ -3,7 +3,7 @@
 A browser room client (static/js/room.js) reports the participant's position, heading and trigger
 zone, and each line spoken, at most twice a second. Each report overwrites the station's one
 ``room_presence`` row, which names the participant seated at the time (so that erasure and
-retention find it after they have left: app.services.personal_data), and announces itself on
+retention find it after they have left: app.services.privacy.personal_data), and announces itself on
 the station's *room* topic, which only the operator console listens to: robots' WebSockets and
 the study's dashboards (on the station and study topics) are not woken twice a second by someone
 walking.
@@ -18,7 +18,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session
 
 from app import events
-from app.services import sites
+from app.services.privacy import sites
 from app.services.topics import room_topic_of as room_topic_of
 from app.services.topics import station_topic_of
 from app.tables import RoomPresence, Station, utcnow
@@ -76,7 +76,7 @@ def record(
     changed = {name: statement.excluded[name] for name in values if name != "station_id"}
     db.execute(statement.on_conflict_do_update(index_elements=["station_id"], set_=changed))
     # Where the participant walks is their activity: it names their site, so that a console of
-    # an account limited to other sites does not hear it (app.services.sites.reaches).
+    # an account limited to other sites does not hear it (app.services.privacy.sites.reaches).
     site = sites.seated_site(db, station_id)
     events.publish(db, topics=[room_topic_of(station_id)], type=PRESENCE_CHANGED, site=site)
     if entered:

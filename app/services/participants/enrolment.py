@@ -21,17 +21,12 @@ from app.errors import Conflict, InvalidInput
 from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
 from app.protocol import SITE_FACTOR, AllocationSpec, Protocol
 from app.randomisation import entry_at, stratum_key
-from app.services import (
-    audit,
-    blinding,
-    languages,
-    learners,
-    participant_changes,
-    sites,
-    step_store,
-)
+from app.services import audit, blinding
 from app.services.audit import Actor
-from app.services.participant_changes import Change
+from app.services.participants import languages, participant_changes
+from app.services.participants.participant_changes import Change
+from app.services.privacy import sites
+from app.services.sessions import learners, step_store
 from app.services.studies import enrolment_counts, get_study, protocol_of
 from app.sql import Cursor
 from app.tables import (
@@ -223,14 +218,14 @@ def enroll_participant(
     """Enrol a participant and reveal their allocation; commits.
 
     ``language``: one of the study's languages; without it the participant gets the study's
-    first, or chooses on the tablet when the protocol lets them (app.services.languages).
-    ``site``: one of the study's sites, required when it declares any, and one the actor's
-    account may see (app.services.sites); with ``[sites] stratify`` it is also the stratum's
-    ``site`` factor.
+    first, or chooses on the tablet when the protocol lets them
+    (app.services.participants.languages). ``site``: one of the study's sites, required when it
+    declares any, and one the actor's account may see (app.services.privacy.sites); with ``[sites]
+    stratify`` it is also the stratum's ``site`` factor.
 
     ``code``: typed, or None for the next automatic one; at a site it begins with the site's
     name and a hyphen (``uppsala-017``), as automatic codes do, so that a code can only ever
-    clash with one of its own site's (app.services.sites.check_code).
+    clash with one of its own site's (app.services.privacy.sites.check_code).
 
     Raises NotFound for an unknown study, Conflict for a closed study or a taken code,
     PermissionDenied for a site the actor's account is not limited to, and InvalidInput for a
@@ -254,7 +249,7 @@ def enroll_participant(
         PARTICIPANT_CODE.check(code)
         # In a study with sites a typed code begins with its site's name, so it can clash only
         # with a participant of that site: "already used" never tells a limited account that
-        # a code exists at a site it cannot see (app.services.sites).
+        # a code exists at a site it cannot see (app.services.privacy.sites).
         sites.check_code(code, site, study=study)
         if _code_taken(db, study, code):
             raise Conflict(f"participant code {code!r} is already used in study {study.name!r}")
@@ -313,7 +308,7 @@ def get_participant(
     db: Session, study: Study, code: str, *, actor: Actor, for_update: bool = False
 ) -> Participant:
     """A participant of the study by code; NotFound otherwise, and for a participant of a site
-    ``actor`` may not see (app.services.sites: as if there were none)."""
+    ``actor`` may not see (app.services.privacy.sites: as if there were none)."""
     query = select(Participant).where(
         Participant.study_id == study.id, Participant.code == code, sites.visible(actor)
     )
@@ -354,7 +349,7 @@ def withdraw_participant(
     db: Session, *, study_name: str, code: str, actor: Actor, reason: str = ""
 ) -> Participant:
     """Mark a participant withdrawn (they keep their allocation and data); commits. Refused
-    when the protocol erases everyone who withdraws (app.services.erasure does that).
+    when the protocol erases everyone who withdraws (app.services.privacy.erasure does that).
 
     A session of theirs still running ends early with the withdrawal: the room stops offering
     its zones and the console its run buttons. They stay seated, so that a robot retrying an
@@ -386,7 +381,8 @@ def withdraw_participant(
 def _end_running_session(db: Session, participant: Participant, actor: Actor) -> int | None:
     """End the participant's running session (and its run) early, as the console's "End session
     early" does; its number, or None when none was running. The caller holds the participant's
-    row lock, which serialises this with their prompts and answers (app.services.runtime)."""
+    row lock, which serialises this with their prompts and answers
+    (app.services.sessions.runtime)."""
     cursor = Cursor.of(db)
     run = step_store.latest_run(cursor, participant_id=participant.id)
     if run is None or run.session_status != SessionStatus.RUNNING:

@@ -18,9 +18,9 @@ Exactly-once adaptation:
   idempotency key, or the same answer again) returns the stored reply without a second update; a
   different answer is refused with 409.
 
-Data access: every read and write goes through :mod:`app.services.step_store` (hand-written SQL on
-the request's transaction), so the robot's hot path costs little more than its statements, and the
-rules here work on plain values rather than ORM objects.
+Data access: every read and write goes through :mod:`app.services.sessions.step_store` (hand-written
+SQL on the request's transaction), so the robot's hot path costs little more than its statements,
+and the rules here work on plain values rather than ORM objects.
 """
 
 from __future__ import annotations
@@ -40,19 +40,18 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import Protocol
-from app.services import (
-    blinding,
-    consent,
-    languages,
-    learner_cache,
-    learners,
-    questionnaires,
-    replies,
-    step_store,
-)
+from app.services import blinding
 from app.services.audit import Actor
-from app.services.stations import get_station, participant_topic, station_topic_of, study_topic
-from app.services.step_store import (
+from app.services.participants import languages, questionnaires
+from app.services.privacy import consent
+from app.services.sessions import learner_cache, learners, replies, step_store
+from app.services.sessions.stations import (
+    get_station,
+    participant_topic,
+    station_topic_of,
+    study_topic,
+)
+from app.services.sessions.step_store import (
     NOT_SAID,
     HowAnswered,
     LearnerRow,
@@ -254,7 +253,7 @@ def _topics(ctx: Context) -> list[str]:
 
 
 def _site(ctx: Context) -> str | None:
-    """The ``site`` every event of the session carries (app.services.sites.reaches)."""
+    """The ``site`` every event of the session carries (app.services.privacy.sites.reaches)."""
     return ctx.participant.site
 
 

@@ -19,9 +19,12 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotAuthenticated, NotFound
 from app.inputs import STATION_NAME
 from app.security import new_token, token_digest
-from app.services import audit, participant_changes, sites, step_store
+from app.services import audit
 from app.services.audit import Actor
-from app.services.participant_changes import Change
+from app.services.participants import participant_changes
+from app.services.participants.participant_changes import Change
+from app.services.privacy import sites
+from app.services.sessions import step_store
 from app.services.topics import participant_topic as participant_topic
 from app.services.topics import station_topic_of as station_topic_of
 from app.services.topics import study_topic as study_topic
@@ -413,6 +416,7 @@ def _update_device(db: Session, device_id: int, event: str, values: dict[Any, An
             topics=[station_topic_of(station_id)],
             type=event,
             device_id=device_id,
-            # when a robot is heard tells when its station is used (app.services.sites.Contact)
+            # when a robot is heard tells when its station is used
+            # (app.services.privacy.sites.Contact)
             site=sites.device_event_site(db, station_id),
         )

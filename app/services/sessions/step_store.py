@@ -14,8 +14,8 @@ Values are written in the form the ORM's column types store them (app.tables: UT
 JSON/JSONB documents, booleans), so every other part of trustlab reads these rows through the ORM
 unchanged; ``tests/app/test_step_store.py`` checks that round trip on both engines.
 
-The timeline's rules live in app.services.runtime, which does all its reading and writing here;
-the rest of trustlab (enrolment, questionnaires, dashboards, exports) uses the ORM.
+The timeline's rules live in app.services.sessions.runtime, which does all its reading and writing
+here; the rest of trustlab (enrolment, questionnaires, dashboards, exports) uses the ORM.
 """
 
 from __future__ import annotations
@@ -46,7 +46,8 @@ class Seated:
     """The participant's language (None: not chosen, the study's first applies)."""
     site: str | None = None
     """The participant's site (None in a study without sites): the session's live events name it,
-    so that accounts limited to other sites do not hear them (app.services.sites.reaches)."""
+    so that accounts limited to other sites do not hear them
+    (app.services.privacy.sites.reaches)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -329,7 +330,7 @@ _SUBMITTED = Statement("SELECT instrument, session FROM submission WHERE partici
 
 def submitted(cursor: Cursor, *, participant_id: int) -> set[tuple[str, int | None]]:
     """The (instrument, session) pairs the participant has submitted (the questionnaire gates
-    before each session: app.services.questionnaires.blocker_given)."""
+    before each session: app.services.participants.questionnaires.blocker_given)."""
     return {
         (instrument, session)
         for instrument, session in cursor.rows(_SUBMITTED, {"p": participant_id})
@@ -346,7 +347,7 @@ def consent_versions(
     cursor: Cursor, *, study_id: int, participant_id: int
 ) -> tuple[int, int | None]:
     """The study's current consent version (1 while only the protocol's exists) and the latest
-    the participant accepted (None: not yet; app.services.consent.reconsent_blocker)."""
+    the participant accepted (None: not yet; app.services.privacy.consent.reconsent_blocker)."""
     current, accepted = cursor.row(
         _CONSENT_VERSIONS, {"s": study_id, "p": participant_id, "yes": True}
     )

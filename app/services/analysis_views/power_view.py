@@ -49,7 +49,7 @@ from analysis.power import (
 from analysis.power_figures import power_curve_payload
 from analysis.power_pilot import estimate_pilot
 from analysis.study import StudyAnalysis
-from app.services.dashboard import json_safe
+from app.services.analysis_views.dashboard import json_safe
 
 __all__ = ["PlanAnswer", "PlanForm", "PlanView", "answer_plan", "plan_view", "prefilled"]
 

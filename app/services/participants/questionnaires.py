@@ -6,7 +6,7 @@ session the post-study instruments → thank you. :func:`next_page` computes the
 participant should see from what is stored, so reloads, back buttons, second tabs and crashed
 tablets always land right. When an admin adds a new version of the consent text and the protocol
 asks for it (``reconsent_before_next_session``), a participant who accepted an older one is shown
-the new one before anything else (app.services.consent).
+the new one before anything else (app.services.privacy.consent).
 
 A submission is validated as a whole against the protocol's instrument (required items, ranges,
 options, lengths, unknown items) and then stored in one transaction: the long-format responses, the
@@ -34,10 +34,12 @@ from app import events
 from app.errors import Conflict, InvalidInput, NotFound
 from app.i18n.catalogues import Message
 from app.protocol import InstrumentSpec, ItemKind, ItemSpec, Protocol
-from app.services import audit, consent, languages, participant_changes, sites
+from app.services import audit
 from app.services.audit import Actor
-from app.services.participant_changes import Change
-from app.services.stations import participant_topic, station_topic, study_topic
+from app.services.participants import languages, participant_changes
+from app.services.participants.participant_changes import Change
+from app.services.privacy import consent, sites
+from app.services.sessions.stations import participant_topic, station_topic, study_topic
 from app.tables import (
     ConsentRecord,
     ConsentVersion,

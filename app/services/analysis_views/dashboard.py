@@ -107,7 +107,7 @@ class Plan:
     learners: bool = True
     """Whether the adaptation curves may be drawn (False while the study is blinded)."""
     sites: tuple[str, ...] | None = None
-    """The only sites whose participants are counted (app.services.sites); None: all."""
+    """The only sites whose participants are counted (app.services.privacy.sites); None: all."""
 
     @property
     def key(self) -> PlanKey:

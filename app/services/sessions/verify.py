@@ -32,8 +32,15 @@ from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
 from app.randomisation import entry_at
-from app.services import consent, languages, learners, replies
-from app.services.runtime import FAMILIARISATION, first_session_number, runs_in, session_label
+from app.services.participants import languages
+from app.services.privacy import consent
+from app.services.sessions import learners, replies
+from app.services.sessions.runtime import (
+    FAMILIARISATION,
+    first_session_number,
+    runs_in,
+    session_label,
+)
 from app.services.studies import get_study, protocol_of
 from app.tables import (
     Allocation,
@@ -513,7 +520,7 @@ def _check_allocation(data: _Study, report: VerifyReport) -> None:
 
 def _check_erased(data: _Study, report: VerifyReport) -> None:
     """An erased participant keeps only their allocation slot: no learner, session, prompt or
-    answer may still point at them (app.services.erasure)."""
+    answer may still point at them (app.services.privacy.erasure)."""
     erased = {p.id for p in data.participants.values() if p.erased_at is not None}
     if not erased:
         return

@@ -2,9 +2,9 @@
 each of erasure, anonymisation, the participant's own copy and the pseudonymised export does
 with it.
 
-Erasure (app.services.erasure), retention's anonymising (app.services.retention), the
-subject-access record (app.services.subject_access), the pseudonymised export
-(app.services.pseudonyms) and the erasure's list of earlier copies read this list instead of
+Erasure (app.services.privacy.erasure), retention's anonymising (app.services.privacy.retention),
+the subject-access record (app.services.privacy.subject_access), the pseudonymised export
+(app.services.privacy.pseudonyms) and the erasure's list of earlier copies read this list instead of
 naming tables of their own, so a table added here is handled by all of them, and a table left
 out is caught by a test that walks the schema (tests/app/test_personal_data_registry.py): every
 table is either listed here or in :data:`NOT_PERSONAL` with the reason, every table with a key
@@ -57,7 +57,7 @@ class Erased(StrEnum):
     """Their rows (``participant_id``) are deleted."""
     KEPT_AS_SLOT = "kept as the allocation slot"
     """The row stays under the pseudonym with every personal field emptied: the randomisation
-    sequence is checked slot by slot (app.services.erasure)."""
+    sequence is checked slot by slot (app.services.privacy.erasure)."""
     UNSEATED = "unseated"
     """The row is not theirs (a station): its link to them is set to NULL."""
     REWRITTEN = "rewritten"
@@ -95,7 +95,8 @@ class PersonalTable:
     erased: Erased
     anonymised: Anonymised
     subject_access: str | None
-    """The section of the participant's own copy (app.services.subject_access) showing it."""
+    """The section of the participant's own copy (app.services.privacy.subject_access) showing
+    it."""
     not_in_subject_access: str = ""
     """Why it is not in their copy, when ``subject_access`` is None."""
     exported_as: str | None = None
@@ -331,8 +332,8 @@ SUBJECT_ACCESS_SECTIONS = (
     "audit_log",
 )
 """The sections of a participant's own copy, in the order it shows them; every table's
-``subject_access`` names one (the registry test checks), and app.services.subject_access builds
-each."""
+``subject_access`` names one (the registry test checks), and app.services.privacy.subject_access
+builds each."""
 
 
 def erased_by_deletion() -> tuple[PersonalTable, ...]:

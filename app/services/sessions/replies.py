@@ -1,8 +1,8 @@
 """The robot's reply to an answer, as the protocol's ``[replies]`` table says.
 
-One function for the live answer (app.services.runtime) and for whoever checks a reply afterwards,
-so the line a participant heard can always be recomputed from the step log: the probabilities the
-question was asked with and after learning, the answer, and the learner's kind.
+One function for the live answer (app.services.sessions.runtime) and for whoever checks a reply
+afterwards, so the line a participant heard can always be recomputed from the step log: the
+probabilities the question was asked with and after learning, the answer, and the learner's kind.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from app.protocol import Protocol
-from app.services.learners import LearnerSpec, feedback_model
+from app.services.sessions.learners import LearnerSpec, feedback_model
 from models.replies import confidence_level, exp3_belief, reply_probability
 
 

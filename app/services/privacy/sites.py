@@ -49,8 +49,9 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, InvalidInput, NotFound, PermissionDenied
 from app.events import Event
 from app.protocol import Protocol
-from app.services import audit, users
+from app.services import audit
 from app.services.audit import Actor
+from app.services.staff import users
 from app.services.studies import list_studies, protocol_of
 from app.tables import Participant, Role, Station, Study, User
 

@@ -14,7 +14,7 @@ from sqlalchemy.orm import Session
 
 from app.protocol import ItemKind, ItemSpec, Protocol
 from app.services.blinding import shows_learners
-from app.services.languages import gloss
+from app.services.participants.languages import gloss
 from app.services.studies import protocol_of
 from app.tables import Answer, Participant, Prompt, Response, Run, Study, StudySession, Submission
 

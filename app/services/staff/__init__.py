@@ -1,0 +1,1 @@
+"""Staff accounts: creation and sign-in, their lifecycle, and the login throttle."""
