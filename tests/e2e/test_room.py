@@ -33,7 +33,7 @@ from app.speech.wav import decode_wav
 from app.tables import Answer, Participant, Prompt
 from tests.conftest import protocol_text
 from tests.e2e import room_driver as drive
-from tests.e2e.conftest import CHROMIUM, CHROMIUM_ARGS, sign_in_page
+from tests.e2e.conftest import launch_chromium, sign_in_page
 from tests.servers import ServerProcess
 
 STUDY = "default"
@@ -682,15 +682,12 @@ def spoken_yes(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def browser_with_microphone(playwright: Playwright, spoken_yes: Path) -> Iterator[Browser]:
     """Chromium whose microphone says "yes" over and over, granted without a prompt."""
-    chromium = playwright.chromium.launch(
-        executable_path=CHROMIUM,
-        args=[
-            *CHROMIUM_ARGS,
-            "--use-fake-ui-for-media-stream",
-            "--use-fake-device-for-media-stream",
-            f"--use-file-for-fake-audio-capture={spoken_yes}",
-            "--autoplay-policy=no-user-gesture-required",
-        ],
+    chromium = launch_chromium(
+        playwright,
+        "--use-fake-ui-for-media-stream",
+        "--use-fake-device-for-media-stream",
+        f"--use-file-for-fake-audio-capture={spoken_yes}",
+        "--autoplay-policy=no-user-gesture-required",
     )
     yield chromium
     chromium.close()
