@@ -7,6 +7,11 @@
 // when that one's swap replaces the region (outerHTML). So every event is counted here, each
 // refresh notes the count when it starts, and when a refresh ends (or a dropped event leaves
 // none on its way) with events it did not see, one more refresh follows, MS after the last.
+//
+// A region that a refresh swapped in (outerHTML) is processed by htmx only when it settles, a
+// settle delay after the swap (later still on a busy machine). Until then it hears neither a
+// trigger, so the catch-up waits for its htmx:load, nor the stream: the htmx SSE extension
+// hands the next event to the region it replaced, now detached, which counts it here.
 (() => {
   const regions = new Map(); // id -> {seen, covered, inFlight (requests on their way), started, timer}
 
@@ -31,10 +36,16 @@
     state.timer = setTimeout(() => {
       state.timer = null;
       const current = document.getElementById(id);
+      // Not yet settled after a swap, it would not hear this: its htmx:load catches up again.
       if (current && state.covered < state.seen && !state.inFlight) {
         htmx.trigger(current, "trustlab:refresh");
       }
     }, wait);
+  }
+
+  function heard(id) {
+    stateOf(id).seen += 1;
+    setTimeout(() => catchUp(id), 0); // after htmx has decided
   }
 
   function watch(eventName) {
@@ -45,11 +56,22 @@
         const region = event.target;
         if (!(region instanceof Element) || !region.id || !region.dataset.live) return;
         if (settingsOf(region).event !== eventName) return;
-        stateOf(region.id).seen += 1;
-        setTimeout(() => catchUp(region.id), 0); // after htmx has decided
+        heard(region.id);
       },
       true,
     );
+  }
+
+  /** Count an event the stream hands to ``region`` once a swap has detached it (the document
+   * does not hear it): its replacement is not listening yet. */
+  const detachedWatched = new WeakSet();
+  function watchDetached(region) {
+    const { event } = settingsOf(region);
+    if (!event || !region.id || detachedWatched.has(region)) return;
+    detachedWatched.add(region);
+    region.addEventListener(`sse:${event}`, () => {
+      if (!region.isConnected) heard(region.id);
+    });
   }
 
   document.addEventListener("htmx:beforeRequest", (event) => {
@@ -65,18 +87,28 @@
     });
   });
 
-  const watched = new Set();
-  function watchRegions(root) {
+  function liveRegionsIn(root) {
     const regionsIn = [...root.querySelectorAll("[data-live]")];
     if (root.matches && root.matches("[data-live]")) regionsIn.push(root); // a swapped-in region
-    regionsIn.forEach((region) => {
+    return regionsIn;
+  }
+
+  const watched = new Set();
+  function watchRegions(root) {
+    liveRegionsIn(root).forEach((region) => {
       const { event } = settingsOf(region);
       if (event && !watched.has(event)) {
         watched.add(event);
         watch(event);
       }
+      watchDetached(region);
     });
   }
   document.addEventListener("DOMContentLoaded", () => watchRegions(document));
   document.addEventListener("htmx:afterSettle", (event) => watchRegions(event.target));
+  // Swapped-in content is processed: a catch-up that found it deaf can go now.
+  document.addEventListener("htmx:load", (event) => {
+    if (!(event.target instanceof Element)) return;
+    liveRegionsIn(event.target).forEach((region) => region.id && catchUp(region.id));
+  });
 })();
