@@ -85,6 +85,21 @@ def test_the_staff_pages_fit_and_read(
     assert _overflow(page, "#participant-rows") == []
     assert _wrapped(page, ".heading .actions .button, .heading .actions button") == []
 
+    # The withdraw form (issue 48 item 5): each radio small and beside its words, the code's
+    # caption on one line.
+    page.goto(f"{live_server.url}/studies/{lab.study}/participants/P-WAIT-03/withdraw")
+    choices = page.locator("fieldset label:has(input[type=radio])")
+    expect(choices).to_have_count(2)
+    for index in range(2):
+        radio = choices.nth(index).locator("input[type=radio]").bounding_box()
+        words = choices.nth(index).locator("span").bounding_box()
+        assert radio is not None and words is not None
+        assert radio["width"] <= 28 and radio["height"] <= 28, radio  # as every check box
+        assert radio["x"] + radio["width"] <= words["x"], "the radio is not beside its words"
+        assert radio["y"] <= words["y"] + 24, "the radio is not on the first line of its words"
+    assert _wrapped(page, "label:has(input[name=confirm_code]) > span") == []
+    page.screenshot(path=str(artifacts / f"withdraw-{width}.png"), full_page=True)
+
     page.goto(f"{live_server.url}/studies/{lab.study}/participants/{running}")
     demographics = page.locator("details.questionnaire", has_text="About you")
     demographics.locator("summary").click()
