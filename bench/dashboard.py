@@ -40,9 +40,8 @@ sys.path.insert(0, str(ROOT))
 from app import schema  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.main import create_app  # noqa: E402
-from app.services import studies  # noqa: E402
+from app.services import studies, topics  # noqa: E402
 from app.services.analysis_views.freshness import FreshnessCache  # noqa: E402
-from app.services.sessions import stations  # noqa: E402
 from app.services.staff import users  # noqa: E402
 from app.settings import Settings  # noqa: E402
 from app.tables import Role  # noqa: E402
@@ -113,7 +112,7 @@ async def live(
     counted = 0
     async with app.router.lifespan_context(app):
         with app.state.database.read_session() as db:
-            topic = stations.study_topic(studies.get_study(db, study).id)
+            topic = topics.study_topic(studies.get_study(db, study).id)
         transport = httpx.ASGITransport(app=app)
         async with httpx.AsyncClient(transport=transport, base_url="http://bench") as client:
             signed = await client.post(

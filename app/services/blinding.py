@@ -42,10 +42,9 @@ from sqlalchemy.orm import Session
 from app import events
 from app.errors import Conflict
 from app.protocol import Protocol
-from app.services import audit
+from app.services import audit, topics
 from app.services.audit import Actor
 from app.services.privacy.sites import STUDY_WIDE
-from app.services.sessions import stations
 from app.services.studies import get_study, protocol_of
 from app.tables import Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
@@ -151,7 +150,7 @@ def unblind(db: Session, *, name: str, actor: Actor) -> Study:
     )
     # Open dashboards refetch, and their data now carries the learners and the real conditions.
     events.publish(
-        db, topics=[stations.study_topic(study.id)], type="study.unblinded", site=STUDY_WIDE
+        db, topics=[topics.study_topic(study.id)], type="study.unblinded", site=STUDY_WIDE
     )
     db.commit()
     return study

@@ -11,12 +11,12 @@ from starlette.concurrency import run_in_threadpool
 from analysis.population import source_label
 from app.db import Database
 from app.deps import CurrentUser, SessionDep, SiteFilter, StreamingUser
-from app.services import blinding, studies
+from app.services import blinding, studies, topics
 from app.services.analysis_views import dashboard
 from app.services.analysis_views.freshness import FreshnessCache
 from app.services.audit import Actor
 from app.services.privacy import sites
-from app.services.sessions import learners, stations
+from app.services.sessions import learners
 from app.web.templating import render
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
@@ -79,7 +79,7 @@ async def dashboard_data(
     async with database.admission():
         plan = await run_in_threadpool(plan_now)
     shared: FreshnessCache[bytes] = request.app.state.dashboard_data
-    topic = stations.study_topic(plan.study_id)
+    topic = topics.study_topic(plan.study_id)
 
     def compute() -> bytes:
         # A fresh snapshot, taken after the cache read the change count and the clock.

@@ -16,10 +16,10 @@ from starlette.concurrency import run_in_threadpool
 from app.db import Database
 from app.deps import OneHopRouter, StreamingLogin
 from app.errors import NotFound
-from app.services import studies
+from app.services import studies, topics
 from app.services.audit import Actor
 from app.services.privacy import sites
-from app.services.sessions import room_presence, stations
+from app.services.sessions import stations
 from app.services.staff import users
 from app.web.streams import event_stream
 
@@ -36,7 +36,7 @@ async def study_events(request: Request, name: str, login: StreamingLogin) -> Re
 
     def topic() -> str:
         with database.read_session() as db:
-            return stations.study_topic(studies.get_study(db, name).id)
+            return topics.study_topic(studies.get_study(db, name).id)
 
     return event_stream(
         database.hub,
@@ -63,8 +63,8 @@ async def station_events(request: Request, name: str, login: StreamingLogin) -> 
     found = await run_in_threadpool(station_id)
     return event_stream(
         database.hub,
-        [stations.station_topic_of(found)],
+        [topics.station_topic_of(found)],
         scope=sites.Scope.of(actor),
         ends_with=users.login_topic(login.id),
-        named={room_presence.room_topic_of(found): ROOM_EVENT},
+        named={topics.room_topic_of(found): ROOM_EVENT},
     )

@@ -8,6 +8,7 @@ link says so rather than hand out a code that cannot work."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import qrcode
 import qrcode.image.svg
@@ -16,8 +17,11 @@ from fastapi import Request
 LOOPBACK_HOSTS = frozenset({"127.0.0.1", "localhost", "::1"})
 
 
+@lru_cache(maxsize=64)
 def qr_svg(url: str) -> str:
-    """An SVG QR code of ``url`` (error correction M: survives a scratched screen)."""
+    """An SVG QR code of ``url`` (error correction M: survives a scratched screen). Kept per
+    URL: the console redraws on every live event while it waits for the tablet, and a link
+    changes only when it is reissued."""
     code = qrcode.QRCode(error_correction=qrcode.constants.ERROR_CORRECT_M, box_size=10, border=2)
     code.add_data(url)
     image = code.make_image(image_factory=qrcode.image.svg.SvgPathImage)

@@ -200,7 +200,7 @@ def issued_key(
     context = {
         "device": device,
         "key": key if shown_id == str(device.id) and device.revoked_at is None else "",
-        "room_url": f"{str(request.base_url).rstrip('/')}/stations/{name}/room",
+        "room": tablet_link(request, f"/stations/{name}/room"),
     }
     response = render(request, "device_key.html", context)
     response.headers["Cache-Control"] = "no-store"

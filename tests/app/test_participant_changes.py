@@ -27,7 +27,7 @@ from app import events
 from app.db import Database
 from app.events import RESYNC, Event
 from app.protocol import parse_protocol
-from app.services import studies
+from app.services import studies, topics
 from app.services.audit import Actor
 from app.services.participants import enrolment, languages, questionnaires, tablet_tokens
 from app.services.participants.participant_changes import Change
@@ -114,11 +114,11 @@ def _tablet_topics(database: Database, token: str) -> list[str]:
 
 
 VIEWS: dict[str, Callable[[World], list[str]]] = {
-    "study pages": lambda w: [stations.study_topic(w.study_id)],
-    "dashboard": lambda w: [stations.study_topic(w.study_id)],
-    "console": lambda w: [stations.station_topic_of(w.station_id)],
-    "room": lambda w: [stations.station_topic_of(w.station_id)],
-    "robot": lambda w: [stations.station_topic_of(w.station_id)],
+    "study pages": lambda w: [topics.study_topic(w.study_id)],
+    "dashboard": lambda w: [topics.study_topic(w.study_id)],
+    "console": lambda w: [topics.station_topic_of(w.station_id)],
+    "room": lambda w: [topics.station_topic_of(w.station_id)],
+    "robot": lambda w: [topics.station_topic_of(w.station_id)],
     "tablet": lambda w: _tablet_topics(w.database, w.personal),
     "kiosk tablet": lambda w: _tablet_topics(w.database, w.kiosk),
 }

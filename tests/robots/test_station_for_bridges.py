@@ -16,6 +16,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from app import events
 from app.protocol import ProtocolError, parse_protocol
+from app.services import topics
 from app.services.sessions import stations
 from app.tables import Device, DeviceSocket, utcnow
 from tests.conftest import Lab, protocol_text
@@ -138,7 +139,7 @@ def test_a_connection_change_is_an_event_for_the_station_topic(lab: Lab) -> None
         stations.socket_closed(db, device_id=device.id, socket_id="s")
         queued = db.info[events.PENDING_KEY]
         assert [(e.topic, e.type) for e in queued] == 2 * [
-            (stations.station_topic_of(device.station_id), stations.DEVICE_CONNECTION)
+            (topics.station_topic_of(device.station_id), stations.DEVICE_CONNECTION)
         ]
         db.rollback()
 

@@ -39,7 +39,8 @@ from app.services.audit import Actor
 from app.services.participants import languages, participant_changes
 from app.services.participants.participant_changes import Change
 from app.services.privacy import consent, sites
-from app.services.sessions.stations import participant_topic, station_topic, study_topic
+from app.services.sessions.stations import station_topic
+from app.services.topics import participant_topic, study_topic
 from app.tables import (
     ConsentRecord,
     ConsentVersion,

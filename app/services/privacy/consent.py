@@ -32,7 +32,7 @@ from app.protocol import Protocol, mentions_audio_recording
 from app.services import audit, studies
 from app.services.audit import Actor
 from app.services.privacy.sites import STUDY_WIDE
-from app.services.sessions.stations import participant_topic, station_topic_of, study_topic
+from app.services.topics import participant_topic, station_topic_of, study_topic
 from app.tables import (
     ConsentRecord,
     ConsentVersion,

@@ -268,8 +268,7 @@ def station_hidden(db: Session, station: Station, actor: Actor) -> bool:
         return True
     if station.participant_id is None:
         return False
-    site = db.scalar(select(Participant.site).where(Participant.id == station.participant_id))
-    return site not in actor.sites
+    return _seated_participants_site(db, station.participant_id) not in actor.sites
 
 
 def visible_stations(db: Session, found: list[Station], actor: Actor) -> list[Station]:
@@ -341,7 +340,11 @@ def device_event_site(db: Session, station_id: int) -> str | None:
         return station.site
     if station.participant_id is None:
         return None
-    return db.scalar(select(Participant.site).where(Participant.id == station.participant_id))
+    return _seated_participants_site(db, station.participant_id)
+
+
+def _seated_participants_site(db: Session, participant_id: int) -> str | None:
+    return db.scalar(select(Participant.site).where(Participant.id == participant_id))
 
 
 def station_site(db: Session, site: str | None) -> str | None:

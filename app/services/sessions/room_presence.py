@@ -19,8 +19,7 @@ from sqlalchemy.orm import Session
 
 from app import events
 from app.services.privacy import sites
-from app.services.topics import room_topic_of as room_topic_of
-from app.services.topics import station_topic_of
+from app.services.topics import room_topic_of, station_topic_of
 from app.tables import RoomPresence, Station, utcnow
 
 PRESENCE_CHANGED = "room_presence"

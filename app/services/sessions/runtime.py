@@ -45,12 +45,7 @@ from app.services.audit import Actor
 from app.services.participants import languages, questionnaires
 from app.services.privacy import consent
 from app.services.sessions import learner_cache, learners, replies, step_store
-from app.services.sessions.stations import (
-    get_station,
-    participant_topic,
-    station_topic_of,
-    study_topic,
-)
+from app.services.sessions.stations import get_station
 from app.services.sessions.step_store import (
     NOT_SAID,
     HowAnswered,
@@ -62,6 +57,7 @@ from app.services.sessions.step_store import (
     StoredAnswer,
 )
 from app.services.studies import protocol_by_id
+from app.services.topics import participant_topic, station_topic_of, study_topic
 from app.sql import Cursor
 from app.tables import Answer, ParticipantStatus, Prompt, RunStatus, SessionStatus
 from models.learners.base import Learner

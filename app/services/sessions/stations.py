@@ -25,9 +25,7 @@ from app.services.participants import participant_changes
 from app.services.participants.participant_changes import Change
 from app.services.privacy import sites
 from app.services.sessions import step_store
-from app.services.topics import participant_topic as participant_topic
-from app.services.topics import station_topic_of as station_topic_of
-from app.services.topics import study_topic as study_topic
+from app.services.topics import station_topic_of
 from app.sql import Cursor
 from app.tables import (
     Device,
