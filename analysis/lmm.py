@@ -321,7 +321,11 @@ def fit_mixed_model(
     )
     try:
         endog, exog = dmatrices(formula, data, NA_action="raise")
-        exog_re = np.ones((len(data), 1)) if re_formula is None else dmatrix(re_formula, data)
+        exog_re: Any = (
+            np.ones((len(data), 1))
+            if re_formula is None
+            else dmatrix(re_formula, data, NA_action="raise")
+        )
         groups = pd.factorize(data[subject])[0]
     except Exception as error:  # patsy's PatsyError and friends: a formula the data cannot fill
         raise InvalidInputError(f"cannot build the model {display}: {error}") from None

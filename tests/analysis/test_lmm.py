@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -316,3 +320,29 @@ def test_only_the_slope_model_is_refused_when_it_alone_leaves_no_residual() -> N
     assert comparison_sentence(result) == (
         f"The random-slope comparison could not be made: {result.slope.problem}."
     )
+
+
+def test_the_fit_needs_no_statsmodels() -> None:
+    # The fit is lme4's profiled REML (analysis.reml); statsmodels' MixedLM, used before, cost
+    # seconds to minutes at 1,000 participants and its import a second of every command's start.
+    script = (
+        "import sys, pandas as pd\n"
+        "from analysis.lmm import fit_mixed_model, linear_mixed_models\n"
+        f"data = pd.read_csv({str(DATA / 'mixed_2x4_dropouts.csv')!r})\n"
+        "kw = dict(dv='trust', within='session', between='condition', subject='participant')\n"
+        "result = linear_mixed_models(data, **kw, random_slope=True)\n"
+        "assert result.slope is not None and result.slope.converged\n"
+        "fit_mixed_model(pd.read_csv(" + repr(str(DATA / "sleepstudy.csv")) + "),\n"
+        "    formula='Reaction ~ Days', subject='Subject', re_formula='~Days')\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'statsmodels'))\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root)},
+    )
+    assert done.stdout.strip() == "[]"
