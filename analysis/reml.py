@@ -138,7 +138,12 @@ class RemlDesign:
         # study has at most 2 × 15 patterns, so an evaluation costs the same for 24 or 10,000
         # participants; a continuous covariate makes every group its own pattern (no loss).
         key = np.concatenate([ztz.reshape(len(starts), -1), ztx.reshape(len(starts), -1)], 1)
-        patterns, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        # Each row's bytes as one value: np.unique(axis=0) compares field by field, 10× slower.
+        rows = np.ascontiguousarray(key).view(np.dtype((np.void, key.itemsize * key.shape[1])))
+        _, first, inverse, counts = np.unique(
+            rows.ravel(), return_index=True, return_inverse=True, return_counts=True
+        )
+        patterns = key[first]
         inverse = inverse.reshape(-1)
         self.counts = counts.astype(float)
         """Groups per design pattern, shape (P,)."""
