@@ -34,7 +34,7 @@ from analysis._checks import fit_status, json_records, json_value, ordered_level
 from analysis.descriptives import t_interval
 from analysis.design import prepare_mixed_design, refuse_empty_cells
 from analysis.errors import CannotComputeError, InvalidInputError
-from analysis.reml import MAX_ITERATIONS, SINGULAR_TOL, RemlDesign, RemlFit
+from analysis.reml import SINGULAR_TOL, RemlDesign, RemlFit
 from analysis.satterthwaite import contrast_df, f_test_df, varpar_covariance
 
 __all__ = [
@@ -66,8 +66,6 @@ _NO_RESIDUAL = 1e-10
 _GRADIENT_TOL = 2e-3
 """A fit whose profiled REML criterion has a gradient element above this where the optimiser
 stopped has not converged (lme4's ``check.conv.grad`` tolerance)."""
-_MAX_ITERATIONS = MAX_ITERATIONS
-"""BFGS iterations allowed per minimisation (tests lower it to see a fit that does not converge)."""
 
 
 @dataclass
@@ -404,14 +402,15 @@ def _fit_matrices(
         )
     names = list(matrices.design_info.column_names)
     labels = labels or (lambda column: column)
-    estimate = reml.refine(max_iterations=_MAX_ITERATIONS)
+    estimate = reml.refine()
     if not (np.isfinite(estimate.loglik) and estimate.max_gradient <= _GRADIENT_TOL):
         return MixedModelFit(
             **_empty_fit(name, display, n_obs, n_subjects, n_params),
             converged=False,
             problem=(
                 f"{name} model did not converge (bfgs: stopped after {estimate.iterations} "
-                f"iterations with a REML gradient of {estimate.max_gradient:.3g}); no estimates"
+                f"iterations and Newton's steps with a REML gradient of "
+                f"{estimate.max_gradient:.3g}); no estimates"
             ),
         )
     cov, jacobian = reml.beta_covariance_jacobian(estimate.varpar)
