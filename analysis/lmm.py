@@ -716,7 +716,8 @@ def linear_mixed_models(
             f"the mixed model of {dv!r}", f"every rating is the same ({frame['y'].iloc[0]:g})"
         )
     group_levels = ordered_levels(data.loc[data[dv].notna(), between])
-    present_levels = [lv for lv in levels if lv in set(frame["within"])]
+    rated = set(frame["within"].unique())
+    present_levels = [lv for lv in levels if lv in rated]
     if frame["subject"].nunique() < 2:
         raise CannotComputeError(f"the mixed model of {dv!r}", "fewer than two participants rated")
     if len(group_levels) < 2 or len(present_levels) < 2:
