@@ -275,7 +275,8 @@ def refuse_empty_cells(
     CannotComputeError
         Saying which cells are empty and what to do.
     """
-    seen = set(zip(between.map(to_python), within.map(to_python), strict=True))
+    pairs = pd.DataFrame({"b": between.to_numpy(), "w": within.to_numpy()}).drop_duplicates()
+    seen = set(zip(pairs["b"].map(to_python), pairs["w"].map(to_python), strict=True))
     empty = [
         (to_python(b), to_python(w))
         for b in group_levels

@@ -9,9 +9,8 @@ and count the rejections.
 
 Each dataset is fitted by :class:`analysis.reml.RemlDesign` (the REML optimum in lme4's
 parameterisation, checked against the boundary) and tested with
-:func:`analysis.satterthwaite.f_test_df`: the code :func:`analysis.lmm.fit_mixed_model` runs
-after statsmodels' first fit, without statsmodels' optimiser attempts (they only find a start,
-and the refinement starts from lme4's default too), so 1,000 datasets take seconds, not minutes.
+:func:`analysis.satterthwaite.f_test_df`: the code :func:`analysis.lmm.fit_mixed_model` runs,
+without building its tables, so 1,000 datasets take seconds.
 The fixed effects are sum-coded as in :func:`analysis.lmm.linear_mixed_models`, so each F is the
 type III test; F does not depend on the basis of the contrasts, and with a random intercept and
 balanced data neither do the Satterthwaite df.

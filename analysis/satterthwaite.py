@@ -1,9 +1,9 @@
 """Satterthwaite degrees of freedom for the fixed effects of a linear mixed model.
 
-statsmodels' MixedLM fits the model (REML) but tests fixed effects with z statistics, which are
-too liberal with the 20–60 participants of an HRI study. lmerTest, SAS and JASP use
-Satterthwaite's approximation instead; this module computes it as lmerTest does, so a PI gets
-the same t and F tests as R's ``lmerTest``.
+Tests of fixed effects with z statistics (statsmodels' MixedLM) are too liberal with the 20–60
+participants of an HRI study. lmerTest, SAS and JASP use Satterthwaite's approximation instead;
+this module computes it as lmerTest does, so a PI gets the same t and F tests as R's
+``lmerTest``.
 
 For a contrast ``l``, the variance of ``l'β̂`` is ``v = l' C l`` with ``C = Var(β̂)``.
 Satterthwaite's df is ``2 v² / (g' A g)`` with ``g = ∂v/∂varpar`` and ``A`` the asymptotic
@@ -19,7 +19,9 @@ likelihood is smooth across the boundary and a parameter on it contributes nothi
 (``G`` depends on it through its square): a participant variance of zero gives the df of the
 model without it (ordinary least squares), as lmerTest does. So this module does the same: the
 Hessian by central differences of the exact gradient of the deviance, the Jacobian of ``C``
-exact, and the inverse over the positive eigenvalues of the Hessian (lmerTest's tolerance).
+exact, and the inverse over the positive eigenvalues of the Hessian (lmerTest's tolerance). Both
+come from :class:`analysis.reml.RemlDesign`'s per-pattern sufficient statistics, so they cost
+the same few milliseconds for 24 or 10,000 participants.
 
 References
 ----------

@@ -81,7 +81,7 @@ def test_the_text_summary_names_what_the_anova_dropped(cli: typer.Typer) -> None
 def test_a_model_that_does_not_converge_is_one_line(
     cli: typer.Typer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(lmm, "_METHODS", (("bfgs", {"maxiter": 1}),))
+    monkeypatch.setattr(lmm, "_GRADIENT_TOL", -1.0)  # no fit is ever close enough
     result = run(cli, str(DROPOUTS), *ARGS)
     assert result.exit_code == 0
     problem = [line for line in result.stdout.splitlines() if "did not converge" in line]
