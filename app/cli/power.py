@@ -159,14 +159,13 @@ def power_command(
 ) -> None:
     """Power, sample size or detectable effect of the mixed ANOVA's between, within or
     interaction test (G*Power 3.1's formulas), from effect sizes or a pilot."""
+    # The pilot's and the simulations' modules (pandas, the mixed models) are imported in their
+    # branches below: an analytic answer needs only SciPy's distributions.
     import numpy as np
-    from tqdm import tqdm
 
     from analysis.errors import AnalysisError, InvalidInputError
     from analysis.power import EFFECTS
-    from analysis.power_ordinal import simulate_ordinal_power_curve
-    from analysis.power_pilot import estimate_pilot
-    from analysis.power_simulation import SIMULATED_MODELS, simulate_power_curve
+    from analysis.power_simulation import SIMULATED_MODELS
 
     estimate: PilotEstimate | None = None
     pilot_data: tuple[pd.DataFrame, dict[str, str]] | None = None
@@ -174,6 +173,8 @@ def power_command(
     try:
         _check_model_options(model, simulate, categories, pilot)
         if pilot is not None:
+            from analysis.power_pilot import estimate_pilot
+
             data, columns = read_pilot(pilot, dv, within=within, between=between, subject=subject)
             pilot_data = (data, columns)
             estimate = estimate_pilot(
@@ -216,6 +217,11 @@ def power_command(
             raise InvalidInputError("--curve draws the simulated power: add --simulate R")
         simulated: list[SimulatedPower] = []
         if simulate is not None:
+            from tqdm import tqdm
+
+            from analysis.power_ordinal import simulate_ordinal_power_curve
+            from analysis.power_simulation import simulate_power_curve
+
             table, spread = _simulation_model(answer, estimate, means, sd)
             if model == "ordinal":
                 population = _ordinal_population(
