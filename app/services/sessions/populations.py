@@ -25,10 +25,10 @@ from sqlalchemy.orm import Session
 from app.errors import Conflict, InvalidInput
 from app.protocol import CategorySpec, Protocol
 from app.tables import Study, StudyStatus
-from models.checkpoints import Checkpoint, checkpoint_name
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the analysis (pandas) and the models (numpy): only where they are used
     from analysis.population import Population
+    from models.checkpoints import Checkpoint
 
 KEY = "learners.population"
 
@@ -37,7 +37,7 @@ KEY = "learners.population"
 def _verified(path: str, modified_ns: int, size: int) -> Population:
     """Read and hash-check a population file once per process (again if the file changes)."""
     # Here, not at the top: the analysis stack (pandas, Plotly) is for studies with a population
-    # file; every command and page that merely opens a study imports this module.
+    # file, and every command that merely opens a study imports this module.
     from analysis.population import read_population
 
     return read_population(Path(path))
@@ -69,6 +69,8 @@ def checkpoint_path(protocol: Protocol, category: CategorySpec) -> Path:
     """Where the population's checkpoint for ``category`` is: ``checkpoints/<category>-k<K>``."""
     settings = protocol.learners.population
     assert settings is not None  # callers ask only when the protocol names a population
+    from models.checkpoints import checkpoint_name
+
     return Path(settings.checkpoints) / checkpoint_name(category.name, len(category.questions))
 
 
