@@ -7,7 +7,6 @@ the ``robots`` extra: a missing one is one line saying what to install, not a tr
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import importlib
 import signal
@@ -82,6 +81,8 @@ def _vendor(module: str, kind: str) -> Any:
 
 def _run(robot: Robot, settings: BridgeSettings) -> None:
     """Run the bridge until Ctrl-C (or SIGTERM); refusals are one line and exit 1."""
+    import asyncio
+
     from app.client import ApiError, DeviceKeyRefused
     from app.robots.bridge import Bridge, BridgeRefused
 

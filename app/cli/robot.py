@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 import sys
 import uuid
@@ -120,6 +119,8 @@ def _open_step(state: dict[str, Any]) -> dict[str, Any] | None:
 
 async def _choose(categories: list[str]) -> str | None:
     """The category the user picks from the expected ones (by number or name); None to quit."""
+    import asyncio
+
     menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
     choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
     if choice.lower() in {"q", "quit"}:
@@ -138,6 +139,8 @@ async def _ask(
     so an answer the server did record after all is not recorded twice. Any other refusal is
     shown and the state re-read.
     """
+    import asyncio
+
     from app.client import ApiError, DeviceKeyRefused
 
     typer.echo(f"  robot: {question}")
@@ -200,6 +203,8 @@ def robot(
     key: Annotated[str, typer.Option(help="The station's device key (tlk_…).")],
 ) -> None:
     """An interactive console robot: pick a category, read the question, type y/n."""
+    import asyncio
+
     from websockets.exceptions import WebSocketException
 
     from app.client import ApiError, DeviceKeyRefused
@@ -252,6 +257,8 @@ def bots(
     as_json: JsonFlag = False,
 ) -> None:
     """Simulated participants driven through the whole protocol over HTTP/WebSocket."""
+    import asyncio
+
     from tqdm import tqdm
 
     from app.bots import BotConfig, BotStationsBusy, run_bots

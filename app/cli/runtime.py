@@ -8,10 +8,14 @@ import typer
 
 from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import NotFound
-from app.inputs import MAX_ROW_ID
 
 station_cli = typer.Typer(help="Stations where robots meet participants.", no_args_is_help=True)
 device_cli = typer.Typer(help="Robot clients' API keys.", no_args_is_help=True)
+
+
+MAX_ROW_ID = 2**63 - 1
+"""app.inputs.MAX_ROW_ID, for ``--help``: repeated here because app.inputs loads pydantic, which
+showing help does not need (tests/app/test_cli.py checks that they agree)."""
 
 
 def register(cli: typer.Typer) -> None:
