@@ -28,7 +28,6 @@ from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-import psycopg
 from sqlalchemy import event
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
@@ -310,6 +309,8 @@ class PostgresListener:
         self._hub.deliver([received])
 
     def _run(self) -> None:
+        import psycopg  # here: a process on SQLite (a command, most labs) never loads the driver
+
         delay = 0.5
         while not self._stop.is_set():
             try:

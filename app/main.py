@@ -14,7 +14,7 @@ from fastapi import APIRouter, FastAPI
 from sqlalchemy.exc import DBAPIError
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
-from app import collector
+from app import collector, security
 from app.activity import ActivityRecorder
 from app.api import (
     health,
@@ -104,6 +104,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if listener is not None:
             listener.start()
         _abandon_unfinished_sign_ins(database)
+        security.dummy_hash()  # now, so that no sign-in with an unknown name waits for it
         database.start_background_work()
         activity.start()
         if settings.freeze_heap_at_start:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -39,8 +39,9 @@ from app.i18n.languages import UnknownLanguage, check_code
 from app.periods import Period
 from app.room import RoomSpec, check_room, default_room
 from app.speech.vocabulary import DEFAULT_MIN_CONFIDENCE, DEFAULT_NO, DEFAULT_YES, normalise
-from models.feedback import FeedbackModel
-from models.learners import exact
+
+if TYPE_CHECKING:  # the models (numpy) are imported where a feedback model is made
+    from models.feedback import FeedbackModel
 
 Key = Annotated[str, StringConstraints(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 """Identifiers used as column names in exports: lower snake case, starting with a letter."""
@@ -742,6 +743,8 @@ def feedback_model(protocol: Protocol) -> FeedbackModel:
     ValueError
         If the table or the reward map cannot make a model (:func:`check_protocol` reports why).
     """
+    from models.feedback import FeedbackModel
+
     settings = protocol.learners.feedback
     if settings.slip_values is not None and settings.slip_weights is not None:
         slips, weights = tuple(settings.slip_values), tuple(settings.slip_weights)
@@ -786,6 +789,8 @@ def _check_exact_filter(protocol: Protocol) -> list[Problem]:
         model = feedback_model(protocol)
     except ValueError:  # a slip prior _check_feedback refuses, or non-finite rewards
         return []
+    from models.learners import exact
+
     return [Problem(_FEEDBACK_KEYS[key], f"{who}: {why}") for key, why in exact.unsupported(model)]
 
 

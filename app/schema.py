@@ -1,46 +1,83 @@
-"""Schema migrations, driven programmatically (``trustlab db …``, first start, tests)."""
+"""Schema migrations, driven programmatically (``trustlab db …``, first start, tests).
+
+Every command that opens the database first compares its revision with the code's
+(:func:`current_revision`, :func:`head_revision`); both are read without Alembic, whose import
+and script directory (which imports every migration) cost a command more than its own work.
+Alembic is imported only to migrate.
+"""
 
 from __future__ import annotations
 
-from alembic import command
-from alembic.config import Config
-from alembic.runtime.migration import MigrationContext
-from alembic.script import ScriptDirectory
+import ast
+from typing import TYPE_CHECKING
+
+from sqlalchemy import text
 
 from app.db import Database
 from app.settings import REPO_ROOT
 
+if TYPE_CHECKING:
+    from alembic.config import Config
+
 MIGRATIONS_DIR = REPO_ROOT / "migrations"
+VERSION_TABLE = "alembic_version"
+"""Where Alembic keeps the database's revision (its default name; migrations/env.py keeps it)."""
 
 
 def alembic_config() -> Config:
     """An Alembic configuration pointing at trustlab's migrations."""
+    from alembic.config import Config
+
     config = Config()
     config.set_main_option("script_location", str(MIGRATIONS_DIR))
     return config
 
 
 def head_revision() -> str:
-    """The newest revision the code knows."""
-    head = ScriptDirectory.from_config(alembic_config()).get_current_head()
-    if head is None:
-        raise RuntimeError(f"no migrations found under {MIGRATIONS_DIR}")
-    return head
+    """The newest revision the code knows: the one that no migration names as its parent.
+
+    Read from the ``revision`` and ``down_revision`` assignments of migrations/versions/*.py,
+    as Alembic's script directory reads them (tests/app/test_schema.py checks the two agree).
+    """
+    parents: dict[str, str | None] = {}
+    for path in sorted((MIGRATIONS_DIR / "versions").glob("*.py")):
+        assigned: dict[str, ast.expr] = {}
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value:
+                assigned[node.target.id] = node.value
+            elif isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name):
+                assigned[node.targets[0].id] = node.value
+        if "revision" in assigned:
+            parent = ast.literal_eval(assigned["down_revision"])
+            parents[ast.literal_eval(assigned["revision"])] = parent
+    heads = set(parents) - set(parents.values())
+    if len(heads) != 1:
+        raise RuntimeError(f"expected one head under {MIGRATIONS_DIR}, found {sorted(heads)}")
+    return heads.pop()
 
 
 def current_revision(database: Database) -> str | None:
     """The revision the database is at (None when it was never migrated)."""
     with database.engine.connect() as connection:
-        return MigrationContext.configure(connection).get_current_revision()
+        if not database.engine.dialect.has_table(connection, VERSION_TABLE):
+            return None
+        rows = connection.execute(text(f"SELECT version_num FROM {VERSION_TABLE}")).all()
+    if len(rows) > 1:
+        raise RuntimeError(f"the database is at several revisions: {[row[0] for row in rows]}")
+    return str(rows[0][0]) if rows else None
 
 
 def upgrade(database: Database, revision: str = "head") -> None:
     """Apply migrations up to ``revision``."""
+    from alembic import command
+
     _run(database, command.upgrade, revision)
 
 
 def downgrade(database: Database, revision: str) -> None:
     """Revert migrations down to ``revision`` ('base' empties the database)."""
+    from alembic import command
+
     _run(database, command.downgrade, revision)
 
 

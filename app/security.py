@@ -9,6 +9,7 @@ page needs no server-side state.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import hmac
 import secrets
@@ -17,7 +18,6 @@ from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 
 _hasher = PasswordHasher()
-_DUMMY_HASH = _hasher.hash("trustlab: equalises the timing of unknown usernames")
 
 MIN_PASSWORD_LENGTH = 10
 
@@ -27,10 +27,19 @@ def hash_password(password: str) -> str:
     return _hasher.hash(password)
 
 
+@functools.cache
+def dummy_hash() -> str:
+    """What an unknown username's password is checked against, so that the answer takes as long
+    as for a known one. Made on first use rather than at import (it costs a hash, about 0.3 s,
+    that every command importing this module paid); a served app makes it at start (app.main),
+    so no sign-in waits for it."""
+    return _hasher.hash("trustlab: equalises the timing of unknown usernames")
+
+
 def verify_password(password_hash: str | None, password: str) -> bool:
     """Whether ``password`` matches; with no hash, spend the same time and say no."""
     try:
-        return _hasher.verify(password_hash or _DUMMY_HASH, password) and password_hash is not None
+        return _hasher.verify(password_hash or dummy_hash(), password) and password_hash is not None
     except (VerificationError, InvalidHashError):
         return False
 

@@ -20,7 +20,6 @@ from contextlib import contextmanager
 from datetime import UTC, datetime
 from typing import Any
 
-from psycopg.types.json import Jsonb
 from sqlalchemy.orm import Session
 
 from app.tables import utcnow
@@ -193,7 +192,12 @@ class Cursor:
 
     def json(self, value: Any) -> Any:
         """A JSON document parameter (JSON text on SQLite, JSONB on PostgreSQL)."""
-        return Jsonb(value) if self.postgres else json.dumps(value)
+        if not self.postgres:
+            return json.dumps(value)
+        # Imported here: on SQLite (every command's default) the PostgreSQL driver is not loaded.
+        from psycopg.types.json import Jsonb
+
+        return Jsonb(value)
 
     def parsed(self, value: Any) -> Any:
         """A JSON document as read (PostgreSQL's driver parses JSONB itself)."""

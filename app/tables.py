@@ -32,6 +32,8 @@ from sqlalchemy import (
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
+from app.roles import Role  # here too: every other module imports it from app.tables
+
 NAMING_CONVENTION = {
     "ix": "ix_%(column_0_label)s",
     "uq": "uq_%(table_name)s_%(column_0_N_name)s",
@@ -91,14 +93,6 @@ gives the highest id again once its row is deleted; PostgreSQL's sequences never
 def _one_of(column: str, values: type[StrEnum]) -> CheckConstraint:
     allowed = ", ".join(f"'{member.value}'" for member in values)
     return CheckConstraint(f"{column} IN ({allowed})", name=f"{column}_known")
-
-
-class Role(StrEnum):
-    """What a signed-in person may do: admin ⊇ experimenter and analyst rights."""
-
-    ADMIN = "admin"
-    EXPERIMENTER = "experimenter"
-    ANALYST = "analyst"
 
 
 class StudyStatus(StrEnum):

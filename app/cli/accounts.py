@@ -12,18 +12,17 @@ or from standard input with ``--password-stdin``.
 from __future__ import annotations
 
 import sys
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
-from app.db import Database
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.services.audit import Actor
-from app.services.privacy import sites
-from app.services.staff import accounts, users
-from app.settings import Settings
-from app.tables import Role
+from app.roles import Role
+
+if TYPE_CHECKING:
+    from app.db import Database
+
 
 user_cli = typer.Typer(help="Dashboard accounts.", no_args_is_help=True)
 
@@ -60,6 +59,8 @@ def read_password(password_stdin: bool) -> str:
 
 
 def _database() -> Database:
+    from app.settings import Settings
+
     database = open_database(Settings())
     require_current_schema(database)
     return database
@@ -76,6 +77,9 @@ def user_create(
     password_stdin: PasswordStdin = False,
 ) -> None:
     """Create a dashboard account."""
+    from app.services.audit import Actor
+    from app.services.staff import users
+
     password = read_password(password_stdin)
     with _database().writing() as db:
         user = users.create_user(
@@ -87,6 +91,9 @@ def user_create(
 @user_cli.command("list")
 def user_list(as_json: JsonFlag = False) -> None:
     """List the accounts: role, whether active, any lockout, the last sign-in."""
+    from app.services.privacy import sites
+    from app.services.staff import accounts
+
     with _database().read_session() as db:
         rows = accounts.list_accounts(db)
     if as_json:
@@ -118,6 +125,9 @@ def user_list(as_json: JsonFlag = False) -> None:
 @user_cli.command("disable")
 def user_disable(username: NameArgument) -> None:
     """Stop an account from signing in and end its login sessions at once."""
+    from app.services.audit import Actor
+    from app.services.staff import accounts
+
     with _database().writing() as db:
         ended = accounts.disable_user(db, username=username, actor=Actor.command_line())
     typer.echo(f"disabled {username.lower()!r} ({_sessions(ended)})")
@@ -126,6 +136,9 @@ def user_disable(username: NameArgument) -> None:
 @user_cli.command("enable")
 def user_enable(username: NameArgument) -> None:
     """Let a disabled account sign in again."""
+    from app.services.audit import Actor
+    from app.services.staff import accounts
+
     with _database().writing() as db:
         accounts.enable_user(db, username=username, actor=Actor.command_line())
     typer.echo(f"enabled {username.lower()!r}")
@@ -134,6 +147,9 @@ def user_enable(username: NameArgument) -> None:
 @user_cli.command("set-password")
 def user_set_password(username: NameArgument, password_stdin: PasswordStdin = False) -> None:
     """Give an account a new password and end its login sessions."""
+    from app.services.audit import Actor
+    from app.services.staff import accounts
+
     password = read_password(password_stdin)
     with _database().writing() as db:
         ended = accounts.set_password(
@@ -148,6 +164,9 @@ def user_set_role(
     role: Annotated[Role, typer.Argument(help="admin, experimenter or analyst.")],
 ) -> None:
     """Give an account another role (it applies to its next request)."""
+    from app.services.audit import Actor
+    from app.services.staff import accounts
+
     with _database().writing() as db:
         old = accounts.set_role(db, username=username, role=role, actor=Actor.command_line())
     typer.echo(f"{username.lower()!r} is now {role.value} (was {old})")
@@ -156,6 +175,9 @@ def user_set_role(
 @user_cli.command("unlock")
 def user_unlock(username: NameArgument) -> None:
     """End a lockout after failed sign-ins now (the failures stay in the record)."""
+    from app.services.audit import Actor
+    from app.services.staff import accounts
+
     with _database().writing() as db:
         cleared = accounts.unlock_user(db, username=username, actor=Actor.command_line())
     if cleared:
@@ -182,6 +204,9 @@ def user_sites(
     ] = False,
 ) -> None:
     """Limit an experimenter's or analyst's account to some sites' participants, or lift it."""
+    from app.services.audit import Actor
+    from app.services.privacy import sites
+
     if every == bool(site):
         raise InvalidInput("give the sites (--site NAME, repeatable) or --all, not both")
     with _database().writing() as db:

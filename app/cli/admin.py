@@ -3,7 +3,6 @@ app.cli.accounts)."""
 
 from __future__ import annotations
 
-import json
 import logging
 import secrets
 import sys
@@ -13,46 +12,12 @@ from typing import Annotated
 
 import typer
 
-from app import access_log, backup, schema
-from app.db import Database, describe_url
-from app.demo import QuietWhileFilling, pending_demo, plan_demo, run_demo
+from app.cli.common import JsonFlag, emit_json, open_database, read_settings, require_current_schema
 from app.errors import InvalidInput
-from app.protocol import default_protocol, load_protocol_file
-from app.services import audit, blinding, studies
-from app.services.audit import Actor
-from app.services.participants import enrolment, languages
-from app.services.privacy import erasure
-from app.services.staff import users
-from app.settings import Settings
-from app.tables import Role
 
 db_cli = typer.Typer(help="Database schema migrations.", no_args_is_help=True)
 study_cli = typer.Typer(help="Studies.", no_args_is_help=True)
 participant_cli = typer.Typer(help="Enrolment and withdrawal.", no_args_is_help=True)
-
-JsonFlag = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
-
-
-def open_database(settings: Settings) -> Database:
-    """The configured database, after checking it answers (DatabaseUnavailable otherwise)."""
-    database = Database(settings.database_url, sqlite_synchronous=settings.sqlite_synchronous)
-    database.ping()
-    return database
-
-
-def require_current_schema(database: Database) -> None:
-    """Refuse to work on a database whose schema is behind (or ahead of) the code."""
-    current, head = schema.current_revision(database), schema.head_revision()
-    if current != head:
-        raise InvalidInput(
-            f"the database schema is at {current or 'nothing'} but this trustlab needs {head}: "
-            "run `trustlab db upgrade` (or `trustlab init`) first"
-        )
-
-
-def emit_json(value: object) -> None:
-    """Print exactly one JSON object."""
-    typer.echo(json.dumps(value, default=str, sort_keys=True))
 
 
 def register(cli: typer.Typer) -> None:
@@ -75,7 +40,16 @@ def init(
     ] = True,
 ) -> None:
     """Migrate the database, create the default study and, on first start, the admin account."""
-    settings = Settings()
+    from app import schema
+    from app.db import describe_url
+    from app.demo import plan_demo
+    from app.protocol import default_protocol
+    from app.services import studies
+    from app.services.audit import Actor
+    from app.services.staff import users
+    from app.tables import Role
+
+    settings = read_settings()
     database = open_database(settings)
     before = schema.current_revision(database)
     schema.upgrade(database)
@@ -122,9 +96,9 @@ def init(
         typer.echo(line)
 
 
-DEFAULT_HOST = Settings.model_fields["host"].default
-DEFAULT_PORT = Settings.model_fields["port"].default
-"""The settings' own defaults, named in ``serve --help`` without being repeated."""
+DEFAULT_HOST, DEFAULT_PORT = "127.0.0.1", 8000
+"""The settings' defaults, named in ``serve --help``: repeated here because showing help
+imports no settings (tests/app/test_cli.py checks that they agree)."""
 
 
 def serve(
@@ -141,7 +115,10 @@ def serve(
     """Serve the dashboard, the tablet pages and the API."""
     import uvicorn
 
-    settings = Settings()
+    from app import access_log
+    from app.demo import QuietWhileFilling, pending_demo, run_demo
+
+    settings = read_settings()
     database = open_database(settings)
     require_current_schema(database)
     database.dispose()
@@ -179,7 +156,9 @@ def serve(
 @db_cli.command("upgrade")
 def db_upgrade(revision: Annotated[str, typer.Argument(help="Target revision.")] = "head") -> None:
     """Apply migrations (to the newest by default)."""
-    database = open_database(Settings())
+    from app import schema
+
+    database = open_database(read_settings())
     schema.upgrade(database, revision)
     typer.echo(f"schema at {schema.current_revision(database)}")
 
@@ -189,7 +168,9 @@ def db_downgrade(
     revision: Annotated[str, typer.Argument(help="Target revision ('base' removes everything).")],
 ) -> None:
     """Revert migrations down to a revision."""
-    database = open_database(Settings())
+    from app import schema
+
+    database = open_database(read_settings())
     schema.downgrade(database, revision)
     typer.echo(f"schema at {schema.current_revision(database) or 'base (empty)'}")
 
@@ -197,7 +178,9 @@ def db_downgrade(
 @db_cli.command("current")
 def db_current() -> None:
     """Show the database's schema revision and the code's."""
-    database = open_database(Settings())
+    from app import schema
+
+    database = open_database(read_settings())
     current, head = schema.current_revision(database), schema.head_revision()
     state = (
         "up to date" if current == head else f"behind: run `trustlab db upgrade` to reach {head}"
@@ -210,7 +193,12 @@ def db_backup(
     out: Annotated[Path, typer.Option(help="The backup file to create.")],
 ) -> None:
     """Back up the whole database (SQLite online backup; pg_dump for PostgreSQL)."""
-    settings = Settings()
+    from app import backup
+    from app.db import describe_url
+    from app.services import audit
+    from app.services.audit import Actor
+
+    settings = read_settings()
     database = open_database(settings)
     database.dispose()
     written = backup.backup(settings.database_url, out)
@@ -235,7 +223,12 @@ def db_restore(
     yes: Annotated[bool, typer.Option("--yes", help="Do not ask for confirmation.")] = False,
 ) -> None:
     """Replace the database's content with a backup (stop the server first)."""
-    settings = Settings()
+    from app import backup, schema
+    from app.db import describe_url
+    from app.services import audit
+    from app.services.audit import Actor
+
+    settings = read_settings()
     where = describe_url(settings.database_url)
     if not yes:
         if not sys.stdin.isatty():
@@ -271,8 +264,12 @@ def study_create(
     as_json: JsonFlag = False,
 ) -> None:
     """Create a study from a protocol file."""
+    from app.protocol import load_protocol_file
+    from app.services import studies
+    from app.services.audit import Actor
+
     loaded = load_protocol_file(protocol)
-    database = open_database(Settings())
+    database = open_database(read_settings())
     require_current_schema(database)
     with database.writing() as db:
         study = studies.create_study(
@@ -287,7 +284,10 @@ def study_create(
 @study_cli.command("list")
 def study_list(as_json: JsonFlag = False) -> None:
     """List studies with their enrolment per condition."""
-    database = open_database(Settings())
+    from app.services import studies
+    from app.services.audit import Actor
+
+    database = open_database(read_settings())
     require_current_schema(database)
     with database.read_session() as db:
         rows = [
@@ -321,7 +321,10 @@ def study_unblind(
 ) -> None:
     """Lift a blinded study's blinding for good (audited): staff then see its conditions and
     the learners' probabilities, confidence levels and reply history."""
-    database = open_database(Settings())
+    from app.services import blinding
+    from app.services.audit import Actor
+
+    database = open_database(read_settings())
     require_current_schema(database)
     if not yes:
         if not sys.stdin.isatty():
@@ -374,7 +377,10 @@ def participant_enroll(
     as_json: JsonFlag = False,
 ) -> None:
     """Enrol a participant and reveal their allocation."""
-    database = open_database(Settings())
+    from app.services.audit import Actor
+    from app.services.participants import enrolment
+
+    database = open_database(read_settings())
     require_current_schema(database)
     with database.writing() as db:
         result = enrolment.enroll_participant(
@@ -419,7 +425,12 @@ def participant_language(
     ] = "",
 ) -> None:
     """Set a participant's language (before their first session; after it only with a reason)."""
-    database = open_database(Settings())
+    from app.services import studies
+    from app.services.audit import Actor
+    from app.services.participants import enrolment, languages
+    from app.tables import Role
+
+    database = open_database(read_settings())
     require_current_schema(database)
     with database.writing() as db:
         found = studies.get_study(db, study)
@@ -452,7 +463,11 @@ def participant_export(
 ) -> None:
     """Everything stored about one participant, as JSON and a readable HTML page (for their
     subject-access request). Owner-only files; audited."""
+    import json
+
     from app.private_files import new_private_file, refuse_existing, refuse_link
+    from app.services import audit, studies
+    from app.services.audit import Actor
     from app.services.privacy import subject_access
     from app.web.templating import environment
 
@@ -462,7 +477,7 @@ def participant_export(
         if target.exists() and not force:
             raise InvalidInput(f"{target} exists; choose another folder, or --force to replace it")
         refuse_existing(target, replace=force)
-    database = open_database(Settings())
+    database = open_database(read_settings())
     require_current_schema(database)
     with database.read_session() as db:
         record = subject_access.participant_record(
@@ -504,7 +519,11 @@ def participant_withdraw(
     yes: Annotated[bool, typer.Option("--yes", help="Do not ask before erasing.")] = False,
 ) -> None:
     """Withdraw a participant: keep the data collected so far, or --erase it."""
-    settings = Settings()
+    from app.services.audit import Actor
+    from app.services.participants import enrolment
+    from app.services.privacy import erasure
+
+    settings = read_settings()
     database = open_database(settings)
     require_current_schema(database)
     if not erase:

@@ -17,14 +17,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import pandas as pd
 import typer
 
-from analysis.anova import MixedAnovaResult, mixed_anova
-from analysis.apa import anova_sentences, format_df, format_number, sphericity_sentence
-from analysis.errors import AnalysisError
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from analysis.anova import MixedAnovaResult
+
 
 __all__ = ["EXIT_BAD_INPUT", "anova_command", "bad_input", "read_csv_file", "register"]
 
@@ -45,6 +46,8 @@ def bad_input(message: str) -> typer.Exit:
 
 def read_csv_file(path: Path) -> pd.DataFrame:
     """Read a CSV file, turning every way it can be unreadable into one ``error:`` line."""
+    import pandas as pd
+
     if not path.exists():
         raise bad_input(f"no such file: {path}")
     if path.is_dir():
@@ -71,6 +74,9 @@ def anova_command(
     ] = False,
 ) -> None:
     """Mixed ANOVA (between × within) with sphericity statistics, type III by default."""
+    from analysis.anova import mixed_anova
+    from analysis.errors import AnalysisError
+
     if ss_type not in (2, 3):
         raise bad_input(f"--ss-type must be 2 or 3, not {ss_type}")
     data = read_csv_file(csv)
@@ -93,6 +99,8 @@ def anova_command(
 
 def render_table(result: MixedAnovaResult) -> str:
     """A readable plain-text summary: the ANOVA table, sphericity, APA lines and exclusions."""
+    from analysis.apa import anova_sentences, format_df, format_number, sphericity_sentence
+
     design = result.design
     kind = "III" if result.ss_type == 3 else "II"
     lines = [

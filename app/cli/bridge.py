@@ -7,20 +7,21 @@ the ``robots`` extra: a missing one is one line saying what to install, not a tr
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import importlib
 import signal
 import sys
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from app.cli.errors import fail
-from app.client import ApiError, DeviceKeyRefused
-from app.i18n.languages import UnknownLanguage, check_code
-from app.robots.bridge import Bridge, BridgeRefused, BridgeSettings, Trigger
-from app.robots.robot import Robot
+from app.robots.triggers import Trigger
+
+if TYPE_CHECKING:
+    from app.robots.bridge import BridgeSettings
+    from app.robots.robot import Robot
+
 
 bridge = typer.Typer(
     help="Join a physical robot (NAOqi, Furhat, ROS 2 through rosbridge) to a station: it says "
@@ -80,6 +81,10 @@ def _vendor(module: str, kind: str) -> Any:
 
 def _run(robot: Robot, settings: BridgeSettings) -> None:
     """Run the bridge until Ctrl-C (or SIGTERM); refusals are one line and exit 1."""
+    import asyncio
+
+    from app.client import ApiError, DeviceKeyRefused
+    from app.robots.bridge import Bridge, BridgeRefused
 
     async def serve() -> None:
         loop = asyncio.get_running_loop()
@@ -107,6 +112,9 @@ def _run(robot: Robot, settings: BridgeSettings) -> None:
 
 
 def _settings(url: str, station: str, key: str, trigger: Trigger, speaks: str) -> BridgeSettings:
+    from app.i18n.languages import UnknownLanguage, check_code
+    from app.robots.bridge import BridgeSettings
+
     try:
         check_code(speaks)
     except UnknownLanguage as exc:

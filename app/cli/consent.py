@@ -7,11 +7,9 @@ from typing import Annotated
 
 import typer
 
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema, study_cli
+from app.cli.admin import study_cli
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.services.audit import Actor
-from app.services.privacy import consent
-from app.settings import Settings
 
 
 def study_consent(
@@ -31,6 +29,10 @@ def study_consent(
     board approved). Participants who accepted an earlier version are flagged; with the
     protocol's reconsent_before_next_session they accept the new one on the tablet before
     their next session can start."""
+    from app.services.audit import Actor
+    from app.services.privacy import consent
+    from app.settings import Settings
+
     try:
         source = file.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:

@@ -25,25 +25,17 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from app.cli.simulated_population import Declared, caution, population_participants
-from models.checkpoints import (
-    GENERIC,
-    PRETRAINED_DIR,
-    Checkpoint,
-    available_arms,
-    checkpoint_name,
-    load_checkpoint,
-    shipped_checkpoint,
-    shipped_set,
-)
-from models.feedback import FeedbackModel
-from models.learners.exp3 import DEFAULT_EXP3_GAMMA
-from models.simulate import Scenario, simulate_adaptation
-from models.tasks import DEFAULT_VARIANCE, TaskDistribution
+
+if TYPE_CHECKING:
+    from models.checkpoints import Checkpoint
+    from models.feedback import FeedbackModel
+    from models.simulate import Scenario
+
 
 __all__ = ["DEFAULT_CATEGORIES", "EXIT_BAD_INPUT", "register"]
 
@@ -55,6 +47,11 @@ DEFAULT_CATEGORIES = ("conation", "affection", "cognition")
 
 SWEEP_LEARNERS = ("meta", "random_init", "bayes")
 """The learners of figure (b), as in the paper's Appendix."""
+
+
+DEFAULT_EXP3_GAMMA = 0.5
+"""models.learners.exp3.DEFAULT_EXP3_GAMMA, for ``--help``: repeated here because showing help
+imports no learner (tests/app/test_cli.py checks that they agree)."""
 
 
 def register(cli: typer.Typer) -> None:
@@ -86,6 +83,10 @@ def _scenario(
     kind: str | None, slip: float, hazard: float, change_after: int | None, acceptable: int
 ) -> Scenario:
     """The participants the flags describe (ValueError says which flag is wrong)."""
+    from models.feedback import FeedbackModel
+    from models.simulate import Scenario
+    from models.tasks import DEFAULT_VARIANCE
+
     if kind is None and (slip or hazard or acceptable != 1):
         kind = "gaussian"
     if kind is None:
@@ -107,6 +108,10 @@ def _scenario(
 def _checkpoint_set(mode: str, directory: Path | None, scenario: Scenario) -> Path:
     """``--checkpoint-dir``, else the shipped set trained for how the participants answer (the
     replication set for the paper's Gaussian participants, the default set for yes/no ones)."""
+    from models.checkpoints import PRETRAINED_DIR, shipped_set
+    from models.feedback import FeedbackModel
+    from models.tasks import DEFAULT_VARIANCE
+
     if directory is not None or mode != "online":
         return PRETRAINED_DIR if directory is None else directory
     return shipped_set(scenario.feedback or FeedbackModel.paper(DEFAULT_VARIANCE))
@@ -115,6 +120,8 @@ def _checkpoint_set(mode: str, directory: Path | None, scenario: Scenario) -> Pa
 def _checkpoint(
     arms: int, category: str | None, mode: str, path: Path | None, root: Path
 ) -> Checkpoint:
+    from models.checkpoints import load_checkpoint, shipped_checkpoint
+
     location = path if path is not None else shipped_checkpoint(arms, category, mode, root)
     return load_checkpoint(location, expected_arms=arms)
 
@@ -206,6 +213,9 @@ def simulate_adaptation_command(
     reference (Bayes; a forward filter when participants slip or change their minds). With
     --population, from the fitted population C2 was trained for (optimistic) unless
     --true-population or --preferred-prior declares the true one; the output says which."""
+    from models.simulate import simulate_adaptation
+    from models.tasks import TaskDistribution
+
     if participants < 1 or iterations < 1:
         raise _fail("--participants and --iterations must be at least 1")
     prior = _prior(preferred_prior, arms)
@@ -272,6 +282,10 @@ def _sweep(
     """Figure (b)'s simulations: meta, random_init and bayes for every K with a checkpoint, on
     the same participants as figure (a) (a preference changed after answer N only where there
     are more answers than N)."""
+    from models.checkpoints import GENERIC, available_arms, checkpoint_name, load_checkpoint
+    from models.simulate import simulate_adaptation
+    from models.tasks import TaskDistribution
+
     results = []
     for k in available_arms(mode, root):
         ckpt = load_checkpoint(root / mode / checkpoint_name(GENERIC, k), k)
@@ -465,6 +479,7 @@ def pretrain_command(
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
     """Meta-train checkpoints (MAML with a TRPO outer step) and write them with their hash."""
+    from models.checkpoints import checkpoint_name
     from models.pretrain import PretrainArgs
 
     names = list(DEFAULT_CATEGORIES) if category == "all" else [category]
@@ -632,6 +647,8 @@ def _population_priors(
     """
     from analysis.population import read_population
     from app.protocol import default_protocol, load_protocol_file
+    from models.checkpoints import GENERIC
+    from models.feedback import FeedbackModel
 
     if preferred_prior is not None:
         raise ValueError("--population and --preferred-prior exclude each other")

@@ -6,7 +6,6 @@ import sys
 from typing import Any, NoReturn
 
 import typer
-from sqlalchemy.exc import OperationalError
 from typer.core import TyperGroup
 
 from app.errors import DatabaseUnavailable, InvalidInput, TrustlabError
@@ -21,6 +20,15 @@ def fail(message: str, code: int = 1) -> NoReturn:
     raise typer.Exit(code)
 
 
+def _database_failure(exc: Exception) -> Any | None:
+    """``exc`` if it is SQLAlchemy's OperationalError (the database failed), else None.
+
+    Looked up rather than imported: only a command that opened the database can meet one, and
+    the commands that need no database should not load SQLAlchemy to find out."""
+    errors = sys.modules.get("sqlalchemy.exc")
+    return exc if errors is not None and isinstance(exc, errors.OperationalError) else None
+
+
 class ErrorsAsMessages(TyperGroup):
     """A command group that reports expected errors as messages (exit 1 refused, 2 bad input)."""
 
@@ -33,8 +41,11 @@ class ErrorsAsMessages(TyperGroup):
             fail(exc.message, 1)
         except ValueError as exc:
             fail(str(exc), 2)
-        except OperationalError as exc:
-            reason = str(exc.orig).strip().splitlines()[0] if exc.orig else str(exc)
+        except Exception as exc:
+            failed = _database_failure(exc)
+            if failed is None:
+                raise
+            reason = str(failed.orig).strip().splitlines()[0] if failed.orig else str(failed)
             fail(DatabaseUnavailable(f"the database failed: {reason}").message, 1)
         except KeyboardInterrupt:
             print(file=sys.stderr)

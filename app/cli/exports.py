@@ -12,24 +12,24 @@ import json
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import SecretStr
 
-from analysis.exports import EXPORT_FORMATS, SUMS_FILE, sha256_file, write_all_exports, write_export
-from analysis.prereg import FORMAT
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.private_files import new_private_file, refuse_existing, refuse_link
-from app.services import audit, studies
-from app.services.analysis_views import study_data
-from app.services.audit import Actor
-from app.services.blinding import is_sealed
-from app.services.privacy import pseudonyms, sites
-from app.settings import Settings
+
+if TYPE_CHECKING:
+    from pydantic import SecretStr
 
 ALL = "all"
+
+FORMATS = (
+    *("long-csv", "wide-csv", "steps-csv", "codebook-csv", "codebook-json", "sav"),
+    *("adaptation-csv", "mixed-json", "html"),
+)
+"""The names of analysis.exports.EXPORT_FORMATS, for ``--help``: repeated here because showing
+help imports no exports (tests/app/test_cli.py checks that they agree)."""
 
 FOLDER_MODE = 0o700
 """A new bundle folder: for its owner only, like its files."""
@@ -43,7 +43,7 @@ def register(cli: typer.Typer) -> None:
 def export(
     study: Annotated[str, typer.Option(help="Study name.")],
     format: Annotated[
-        str, typer.Option(help=f"One of {', '.join(EXPORT_FORMATS)}, or '{ALL}' (a folder).")
+        str, typer.Option(help=f"One of {', '.join(FORMATS)}, or '{ALL}' (a folder).")
     ],
     out: Annotated[Path, typer.Option(help="File to write (a folder for 'all').")],
     force: Annotated[
@@ -74,6 +74,15 @@ def export(
     """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
     models (JSON) or the report. Files are readable by their owner only; existing files are
     kept unless --force."""
+    from analysis.exports import EXPORT_FORMATS, sha256_file, write_all_exports, write_export
+    from app.private_files import new_private_file, refuse_existing, refuse_link
+    from app.services import audit, studies
+    from app.services.analysis_views import study_data
+    from app.services.audit import Actor
+    from app.services.blinding import is_sealed
+    from app.services.privacy import pseudonyms, sites
+    from app.settings import Settings
+
     if format != ALL and format not in EXPORT_FORMATS:
         raise InvalidInput(f"--format {format!r}: choose one of {', '.join(EXPORT_FORMATS)}, {ALL}")
     settings = Settings()
@@ -144,6 +153,8 @@ def export(
 
 def read_registration(path: Path) -> tuple[dict[str, Any], str]:
     """A ``prereg.json`` and a note of where it came from (its path and SHA-256)."""
+    from analysis.prereg import FORMAT
+
     try:
         content = path.read_bytes()
         value = json.loads(content)
@@ -163,6 +174,9 @@ def _secret(value: SecretStr | None) -> str | None:
 
 def _targets(format: str, out: Path) -> list[Path]:
     """The files an export writes: one file (into ``out`` if it is a folder), or the bundle's."""
+    from analysis.exports import EXPORT_FORMATS, SUMS_FILE
+    from app.private_files import refuse_link
+
     refuse_link(out)
     if format != ALL:
         return [out / EXPORT_FORMATS[format].filename if out.is_dir() else out]

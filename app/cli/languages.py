@@ -12,10 +12,8 @@ from typing import Annotated
 
 import typer
 
-from app.cli.admin import JsonFlag, emit_json
+from app.cli.common import JsonFlag, emit_json
 from app.cli.errors import fail
-from app.i18n import catalogues
-from app.i18n.languages import UnknownLanguage, check_code, direction, native_name
 
 languages_cli = typer.Typer(
     help="The participants' interface languages (message catalogues).", no_args_is_help=True
@@ -28,6 +26,8 @@ def register(cli: typer.Typer) -> None:
 
 
 def _problems(language: str) -> list[str]:
+    from app.i18n import catalogues
+
     try:
         return catalogues.catalogue_problems(catalogues.read_catalog(language))
     except catalogues.CatalogueError as exc:
@@ -37,6 +37,9 @@ def _problems(language: str) -> list[str]:
 @languages_cli.command("list")
 def list_languages(as_json: JsonFlag = False) -> None:
     """The interface languages shipped, each with its name, direction and completeness."""
+    from app.i18n import catalogues
+    from app.i18n.languages import direction, native_name
+
     rows = [
         {
             "language": code,
@@ -60,6 +63,8 @@ def check(
 ) -> None:
     """Whether LANGUAGE's catalogue can be used: every message translated, none fuzzy, every
     placeholder kept. Exit status 1 with one line per problem otherwise."""
+    from app.i18n.languages import UnknownLanguage, check_code, native_name
+
     try:
         check_code(language)
     except UnknownLanguage as exc:
@@ -78,7 +83,9 @@ def update(
 ) -> None:
     """Write LANGUAGE's catalogue from the sources: add new messages (untranslated), drop gone
     ones, keep translations. Starts the catalogue of a new language."""
+    from app.i18n import catalogues
     from app.i18n.extract import update as write_catalogue
+    from app.i18n.languages import UnknownLanguage, check_code
 
     try:
         check_code(language)

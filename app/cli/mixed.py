@@ -18,19 +18,18 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
-import pandas as pd
 import typer
-from tqdm import tqdm
 
-from analysis.apa import format_number
-from analysis.errors import AnalysisError
-from analysis.lmm import LinearMixedModels, MixedModelFit, linear_mixed_models
-from analysis.mixed_prose import comparison_sentence, lmm_sentences, ordinal_sentences
-from analysis.ordinal import OrdinalFit, not_single_item, ordinal_model
 from app.cli.analysis import bad_input, read_csv_file
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from analysis.lmm import LinearMixedModels, MixedModelFit
+    from analysis.ordinal import OrdinalFit
+
 
 __all__ = ["mixed_command", "register"]
 
@@ -74,6 +73,12 @@ def mixed_command(
     ] = False,
 ) -> None:
     """Linear mixed models (REML, Satterthwaite df) that keep incomplete participants."""
+    from tqdm import tqdm
+
+    from analysis.errors import AnalysisError
+    from analysis.lmm import linear_mixed_models
+    from analysis.ordinal import ordinal_model
+
     data = read_csv_file(csv)
     levels = _declared_levels(within_levels, data, within)
     ordinal_reason = _ordinal_reason(data, dv)
@@ -125,6 +130,8 @@ def mixed_command(
 
 def _declared_levels(text: str, data: pd.DataFrame, within: str) -> list[Any] | None:
     """``--within-levels`` as values of the column's type (numbers when the column is numeric)."""
+    import pandas as pd
+
     if not text:
         return None
     levels: list[Any] = [part.strip() for part in text.split(",") if part.strip()]
@@ -141,6 +148,11 @@ def _declared_levels(text: str, data: pd.DataFrame, within: str) -> list[Any] | 
 
 def _ordinal_reason(data: pd.DataFrame, dv: str) -> str:
     """Why the ordinal model is not fitted (empty when it is)."""
+    import numpy as np
+    import pandas as pd
+
+    from analysis.ordinal import not_single_item
+
     if dv not in data.columns:
         return ""  # linear_mixed_models names the missing column
     values = pd.to_numeric(data[dv], errors="coerce").to_numpy(float)
@@ -152,6 +164,9 @@ def _ordinal_reason(data: pd.DataFrame, dv: str) -> str:
 def render_text(models: LinearMixedModels, ordinal: OrdinalFit | None, ordinal_reason: str) -> str:
     """Plain-text summary: each model's status, tests and variances, the comparison, sentences,
     the marginal means, who was kept; a model that failed says so once, in its own line."""
+    from analysis.apa import format_number
+    from analysis.mixed_prose import comparison_sentence, lmm_sentences, ordinal_sentences
+
     steps = ", ".join(f"{level} = {i}" for i, level in enumerate(models.within_levels))
     lines = [
         f"Linear mixed models of {models.dv!r}: {models.between} (between) × {models.within} "
@@ -195,6 +210,10 @@ def render_text(models: LinearMixedModels, ordinal: OrdinalFit | None, ordinal_r
 
 
 def _fit_lines(fit: MixedModelFit) -> list[str]:
+    import numpy as np
+
+    from analysis.apa import format_number
+
     lines = [f"{fit.name}: {fit.formula}"]
     if not fit.converged:
         return [*lines, f"  {fit.problem}"]

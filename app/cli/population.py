@@ -10,21 +10,18 @@ summary. Nothing is written when the input is unusable.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import pandas as pd
 import typer
 
-from analysis.exports.tables import steps_table
-from analysis.population import STEP_COLUMNS, Population, write_population, write_prior_figure
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.services import studies
-from app.services.analysis_views import study_data
-from app.services.privacy.sites import Scope
-from app.services.sessions.population_fit import fit_population
-from app.settings import Settings
-from app.tables import StudyStatus
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from analysis.population import Population
+
 
 population_cli = typer.Typer(help="Populations fitted from earlier participants.")
 
@@ -57,6 +54,9 @@ def fit(
     as_json: JsonFlag = False,
 ) -> None:
     """Fit the population (prior, slip rate, hazard per category) of earlier participants."""
+    from analysis.population import write_population, write_prior_figure
+    from app.services.sessions.population_fit import fit_population
+
     if (not study) == (steps is None):
         raise InvalidInput("give either --study NAME (one or more) or --steps CSV")
     if replicates < 1:
@@ -101,6 +101,10 @@ def fit(
 
 
 def _from_csv(path: Path) -> tuple[pd.DataFrame, dict[str, Any], dict[str, int] | None]:
+    import pandas as pd
+
+    from analysis.population import STEP_COLUMNS
+
     try:
         frame = pd.read_csv(path)
     except (OSError, UnicodeDecodeError, pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
@@ -117,6 +121,15 @@ def _from_studies(
     """The studies' steps, their questions and K per category. A study still enrolling is
     refused unless the lab records why (docs/engine.md: a prior fitted on a running study's
     participants confounds a between-subjects comparison)."""
+    import pandas as pd
+
+    from analysis.exports.tables import steps_table
+    from app.services import studies
+    from app.services.analysis_views import study_data
+    from app.services.privacy.sites import Scope
+    from app.settings import Settings
+    from app.tables import StudyStatus
+
     database = open_database(Settings())
     require_current_schema(database)
     frames: list[pd.DataFrame] = []

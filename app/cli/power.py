@@ -15,42 +15,21 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
-import pandas as pd
 import typer
-from tqdm import tqdm
 
-from analysis._checks import to_python
-from analysis.apa import format_number
-from analysis.errors import AnalysisError, InvalidInputError
-from analysis.power import (
-    EFFECTS,
-    PowerAnswer,
-    PowerDesign,
-    detectable_effect,
-    effect_sizes_from_means,
-    f_from_eta2,
-    n_for_power,
-    power_for_n,
-)
-from analysis.power_ordinal import (
-    DEFAULT_CATEGORIES,
-    LatentOrdinalModel,
-    latent_model,
-    observed_proportions,
-    pilot_latent_model,
-    simulate_ordinal_power_curve,
-)
-from analysis.power_pilot import PILOT_QUANTITIES, PilotEstimate, estimate_pilot
-from analysis.power_simulation import (
-    SIMULATED_MODELS,
-    SimulatedPower,
-    effect_pattern,
-    simulate_power_curve,
-)
 from app.cli.analysis import bad_input, read_csv_file
+
+if TYPE_CHECKING:
+    import numpy as np
+    import pandas as pd
+
+    from analysis.power import PowerAnswer
+    from analysis.power_ordinal import LatentOrdinalModel
+    from analysis.power_pilot import PilotEstimate
+    from analysis.power_simulation import SimulatedPower
+
 
 __all__ = ["parse_means", "power_command", "register", "render_answer"]
 
@@ -180,12 +159,22 @@ def power_command(
 ) -> None:
     """Power, sample size or detectable effect of the mixed ANOVA's between, within or
     interaction test (G*Power 3.1's formulas), from effect sizes or a pilot."""
+    # The pilot's and the simulations' modules (pandas, the mixed models) are imported in their
+    # branches below: an analytic answer needs only SciPy's distributions.
+    import numpy as np
+
+    from analysis.errors import AnalysisError, InvalidInputError
+    from analysis.power import EFFECTS
+    from analysis.power_simulation import SIMULATED_MODELS
+
     estimate: PilotEstimate | None = None
     pilot_data: tuple[pd.DataFrame, dict[str, str]] | None = None
     population: LatentOrdinalModel | None = None
     try:
         _check_model_options(model, simulate, categories, pilot)
         if pilot is not None:
+            from analysis.power_pilot import estimate_pilot
+
             data, columns = read_pilot(pilot, dv, within=within, between=between, subject=subject)
             pilot_data = (data, columns)
             estimate = estimate_pilot(
@@ -228,6 +217,11 @@ def power_command(
             raise InvalidInputError("--curve draws the simulated power: add --simulate R")
         simulated: list[SimulatedPower] = []
         if simulate is not None:
+            from tqdm import tqdm
+
+            from analysis.power_ordinal import simulate_ordinal_power_curve
+            from analysis.power_simulation import simulate_power_curve
+
             table, spread = _simulation_model(answer, estimate, means, sd)
             if model == "ordinal":
                 population = _ordinal_population(
@@ -306,6 +300,12 @@ def _simulation_model(
 ) -> tuple[np.ndarray, float]:
     """The cell means and SD the datasets are drawn from: the pilot's or the --means table's
     when the answer's f is theirs, else a pattern with the answer's f (SD 1)."""
+    import numpy as np
+
+    from analysis.errors import InvalidInputError
+    from analysis.power import effect_sizes_from_means
+    from analysis.power_simulation import effect_pattern
+
     design = answer.design
     if design.convention != "gpower" or design.rho is None:
         raise InvalidInputError(
@@ -329,6 +329,9 @@ def _check_model_options(
     model: str, simulate: int | None, categories: int | None, pilot: str | None
 ) -> None:
     """One line for a --model or --categories that cannot apply."""
+    from analysis.errors import InvalidInputError
+    from analysis.power_simulation import SIMULATED_MODELS
+
     if model not in SIMULATED_MODELS:
         raise InvalidInputError(
             f"--model must be one of {', '.join(SIMULATED_MODELS)}, not {model!r}"
@@ -355,6 +358,16 @@ def _ordinal_population(
     answer's f is the pilot's, else the cell pattern :func:`_simulation_model` chose (in SD
     units, read on the latent scale) with the pilot's category proportions or equally spaced
     thresholds."""
+    import pandas as pd
+
+    from analysis.errors import InvalidInputError
+    from analysis.power_ordinal import (
+        DEFAULT_CATEGORIES,
+        latent_model,
+        observed_proportions,
+        pilot_latent_model,
+    )
+
     design = answer.design
     rho = float(design.rho if design.rho is not None else float("nan"))
     pattern = (table - table.mean()) / spread
@@ -386,6 +399,8 @@ def _ordinal_population(
 
 def _curve_n(answer: PowerAnswer) -> list[int]:
     """Six totals, multiples of k, from about half to twice the N asked or found."""
+    import numpy as np
+
     k = answer.design.groups
     per_group = max(answer.n_total // k, 2)
     steps = np.unique(np.round(np.geomspace(max(per_group / 2, 2), per_group * 2, 6)).astype(int))
@@ -406,6 +421,8 @@ def render_simulation(
     population: LatentOrdinalModel | None = None,
 ) -> str:
     """The simulated power (and the curve's points) in words."""
+    from analysis.apa import format_number
+
     lines = []
     if population is not None:
         shares = "/".join(f"{p * 100:.0f}" for p in population.category_proportions())
@@ -442,6 +459,8 @@ def read_pilot(
     """A pilot's long data and its columns (``dv``, ``within``, ``between``, ``subject``): a
     CSV file as it is, a stored study's measure (``--dv``, default ``trust_1``) as the report
     analyses it."""
+    from analysis.errors import InvalidInputError
+
     path = Path(source)
     if path.exists() or source.endswith(".csv"):
         if dv is None:
@@ -453,7 +472,7 @@ def read_pilot(
             "subject": subject,
         }
     from analysis.study import analyse_study
-    from app.cli.admin import open_database, require_current_schema
+    from app.cli.common import open_database, require_current_schema
     from app.services import studies
     from app.services.analysis_views import study_data
     from app.services.privacy.sites import Scope
@@ -473,6 +492,11 @@ def read_pilot(
 
 def _bracket(answer: PowerAnswer, estimate: PilotEstimate | None) -> dict[str, PowerAnswer]:
     """The same question at the ends of the pilot's interval for f (ρ and ε as used)."""
+    import numpy as np
+
+    from analysis.errors import AnalysisError
+    from analysis.power import n_for_power, power_for_n
+
     if estimate is None or answer.question == "detectable effect":
         return {}
     low, high = estimate.intervals[f"f_{answer.design.effect}"]
@@ -494,6 +518,8 @@ def _bracket(answer: PowerAnswer, estimate: PilotEstimate | None) -> dict[str, P
 
 def _finite(value: Any) -> Any:
     """NaN and ±inf as None, all the way down (JSON has no NaN)."""
+    import numpy as np
+
     if isinstance(value, dict):
         return {k: _finite(v) for k, v in value.items()}
     if isinstance(value, list):
@@ -505,6 +531,10 @@ def _finite(value: Any) -> Any:
 
 def render_pilot(estimate: PilotEstimate, source: str, bracket: dict[str, PowerAnswer]) -> str:
     """The pilot's estimates with their intervals, and the answer at the ends of f's."""
+    from analysis._checks import to_python
+    from analysis.apa import format_number
+    from analysis.power_pilot import PILOT_QUANTITIES
+
     sizes = ", ".join(
         f"{to_python(g)} {n}"
         for g, n in zip(estimate.group_levels, estimate.group_sizes, strict=True)
@@ -562,6 +592,17 @@ def answer_question(
     target_power: float | None,
 ) -> PowerAnswer:
     """The question the options ask, answered (:class:`AnalysisError` for bad input)."""
+    from analysis.errors import InvalidInputError
+    from analysis.power import (
+        EFFECTS,
+        PowerDesign,
+        detectable_effect,
+        effect_sizes_from_means,
+        f_from_eta2,
+        n_for_power,
+        power_for_n,
+    )
+
     if effect not in EFFECTS:
         raise InvalidInputError(f"--effect must be one of {', '.join(EFFECTS)}, not {effect!r}")
     given = [name for name, value in (("--f", f), ("--eta2", eta2), ("--means", means)) if value]
@@ -618,6 +659,8 @@ def answer_question(
 
 def parse_means(text: str, option: str) -> list[list[float]]:
     """A table written as ``a,b;c,d`` (rows by semicolons), every row as long as the first."""
+    from analysis.errors import InvalidInputError
+
     try:
         rows = [[float(cell) for cell in row.split(",")] for row in text.split(";")]
     except ValueError:
@@ -632,6 +675,8 @@ def parse_means(text: str, option: str) -> list[list[float]]:
 
 def render_answer(answer: PowerAnswer) -> str:
     """The answer in words, then every number behind it."""
+    from analysis.apa import format_number
+
     design = answer.design
     what = {
         "between": "between-groups effect",

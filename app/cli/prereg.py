@@ -22,26 +22,9 @@ from typing import Annotated, Any
 
 import typer
 
-from analysis.errors import AnalysisError
-from analysis.prereg import (
-    build_registration,
-    data_at_registration,
-    data_sentence,
-    registered_plan,
-    registration_html,
-    registration_markdown,
-)
-from analysis.report import analysis_provenance
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.cli.power import answer_question
 from app.errors import InvalidInput
-from app.private_files import new_private_file, refuse_existing, refuse_link
-from app.services import audit, studies
-from app.services.analysis_views import registrations, study_data
-from app.services.audit import Actor
-from app.services.privacy.sites import Scope
-from app.settings import Settings
-from app.tables import utcnow
 
 __all__ = ["FILES", "prereg_command", "register"]
 
@@ -108,6 +91,24 @@ def prereg_command(
     """Write a study's pre-registration: protocol and its SHA-256, hypotheses, planned analyses,
     exclusion rules, power analysis, versions and seeds (prereg.json, .md, .html). Owner-only
     files; audited; later reports say whether their analyses are the registered ones."""
+    from analysis.errors import AnalysisError
+    from analysis.prereg import (
+        build_registration,
+        data_at_registration,
+        data_sentence,
+        registered_plan,
+        registration_html,
+        registration_markdown,
+    )
+    from analysis.report import analysis_provenance
+    from app.private_files import new_private_file, refuse_existing, refuse_link
+    from app.services import audit, studies
+    from app.services.analysis_views import registrations, study_data
+    from app.services.audit import Actor
+    from app.services.privacy.sites import Scope
+    from app.settings import Settings
+    from app.tables import utcnow
+
     targets = [out / name for name in FILES]
     refuse_link(out)
     for target in targets:  # before anything is computed or written

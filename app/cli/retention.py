@@ -13,12 +13,8 @@ from typing import Annotated
 
 import typer
 
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import InvalidInput
-from app.services.audit import Actor
-from app.services.privacy import retention
-from app.settings import Settings
-from app.tables import utcnow
 
 retention_cli = typer.Typer(
     help="Retention deadlines: anonymise or erase identifiable data when it is due.",
@@ -55,6 +51,11 @@ def run(
     as_json: JsonFlag = False,
 ) -> None:
     """Anonymise or erase every participant whose study's retention period has run out."""
+    from app.services.audit import Actor
+    from app.services.privacy import retention
+    from app.settings import Settings
+    from app.tables import utcnow
+
     day = _day(as_of)
     if day is not None and not dry_run:
         raise InvalidInput("--as-of only with --dry-run: a run acts on today's date")

@@ -2,22 +2,19 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 import sys
 import uuid
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import typer
-from tqdm import tqdm
-from websockets.exceptions import ConnectionClosed, WebSocketException
 
-from app.bots import BotConfig, BotStationsBusy, run_bots
-from app.cli.admin import JsonFlag, emit_json
+from app.cli.common import JsonFlag, emit_json
 from app.cli.errors import fail
-from app.client import ApiError, DeviceKeyRefused, StationSocket
 from app.errors import InvalidInput
-from app.services.sessions.runtime import session_label
+
+if TYPE_CHECKING:
+    from app.client import ApiError, StationSocket
 
 
 def register(cli: typer.Typer) -> None:
@@ -27,6 +24,8 @@ def register(cli: typer.Typer) -> None:
 
 
 def _show_state(state: dict[str, Any]) -> None:
+    from app.services.sessions.runtime import session_label
+
     who = state.get("participant") or "nobody"
     session = state.get("session")
     run = state.get("run")
@@ -56,6 +55,10 @@ def _refusal(exc: ApiError, retry: str) -> None:
 
 
 async def _console(url: str, key: str) -> None:
+    from websockets.exceptions import ConnectionClosed
+
+    from app.client import DeviceKeyRefused, StationSocket
+
     async with StationSocket(url, key) as socket:
         assert socket.state is not None
         _show_state(socket.state)
@@ -77,6 +80,8 @@ async def _loop(socket: StationSocket) -> None:
     session's first question again. So an event only means "something changed": the robot then
     asks for the state (:func:`_fresh_state`).
     """
+    from app.client import ApiError, DeviceKeyRefused
+
     state: dict[str, Any] = socket.state or {}
     while True:
         expected = state.get("expected") or {}
@@ -114,6 +119,8 @@ def _open_step(state: dict[str, Any]) -> dict[str, Any] | None:
 
 async def _choose(categories: list[str]) -> str | None:
     """The category the user picks from the expected ones (by number or name); None to quit."""
+    import asyncio
+
     menu = "  ".join(f"{i}) {name}" for i, name in enumerate(categories, start=1))
     choice = (await asyncio.to_thread(input, f"category? {menu}  [q quits] ")).strip()
     if choice.lower() in {"q", "quit"}:
@@ -132,6 +139,10 @@ async def _ask(
     so an answer the server did record after all is not recorded twice. Any other refusal is
     shown and the state re-read.
     """
+    import asyncio
+
+    from app.client import ApiError, DeviceKeyRefused
+
     typer.echo(f"  robot: {question}")
     idempotency_key = uuid.uuid4().hex
     answered = _without_step(state, step_id)
@@ -173,6 +184,8 @@ async def _fresh_state(socket: StationSocket, fallback: dict[str, Any]) -> dict[
     they report. Events arriving from now on stay queued, and each one read makes the robot ask
     again, so a change made while this request travels is not missed.
     """
+    from app.client import ApiError, DeviceKeyRefused
+
     while not socket.events.empty():
         socket.events.get_nowait()
     try:
@@ -190,6 +203,12 @@ def robot(
     key: Annotated[str, typer.Option(help="The station's device key (tlk_…).")],
 ) -> None:
     """An interactive console robot: pick a category, read the question, type y/n."""
+    import asyncio
+
+    from websockets.exceptions import WebSocketException
+
+    from app.client import ApiError, DeviceKeyRefused
+
     del station  # the key identifies the station; the option documents which one is meant
     try:
         asyncio.run(_console(url, key))
@@ -238,6 +257,13 @@ def bots(
     as_json: JsonFlag = False,
 ) -> None:
     """Simulated participants driven through the whole protocol over HTTP/WebSocket."""
+    import asyncio
+
+    from tqdm import tqdm
+
+    from app.bots import BotConfig, BotStationsBusy, run_bots
+    from app.client import ApiError
+
     if not password_stdin:
         raise InvalidInput("give the admin password on standard input with --password-stdin")
     if transport not in ("ws", "rest"):

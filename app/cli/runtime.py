@@ -6,16 +6,16 @@ from typing import Annotated
 
 import typer
 
-from app.cli.admin import JsonFlag, emit_json, open_database, require_current_schema
+from app.cli.common import JsonFlag, emit_json, open_database, require_current_schema
 from app.errors import NotFound
-from app.inputs import MAX_ROW_ID
-from app.services.audit import Actor
-from app.services.sessions import stations, verify
-from app.settings import Settings
-from app.wording import counted
 
 station_cli = typer.Typer(help="Stations where robots meet participants.", no_args_is_help=True)
 device_cli = typer.Typer(help="Robot clients' API keys.", no_args_is_help=True)
+
+
+MAX_ROW_ID = 2**63 - 1
+"""app.inputs.MAX_ROW_ID, for ``--help``: repeated here because app.inputs loads pydantic, which
+showing help does not need (tests/app/test_cli.py checks that they agree)."""
 
 
 def register(cli: typer.Typer) -> None:
@@ -37,6 +37,10 @@ def station_create(
     ] = "",
 ) -> None:
     """Create a station, of a site or shared by every site."""
+    from app.services.audit import Actor
+    from app.services.sessions import stations
+    from app.settings import Settings
+
     database = open_database(Settings())
     require_current_schema(database)
     with database.writing() as db:
@@ -47,6 +51,9 @@ def station_create(
 @station_cli.command("list")
 def station_list(as_json: JsonFlag = False) -> None:
     """List stations, their sites and who is assigned to them."""
+    from app.services.sessions import stations
+    from app.settings import Settings
+
     database = open_database(Settings())
     require_current_schema(database)
     with database.read_session() as db:
@@ -75,6 +82,10 @@ def device_create(
     as_json: JsonFlag = False,
 ) -> None:
     """Issue an API key for a robot client at a station (printed once)."""
+    from app.services.audit import Actor
+    from app.services.sessions import stations
+    from app.settings import Settings
+
     database = open_database(Settings())
     require_current_schema(database)
     actor = Actor.command_line()
@@ -111,6 +122,10 @@ def device_revoke(
     ],
 ) -> None:
     """Revoke a device key at once."""
+    from app.services.audit import Actor
+    from app.services.sessions import stations
+    from app.settings import Settings
+
     database = open_database(Settings())
     require_current_schema(database)
     with database.writing() as db:
@@ -123,6 +138,10 @@ def verify_command(
     as_json: JsonFlag = False,
 ) -> None:
     """Replay every learner from its step log and check the study's integrity (exit 1 if not)."""
+    from app.services.sessions import verify
+    from app.settings import Settings
+    from app.wording import counted
+
     database = open_database(Settings())
     require_current_schema(database)
     with database.read_session() as db:

@@ -38,13 +38,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from analysis.population import Population, read_population
-from models.checkpoints import Checkpoint
-from models.feedback import FeedbackModel
-from models.simulate import Scenario
-from models.tasks import TaskDistribution, check_prior
+if TYPE_CHECKING:
+    from analysis.population import Population
+    from models.checkpoints import Checkpoint
+    from models.simulate import Scenario
+    from models.tasks import TaskDistribution
 
 __all__ = ["Declared", "PopulationDraw", "caution", "population_participants"]
 
@@ -129,6 +129,11 @@ def population_participants(
         For contradictory options (one line naming them), an unreadable or edited population
         file, a category the files lack, or another K.
     """
+    from analysis.population import read_population
+    from models.feedback import FeedbackModel
+    from models.simulate import Scenario
+    from models.tasks import TaskDistribution, check_prior
+
     _refuse_contradictions(true_path, declared)
     fitted = read_population(fitted_path)
     names = list(fitted.categories)

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 
 import typer
 
-from app.cli.admin import JsonFlag, emit_json
+from app.cli.common import JsonFlag, emit_json
 from app.cli.errors import fail
 
 speech_cli = typer.Typer(help="Offline speech recognition (yes/no answers).", no_args_is_help=True)

@@ -34,7 +34,6 @@ import random
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any, TypeVar
 
 import httpx
@@ -56,6 +55,7 @@ from app.robots.robot import (
     RobotUnreachable,
     colour_of,
 )
+from app.robots.triggers import Trigger  # here too: the bridge's users import it from here
 from app.speech.vocabulary import Vocabulary
 
 T = TypeVar("T")
@@ -65,17 +65,6 @@ SERVER_ERROR = 500
 SERVER_AWAY = (ConnectionError, TimeoutError, OSError, httpx.HTTPError)
 """What a request raises when the server cannot be reached (the WebSocket's and httpx's)."""
 TRANSCRIPT_MAX = 200
-
-
-class Trigger(StrEnum):
-    """What makes the robot ask a category's question (the console's "ask now" always does)."""
-
-    PRESENCE = "presence"
-    """The room client reports the participant stepping into that category's zone."""
-    ROBOT = "robot"
-    """The robot's own cue: a touch, a user in view, a ROS message."""
-    CONSOLE = "console"
-    """Only the operator console's Wizard-of-Oz prompts."""
 
 
 TRIGGER_WAITS = {

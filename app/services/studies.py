@@ -14,7 +14,7 @@ from app.inputs import STUDY_NAME
 from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
 from app.services import audit
 from app.services.audit import Actor
-from app.services.sessions import learners, populations
+from app.services.sessions import populations
 from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
 
 DEFAULT_STUDY_NAME = "default"
@@ -108,6 +108,8 @@ def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | No
             population.prior(category.name, len(category.questions), list(category.questions))
         except ValueError as exc:
             raise InvalidInput(f"{populations.KEY}.file: {exc}") from None
+    from app.services.sessions import learners  # the engine (numpy) only for such a protocol
+
     for category in protocol.categories:
         path = populations.checkpoint_path(protocol, category)
         try:

@@ -341,3 +341,18 @@ def test_study_consent_adds_a_version_and_refuses_bad_files(
     code, out, _ = add(both.replace("Ny.", "Ny text.").replace('version = "2.0"\n', ""))
     assert code == 0
     assert out.startswith("added version 3 (3) of 'sv''s consent text\n  en: sha256 ")
+
+
+def test_help_repeats_the_defaults_it_does_not_import() -> None:
+    """``--help`` imports no settings, exports or learners (tests/app/test_cli_imports.py), so
+    the values it names are repeated in the command modules: they must stay the real ones."""
+    from app.cli import admin, engine, exports, runtime
+    from app.inputs import MAX_ROW_ID
+    from models.learners.exp3 import DEFAULT_EXP3_GAMMA
+
+    defaults = Settings.model_fields
+    served = (defaults["host"].default, defaults["port"].default)
+    assert served == (admin.DEFAULT_HOST, admin.DEFAULT_PORT)
+    assert tuple(EXPORT_FORMATS) == exports.FORMATS
+    assert DEFAULT_EXP3_GAMMA == engine.DEFAULT_EXP3_GAMMA
+    assert MAX_ROW_ID == runtime.MAX_ROW_ID

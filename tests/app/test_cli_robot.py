@@ -12,8 +12,8 @@ import pytest
 from typer.testing import CliRunner
 from websockets.asyncio.server import ServerConnection
 
+from app import client
 from app.cli import cli
-from app.cli import robot as robot_cli
 from app.client import StationSocket
 from tests.app.test_client_socket import Script, scripted_server
 
@@ -361,7 +361,7 @@ def test_a_lost_connection_ends_with_one_error_line(monkeypatch: pytest.MonkeyPa
     fast = functools.partial(
         StationSocket, request_timeout=0.3, retry_delay=0.01, max_retry_delay=0.05
     )
-    monkeypatch.setattr(robot_cli, "StationSocket", fast)
+    monkeypatch.setattr(client, "StationSocket", fast)  # the command imports it when it runs
 
     async def script(attempt: int, connection: ServerConnection) -> None:
         if attempt > 1:  # the server is gone: every reconnection is dropped at once

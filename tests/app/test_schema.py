@@ -35,6 +35,31 @@ def test_migrations_match_the_orm(blank_database_url: str) -> None:
     database.dispose()
 
 
+def test_revisions_are_read_as_alembic_reads_them(blank_database_url: str) -> None:
+    """Commands compare the two without Alembic (app.schema); Alembic's answers must agree,
+    before, between and after migrations."""
+    from alembic.script import ScriptDirectory
+
+    script = ScriptDirectory.from_config(schema.alembic_config())
+    assert schema.head_revision() == script.get_current_head()
+    database = Database(blank_database_url)
+
+    def alembic_current() -> str | None:
+        with database.engine.connect() as connection:
+            return MigrationContext.configure(connection).get_current_revision()
+
+    assert schema.current_revision(database) is None
+    assert alembic_current() is None
+    for revision in ("0001", "0012", "head"):
+        schema.upgrade(database, revision)
+        assert schema.current_revision(database) == alembic_current()
+    assert schema.current_revision(database) == script.get_current_head()
+    schema.downgrade(database, "base")
+    assert schema.current_revision(database) is None
+    assert alembic_current() is None
+    database.dispose()
+
+
 def test_upgrade_downgrade_upgrade(blank_database_url: str) -> None:
     database = Database(blank_database_url)
     schema.upgrade(database)

@@ -17,12 +17,15 @@ import base64
 import dataclasses
 import hashlib
 import hmac
+from typing import TYPE_CHECKING
 
-import pandas as pd
-
-from analysis.dataset import StudyDataset
 from app.errors import InvalidInput
 from app.services.privacy import personal_data
+
+if TYPE_CHECKING:  # named in annotations only: erasing a participant (erasure) loads no pandas
+    import pandas as pd
+
+    from analysis.dataset import StudyDataset
 
 PREFIX = "ps-"
 PSEUDONYMISED = "pseudonymised"

@@ -17,16 +17,18 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from analysis.population import Population, read_population
 from app.errors import Conflict, InvalidInput
 from app.protocol import CategorySpec, Protocol
 from app.tables import Study, StudyStatus
-from models.checkpoints import Checkpoint, checkpoint_name
+
+if TYPE_CHECKING:  # the analysis (pandas) and the models (numpy): only where they are used
+    from analysis.population import Population
+    from models.checkpoints import Checkpoint
 
 KEY = "learners.population"
 
@@ -34,6 +36,10 @@ KEY = "learners.population"
 @functools.lru_cache(maxsize=16)
 def _verified(path: str, modified_ns: int, size: int) -> Population:
     """Read and hash-check a population file once per process (again if the file changes)."""
+    # Here, not at the top: the analysis stack (pandas, Plotly) is for studies with a population
+    # file, and every command that merely opens a study imports this module.
+    from analysis.population import read_population
+
     return read_population(Path(path))
 
 
@@ -63,6 +69,8 @@ def checkpoint_path(protocol: Protocol, category: CategorySpec) -> Path:
     """Where the population's checkpoint for ``category`` is: ``checkpoints/<category>-k<K>``."""
     settings = protocol.learners.population
     assert settings is not None  # callers ask only when the protocol names a population
+    from models.checkpoints import checkpoint_name
+
     return Path(settings.checkpoints) / checkpoint_name(category.name, len(category.questions))
 
 
