@@ -32,7 +32,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import timedelta
 from typing import Any
 
@@ -90,6 +90,8 @@ class StudyFits:
     db: Session
     study_id: int
     dataset: StudyDataset
+    started: dict[FitKey, _Running] = field(default_factory=dict)
+    """The fits this request started: it gets their results even when they were not stored."""
 
     def key(self, kind: fitted.Kind, **settings: Any) -> FitKey:
         """The key of ``kind`` with ``settings`` (defaults filled in) for this dataset."""
@@ -103,16 +105,32 @@ class StudyFits:
     def get(self, kind: fitted.Kind, **settings: Any) -> Any:
         """The result, or :class:`Fitting` when its fit takes longer than the runner's
         ``wait``. A ``study`` result comes without its dataset (:func:`fitted.attached`)."""
-        return self.runner._get(self.db, self.key(kind, **settings), self.dataset, self.runner.wait)
+        return self._get(self.key(kind, **settings), self.runner.wait)
 
     def result(self, kind: fitted.Kind, **settings: Any) -> Any:
         """The result, waiting for its fit however long it takes (exports, the report)."""
-        return self.runner._get(self.db, self.key(kind, **settings), self.dataset, None)
+        return self._get(self.key(kind, **settings), None)
 
     def start(self, kind: fitted.Kind, **settings: Any) -> None:
         """Start the fit now unless it is stored or running (to wait for several at once:
         start each, then ask for each). Stored results are found by the ``get`` that follows."""
-        self.runner._start(self.key(kind, **settings), self.dataset)
+        key = self.key(kind, **settings)
+        found, _ = self.runner.cache.lookup(self.db, key)
+        if not found:
+            self.started[key] = self.runner._start(key, self.dataset)
+
+    def _get(self, key: FitKey, wait: float | None) -> Any:
+        running = self.started.get(key)
+        if running is None:
+            found, value = self.runner.cache.lookup(self.db, key)
+            if found:
+                return value
+            running = self.started[key] = self.runner._start(key, self.dataset)
+        self.db.commit()  # end the read snapshot: the wait holds nothing of the database
+        try:
+            return running.future.result(timeout=wait)
+        except cf.TimeoutError:
+            return Fitting(key.kind, max(0.0, self.runner._clock() - running.started))
 
 
 @dataclass
@@ -152,17 +170,6 @@ class FitRunner:
     def for_study(self, db: Session, *, study_id: int, dataset: StudyDataset) -> StudyFits:
         """The fits of ``dataset`` (the study's data as a request read them in ``db``)."""
         return StudyFits(self, db, study_id, dataset)
-
-    def _get(self, db: Session, key: FitKey, dataset: StudyDataset, wait: float | None) -> Any:
-        found, value = self.cache.lookup(db, key)
-        if found:
-            return value
-        running = self._start(key, dataset)
-        db.commit()  # end the read snapshot: the wait holds nothing of the database
-        try:
-            return running.future.result(timeout=wait)
-        except cf.TimeoutError:
-            return Fitting(key.kind, max(0.0, self._clock() - running.started))
 
     def _start(self, key: FitKey, dataset: StudyDataset) -> _Running:
         with self._lock:
@@ -212,6 +219,17 @@ class FitRunner:
                     initializer=_lower_priority,
                 )
             return self._pool
+
+    def settle(self, timeout: float | None = None) -> None:
+        """Wait until no fit is running (tests and benchmarks); a fit's error is not raised."""
+        while True:
+            with self._lock:
+                running = list(self._running.values())
+            if not running:
+                return
+            cf.wait([r.future for r in running], timeout=timeout)
+            if timeout is not None and not all(r.future.done() for r in running):
+                raise TimeoutError("fits still running")
 
     def close(self) -> None:
         """Stop: fits not started are dropped, running ones end with their process."""
