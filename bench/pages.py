@@ -194,7 +194,7 @@ def contention(database: Database, tmp: Path, samples: int) -> dict[str, list[fl
 
                 worker = threading.Thread(target=export)
                 worker.start()
-                times = []
+                times: list[float] = []
                 while not done.is_set() and len(times) < samples:
                     times.append(fetch(client, f"/studies/{STUDY}", False)[0])
                 worker.join()
