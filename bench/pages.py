@@ -9,7 +9,7 @@ signed-in admin:
 - **cold**: the study's fitted analyses emptied first (``DELETE FROM fitted_analysis``: every
   worker's memory copy is refused with its row), so the page fits what it shows. For a page that
   shows "fitting…" (app/services/analysis_views/fit_runner.py), ``first`` is that answer and
-  ``result`` is when a poll (htmx asks again every second; here every 0.1 s) gets the result;
+  ``result`` is when a poll (every second, as the page's htmx asks again) gets the result;
 - **warm**: the same page asked again ``--warm`` times;
 - **restarted**: once after a server restart with the fits kept in the database (a new
   worker's first view).
@@ -147,7 +147,7 @@ def until_result(client: httpx.Client, path: str, htmx: bool) -> tuple[float, fl
     began = time.perf_counter()
     first, text = fetch(client, path, htmx)
     while BUSY in text:
-        time.sleep(0.1)
+        time.sleep(1.0)  # as the page polls (templates/_fitting.html)
         _, text = fetch(client, path, True)
     return first, time.perf_counter() - began
 

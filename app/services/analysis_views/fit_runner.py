@@ -11,8 +11,8 @@ it from no other request.
 Where fits run. The statistics are CPU-bound Python and NumPy: in a thread of the server
 they hold the GIL for most of their time and slow every other request of the process (measured
 in docs/performance.md, "Staff pages at 100 participants"). So they run in worker processes
-(``processes``, a forkserver pool started at the first fit, each at a lower priority than the
-server, so a study's robots keep theirs); the server keeps one thread per fit in flight, which
+(``processes``, spawned when the server starts, each at a lower priority than the server, so
+a study's robots keep theirs); the server keeps one thread per fit in flight, which
 only waits for the process and then stores the result. ``processes=0`` runs fits in those
 threads instead (tests inject a fitter there).
 
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import importlib
 import json
 import logging
 import multiprocessing
@@ -53,8 +54,8 @@ ERASURE_MARGIN = timedelta(seconds=10)
 """A fit's data count as read this much before it started: an erasure that was committing
 while they were read refuses the result (:meth:`FitCache.store`)."""
 
-PRELOADED = ["app.services.analysis_views.fitted", "analysis.lmm", "analysis.ordinal"]
-"""Imported once by the forkserver, so each worker process starts with the statistics loaded."""
+PRELOADED = ("app.services.analysis_views.fitted", "analysis.lmm", "analysis.ordinal")
+"""Imported by each worker process as it starts, so the first fit does not wait for them."""
 
 
 def run_fit(kind: fitted.Kind, dataset: StudyDataset, settings: Mapping[str, Any]) -> bytes:
@@ -66,10 +67,13 @@ def _ready() -> None:
     """Nothing: a worker process that ran it has started and imported the statistics."""
 
 
-def _lower_priority() -> None:
-    """A worker process's initialiser: below the server, so a fit never slows a robot."""
+def _prepare_worker() -> None:
+    """A worker process's initialiser: below the server, so a fit never slows a robot; the
+    statistics imported."""
     with contextlib.suppress(OSError):  # not permitted here: run as we are
         os.nice(10)
+    for name in PRELOADED:
+        importlib.import_module(name)
 
 
 @dataclass(frozen=True)
@@ -215,12 +219,13 @@ class FitRunner:
     def _process_pool(self) -> cf.ProcessPoolExecutor:
         with self._lock:
             if self._pool is None:
-                context = multiprocessing.get_context("forkserver")
-                context.set_forkserver_preload(PRELOADED)
+                # Spawned, not forked: a child forked from a process whose BLAS (or any other
+                # library) runs threads can hang on a lock one of them held (a forkserver that
+                # had imported NumPy hung the 100-participant fits).
                 self._pool = cf.ProcessPoolExecutor(
                     max_workers=self._processes,
-                    mp_context=context,
-                    initializer=_lower_priority,
+                    mp_context=multiprocessing.get_context("spawn"),
+                    initializer=_prepare_worker,
                 )
             return self._pool
 
