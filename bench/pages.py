@@ -57,7 +57,8 @@ from tests.servers import ServerProcess  # noqa: E402
 STUDY = "pages"
 USER = "bench"
 PASSWORD = "benchmark password"
-BUSY = 'aria-busy="true"'
+BUSY = 'class="fitting"'
+"""What a page shows while its fit runs (templates/_fitting.html)."""
 
 PAGES: dict[str, tuple[str, bool]] = {
     "studies": ("/", False),
