@@ -75,7 +75,8 @@ PAGES: dict[str, tuple[str, bool]] = {
     "wide csv": ("/studies/{study}/exports/wide-csv", False),
     "stations": ("/stations", False),
     "audit log": ("/admin/audit", False),
-    "accounts": ("/users", False),
+    "accounts": ("/admin/users", False),
+    "new study": ("/admin/studies/new", False),
     "account": ("/account", False),
 }
 """Label → (path, asked by htmx as the page asks it)."""
