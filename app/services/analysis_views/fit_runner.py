@@ -219,9 +219,9 @@ class FitRunner:
     def _process_pool(self) -> cf.ProcessPoolExecutor:
         with self._lock:
             if self._pool is None:
-                # Spawned, not forked: a child forked from a process whose BLAS (or any other
-                # library) runs threads can hang on a lock one of them held (a forkserver that
-                # had imported NumPy hung the 100-participant fits).
+                # Spawned: a fresh interpreter, not a fork of a server that runs threads (a
+                # child forked while another thread holds a lock, the BLAS's included, can hang
+                # on it); the statistics are imported once per process, as it starts.
                 self._pool = cf.ProcessPoolExecutor(
                     max_workers=self._processes,
                     mp_context=multiprocessing.get_context("spawn"),
