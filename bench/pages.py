@@ -10,7 +10,8 @@ signed-in admin:
   worker's memory copy is refused with its row), so the page fits what it shows. For a page that
   shows "fitting…" (app/services/analysis_views/fit_runner.py), ``first`` is that answer and
   ``result`` is when a poll (every second, as the page's htmx asks again) gets the result;
-- **warm**: the same page asked again ``--warm`` times;
+- **warm**: the same page asked again ``--warm`` times, after one request of each page that
+  fitted what the last cold requests' emptying had removed;
 - **restarted**: once after a server restart with the fits kept in the database (a new
   worker's first view).
 
@@ -166,6 +167,8 @@ def measure(url: str, database: Database, code: str, warm: int, cold: int) -> di
                 first, result = until_result(client, path, htmx)
                 figures[label]["cold_first"].append(first)
                 figures[label]["cold_result"].append(result)
+        for path, htmx in paths.values():  # the cold requests' fits were emptied after them
+            until_result(client, path, htmx)
         for _ in range(warm):
             for label, (path, htmx) in paths.items():
                 figures[label]["warm"].append(fetch(client, path, htmx)[0])
