@@ -107,7 +107,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         _abandon_unfinished_sign_ins(database)
         database.start_background_work()
         activity.start()
-        _app.state.analysis_fits.warm_up()
         if settings.freeze_heap_at_start:
             collector.freeze_startup_objects()
         yield

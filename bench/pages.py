@@ -242,7 +242,6 @@ def main() -> None:
         server = ServerProcess(url, tmp / "var", preload=False)
         server.start()
         try:
-            time.sleep(5)  # the worker processes start in the background: let them
             figures = measure(server.url, database, str(code), args.warm, args.cold)
         finally:
             server.stop()

@@ -11,8 +11,8 @@ it from no other request.
 Where fits run. The statistics are CPU-bound Python and NumPy: in a thread of the server
 they hold the GIL for most of their time and slow every other request of the process (measured
 in docs/performance.md, "Staff pages at 100 participants"). So they run in worker processes
-(``processes``, spawned when the server starts, each at a lower priority than the server, so
-a study's robots keep theirs); the server keeps one thread per fit in flight, which
+(``processes``, spawned at the first fit, each at a lower priority than the server, so a
+study's robots keep theirs); the server keeps one thread per fit in flight, which
 only waits for the process and then stores the result. ``processes=0`` runs fits in those
 threads instead (tests inject a fitter there).
 
@@ -61,10 +61,6 @@ PRELOADED = ("app.services.analysis_views.fitted", "analysis.lmm", "analysis.ord
 def run_fit(kind: fitted.Kind, dataset: StudyDataset, settings: Mapping[str, Any]) -> bytes:
     """The default fitter: :func:`fitted.fit`, pickled in the worker (only bytes come back)."""
     return fit_cache.dumps(fitted.fit(kind, dataset, settings))
-
-
-def _ready() -> None:
-    """Nothing: a worker process that ran it has started and imported the statistics."""
 
 
 def _prepare_worker() -> None:
@@ -228,18 +224,6 @@ class FitRunner:
                     initializer=_prepare_worker,
                 )
             return self._pool
-
-    def warm_up(self) -> None:
-        """Start the worker processes now, in the background (at the server's start): the
-        first page to need a fit then does not wait for them to start and import the
-        statistics (2-5 s)."""
-        if self._processes > 0:
-            self._threads.submit(self._start_processes)
-
-    def _start_processes(self) -> None:
-        pool = self._process_pool()
-        for _ in range(self._processes):
-            pool.submit(_ready)
 
     def settle(self, timeout: float | None = None) -> None:
         """Wait until no fit is running (tests and benchmarks); a fit's error is not raised."""
