@@ -31,6 +31,7 @@ from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
 from app.events import PostgresListener
 from app.http import BodyLimit, SecurityHeaders, install_error_handlers
+from app.services.analysis_views.fit_runner import FitRunner
 from app.services.analysis_views.freshness import FreshnessCache
 from app.services.staff import login_throttle
 from app.settings import Settings
@@ -112,6 +113,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         yield
         if settings.freeze_heap_at_start:
             collector.thaw()
+        _app.state.analysis_fits.close()
         database.finish_requests()  # its robot work notes devices for the activity's last flush
         activity.stop()
         database.stop_background_work()
@@ -133,6 +135,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.activity = activity
     app.state.synthesiser = Synthesiser()
     app.state.recognizers = RecognizerPool()
+    app.state.analysis_fits = FitRunner(
+        database, processes=settings.analysis_processes, wait=settings.analysis_wait_seconds
+    )
     app.state.dashboard_data = FreshnessCache(
         max_age=DASHBOARD_DATA_MAX_AGE, min_interval=DASHBOARD_DATA_MIN_INTERVAL
     )

@@ -87,6 +87,25 @@ class Settings(BaseSettings):
             "models loaded)."
         ),
     )
+    analysis_processes: int = Field(
+        default=2,
+        ge=0,
+        le=64,
+        description=(
+            "Worker processes per server process that fit the analyses (mixed models, ANOVAs) in "
+            "the background, at a lower priority than the server; 0 fits them in a thread of "
+            "the server instead, which slows its other requests while it runs "
+            "(app/services/analysis_views/fit_runner.py)."
+        ),
+    )
+    analysis_wait_seconds: float = Field(
+        default=1.0,
+        ge=0,
+        description=(
+            'How long an analysis page waits for a fit before it shows "fitting… started N s '
+            'ago" and fills in when the fit is done.'
+        ),
+    )
     websocket_heartbeat_seconds: float = Field(
         default=15.0, gt=0, description="How often robot WebSockets are pinged."
     )

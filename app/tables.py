@@ -698,3 +698,29 @@ class LoginAttempt(Base):
     attempted_at: Mapped[datetime] = mapped_column(default=utcnow)
     cleared_at: Mapped[datetime | None]
     """When an admin unlocked the account: a cleared failure no longer counts (0006)."""
+
+
+class FittedAnalysis(Base):
+    """One fitted analysis of a study (the ANOVAs, one measure's mixed models, the power page's
+    estimates), kept so that pages, exports and the report reuse one computation across
+    requests, restarts and workers (app.services.analysis_views.fit_cache).
+
+    ``key`` is the SHA-256 of everything the result depends on: the kind, the settings, the data
+    version (the scoped data's SHA-256 with the protocol and the blinding state) and the analysis
+    code's version; a new answer or exclusion makes a new key, so a row is never updated, only
+    unused. The payload is a pickle of the result made by trustlab itself; it holds
+    per-participant rows, so an erasure or anonymisation drops every row of the study
+    (app.services.privacy.personal_data)."""
+
+    __tablename__ = "fitted_analysis"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    study_id: Mapped[int] = mapped_column(ForeignKey("study.id"), index=True)
+    key: Mapped[str] = mapped_column(String(64), unique=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    settings: Mapped[str] = mapped_column(String(255), doc="The settings, as canonical JSON.")
+    data_version: Mapped[str] = mapped_column(String(64))
+    code_version: Mapped[str] = mapped_column(String(64))
+    payload: Mapped[bytes] = mapped_column(LargeBinary)
+    seconds: Mapped[float] = mapped_column(doc="How long the fit took.")
+    fitted_at: Mapped[datetime] = mapped_column(default=utcnow)

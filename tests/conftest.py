@@ -223,6 +223,10 @@ def settings(database_url: str, tmp_path: Path) -> Settings:
         secret_key="test-secret-key-test-secret-key-0123456789",
         sqlite_synchronous="NORMAL",
         freeze_heap_at_start=False,  # a worker starts a thousand apps: 0.3 s of collection each
+        # Fits in a thread of the app (no worker processes to start per app), and a page waits
+        # for its fit: the tests of the background itself inject a runner (test_fit_runner.py).
+        analysis_processes=0,
+        analysis_wait_seconds=120.0,
     )
 
 

@@ -26,14 +26,15 @@ from analysis.exports.tables import (
     steps_table,
     wide_table,
 )
-from analysis.mixed_models import analyse_mixed_models
-from analysis.report import write_report
-from analysis.study import analyse_study
+from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
+from analysis.report import build_report, write_report
+from analysis.study import StudyAnalysis, analyse_study
 
 __all__ = [
     "EXPORT_FORMATS",
     "SUMS_FILE",
     "ExportFormat",
+    "FittedAnalyses",
     "Staging",
     "sha256_file",
     "write_all_exports",
@@ -57,9 +58,26 @@ def _json(dataset: StudyDataset, path: Path) -> Path:
     return path
 
 
-def _mixed_json(dataset: StudyDataset, path: Path) -> Path:
+@dataclass(frozen=True)
+class FittedAnalyses:
+    """The analyses of a dataset, fitted already (the app keeps them per data version), so that
+    an export made of them does not fit them again.
+
+    Attributes
+    ----------
+    study : StudyAnalysis
+        :func:`analysis.study.analyse_study` of the dataset (type III, 95 %).
+    mixed : StudyMixedModels
+        :func:`analysis.mixed_models.analyse_mixed_models` of ``study`` (random slope included).
+    """
+
+    study: StudyAnalysis
+    mixed: StudyMixedModels
+
+
+def _mixed_json(dataset: StudyDataset, path: Path, fitted: FittedAnalyses | None = None) -> Path:
     """Every mixed model of the study, with the data manifest that produced them."""
-    models = analyse_mixed_models(analyse_study(dataset))
+    models = fitted.mixed if fitted else analyse_mixed_models(analyse_study(dataset))
     payload = {"manifest": dict(dataset.manifest), **models.to_dict()}
     path.write_text(
         json.dumps(payload, indent=2, ensure_ascii=False, allow_nan=False) + "\n",
@@ -84,6 +102,9 @@ class ExportFormat:
         One line for the dashboard.
     write : callable
         ``write(dataset, path) -> path``.
+    write_fitted : callable, optional
+        ``write_fitted(dataset, path, fitted) -> path`` for the exports made of fitted analyses
+        (:class:`FittedAnalyses`): the same file from analyses fitted already.
     """
 
     name: str
@@ -91,6 +112,13 @@ class ExportFormat:
     media_type: str
     description: str
     write: Callable[[StudyDataset, Path], Path]
+    write_fitted: Callable[[StudyDataset, Path, FittedAnalyses], Path] | None = None
+
+
+def _report(dataset: StudyDataset, path: Path, fitted: FittedAnalyses) -> Path:
+    """:func:`analysis.report.write_report` from analyses fitted already."""
+    path.write_text(build_report(fitted.study, mixed=fitted.mixed), encoding="utf-8")
+    return path
 
 
 EXPORT_FORMATS: Mapping[str, ExportFormat] = {
@@ -153,6 +181,7 @@ EXPORT_FORMATS: Mapping[str, ExportFormat] = {
             "Mixed models of every measure: linear (Satterthwaite), ordinal, adaptation and "
             "trust (JSON)",
             _mixed_json,
+            _mixed_json,
         ),
         ExportFormat(
             "html",
@@ -160,14 +189,22 @@ EXPORT_FORMATS: Mapping[str, ExportFormat] = {
             "text/html",
             "Self-contained report: methods, ANOVAs, figures, exclusions, manifest (offline)",
             lambda d, p: write_report(d, p),
+            _report,
         ),
     )
 }
 """Every export the app offers, by name."""
 
 
-def write_export(dataset: StudyDataset, format_name: str, path: str | Path) -> Path:
-    """Write one export format to ``path``.
+def write_export(
+    dataset: StudyDataset,
+    format_name: str,
+    path: str | Path,
+    *,
+    fitted: FittedAnalyses | None = None,
+) -> Path:
+    """Write one export format to ``path`` (from ``fitted``, the analyses of ``dataset`` fitted
+    already, when the format is made of them and they are given).
 
     Raises
     ------
@@ -180,6 +217,8 @@ def write_export(dataset: StudyDataset, format_name: str, path: str | Path) -> P
         raise InvalidInputError(
             f"unknown export format {format_name!r}; choose one of {', '.join(EXPORT_FORMATS)}"
         ) from None
+    if fitted is not None and export.write_fitted is not None:
+        return export.write_fitted(dataset, Path(path), fitted)
     return export.write(dataset, Path(path))
 
 

@@ -10,18 +10,16 @@ from fastapi.responses import Response
 from starlette.background import BackgroundTask
 from starlette.responses import FileResponse
 
-from analysis.errors import AnalysisError
-from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
-from analysis.mixed_models import analyse_mixed_models
-from analysis.study import analyse_study
+from analysis.exports import EXPORT_FORMATS, FittedAnalyses, sha256_file, write_export
 from app.deps import AnalystUser, OneHopRouter, ReaderScope, SessionDep, SiteFilter
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
 from app.services import audit, blinding, studies
-from app.services.analysis_views import study_data
+from app.services.analysis_views import fitted, study_data
 from app.services.analysis_views.analysis_view import analysis_view
+from app.services.analysis_views.fit_runner import FitRunner, Fitting, StudyFits
 from app.services.analysis_views.mixed_view import mixed_view
-from app.services.analysis_views.power_view import PlanForm, plan_view, prefilled
+from app.services.analysis_views.power_view import PlanForm, plan_view
 from app.services.audit import Actor
 from app.services.privacy import pseudonyms, sites
 from app.web.templating import is_htmx, render
@@ -30,6 +28,11 @@ router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 STEP_LOG_EXPORTS = frozenset({"steps-csv", "adaptation-csv"})
 """The exports made of the learners' step log (refused while the study is blinded)."""
+
+
+def _fits(request: Request) -> FitRunner:
+    runner: FitRunner = request.app.state.analysis_fits
+    return runner
 
 
 @router.get("/studies/{name}/analysis")
@@ -42,20 +45,31 @@ def analysis_page(
     ss: Count = 3,
     site: SiteFilter = "",
 ) -> Response:
-    """The mixed ANOVA of every per-session measure, computed now from the stored data
-    (``?site=``: one site's participants only)."""
+    """The mixed ANOVA of every per-session measure, fitted once per data version
+    (``?site=``: one site's participants only); "fitting…" while a fit takes longer (htmx polls
+    the results block)."""
     if ss not in (2, 3):
         raise InvalidInput("ss: the sums of squares are of type 3 (default) or 2")
     study = studies.get_study(db, name)
     dataset = study_data.load_dataset(
         db, study=study, for_staff=True, scope=scope.narrowed(site, study)
     )
-    try:
-        result = analyse_study(dataset, ss_type=ss)  # type: ignore[arg-type]
-        view = analysis_view(result)
-        error = ""
-    except AnalysisError as exc:
-        result, view, error = None, None, str(exc)
+    fits = _fits(request).for_study(db, study_id=study.id, dataset=dataset)
+    fits.start("pilot")
+    result = fits.get("study", ss=ss)
+    pilot = fits.get("pilot")
+    view, error, fitting = None, "", None
+    if isinstance(result, Fitting):
+        fitting = result
+    elif isinstance(result, fitted.Failed):
+        error = result.message
+    else:
+        view = analysis_view(fitted.attached(result, dataset))
+    if isinstance(pilot, Fitting):
+        fitting = fitting or pilot
+        plan = None
+    else:
+        plan = plan_view(*pilot)
     return render(
         request,
         "analysis.html",
@@ -63,7 +77,8 @@ def analysis_page(
             "study": study,
             "view": view,
             "error": error,
-            "plan": plan_view(*prefilled(result, error)),
+            "fitting": fitting,
+            "plan": plan,
             "formats": EXPORT_FORMATS.values(),
             "manifest": dataset.manifest,
             "step_logs": STEP_LOG_EXPORTS,
@@ -73,6 +88,7 @@ def analysis_page(
             "site_choices": sites.choices(studies.protocol_of(study), Actor.of_user(user)),
             "study_sites": sites.names(studies.protocol_of(study)),
         },
+        block="results",
     )
 
 
@@ -87,34 +103,51 @@ def mixed_models_page(
     slope: bool = False,
     site: SiteFilter = "",
 ) -> Response:
-    """One measure's mixed models (fitted now): the whole page, or its section for htmx."""
+    """One measure's mixed models, fitted once per data version: the whole page, or its
+    section for htmx ("fitting…" while the fit runs; the section polls until it is done)."""
     study = studies.get_study(db, name)
     dataset = study_data.load_dataset(
         db, study=study, for_staff=True, scope=scope.narrowed(site, study)
     )
-    view, error = None, ""
-    try:
-        result = analyse_study(dataset)
-        if not result.outcomes:
-            error = (
-                "Nothing to model yet: the mixed models of each trust measure appear here once "
-                "participants have answered the questionnaire after their sessions."
+    fits = _fits(request).for_study(db, study_id=study.id, dataset=dataset)
+    view, error, fitting = None, "", None
+    result = fits.get("study")
+    if isinstance(result, Fitting):
+        fitting = result
+    elif isinstance(result, fitted.Failed):
+        error = result.message
+    elif not result.outcomes:
+        error = (
+            "Nothing to model yet: the mixed models of each trust measure appear here once "
+            "participants have answered the questionnaire after their sessions."
+        )
+    else:
+        key = measure or result.outcomes[0].key
+        keys = [o.key for o in result.outcomes]
+        if key not in keys:
+            raise InvalidInput(
+                f"measure: no per-session measure {key!r}; choose one of {', '.join(keys)}"
             )
+        models = fits.get("mixed", measure=key, slope=slope)
+        if isinstance(models, Fitting):
+            fitting = models
+        elif isinstance(models, fitted.Failed):
+            error = models.message
         else:
-            key = measure or result.outcomes[0].key
-            keys = [o.key for o in result.outcomes]
-            if key not in keys:
-                raise InvalidInput(
-                    f"measure: no per-session measure {key!r}; choose one of {', '.join(keys)}"
-                )
-            models = analyse_mixed_models(result, keys=[key], random_slope=slope)
-            view = mixed_view(result, models.outcomes[0], random_slope=slope)
-    except AnalysisError as exc:
-        error = str(exc)
+            study_result = fitted.attached(result, dataset)
+            view = mixed_view(study_result, models.outcomes[0], random_slope=slope)
     return render(
         request,
         "analysis_mixed.html",
-        {"study": study, "view": view, "error": error, "site": site.strip()},
+        {
+            "study": study,
+            "view": view,
+            "error": error,
+            "fitting": fitting,
+            "measure": measure,
+            "slope": slope,
+            "site": site.strip(),
+        },
         block="mixed_models",
     )
 
@@ -124,28 +157,46 @@ def power_plan_page(
     request: Request, db: SessionDep, user: AnalystUser, scope: ReaderScope, name: str
 ) -> Response:
     """Power, N or detectable effect for the next study: the page, or its answer for htmx
-    (prefilled from the participants the account may see)."""
+    (prefilled from the participants the account may see, estimated once per data version)."""
     # The fields are read from the query as text by the view, so a bad one is refused in one
     # line naming it (422, the page showing the words), never pydantic's list of errors.
     study = studies.get_study(db, name)
     form = PlanForm.from_query(request.query_params)
-    basis = ""
+    basis, fitting = "", None
     if form is None or not is_htmx(request):  # the whole page says where its values came from
         dataset = study_data.load_dataset(db, study=study, for_staff=True, scope=scope)
-        try:
-            result, problem = analyse_study(dataset), ""
-        except AnalysisError as exc:
-            result, problem = None, str(exc)
-        initial, basis = prefilled(result, problem)
+        pilot = _fits(request).for_study(db, study_id=study.id, dataset=dataset).get("pilot")
+        if isinstance(pilot, Fitting):
+            fitting = pilot
+            initial = PlanForm()
+        else:
+            initial, basis = pilot
         form = form or initial
     plan = plan_view(form, basis)
     return render(
         request,
         "analysis_power.html",
-        {"study": study, "plan": plan, "error": plan.error},
+        {"study": study, "plan": plan, "error": plan.error, "fitting": fitting},
         block="power_plan",
         status_code=422 if plan.error else 200,
     )
+
+
+def _fitted_analyses(fits: StudyFits) -> FittedAnalyses | None:
+    """The study's ANOVAs and every measure's mixed models (with the slope), as the pages fit
+    and keep them: waited for, each measure's fit started before the first is awaited. None
+    when the ANOVAs cannot be computed (the export then says why itself)."""
+    result = fits.result("study")
+    if isinstance(result, fitted.Failed):
+        return None
+    keys = [outcome.key for outcome in result.outcomes]
+    for key in keys:
+        fits.start("mixed", measure=key, slope=True)
+    measures = [fits.result("mixed", measure=key, slope=True) for key in keys]
+    if any(isinstance(models, fitted.Failed) for models in measures):
+        return None
+    study_result = fitted.attached(result, fits.dataset)
+    return FittedAnalyses(study_result, fitted.combined(study_result, measures))
 
 
 @router.get("/studies/{name}/exports/{export}")
@@ -175,8 +226,13 @@ def download(
     dataset = study_data.load_dataset(db, study=study, for_staff=True, scope=scope)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study.name)
+    analyses = None
+    if spec.write_fitted is not None:  # made of the fitted analyses: the cached ones
+        analyses = _fitted_analyses(
+            _fits(request).for_study(db, study_id=study.id, dataset=dataset)
+        )
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
-    path = write_export(dataset, export, folder / spec.filename)
+    path = write_export(dataset, export, folder / spec.filename, fitted=analyses)
     digest = sha256_file(path)
     with request.app.state.database.write_session() as writer:
         audit.record(

@@ -305,7 +305,12 @@ def _responses(
         .where(_of_scope(study, scope))
         .order_by(Participant.id, Response.instrument, Response.session, Response.id)
     ).all()
-    frame = pd.DataFrame(rows, columns=["participant", "instrument", "session", "item", "value"])
+    # Plain tuples: pandas reads SQLAlchemy's Row objects several times slower (0.2 s of the
+    # page's time at 100 participants).
+    frame = pd.DataFrame(
+        [tuple(row) for row in rows],
+        columns=["participant", "instrument", "session", "item", "value"],
+    )
     frame["session"] = frame["session"].astype("Int64")
     values: list[Any] = [
         float(value) if (instrument, item) in numeric else value
@@ -351,7 +356,7 @@ def _steps(db: Session, study: Study, categories: set[str], scope: Scope) -> pd.
         .order_by(Participant.id, Prompt.category, Answer.learner_version)
     ).all()
     return pd.DataFrame(
-        rows,
+        [tuple(row) for row in rows],
         columns=[
             "participant",
             "condition",

@@ -266,6 +266,16 @@ def after_erasures(db: Session) -> None:
     _empty_sqlite_wal(db)
 
 
+def drop_study_derived(
+    db: Session, study_id: int, tables: tuple[personal_data.PersonalTable, ...]
+) -> None:
+    """Delete the rows of ``study_id`` in ``tables`` (results derived from the whole study's
+    data: the fitted analyses). A worker's copy in memory is used only while its row exists
+    (app.services.analysis_views.fit_cache), so it goes with the row."""
+    for entry in tables:
+        db.execute(delete(entry.sql).where(entry.sql.c.study_id == study_id))
+
+
 def _empty_sqlite_wal(db: Session) -> None:
     """SQLite zeroes deleted content (app.db: secure_delete), but the WAL still holds the pages
     as they were before; a TRUNCATE checkpoint empties it (best effort: with a reader still on
@@ -283,6 +293,7 @@ def _remove_data(db: Session, participant: Participant) -> dict[str, int]:
     for entry in personal_data.erased_by_deletion():
         result = db.execute(delete(entry.sql).where(entry.sql.c.participant_id == owned))
         removed[entry.name] = int(result.rowcount or 0)  # type: ignore[attr-defined]
+    drop_study_derived(db, participant.study_id, personal_data.erased_with_study())
     db.execute(
         update(Station)
         .where(Station.participant_id == owned)

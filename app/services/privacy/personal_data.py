@@ -34,6 +34,7 @@ from app.tables import (
     Device,
     DeviceSocket,
     ErasureInProgress,
+    FittedAnalysis,
     LearnerState,
     LoginAttempt,
     LoginSession,
@@ -66,6 +67,9 @@ class Erased(StrEnum):
     """A robot's notice that names their code is removed."""
     TRANSIENT = "never committed"
     """Rows exist only inside an erasure's own transaction."""
+    STUDY_DROPPED = "dropped with the study's"
+    """The rows are the study's, not theirs, and some hold their data: every row of their study
+    is deleted (a cache: what is still needed is computed again)."""
 
 
 class Anonymised(StrEnum):
@@ -83,6 +87,8 @@ class Anonymised(StrEnum):
     NOTICE_DROPPED = "notice dropped"
     UNTOUCHED = "untouched"
     """Holds nothing that identifies them once the code is gone (or never committed)."""
+    STUDY_DROPPED = "dropped with the study's"
+    """As :attr:`Erased.STUDY_DROPPED`: the rows hold the code being replaced."""
 
 
 @dataclass(frozen=True)
@@ -124,6 +130,18 @@ class PersonalTable:
 
 TABLES: tuple[PersonalTable, ...] = (
     # Children before parents: erasure deletes in this order.
+    PersonalTable(
+        FittedAnalysis,
+        "analyses fitted from their study's data, with per-participant rows under their code",
+        Erased.STUDY_DROPPED,
+        Anonymised.STUDY_DROPPED,
+        None,
+        not_in_subject_access=(
+            "computed from their answers, which their copy lists; the rows of the others are "
+            "not theirs"
+        ),
+        free_text={"settings": "the analysis's settings (a measure's key, the model)"},
+    ),
     PersonalTable(
         AnswerAudio,
         "their recorded voice for spoken answers (when the protocol records audio)",
@@ -339,6 +357,12 @@ builds each."""
 def erased_by_deletion() -> tuple[PersonalTable, ...]:
     """The tables whose rows of an erased participant are deleted, children first."""
     return tuple(t for t in TABLES if t.erased == Erased.DELETED)
+
+
+def erased_with_study() -> tuple[PersonalTable, ...]:
+    """The tables whose rows of the erased participant's study (``study_id``) the erasure
+    deletes: derived from everyone's data, theirs included."""
+    return tuple(t for t in TABLES if t.erased == Erased.STUDY_DROPPED)
 
 
 def anonymised(how: Anonymised) -> tuple[PersonalTable, ...]:

@@ -230,6 +230,7 @@ def _anonymise(
     for entry in personal_data.anonymised(Anonymised.DELETED):
         table = entry.sql
         statements[entry.name] = delete(table).where(table.c.participant_id == owned)
+    erasure.drop_study_derived(db, study.id, personal_data.anonymised(Anonymised.STUDY_DROPPED))
     for entry in personal_data.TABLES:
         table = entry.sql
         for column in entry.cleared:
