@@ -168,6 +168,14 @@ def artifacts(request: pytest.FixtureRequest) -> Path:
     return folder
 
 
+SSE_OPEN = (
+    "window.__sseOpen = false;"
+    " document.addEventListener('htmx:sseOpen', () => { window.__sseOpen = true; });"
+)
+"""An init script that notes when htmx's event stream of a staff page is open: a change made
+before it is open reaches the page by no event, so a test that makes one waits for this first."""
+
+
 def sign_in_page(
     page: Page, server: ServerProcess, next_url: str, username: str = "operator"
 ) -> None:

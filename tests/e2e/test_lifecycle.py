@@ -18,7 +18,7 @@ from app.services.participants import enrolment, languages, questionnaires, tabl
 from app.tables import Participant
 from tests.conftest import EXP3_ONLY, TRUST_ANSWERS
 from tests.e2e import room_driver as drive
-from tests.e2e.conftest import SECRET, sign_in_page
+from tests.e2e.conftest import SECRET, SSE_OPEN, sign_in_page
 from tests.servers import ServerProcess
 
 STUDY = "sv"
@@ -56,13 +56,6 @@ def _tablet_link(database: Database, participant: Participant) -> str:
 def _tablet_listening(tablet: Page) -> None:
     """Until the tablet's event stream is open (static/js/tablet.js marks its page)."""
     expect(tablet.locator("body")).to_have_attribute("data-listening", "yes")
-
-
-SSE_OPEN = (
-    "window.__sseOpen = false;"
-    " document.addEventListener('htmx:sseOpen', () => { window.__sseOpen = true; });"
-)
-"""Notes when htmx's event stream of a staff page is open."""
 
 
 @pytest.fixture

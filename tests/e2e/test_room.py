@@ -34,7 +34,7 @@ from app.speech.wav import decode_wav
 from app.tables import Answer, Participant, Prompt
 from tests.conftest import protocol_text
 from tests.e2e import room_driver as drive
-from tests.e2e.conftest import launch_chromium, sign_in_page
+from tests.e2e.conftest import SSE_OPEN, launch_chromium, sign_in_page
 from tests.servers import ServerProcess
 
 STUDY = "default"
@@ -322,8 +322,10 @@ def _console(
 ) -> Page:
     """The station's operator console, signed in as the lab's admin."""
     console = context_of(viewport=DESKTOP).new_page()
+    console.add_init_script(SSE_OPEN)
     sign_in_page(console, room_server.server, f"/stations/{lab.station}", username=lab.admin)
     expect(console.locator("#room-panel")).to_be_visible()
+    console.wait_for_function("() => window.__sseOpen")  # it hears the changes the test makes
     return console
 
 
