@@ -6,12 +6,14 @@ headers. uvicorn runs it with ``--factory`` (see ``trustlab serve``); tests buil
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, FastAPI
 from sqlalchemy.exc import DBAPIError
+from starlette.routing import BaseRoute
 from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
 
 from app import collector, security
@@ -87,6 +89,53 @@ def _abandon_unfinished_sign_ins(database: Database) -> None:
         log.info("%d sign-in checks interrupted by the last stop were abandoned", abandoned)
 
 
+@functools.cache
+def _routes() -> tuple[BaseRoute, ...]:
+    """Every route of the app, built once per process.
+
+    FastAPI analyses each endpoint's signature and dependencies as its router is included, about
+    0.4 s for all of trustlab's. The routes hold nothing of one app (a handler reaches the
+    settings and the database through ``request.app.state``), so every app a process creates
+    shares them: the test suite creates one per test, over a thousand. They are built without an
+    app to ask for ``app.dependency_overrides``, which trustlab does not use."""
+    everything = APIRouter()
+    api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
+    # FastAPI tries routes in the order they were included, at a cost per route tried: the
+    # robots' routes, the latency-critical ones (docs/performance.md), come first.
+    for resource in (
+        station.router,
+        station_ws.router,
+        station_audio.router,
+        session.router,
+        studies_api.router,
+        stations.router,
+        stations.devices_router,
+        tablet.router,
+        languages.router,
+    ):
+        api.include_router(resource)
+    everything.include_router(api)
+    everything.include_router(health.router)
+    for pages in (
+        auth.router,
+        studies_pages.router,
+        participants.router,
+        dashboard.router,
+        analysis_pages.router,
+        live.router,
+        station_pages.router,
+        room.router,
+        admin.router,
+        accounts.router,
+        audit_pages.router,
+        docs.router,
+        tablet_pages.router,
+        assets.router,
+    ):
+        everything.include_router(pages)
+    return tuple(everything.routes)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """A trustlab application for ``settings`` (read from the environment when omitted)."""
     settings = settings or Settings()
@@ -142,40 +191,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         max_age=DASHBOARD_DATA_MAX_AGE, min_interval=DASHBOARD_DATA_MIN_INTERVAL
     )
 
-    api = APIRouter(prefix=API_PREFIX, responses=ERROR_RESPONSES)
-    # FastAPI tries routes in the order they were included, at a cost per route tried: the
-    # robots' routes, the latency-critical ones (docs/performance.md), come first.
-    for resource in (
-        station.router,
-        station_ws.router,
-        station_audio.router,
-        session.router,
-        studies_api.router,
-        stations.router,
-        stations.devices_router,
-        tablet.router,
-        languages.router,
-    ):
-        api.include_router(resource)
-    app.include_router(api)
-    app.include_router(health.router)
-    for pages in (
-        auth.router,
-        studies_pages.router,
-        participants.router,
-        dashboard.router,
-        analysis_pages.router,
-        live.router,
-        station_pages.router,
-        room.router,
-        admin.router,
-        accounts.router,
-        audit_pages.router,
-        docs.router,
-        tablet_pages.router,
-        assets.router,
-    ):
-        app.include_router(pages)
+    app.router.routes.extend(_routes())
     app.mount("/static", VersionedStaticFiles(directory=STATIC_ROOT), name="static")
 
     install_error_handlers(app)

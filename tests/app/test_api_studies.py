@@ -61,6 +61,23 @@ def test_healthz_reports_an_unreachable_database(settings: Settings) -> None:
     )
 
 
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)
+def test_apps_of_one_process_share_their_routes_and_keep_their_own_state(
+    client: TestClient, settings: Settings
+) -> None:
+    """The routes are built once per process (app.main._routes); each app still answers from
+    its own settings and database."""
+    unreachable_url = "postgresql+psycopg://nobody@127.0.0.1:1/none"
+    broken = settings.model_copy(update={"database_url": unreachable_url})
+    other = create_app(broken)
+    own = {id(route) for route in client.app.routes}  # type: ignore[attr-defined]
+    apart = [getattr(route, "path", route) for route in other.routes if id(route) not in own]  # type: ignore[attr-defined]
+    assert sorted(apart) == ["/api/v1/openapi.json", "/static"]  # what FastAPI makes per app
+    with TestClient(other) as unreachable:
+        assert unreachable.get("/healthz").status_code == 503
+    assert client.get("/healthz").json() == {"status": "ok", "database": "ok"}
+
+
 def test_enrol_list_and_withdraw(user_client: UserClientFactory, study_name: str) -> None:
     client = user_client(Role.EXPERIMENTER)
     base = f"/api/v1/studies/{study_name}/participants"
