@@ -41,8 +41,9 @@ NO_ENGINE = OPENS_DATABASE | ENGINE
 """Of those, the ones that touch no learner and no participant's data: not even numpy."""
 EXPORTS = LEARNERS | WEB | MIGRATIONS | POSTGRES_DRIVER
 """Exports of the stored tables (no fitted model): the analysis package's tables and scoring."""
-ANALYTIC = LEARNERS | WEB | MIGRATIONS | POSTGRES_DRIVER | DATABASE | frozenset({"plotly"})
-"""The analytic power calculation: SciPy's distributions and the number formatting (pandas)."""
+ANALYTIC = NO_DATABASE
+"""The analytic power questions: pure Python (analysis.power's F distributions, the number
+formatting of analysis.apa_numbers), no SciPy, pandas or numpy."""
 
 PASSWORD = "a long enough password"
 
@@ -87,7 +88,15 @@ def chains(tmp: Path) -> list[list[Row]]:
             (["retention", "run"], OPENS_DATABASE, None),
             *exports,
         ],
-        [([*power, "--rho", "0.5", "--target-power", "0.8"], ANALYTIC, None)],
+        [
+            ([*power, "--rho", "0.5", "--target-power", "0.8"], ANALYTIC, None),
+            ([*power, "--rho", "0.5", "--n", "24", "--json"], ANALYTIC, None),
+            (
+                [*power[:-2], "--n", "24", "--target-power", "0.8", "--convention", "spss"],
+                ANALYTIC,
+                None,
+            ),
+        ],
     ]
 
 
