@@ -31,7 +31,8 @@ if TYPE_CHECKING:
 
 _HOMES = {
     **dict.fromkeys(("MixedAnovaResult", "Sphericity", "mixed_anova"), "anova"),
-    **dict.fromkeys(("anova_sentences", "format_p", "sentence_f", "sentence_t"), "apa"),
+    "anova_sentences": "apa",
+    **dict.fromkeys(("format_p", "sentence_f", "sentence_t"), "apa_numbers"),
     **dict.fromkeys(("cell_descriptives", "marginal_means"), "descriptives"),
     **dict.fromkeys(("MixedDesign", "prepare_mixed_design"), "design"),
     **dict.fromkeys(

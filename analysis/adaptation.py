@@ -33,7 +33,6 @@ import numpy as np
 import pandas as pd
 
 from analysis._checks import describe_keys, ordered_levels, require_columns, to_python
-from analysis.descriptives import t_interval
 from analysis.errors import DuplicateObservationError, InvalidInputError
 
 __all__ = [
@@ -348,6 +347,8 @@ def _summarise(
     with np.errstate(invalid="ignore", divide="ignore"):
         sd = np.where(n > 1, np.sqrt(ss / (n - 1)), np.nan)
     se = sd / np.sqrt(n)
+    from analysis.descriptives import t_interval  # SciPy: only where curves are summarised
+
     low, high = t_interval(mean, se, n - 1, confidence)
     cond_idx, rest = np.divmod(groups, len(categories) * width)
     cat_idx, it = np.divmod(rest, width)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -27,7 +27,9 @@ import pandas as pd
 from analysis._checks import json_records, require_columns, to_python
 from analysis.adaptation import probability_matrix, validate_steps
 from analysis.errors import AnalysisError, CannotComputeError, InvalidInputError
-from analysis.lmm import MixedModelFit, fit_mixed_model
+
+if TYPE_CHECKING:
+    from analysis.lmm import MixedModelFit
 
 __all__ = [
     "EFFECT_COLUMNS",
@@ -301,6 +303,10 @@ def adaptation_trust(
 def _fit(
     rows: pd.DataFrame, dv: str, measure: str, parts: list[str], confidence: float
 ) -> MixedModelFit:
+    # The mixed model (SciPy, statsmodels) on first use: the adaptation export's tables import
+    # this module and fit nothing (trustlab export, issue 49).
+    from analysis.lmm import fit_mixed_model
+
     frame = pd.DataFrame(
         {
             "y": rows[dv].to_numpy(float),

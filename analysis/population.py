@@ -25,14 +25,13 @@ import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
-import plotly.graph_objects as go
-from plotly.subplots import make_subplots
 
-from analysis.figures import PALETTE
+if TYPE_CHECKING:
+    import plotly.graph_objects as go
 
 FORMAT = "trustlab-population"
 VERSION = 1
@@ -281,6 +280,13 @@ def _malformed(fitted: Any) -> str:
 def prior_figure(population: Population) -> go.Figure:
     """The fitted prior of each category: one bar per question with its bootstrap interval, the
     uniform prior marked, so a reader sees at once which questions the population favours."""
+    # Plotly and the figures' palette here only: the exports read source_label from this
+    # module and draw nothing (trustlab export, issue 49).
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    from analysis.figures import PALETTE
+
     categories = population.categories
     figure = make_subplots(rows=1, cols=len(categories), subplot_titles=list(categories))
     for column, (name, fitted) in enumerate(categories.items(), start=1):

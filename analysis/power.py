@@ -4,8 +4,10 @@ Before a lab runs a study, its ethics board and its pre-registration ask how man
 and why. G*Power answers for the RM-ANOVA but knows nothing of the lab's pilot; trustlab holds
 the protocol and the pilot, so it answers itself, and agrees with G*Power where G*Power's
 assumptions hold (compound symmetry with correlation ρ among the repeated measures, a
-non-sphericity correction ε that scales the degrees of freedom). Pure numpy/scipy: the command
-line, the analysis page and the benchmark call the same functions.
+non-sphericity correction ε that scales the degrees of freedom). Pure Python (the F
+distributions of :mod:`analysis.f_distribution`, Brent's root finder of :mod:`analysis.roots`;
+numpy only for a means table): the command line, the analysis page and the benchmark call the
+same functions, and an analytic ``trustlab power`` imports neither SciPy nor pandas (issue 49).
 
 Three questions, for one effect of a k groups × m sessions design (``between``, ``within`` or
 ``interaction``): the power for a total N (:func:`power_for_n`), the smallest total N, a multiple
@@ -48,12 +50,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
-
-import numpy as np
-from scipy import optimize, stats
+from typing import TYPE_CHECKING, Any, Literal
 
 from analysis.errors import InvalidInputError
+from analysis.f_distribution import f_isf, ncf_sf
+from analysis.roots import brent_root
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = [
     "CONVENTIONS",
@@ -213,11 +217,14 @@ class PowerDesign:
     def power(self, f: float, n_total: float) -> float:
         """The probability that the effect's F test rejects at ``alpha``."""
         df1, df2 = self.degrees_of_freedom(n_total)
-        critical = float(stats.f.isf(self.alpha, df1, df2))
         lam = self.noncentrality(f, n_total)
         if lam <= 0:
             return self.alpha
-        return float(stats.ncf.sf(critical, df1, df2, lam))
+        return ncf_sf(self.critical_f(n_total), df1, df2, lam)
+
+    def critical_f(self, n_total: float) -> float:
+        """The F that the test with N participants must exceed to reject at ``alpha``."""
+        return f_isf(self.alpha, *self.degrees_of_freedom(n_total))
 
     def to_dict(self) -> dict[str, Any]:
         """The design as understood (JSON-ready)."""
@@ -304,7 +311,7 @@ def _answer(
         lam=design.noncentrality(f, n_total),
         df1=df1,
         df2=df2,
-        f_critical=float(stats.f.isf(design.alpha, df1, df2)),
+        f_critical=design.critical_f(n_total),
     )
 
 
@@ -388,9 +395,7 @@ def detectable_effect(design: PowerDesign, *, n_total: int, target: float) -> Po
         high *= 2
         if high > 1e6:
             raise InvalidInputError(f"no effect size reaches power {target:g} with N = {n}")
-    f = float(
-        optimize.brentq(lambda x: design.power(x, n) - target, 0.0, high, xtol=1e-10, rtol=1e-12)
-    )
+    f = brent_root(lambda x: design.power(x, n) - target, 0.0, high, xtol=1e-10, rtol=1e-12)
     return _answer("detectable effect", design, f, n, target)
 
 
@@ -416,6 +421,8 @@ def effect_sizes_from_means(
         (averaged over groups), or of the cell means' interaction residuals, as G*Power's
         "effect size from means" (equal group sizes).
     """
+    import numpy as np  # here only: the other questions need no numpy (trustlab power's start)
+
     table = np.asarray(means, dtype=float)
     if table.ndim != 2 or table.size == 0 or not np.isfinite(table).all():
         raise InvalidInputError("the means must be a table of numbers: one row per group")

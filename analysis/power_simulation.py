@@ -30,6 +30,7 @@ from scipy import stats
 
 from analysis.errors import InvalidInputError
 from analysis.power import EFFECTS
+from analysis.power_models import SIMULATED_MODEL_NAMES, SIMULATED_MODELS
 from analysis.reml import RemlDesign
 from analysis.satterthwaite import f_test_df, varpar_covariance
 
@@ -44,17 +45,6 @@ __all__ = [
     "simulate_power_curve",
     "wilson_interval",
 ]
-
-
-SIMULATED_MODELS: dict[str, str] = {
-    "lmm": "rating ~ condition * session + (1 | participant), REML, Satterthwaite df",
-    "ordinal": "rating ~ condition * session, proportional odds (cumulative logit), Wald chi2 "
-    "with participant-clustered SEs; data from a random-intercept latent logistic model",
-}
-"""The models whose power is simulated (``trustlab power --model``), as each result names it."""
-
-SIMULATED_MODEL_NAMES: dict[str, str] = {"lmm": "mixed model", "ordinal": "ordinal model"}
-"""Short names of :data:`SIMULATED_MODELS` for sentences and legends."""
 
 
 def wilson_interval(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:

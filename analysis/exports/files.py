@@ -3,6 +3,11 @@
 The dashboard buttons and ``trustlab export --format F`` map straight onto
 :data:`EXPORT_FORMATS`; :func:`write_export` writes one, :func:`write_all_exports` writes a
 complete bundle (with a ``SHA256SUMS`` file) for archiving.
+
+The formats made of tables need pandas and nothing of the statistics; the SPSS writer
+(pyreadstat) and the fitted analyses (SciPy, statsmodels, Plotly for the report) are imported
+by the formats that use them, when they are written, so ``trustlab export --format long-csv``
+pays for none of them (issue 49).
 """
 
 from __future__ import annotations
@@ -14,21 +19,22 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from analysis.dataset import StudyDataset
 from analysis.errors import InvalidInputError
 from analysis.exports.codebook import codebook_json, codebook_table
 from analysis.exports.csvfile import write_csv
-from analysis.exports.spss import write_sav
 from analysis.exports.tables import (
     adaptation_trust_table,
     long_table,
     steps_table,
     wide_table,
 )
-from analysis.mixed_models import StudyMixedModels, analyse_mixed_models
-from analysis.report import build_report, write_report
-from analysis.study import StudyAnalysis, analyse_study
+
+if TYPE_CHECKING:
+    from analysis.mixed_models import StudyMixedModels
+    from analysis.study import StudyAnalysis
 
 __all__ = [
     "EXPORT_FORMATS",
@@ -77,7 +83,13 @@ class FittedAnalyses:
 
 def _mixed_json(dataset: StudyDataset, path: Path, fitted: FittedAnalyses | None = None) -> Path:
     """Every mixed model of the study, with the data manifest that produced them."""
-    models = fitted.mixed if fitted else analyse_mixed_models(analyse_study(dataset))
+    if fitted is not None:
+        models = fitted.mixed
+    else:
+        from analysis.mixed_models import analyse_mixed_models
+        from analysis.study import analyse_study
+
+        models = analyse_mixed_models(analyse_study(dataset))
     payload = {"manifest": dict(dataset.manifest), **models.to_dict()}
     path.write_text(
         json.dumps(payload, indent=2, ensure_ascii=False, allow_nan=False) + "\n",
@@ -117,8 +129,24 @@ class ExportFormat:
 
 def _report(dataset: StudyDataset, path: Path, fitted: FittedAnalyses) -> Path:
     """:func:`analysis.report.write_report` from analyses fitted already."""
+    from analysis.report import build_report
+
     path.write_text(build_report(fitted.study, mixed=fitted.mixed), encoding="utf-8")
     return path
+
+
+def _report_from_data(dataset: StudyDataset, path: Path) -> Path:
+    """:func:`analysis.report.write_report`: the report, fitting its analyses now."""
+    from analysis.report import write_report
+
+    return write_report(dataset, path)
+
+
+def _sav(dataset: StudyDataset, path: Path) -> Path:
+    """:func:`analysis.exports.spss.write_sav` (pyreadstat imported for it alone)."""
+    from analysis.exports.spss import write_sav
+
+    return write_sav(dataset, path)
 
 
 EXPORT_FORMATS: Mapping[str, ExportFormat] = {
@@ -164,7 +192,7 @@ EXPORT_FORMATS: Mapping[str, ExportFormat] = {
             "participants_wide.sav",
             "application/x-spss-sav",
             "SPSS file of the wide table with variable and value labels",
-            write_sav,
+            _sav,
         ),
         ExportFormat(
             "adaptation-csv",
@@ -188,7 +216,7 @@ EXPORT_FORMATS: Mapping[str, ExportFormat] = {
             "report.html",
             "text/html",
             "Self-contained report: methods, ANOVAs, figures, exclusions, manifest (offline)",
-            lambda d, p: write_report(d, p),
+            _report_from_data,
             _report,
         ),
     )
@@ -236,10 +264,15 @@ def _in_place(target: Path) -> Iterator[Path]:
 
 
 def write_all_exports(
-    dataset: StudyDataset, directory: str | Path, *, staging: Staging = _in_place
+    dataset: StudyDataset,
+    directory: str | Path,
+    *,
+    staging: Staging = _in_place,
+    fitted: FittedAnalyses | None = None,
 ) -> dict[str, Path]:
     """Write every format into ``directory`` (created if needed) plus ``SHA256SUMS``, each file
-    through ``staging`` (default: straight to its path).
+    through ``staging`` (default: straight to its path); the formats made of fitted analyses
+    from ``fitted`` when given (as :func:`write_export`).
 
     Returns the path of each format by name.
     """
@@ -249,7 +282,7 @@ def write_all_exports(
     for name, export in EXPORT_FORMATS.items():
         target = folder / export.filename
         with staging(target) as draft:
-            export.write(dataset, draft)
+            write_export(dataset, name, draft, fitted=fitted)
         written[name] = target
     sums = "".join(f"{sha256_file(p)}  {p.name}\n" for p in written.values())
     with staging(folder / SUMS_FILE) as draft:

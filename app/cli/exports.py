@@ -3,6 +3,11 @@
 Exports hold participants' answers, so they are written as the backups are
 (:mod:`app.private_files`): mode 0600 whatever the umask, never through a symbolic link, each
 file complete or not at all, and never over an existing file unless ``--force`` says so.
+
+The formats made of fitted analyses (``mixed-json``, ``html``, and so ``all``) take them from
+the fits the web app keeps in the database (app.services.analysis_views.export_fits, the same
+keys as the pages'), and store what they fit for the pages; the other formats import no
+statistics at all (issue 49).
 """
 
 from __future__ import annotations
@@ -21,6 +26,11 @@ from app.errors import InvalidInput
 
 if TYPE_CHECKING:
     from pydantic import SecretStr
+    from sqlalchemy.orm import Session
+
+    from analysis.dataset import StudyDataset
+    from analysis.exports import FittedAnalyses
+    from app.db import Database
 
 ALL = "all"
 
@@ -101,21 +111,24 @@ def export(
         scope = sites.Scope.every_site().narrowed(site or "", found)
         dataset = study_data.load_dataset(db, study=found, scope=scope)
         study_id, sealed = found.id, is_sealed(found)
-    if key is not None:
-        dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
-    if registration is not None:
-        dataset = replace(
-            dataset, registration=registration[0], registration_source=registration[1]
-        )
+        if key is not None:
+            dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
+        if registration is not None:
+            dataset = replace(
+                dataset, registration=registration[0], registration_source=registration[1]
+            )
+        fitted = None
+        if format == ALL or EXPORT_FORMATS[format].write_fitted is not None:
+            fitted = kept_fits(database, db, study_id=study_id, dataset=dataset)
     staging = partial(new_private_file, replace=force)
     if format == ALL:
         out.mkdir(mode=FOLDER_MODE, parents=True, exist_ok=True)
-        written = write_all_exports(dataset, out, staging=staging)
+        written = write_all_exports(dataset, out, staging=staging, fitted=fitted)
     else:
         out = targets[0]
         out.parent.mkdir(parents=True, exist_ok=True)
         with staging(out) as draft:
-            write_export(dataset, format, draft)
+            write_export(dataset, format, draft, fitted=fitted)
         written = {format: out}
     files = {
         # Absolute: an erasure run from another folder lists them (app.services.privacy.erasure).
@@ -149,6 +162,22 @@ def export(
         return
     for name, info in files.items():
         typer.echo(f"{name:<13} {info['path']}  sha256 {info['sha256'][:16]}…")
+
+
+def kept_fits(
+    database: Database, db: Session, *, study_id: int, dataset: StudyDataset
+) -> FittedAnalyses | None:
+    """The fitted analyses of ``dataset`` as the web app keeps them: read from the database
+    when a page (or an earlier export) fitted them, else fitted here, in this process, and
+    stored for the pages. None when they cannot be computed (the export says why itself)."""
+    from app.services.analysis_views.export_fits import fitted_analyses
+    from app.services.analysis_views.fit_runner import FitRunner
+
+    runner = FitRunner(database, processes=0, wait=0.0)
+    try:
+        return fitted_analyses(runner.for_study(db, study_id=study_id, dataset=dataset))
+    finally:
+        runner.close()
 
 
 def read_registration(path: Path) -> tuple[dict[str, Any], str]:

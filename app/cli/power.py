@@ -159,13 +159,13 @@ def power_command(
 ) -> None:
     """Power, sample size or detectable effect of the mixed ANOVA's between, within or
     interaction test (G*Power 3.1's formulas), from effect sizes or a pilot."""
-    # The pilot's and the simulations' modules (pandas, the mixed models) are imported in their
-    # branches below: an analytic answer needs only SciPy's distributions.
-    import numpy as np
+    # The pilot's and the simulations' modules (numpy, pandas, SciPy, the mixed models) are
+    # imported in their branches below: an analytic answer is pure Python (analysis.power).
+    import math
 
     from analysis.errors import AnalysisError, InvalidInputError
     from analysis.power import EFFECTS
-    from analysis.power_simulation import SIMULATED_MODELS
+    from analysis.power_models import SIMULATED_MODELS
 
     estimate: PilotEstimate | None = None
     pilot_data: tuple[pd.DataFrame, dict[str, str]] | None = None
@@ -192,7 +192,7 @@ def power_command(
             if (
                 epsilon is None
                 and effect != "between"
-                and np.isfinite(estimate.estimates["epsilon"])
+                and math.isfinite(estimate.estimates["epsilon"])
             ):
                 epsilon = max(estimate.estimates["epsilon"], 1 / max(sessions - 1, 1))
             if f is None and eta2 is None and means is None and not (n and target_power):
@@ -330,7 +330,7 @@ def _check_model_options(
 ) -> None:
     """One line for a --model or --categories that cannot apply."""
     from analysis.errors import InvalidInputError
-    from analysis.power_simulation import SIMULATED_MODELS
+    from analysis.power_models import SIMULATED_MODELS
 
     if model not in SIMULATED_MODELS:
         raise InvalidInputError(
@@ -421,7 +421,7 @@ def render_simulation(
     population: LatentOrdinalModel | None = None,
 ) -> str:
     """The simulated power (and the curve's points) in words."""
-    from analysis.apa import format_number
+    from analysis.apa_numbers import format_number
 
     lines = []
     if population is not None:
@@ -492,7 +492,7 @@ def read_pilot(
 
 def _bracket(answer: PowerAnswer, estimate: PilotEstimate | None) -> dict[str, PowerAnswer]:
     """The same question at the ends of the pilot's interval for f (ρ and ε as used)."""
-    import numpy as np
+    import math
 
     from analysis.errors import AnalysisError
     from analysis.power import n_for_power, power_for_n
@@ -500,7 +500,9 @@ def _bracket(answer: PowerAnswer, estimate: PilotEstimate | None) -> dict[str, P
     if estimate is None or answer.question == "detectable effect":
         return {}
     low, high = estimate.intervals[f"f_{answer.design.effect}"]
-    if not (np.isfinite(low) and np.isfinite(high)) or answer.f != estimate.f(answer.design.effect):
+    if not (math.isfinite(low) and math.isfinite(high)) or answer.f != estimate.f(
+        answer.design.effect
+    ):
         return {}
     answers = {}
     for name, size in (("f_ci_low", low), ("f_ci_high", high)):
@@ -518,13 +520,13 @@ def _bracket(answer: PowerAnswer, estimate: PilotEstimate | None) -> dict[str, P
 
 def _finite(value: Any) -> Any:
     """NaN and ±inf as None, all the way down (JSON has no NaN)."""
-    import numpy as np
+    import math
 
     if isinstance(value, dict):
         return {k: _finite(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_finite(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
+    if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
 
@@ -532,7 +534,7 @@ def _finite(value: Any) -> Any:
 def render_pilot(estimate: PilotEstimate, source: str, bracket: dict[str, PowerAnswer]) -> str:
     """The pilot's estimates with their intervals, and the answer at the ends of f's."""
     from analysis._checks import to_python
-    from analysis.apa import format_number
+    from analysis.apa_numbers import format_number
     from analysis.power_pilot import PILOT_QUANTITIES
 
     sizes = ", ".join(
@@ -675,7 +677,7 @@ def parse_means(text: str, option: str) -> list[list[float]]:
 
 def render_answer(answer: PowerAnswer) -> str:
     """The answer in words, then every number behind it."""
-    from analysis.apa import format_number
+    from analysis.apa_numbers import format_number
 
     design = answer.design
     what = {

@@ -10,14 +10,15 @@ from fastapi.responses import Response
 from starlette.background import BackgroundTask
 from starlette.responses import FileResponse
 
-from analysis.exports import EXPORT_FORMATS, FittedAnalyses, sha256_file, write_export
+from analysis.exports import EXPORT_FORMATS, sha256_file, write_export
 from app.deps import AnalystUser, OneHopRouter, ReaderScope, SessionDep, SiteFilter
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import Count
 from app.services import audit, blinding, studies
 from app.services.analysis_views import fitted, study_data
 from app.services.analysis_views.analysis_view import analysis_view
-from app.services.analysis_views.fit_runner import FitRunner, Fitting, StudyFits
+from app.services.analysis_views.export_fits import fitted_analyses
+from app.services.analysis_views.fit_runner import FitRunner, Fitting
 from app.services.analysis_views.mixed_view import mixed_view
 from app.services.analysis_views.power_view import PlanForm, plan_view
 from app.services.audit import Actor
@@ -182,23 +183,6 @@ def power_plan_page(
     )
 
 
-def _fitted_analyses(fits: StudyFits) -> FittedAnalyses | None:
-    """The study's ANOVAs and every measure's mixed models (with the slope), as the pages fit
-    and keep them: waited for, each measure's fit started before the first is awaited. None
-    when the ANOVAs cannot be computed (the export then says why itself)."""
-    result = fits.result("study")
-    if isinstance(result, fitted.Failed):
-        return None
-    keys = [outcome.key for outcome in result.outcomes]
-    for key in keys:
-        fits.start("mixed", measure=key, slope=True)
-    measures = [fits.result("mixed", measure=key, slope=True) for key in keys]
-    if any(isinstance(models, fitted.Failed) for models in measures):
-        return None
-    study_result = fitted.attached(result, fits.dataset)
-    return FittedAnalyses(study_result, fitted.combined(study_result, measures))
-
-
 @router.get("/studies/{name}/exports/{export}")
 def download(
     request: Request,
@@ -228,9 +212,7 @@ def download(
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study.name)
     analyses = None
     if spec.write_fitted is not None:  # made of the fitted analyses: the cached ones
-        analyses = _fitted_analyses(
-            _fits(request).for_study(db, study_id=study.id, dataset=dataset)
-        )
+        analyses = fitted_analyses(_fits(request).for_study(db, study_id=study.id, dataset=dataset))
     folder = Path(tempfile.mkdtemp(prefix="trustlab-export-"))
     path = write_export(dataset, export, folder / spec.filename, fitted=analyses)
     digest = sha256_file(path)

@@ -28,21 +28,36 @@ WEB = frozenset({"fastapi", "uvicorn", "jinja2", "httpx"})
 MIGRATIONS = frozenset({"alembic"})
 POSTGRES_DRIVER = frozenset({"psycopg"})
 DATABASE = frozenset({"sqlalchemy", "starlette", "argon2", "pydantic_settings"})
+SPSS_WRITER = frozenset({"pyreadstat"})
 
 ENGINE = frozenset({"numpy"})
 NO_DATABASE = (
-    LEARNERS | STATISTICS | DATA_FRAMES | WEB | MIGRATIONS | POSTGRES_DRIVER | DATABASE | ENGINE
+    LEARNERS
+    | STATISTICS
+    | DATA_FRAMES
+    | WEB
+    | MIGRATIONS
+    | POSTGRES_DRIVER
+    | DATABASE
+    | ENGINE
+    | SPSS_WRITER
 )
 """``--help`` and the commands that need no database: typer and the command's own modules."""
-OPENS_DATABASE = LEARNERS | STATISTICS | DATA_FRAMES | WEB | MIGRATIONS | POSTGRES_DRIVER
+OPENS_DATABASE = (
+    LEARNERS | STATISTICS | DATA_FRAMES | WEB | MIGRATIONS | POSTGRES_DRIVER | SPSS_WRITER
+)
 """Commands that read or write the (SQLite) database but analyse nothing: no Alembic either, the
 schema check reads the revisions itself (app.schema)."""
 NO_ENGINE = OPENS_DATABASE | ENGINE
 """Of those, the ones that touch no learner and no participant's data: not even numpy."""
-EXPORTS = LEARNERS | WEB | MIGRATIONS | POSTGRES_DRIVER
-"""Exports of the stored tables (no fitted model): the analysis package's tables and scoring."""
-ANALYTIC = LEARNERS | WEB | MIGRATIONS | POSTGRES_DRIVER | DATABASE | frozenset({"plotly"})
-"""The analytic power calculation: SciPy's distributions and the number formatting (pandas)."""
+TABLE_EXPORTS = LEARNERS | STATISTICS | WEB | MIGRATIONS | POSTGRES_DRIVER | SPSS_WRITER
+"""Exports of the stored tables (no fitted model): the analysis package's tables and scoring on
+pandas, which builds the dataset; no SciPy, statsmodels, pingouin or Plotly."""
+EXPORTS = TABLE_EXPORTS - SPSS_WRITER
+"""The SPSS file: the same, with its writer."""
+ANALYTIC = NO_DATABASE
+"""The analytic power questions: pure Python (analysis.power's F distributions, the number
+formatting of analysis.apa_numbers), no SciPy, pandas or numpy."""
 
 PASSWORD = "a long enough password"
 
@@ -55,13 +70,14 @@ def chains(tmp: Path) -> list[list[Row]]:
     in a chain, each row forbids at most what the row before it forbids."""
     protocol = str(REPO_ROOT / "app" / "protocols" / "fast_adaptation_trust.toml")
     user = ["user", "create", "--username", "ann", "--role", "analyst", "--password-stdin"]
+    tables = ("long-csv", "wide-csv", "steps-csv", "codebook-csv", "codebook-json")
     exports: list[Row] = [
         (
             ["export", "--study", "default", "--format", kind, "--out", str(tmp / kind)],
-            EXPORTS,
+            EXPORTS if kind == "sav" else TABLE_EXPORTS,
             None,
         )
-        for kind in ("long-csv", "wide-csv", "steps-csv", "codebook-csv", "codebook-json", "sav")
+        for kind in (*tables, "adaptation-csv", "sav")
     ]
     power = ["power", "--effect", "between", "--groups", "2", "--sessions", "4", "--f", "0.25"]
     return [
@@ -87,7 +103,15 @@ def chains(tmp: Path) -> list[list[Row]]:
             (["retention", "run"], OPENS_DATABASE, None),
             *exports,
         ],
-        [([*power, "--rho", "0.5", "--target-power", "0.8"], ANALYTIC, None)],
+        [
+            ([*power, "--rho", "0.5", "--target-power", "0.8"], ANALYTIC, None),
+            ([*power, "--rho", "0.5", "--n", "24", "--json"], ANALYTIC, None),
+            (
+                [*power[:-2], "--n", "24", "--target-power", "0.8", "--convention", "spss"],
+                ANALYTIC,
+                None,
+            ),
+        ],
     ]
 
 

@@ -6,17 +6,24 @@ The fits are counted, and held back, by a fitter injected into the app's runner
 
 from __future__ import annotations
 
+import json
 import threading
 from collections import Counter
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select, update
+from typer.testing import CliRunner
 
+import analysis.exports.files
+import analysis.mixed_models
+import analysis.report
 from analysis.dataset import StudyDataset
+from app.cli import cli
 from app.db import Database
 from app.main import create_app
 from app.services.analysis_views import fitted, study_data
@@ -252,3 +259,75 @@ def test_fits_run_in_worker_processes(seeded: str, database: Database) -> None:
     (fit,) = models.outcomes[0].lmm.models
     assert fit.converged and fit.design_info is None and len(fit.tests) == 3
     assert stored_rows(database) == 1
+
+
+# ------------------------------------------------------------------ exports from the command line
+
+
+def count_mixed_fits(monkeypatch: pytest.MonkeyPatch) -> list[object]:
+    """Every fit of mixed models from now on, by whatever path (a page's fit, an export's own,
+    the report's), each recorded as it starts: the function counted wherever it is named."""
+    calls: list[object] = []
+    original = analysis.mixed_models.analyse_mixed_models
+
+    def counting(*args: Any, **kwargs: Any) -> Any:
+        calls.append(kwargs.get("keys"))
+        return original(*args, **kwargs)
+
+    for module in (analysis.mixed_models, analysis.report, fitted, analysis.exports.files):
+        monkeypatch.setattr(module, "analyse_mixed_models", counting, raising=False)
+    return calls
+
+
+def export_from_the_command_line(database_url: str, study: str, kind: str, out: Path) -> None:
+    env = {"TRUSTLAB_DATABASE_URL": database_url, "TRUSTLAB_VAR_DIR": str(out.parent / "var")}
+    args = ["export", "--study", study, "--format", kind, "--out", str(out)]
+    result = CliRunner().invoke(cli, args, env=env)
+    assert result.exit_code == 0, result.output
+
+
+def test_an_export_after_the_page_fits_nothing_again(
+    seeded: str,
+    app: FastAPI,
+    user_client: UserClientFactory,
+    database_url: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The report downloaded from the page fits each measure's mixed models once; the report and
+    mixed_models.json exported from the command line after it take them from the database."""
+    runner_of(app, CountingFitter())
+    calls = count_mixed_fits(monkeypatch)
+    analyst = user_client(Role.ANALYST)
+    assert analyst.get(f"/studies/{seeded}/exports/html").status_code == 200
+    measures = len(calls)
+    assert measures == 5  # trust_1 … trust_5, each once
+    export_from_the_command_line(database_url, seeded, "html", tmp_path / "report.html")
+    export_from_the_command_line(database_url, seeded, "mixed-json", tmp_path / "mixed.json")
+    assert len(calls) == measures
+    exported = json.loads((tmp_path / "mixed.json").read_text(encoding="utf-8"))
+    downloaded = analyst.get(f"/studies/{seeded}/exports/mixed-json").json()
+    assert exported.pop("manifest")["data_sha256"] == downloaded.pop("manifest")["data_sha256"]
+    assert exported == downloaded
+    assert len(calls) == measures
+
+
+def test_what_the_command_line_fits_is_kept_for_the_pages(
+    seeded: str,
+    app: FastAPI,
+    user_client: UserClientFactory,
+    database: Database,
+    database_url: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    calls = count_mixed_fits(monkeypatch)
+    export_from_the_command_line(database_url, seeded, "mixed-json", tmp_path / "mixed.json")
+    assert len(calls) == 5
+    assert stored_rows(database) == 1 + 5  # the ANOVAs and each measure's mixed models
+    fitter = CountingFitter()
+    runner_of(app, fitter)
+    assert user_client(Role.ANALYST).get(f"/studies/{seeded}/exports/html").status_code == 200
+    assert not fitter.counts and len(calls) == 5
+    export_from_the_command_line(database_url, seeded, "html", tmp_path / "report.html")
+    assert len(calls) == 5 and stored_rows(database) == 1 + 5
