@@ -21,9 +21,9 @@ from __future__ import annotations
 import asyncio
 import random
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import httpx
 
@@ -259,7 +259,7 @@ class _Lane:
         try:
             # Inside the try: a run stopped while the seating's response is on its way (the
             # server has seated the participant) still frees the station.
-            await self.experimenter.assign(self.station, self.config.study, code)
+            await _to_its_end(self.experimenter.assign(self.station, self.config.study, code))
             while True:
                 submitted = await tablet.fill()  # await first: += would read before the await
                 self.summary.questionnaires += submitted
@@ -270,7 +270,7 @@ class _Lane:
                     return
                 if expected["action"] != "start_session":
                     raise ApiError(409, f"{code}: unexpected state: {expected['message']}")
-                started = await self.experimenter.start_session(self.station)
+                started = await _to_its_end(self.experimenter.start_session(self.station))
                 await self._run_session(started.expected.categories, preferred)
                 self.summary.sessions += 1
         finally:
@@ -313,6 +313,37 @@ class _Lane:
                 if reply.run_completed:
                     pending = reply.expected.categories
                     break
+
+
+T = TypeVar("T")
+
+SETTLE_SECONDS = 15.0
+"""How long a stopped run waits for a seating or session start in flight to be answered: one
+request's timeout. A server that has not answered by then is not waited for any longer."""
+
+
+async def _to_its_end(call: Awaitable[T], settle: float = SETTLE_SECONDS) -> T:
+    """Await a request that seats or starts to its response, even when the run is stopped
+    meanwhile (for at most ``settle`` seconds more), and only then stop (re-raise the
+    cancellation).
+
+    A request cancelled in flight may still be carried out by the server after the lane's
+    cleanup has looked at the station and found it free: the participant would stay seated.
+    Waiting for the answer lets the cleanup see what the server did."""
+    task = asyncio.ensure_future(call)
+    deadline: float | None = None
+    while not task.done():
+        remaining = None if deadline is None else deadline - time.monotonic()
+        if remaining is not None and remaining <= 0 and not task.cancelling():
+            task.cancel()  # the server is not answering: stop waiting, once the task has stopped
+        try:
+            await asyncio.wait({task}, timeout=None if task.cancelling() else remaining)
+        except asyncio.CancelledError:  # asyncio.wait leaves the task running
+            if deadline is None:
+                deadline = time.monotonic() + settle
+    if deadline is not None:
+        raise asyncio.CancelledError
+    return task.result()
 
 
 class BotStationsBusy(Exception):

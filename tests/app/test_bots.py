@@ -121,6 +121,59 @@ def test_bots_revoke_their_keys_after_a_run_an_error_and_an_interruption(
     assert len(after_crash) > len(keys) and all(revoked for _, revoked in after_crash), after_crash
 
 
+def test_a_lane_stopped_while_it_seats_waits_for_the_seating_then_stops() -> None:
+    """A seating cancelled in flight may still be carried out by the server: the lane waits for
+    its answer (so its cleanup sees the participant seated and unseats them), then stops."""
+    sent, answer, done = asyncio.Event(), asyncio.Event(), []
+
+    async def seat() -> str:
+        sent.set()
+        await answer.wait()
+        done.append("seated")
+        return "seated"
+
+    async def stopped_while_seating() -> None:
+        lane = asyncio.ensure_future(bots._to_its_end(seat()))
+        await sent.wait()
+        lane.cancel()  # Ctrl-C, twice: neither cuts the request short
+        await asyncio.sleep(0)
+        lane.cancel()
+        await asyncio.sleep(0)
+        assert not lane.done() and done == []
+        answer.set()
+        with pytest.raises(asyncio.CancelledError):
+            await lane
+        assert done == ["seated"]
+
+    asyncio.run(stopped_while_seating())
+
+    async def not_stopped() -> str:
+        return await bots._to_its_end(seat())
+
+    assert asyncio.run(not_stopped()) == "seated"
+
+
+def test_a_lane_stopped_while_it_seats_gives_up_on_a_server_that_never_answers() -> None:
+    cancelled = []
+
+    async def seat_forever() -> None:
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            cancelled.append(True)
+            raise
+
+    async def stopped() -> None:
+        lane = asyncio.ensure_future(bots._to_its_end(seat_forever(), settle=0.01))
+        await asyncio.sleep(0)
+        lane.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await lane
+
+    asyncio.run(stopped())
+    assert cancelled == [True]
+
+
 @pytest.mark.slow
 def test_a_station_left_seated_is_reported_beside_the_run(
     server: ServerProcess, exp3_study: str, monkeypatch: pytest.MonkeyPatch
@@ -146,7 +199,7 @@ def test_a_run_stopped_right_after_seating_frees_the_station(
 ) -> None:
     """Ctrl-C while the seating's response is on its way (the server has seated the participant,
     the bots have not heard so): the station is freed all the same, or the next run is refused."""
-    seated = asyncio.Event()
+    seated, arrived = asyncio.Event(), asyncio.Event()
     assign = ExperimenterClient.assign
 
     async def assign_then_wait(
@@ -154,7 +207,7 @@ def test_a_run_stopped_right_after_seating_frees_the_station(
     ) -> None:
         await assign(self, station, study, code)
         seated.set()
-        await asyncio.Event().wait()  # the response "still on its way" when Ctrl-C comes
+        await arrived.wait()  # the response is still on its way when Ctrl-C comes
 
     monkeypatch.setattr(ExperimenterClient, "assign", assign_then_wait)
 
@@ -163,6 +216,8 @@ def test_a_run_stopped_right_after_seating_frees_the_station(
         run = asyncio.ensure_future(run_bots(config))
         await asyncio.wait_for(seated.wait(), 60)
         run.cancel()
+        await asyncio.sleep(0)
+        arrived.set()
         with pytest.raises(asyncio.CancelledError):
             await run
 
