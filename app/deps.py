@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass
 from datetime import timedelta
@@ -121,6 +122,9 @@ DatabaseDep = Annotated[Database, Depends(get_database)]
 REQUEST_SESSION = "request_session"
 """Where :func:`request_session` leaves the request's session on ``request.state`` (for
 :class:`OneHopRouter`)."""
+READS_SINCE = "reads_since"
+"""When the request's session was opened, before it read anything (wall clock, as the event
+hub's: app.events.EventHub.since): a page renders it as its streams' ``since``."""
 _REQUEST_WRITES = "trustlab.request_writes"
 _READS_WITH = "trustlab.reads_with"
 _TRANSACTION_WRITES = "trustlab.transaction_writes"
@@ -138,6 +142,8 @@ async def request_session(request: Request, database: DatabaseDep) -> AsyncItera
     """
     writes = request.method not in SAFE_METHODS
     async with database.admission():
+        # Before the first read: a live page asks its stream for what changed since then.
+        setattr(request.state, READS_SINCE, time.time())
         session = database.write_session() if writes else database.read_session()
         if writes:
             session.info[_REQUEST_WRITES] = True

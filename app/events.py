@@ -23,8 +23,9 @@ import json
 import logging
 import secrets
 import threading
-from collections import Counter
-from collections.abc import AsyncIterator, Iterable
+import time
+from collections import Counter, deque
+from collections.abc import AsyncIterator, Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -42,6 +43,9 @@ NOTIFIED_KEY = "trustlab_notified_topics"
 MAX_PAYLOAD_BYTES = 7900  # PostgreSQL refuses NOTIFY payloads of 8000 bytes or more
 QUEUE_SIZE = 256
 MAX_ECHOES = 100_000
+RECENT_SECONDS = 60.0
+RECENT_EVENTS = 4096
+"""How long, and how many, of its latest events a hub remembers for :meth:`EventHub.since`."""
 
 
 @dataclass(frozen=True)
@@ -138,12 +142,42 @@ class Subscription:
 class EventHub:
     """One process's fan-out of events to its asyncio subscribers, whatever loop they run on."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.time) -> None:
         self._subscriptions: set[Subscription] = set()
         self._lock = threading.Lock()
         self._versions: Counter[str] = Counter()
         self._echoes: set[str] = set()
         """Ids of events this process committed and counted, whose NOTIFY has not come back."""
+        self._clock = clock
+        self.heard_from = clock()
+        """Since when this hub has heard every event: its start."""
+        self._recent: deque[tuple[float, Event]] = deque(maxlen=RECENT_EVENTS)
+        """The latest events delivered, with when they arrived (wall clock: a page rendered by
+        one worker opens its stream on another, and both read the same machine's clock)."""
+
+    def since(self, topics: Iterable[str], moment: float) -> list[Event] | None:
+        """The events of ``topics`` (and resyncs) that arrived at ``moment`` or later, or
+        ``None`` when this hub cannot tell (it started later, or has forgotten that far back).
+
+        A page renders what it read after ``moment`` and then opens its stream: an event that
+        arrived in between is one the page may not show and the stream would never send.
+        Arrival is never before commit, so an event committed after the page's read began
+        is found; one committed just before may be found too (a needless refresh, no miss)."""
+        wanted = frozenset(topics)
+        with self._lock:
+            now = self._clock()
+            while self._recent and self._recent[0][0] < now - RECENT_SECONDS:
+                self._recent.popleft()
+            known_from = max(self.heard_from, now - RECENT_SECONDS)
+            if len(self._recent) == self._recent.maxlen:
+                known_from = max(known_from, self._recent[0][0])
+            if moment < known_from:
+                return None
+            return [
+                event
+                for arrived, event in self._recent
+                if arrived >= moment and (event.topic == "*" or event.topic in wanted)
+            ]
 
     def version(self, topic: str) -> int:
         """How many changes of ``topic`` (or resyncs) this process has seen: equal numbers mean
@@ -194,7 +228,9 @@ class EventHub:
         if not batch:
             return
         with self._lock:
+            arrived = self._clock()
             for item in batch:
+                self._recent.append((arrived, item))
                 if item.id in self._echoes:
                     self._echoes.discard(item.id)  # counted when this process committed it
                 else:

@@ -9,7 +9,9 @@ route of the station.
 
 from __future__ import annotations
 
-from fastapi import Request
+from typing import Annotated
+
+from fastapi import Query, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
@@ -26,12 +28,24 @@ from app.web.streams import event_stream
 ROOM_EVENT = "room"
 """The SSE event of the console's room panel (templates/_room_panel.html listens for it)."""
 
+Since = Annotated[
+    float | None,
+    Query(
+        allow_inf_nan=False,
+        description="When the page began to read (seconds since the epoch): changes since then "
+        "are sent at once. Absent: from now on.",
+    ),
+]
+
 router = OneHopRouter(tags=["pages"], include_in_schema=False)
 
 
 @router.get("/studies/{name}/events")
-async def study_events(request: Request, name: str, login: StreamingLogin) -> Response:
-    """Server-sent events whenever the study's data changes (answers, questionnaires, sessions)."""
+async def study_events(
+    request: Request, name: str, login: StreamingLogin, since: Since = None
+) -> Response:
+    """Server-sent events whenever the study's data changes (answers, questionnaires, sessions),
+    starting with those since ``since``: when the page that listens began to read."""
     database: Database = request.app.state.database
 
     def topic() -> str:
@@ -43,13 +57,17 @@ async def study_events(request: Request, name: str, login: StreamingLogin) -> Re
         [await run_in_threadpool(topic)],
         scope=sites.Scope.of(Actor.of_user(login.user)),
         ends_with=users.login_topic(login.id),
+        since=since,
     )
 
 
 @router.get("/stations/{name}/events")
-async def station_events(request: Request, name: str, login: StreamingLogin) -> Response:
+async def station_events(
+    request: Request, name: str, login: StreamingLogin, since: Since = None
+) -> Response:
     """Server-sent events whenever the station changes (for its operator console): ``changed``,
-    and ``room`` when the room client reports where the participant is (the room panel)."""
+    and ``room`` when the room client reports where the participant is (the room panel); from
+    ``since`` on, as the study's."""
     database: Database = request.app.state.database
     actor = Actor.of_user(login.user)
 
@@ -67,4 +85,5 @@ async def station_events(request: Request, name: str, login: StreamingLogin) -> 
         scope=sites.Scope.of(actor),
         ends_with=users.login_topic(login.id),
         named={topics.room_topic_of(found): ROOM_EVENT},
+        since=since,
     )

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import base64
 import binascii
+import math
+import time
 from datetime import datetime
 from typing import Any
 from urllib.parse import quote
@@ -19,7 +21,7 @@ from jinja2 import Environment, FileSystemLoader, StrictUndefined, pass_context,
 from jinja2.runtime import Context
 from markupsafe import Markup
 
-from app.deps import CSRF_FIELD, CSRF_HEADER, set_private_cookie
+from app.deps import CSRF_FIELD, CSRF_HEADER, READS_SINCE, set_private_cookie
 from app.i18n.catalogues import SOURCE_LANGUAGE, Catalogue, catalogue, ui_languages
 from app.inputs import STATION_NAME
 from app.security import sign, unsign
@@ -105,8 +107,12 @@ def is_htmx(request: Request) -> bool:
 
 def _base_context(request: Request) -> dict[str, Any]:
     viewer = getattr(request.state, "viewer", None)
+    # A live page's streams send at once what changed since the page began to read
+    # (app.web.streams.event_stream); a page that read nothing: since now.
+    reads_since = getattr(request.state, READS_SINCE, None) or time.time()
     return {
         "request": request,
+        "live_since": f"{math.floor(reads_since * 1000) / 1000:.3f}",  # rounded down
         "user": viewer,
         "csrf_token": viewer.csrf_token if viewer else "",
         "csrf_field": CSRF_FIELD,

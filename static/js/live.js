@@ -87,6 +87,43 @@
     });
   });
 
+  // What someone is typing in a live region outlives the region's refresh: the swapped-in
+  // copy gets back each edited field's text (and the focus, if it was there), matched by its
+  // form's action and its name. A form's own submission swaps without this: its answer is new.
+  const typed = new Map(); // region id -> {values: Map(key -> value), focused: key}
+  const TYPED = "input[name]:not([type=hidden]):not([type=checkbox]):not([type=radio]), textarea[name]";
+
+  function fieldKey(field) {
+    return `${field.form ? field.form.getAttribute("action") : ""}|${field.name}`;
+  }
+
+  document.addEventListener("htmx:beforeSwap", (event) => {
+    const region = event.detail.requestConfig && event.detail.requestConfig.elt;
+    if (!(region instanceof Element) || !region.id || !region.dataset.live) return;
+    const values = new Map();
+    let focused = null;
+    region.querySelectorAll(TYPED).forEach((field) => {
+      if (field.value === field.defaultValue) return;
+      values.set(fieldKey(field), field.value);
+      if (field === document.activeElement) focused = fieldKey(field);
+    });
+    if (values.size) typed.set(region.id, { values, focused });
+  });
+
+  document.addEventListener("htmx:afterSwap", () => {
+    typed.forEach(({ values, focused }, id) => {
+      typed.delete(id);
+      const region = document.getElementById(id);
+      if (!region) return;
+      region.querySelectorAll(TYPED).forEach((field) => {
+        const key = fieldKey(field);
+        if (!values.has(key) || field.value !== field.defaultValue) return;
+        field.value = values.get(key);
+        if (key === focused) field.focus({ preventScroll: true });
+      });
+    });
+  });
+
   function liveRegionsIn(root) {
     const regionsIn = [...root.querySelectorAll("[data-live]")];
     if (root.matches && root.matches("[data-live]")) regionsIn.push(root); // a swapped-in region

@@ -211,3 +211,101 @@ def test_a_process_counts_its_own_notified_change_once(database: Database) -> No
     assert [event.type for event in received] == ["answer"]  # the NOTIFY has come back
     assert counted == [0, 1]  # counted at commit
     assert changes() == 1  # and not again when it came back
+
+
+class _Clock:
+    """A wall clock the test moves."""
+
+    def __init__(self, now: float) -> None:
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_the_hub_tells_what_came_since_a_moment_or_that_it_cannot_tell() -> None:
+    clock = _Clock(1000.0)
+    hub = EventHub(clock=clock)
+    hub.deliver([Event("study:1", "answer")])
+    clock.now = 1002.0
+    hub.deliver([Event("study:1", "prompt"), Event("study:2", "answer")])
+    assert [e.type for e in hub.since(["study:1"], 1001.0) or []] == ["prompt"]
+    assert [e.type for e in hub.since(["study:1"], 1000.0) or []] == ["answer", "prompt"]
+    assert hub.since(["study:3"], 1000.0) == []
+    assert hub.since(["study:1"], 999.0) is None  # before the hub started: it cannot tell
+    clock.now = 1002.0 + events.RECENT_SECONDS + 1
+    assert hub.since(["study:1"], 1001.5) is None  # forgotten
+    assert hub.since(["study:1"], clock.now - 1) == []
+    hub.deliver([RESYNC])  # anything may have changed
+    assert hub.since(["study:3"], clock.now) == [RESYNC]
+
+
+def test_the_hub_cannot_tell_past_the_events_it_remembers() -> None:
+    clock = _Clock(1000.0)
+    hub = EventHub(clock=clock)
+    clock.now = 1001.0
+    hub.deliver(Event("study:2", "answer") for _ in range(events.RECENT_EVENTS))
+    assert hub.since(["study:1"], 1000.5) is None  # the oldest remembered came later
+    assert hub.since(["study:1"], 1001.0) == []
+
+
+def _stream_messages(
+    hub: EventHub, since: float | None, *, scope: Scope, then: list[Event]
+) -> list[str]:
+    """Open a study's page stream with ``since``, deliver ``then`` and return the messages up
+    to and including the one those make (the retry hint left out)."""
+    from app.web.streams import event_stream
+
+    async def scenario() -> list[str]:
+        body = event_stream(
+            hub, ["study:1"], scope=scope, named={"room:1": "room"}, since=since
+        ).body_iterator
+        assert str(await anext(body)).startswith("retry:")
+        hub.deliver(then)
+        marker = then[-1].type
+        messages = []
+        while not messages or marker not in messages[-1]:
+            messages.append(str(await asyncio.wait_for(anext(body), 5)))
+        await body.aclose()  # type: ignore[attr-defined]
+        return messages
+
+    return asyncio.run(scenario())
+
+
+def test_a_page_stream_sends_first_what_changed_since_the_page_began_to_read() -> None:
+    clock = _Clock(1000.0)
+    hub = EventHub(clock=clock)
+    hub.deliver([Event("study:1", "before")])
+    clock.now = 1010.0
+    read_began = clock.now
+    clock.now = 1010.5
+    hub.deliver([Event("study:1", "missed"), Event("room:1", "moved"), Event("study:9", "other")])
+    later = [Event("study:1", "later")]
+    missed = _stream_messages(hub, read_began, scope=Scope.every_site(), then=later)
+    assert missed == [
+        'event: changed\ndata: {"types": ["missed"]}\n\n',
+        'event: room\ndata: {"types": ["moved"]}\n\n',
+        'event: changed\ndata: {"types": ["later"]}\n\n',
+    ]
+    clock.now = 1020.0  # nothing since the page began: the first message is the next change
+    quiet = _stream_messages(hub, 1019.0, scope=Scope.every_site(), then=later)
+    assert quiet == ['event: changed\ndata: {"types": ["later"]}\n\n']
+    assert _stream_messages(hub, None, scope=Scope.every_site(), then=later) == quiet
+    # A page older than the hub remembers: each of its regions refreshes once.
+    unknown = _stream_messages(hub, 900.0, scope=Scope.every_site(), then=later)
+    assert unknown[:2] == [
+        'event: changed\ndata: {"types": ["unknown"]}\n\n',
+        'event: room\ndata: {"types": ["unknown"]}\n\n',
+    ]
+
+
+def test_a_missed_change_of_a_hidden_site_is_not_sent() -> None:
+    clock = _Clock(1000.0)
+    hub = EventHub(clock=clock)
+    clock.now = 1001.0
+    hub.deliver([Event("study:1", "answer", {"site": "oslo"})])
+    later = [Event("study:1", "later", {"site": "uppsala"})]
+    limited = Scope(sites=frozenset({"uppsala"}))
+    assert _stream_messages(hub, 1000.5, scope=limited, then=later) == [
+        'event: changed\ndata: {"types": ["later"]}\n\n'
+    ]

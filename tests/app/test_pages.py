@@ -3,13 +3,20 @@
 from __future__ import annotations
 
 import html
+import json
 import re
+from collections.abc import Callable
 
 import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from httpx import Response
 
+from app.db import Database
 from app.inputs import STUDY_NAME
 from app.protocol import default_protocol
+from app.services.audit import Actor
+from app.services.sessions import stations
 from app.tables import Role
 from tests.conftest import UserClientFactory, protocol_text, sqlite_only
 
@@ -184,3 +191,54 @@ def test_notices_carry_any_text(user_client: UserClientFactory, study_name: str)
     archived = admin.post("/admin/studies/wide/archive", data={"archived": "true"})
     assert archived.status_code == 200
     assert f"Archived {WIDE_TEXT}: it is hidden" in archived.text
+
+
+def _stream_path(page: str, attribute: str) -> str:
+    found = re.search(rf'{attribute}="([^"]*/events\?since=[0-9.]+)"', page)
+    assert found, f"no {attribute} with a since"
+    return html.unescape(found.group(1))
+
+
+def _first_types(client: TestClient, path: str, *, then: Callable[[], None]) -> list[str]:
+    """What the first message of the stream at ``path`` is about; ``then`` is called once it is
+    open, to make a change of its own (so the stream has something to say either way)."""
+    with client.stream("GET", path) as stream:
+        lines = stream.iter_lines()
+        assert next(lines) == "retry: 3000"  # subscribed
+        then()
+        data = next(line for line in lines if line.startswith("data:"))
+        types: list[str] = json.loads(data.removeprefix("data:"))["types"]
+        # On PostgreSQL the event listener's start (just before the pages) says "resync".
+        return [kind for kind in types if kind != "resync"]
+
+
+def test_a_live_page_hears_a_change_made_between_its_rendering_and_its_stream(
+    user_client: UserClientFactory, study_name: str, database: Database, app: FastAPI
+) -> None:
+    """Its stream opens only after the page is drawn: a change that came in between would
+    otherwise leave the page stale until the next one."""
+    client = user_client(Role.EXPERIMENTER)
+    # As if the server had run for a while: a hub started within the pages' clock margin of
+    # their reading cannot tell what came since, and sends "unknown" (a refresh all the same).
+    app.state.database.hub.heard_from -= 60
+    with database.write_session() as db:
+        stations.create_station(db, name="lab-1", actor=Actor.system("test"))
+    overview = _stream_path(client.get("/studies/default").text, "sse-connect")
+    dashboard = _stream_path(client.get("/studies/default/dashboard").text, "data-events")
+    console = _stream_path(client.get("/stations/lab-1").text, "sse-connect")
+
+    def post(path: str, **form: str) -> Callable[[], None]:
+        return lambda: assert_ok(client.post(path, data=form))
+
+    def assert_ok(response: Response) -> None:
+        assert response.status_code == 200, response.text
+
+    post("/studies/default/participants", code="K1")()  # after the pages, before their streams
+    seat = post("/stations/lab-1/assign", study="default", code="K1")
+    unseat = post("/stations/lab-1/unassign")
+    assert _first_types(client, overview, then=seat) == ["participant_enrolled"]
+    assert "participant_enrolled" in _first_types(client, dashboard, then=unseat)
+    # The console was drawn before the seating and the unseating, which it is told of first.
+    missed = ["participant_assigned", "participant_unassigned"]
+    assert _first_types(client, console, then=seat) == missed
+    assert client.get("/studies/default/events?since=nan").status_code == 422

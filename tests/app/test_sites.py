@@ -469,6 +469,7 @@ _VOLATILE = (
     ),
     (re.compile(r"\d{2} [A-Z][a-z]{2} \d{2}\d{2}:\d{2}:\d{2}"), "<when>"),  # an SPSS file's header
     (re.compile(r"\b\d{1,2}:\d{2}:\d{2}\b"), "<time>"),
+    (re.compile(r"since=[0-9.]+"), "since=<when>"),  # when a live page began to read
 )
 
 

@@ -169,3 +169,26 @@ def test_a_blinded_study_shows_what_is_sealed_without_empty_or_dead_controls(
     expect(downloads.filter(has_text="answers_long.csv").get_by_role("link")).to_have_count(1)
     page.screenshot(path=str(artifacts / "blinded-downloads.png"), full_page=True)
     context.close()
+
+
+@pytest.mark.e2e
+def test_a_live_refresh_keeps_what_the_experimenter_is_typing(
+    browser: Browser, live_server: ServerProcess, database: Database, lab: Lab
+) -> None:
+    """The console refreshes itself whenever its station changes (and once more when it opens
+    after a change): a code half typed into its form stays there, with the caret."""
+    make_user(database, "operator", Role.ADMIN)
+    page = browser.new_context().new_page()
+    sign_in_page(page, live_server, f"/stations/{lab.station}")
+    field = page.get_by_role("textbox", name="Participant")
+    field.fill("P-TYP")
+    page.evaluate(
+        """() => {
+             window.__before = document.getElementById('console');
+             htmx.trigger(window.__before, 'trustlab:refresh');
+           }"""
+    )
+    page.wait_for_function("() => document.getElementById('console') !== window.__before")
+    expect(field).to_have_value("P-TYP")
+    expect(field).to_be_focused()
+    page.context.close()
