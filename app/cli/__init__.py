@@ -6,6 +6,10 @@ non-zero exit status (1: refused by the current state, 2: bad input), never a tr
 
 from __future__ import annotations
 
+import gc
+import os
+import threading
+
 import typer
 
 from app.cli import (
@@ -54,6 +58,30 @@ languages.register(cli)
 retention.register(cli)
 
 
+STARTUP_SECONDS = 1.0
+"""How long a command runs with the garbage collector paused (see :func:`pause_collector`)."""
+
+
+def pause_collector(seconds: float = STARTUP_SECONDS) -> threading.Timer:
+    """Pause the cyclic garbage collector for a command's first ``seconds``; the timer that
+    resumes it.
+
+    What a command allocates first is the modules it imports (SQLAlchemy, pandas, the tables),
+    none of it garbage, and the collections they set off were a tenth of a short command's time
+    (bench/cli.py). A command that runs longer (serve, bots, a training) has it back after
+    that; one that ends sooner never needed it. A process forked meanwhile resumes it at once:
+    the timer's thread is not forked with it."""
+    gc.disable()
+    resume = threading.Timer(seconds, gc.enable)
+    resume.daemon = True
+    resume.start()
+    return resume
+
+
+os.register_at_fork(after_in_child=gc.enable)
+
+
 def main() -> None:
     """Console-script entry point."""
+    pause_collector()
     cli()

@@ -161,3 +161,20 @@ def test_commands_import_only_what_they_use(
     assert not wrong, "commands import what they do not use:\n" + "\n".join(
         f"  trustlab {words}: {', '.join(modules)}" for words, modules in wrong.items()
     )
+
+
+def test_a_command_starts_with_the_collector_paused_and_gets_it_back() -> None:
+    """Its imports allocate nothing that is garbage (bench/cli.py: a tenth of a short
+    command's time went to collections); the collector comes back for whatever runs longer."""
+    import gc
+
+    from app.cli import pause_collector
+
+    assert gc.isenabled()
+    try:
+        resume = pause_collector(0.01)
+        assert not gc.isenabled()
+        resume.join()
+        assert gc.isenabled()
+    finally:
+        gc.enable()
