@@ -1213,5 +1213,23 @@ def load_protocol_file(path: Path) -> LoadedProtocol:
 
 def default_protocol() -> LoadedProtocol:
     """The shipped protocol of the seed paper (Gao et al.)."""
-    text = resources.files("app.protocols").joinpath(DEFAULT_PROTOCOL).read_text(encoding="utf-8")
-    return parse_protocol(text, source=f"app/protocols/{DEFAULT_PROTOCOL}")
+    return shipped_protocol(DEFAULT_PROTOCOL)
+
+
+def shipped_protocol_files() -> list[str]:
+    """The file names of the protocols trustlab ships (app/protocols/), the default first."""
+    files = sorted(
+        entry.name
+        for entry in resources.files("app.protocols").iterdir()
+        if entry.name.endswith(".toml")
+    )
+    return sorted(files, key=lambda name: name != DEFAULT_PROTOCOL)
+
+
+def shipped_protocol(file: str) -> LoadedProtocol:
+    """One shipped protocol by its file name (as :func:`shipped_protocol_files` names it);
+    another name is refused, never looked up as a path."""
+    if file not in shipped_protocol_files():
+        raise ProtocolError(file, [Problem("", "trustlab ships no protocol of that name")])
+    text = resources.files("app.protocols").joinpath(file).read_text(encoding="utf-8")
+    return parse_protocol(text, source=f"app/protocols/{file}")

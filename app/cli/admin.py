@@ -256,29 +256,78 @@ def db_restore(
 
 @study_cli.command("create")
 def study_create(
-    protocol: Annotated[Path, typer.Option(help="Protocol TOML file.")],
     name: Annotated[str, typer.Option(help="Short unique name, e.g. pilot-2026.")],
+    protocol: Annotated[
+        Path | None, typer.Option(help="Start from this protocol TOML file.")
+    ] = None,
+    shipped: Annotated[
+        str,
+        typer.Option(help="Start from a shipped protocol, by file name (`study protocols`)."),
+    ] = "",
+    copy_of: Annotated[
+        str, typer.Option(help="Start from a copy of this study's protocol, comments and all.")
+    ] = "",
     title: Annotated[
         str, typer.Option(help="Shown on every page (default: the protocol's title).")
     ] = "",
     as_json: JsonFlag = False,
 ) -> None:
-    """Create a study from a protocol file."""
-    from app.protocol import load_protocol_file
+    """Create a study from a protocol file, a shipped protocol or a copy of a study's."""
+    from app.protocol import load_protocol_file, shipped_protocol
     from app.services import studies
     from app.services.audit import Actor
 
-    loaded = load_protocol_file(protocol)
+    chosen = [
+        option
+        for option, given in (
+            ("--protocol", protocol),
+            ("--shipped", shipped),
+            ("--copy-of", copy_of),
+        )
+        if given
+    ]
+    if len(chosen) != 1:
+        raise InvalidInput(
+            "say what the study starts from: one of --protocol, --shipped, --copy-of"
+        )
+    # A file is read and checked before the database is opened: its problems come first.
+    if protocol is not None:
+        loaded, started_from = load_protocol_file(protocol), f"file {protocol}"
+    elif shipped:
+        loaded, started_from = shipped_protocol(shipped), f"shipped {shipped}"
     database = open_database(read_settings())
     require_current_schema(database)
     with database.writing() as db:
+        if copy_of:
+            loaded, started_from = studies.protocol_copy(db, copy_of), f"study {copy_of}"
         study = studies.create_study(
-            db, name=name, loaded=loaded, actor=Actor.command_line(), title=title
+            db,
+            name=name,
+            loaded=loaded,
+            actor=Actor.command_line(),
+            title=title,
+            started_from=started_from,
         )
         if as_json:
             emit_json({"name": study.name, "title": study.title, "sha256": study.protocol_sha256})
         else:
             typer.echo(f"created study {study.name!r}: {study.title}")
+
+
+@study_cli.command("protocols")
+def study_protocols(as_json: JsonFlag = False) -> None:
+    """The protocols trustlab ships, to start a study from (`study create --shipped FILE`)."""
+    from app.protocol import shipped_protocol, shipped_protocol_files
+
+    rows = []
+    for file in shipped_protocol_files():
+        info = shipped_protocol(file).protocol.study
+        rows.append({"file": file, "title": info.title, "languages": info.languages})
+    if as_json:
+        emit_json(rows)
+        return
+    for row in rows:
+        typer.echo(f"{row['file']:<34} {', '.join(row['languages']):<8} {row['title']}")
 
 
 @study_cli.command("list")

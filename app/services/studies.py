@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import STUDY_NAME
-from app.protocol import LoadedProtocol, Protocol, protocol_from_dict
+from app.protocol import LoadedProtocol, Protocol, parse_protocol, protocol_from_dict
 from app.services import audit
 from app.services.audit import Actor
 from app.services.sessions import populations
@@ -47,11 +47,18 @@ def draw_neutral_labels(protocol: Protocol) -> dict[str, str] | None:
 
 
 def create_study(
-    db: Session, *, name: str, loaded: LoadedProtocol, actor: Actor, title: str | None = None
+    db: Session,
+    *,
+    name: str,
+    loaded: LoadedProtocol,
+    actor: Actor,
+    title: str | None = None,
+    started_from: str | None = None,
 ) -> Study:
     """Create an open study with a fresh secret allocation seed (and, if blinded, a fresh secret
     assignment of neutral labels: :func:`draw_neutral_labels`); commits. ``title``: see
-    :func:`study_title`."""
+    :func:`study_title`; ``started_from``: where the protocol came from, for the audit log
+    (``shipped F``, ``study S``, ``file F``)."""
     STUDY_NAME.check(name)
     shown_title = study_title(title, loaded)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:
@@ -79,10 +86,19 @@ def create_study(
         action="study.created",
         study_id=study.id,
         subject=name,
-        details={"protocol_sha256": loaded.sha256} | (population or {}),
+        details={"protocol_sha256": loaded.sha256}
+        | ({"started_from": started_from} if started_from else {})
+        | (population or {}),
     )
     db.commit()
     return study
+
+
+def protocol_copy(db: Session, name: str) -> LoadedProtocol:
+    """The protocol study ``name`` was created with, as its file (comments and all), to start
+    another study from: a pilot's main study, the next wave of a study."""
+    study = get_study(db, name)
+    return parse_protocol(study.protocol_source, source=f"the protocol of study {name}")
 
 
 def check_population_use(db: Session, protocol: Protocol) -> dict[str, Any] | None:

@@ -3,15 +3,25 @@ new studies from protocol files, opening and closing studies, unblinding a blind
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import File, Form, Request, UploadFile
 from fastapi.responses import Response
 
 from app.deps import AdminUser, OneHopRouter, SessionDep
-from app.errors import Conflict, InvalidInput
+from app.errors import Conflict, InvalidInput, NotFound
+from app.i18n.languages import native_name
 from app.inputs import STUDY_NAME
-from app.protocol import ProtocolError, parse_protocol
+from app.protocol import (
+    DEFAULT_PROTOCOL,
+    LoadedProtocol,
+    Problem,
+    ProtocolError,
+    parse_protocol,
+    shipped_protocol,
+    shipped_protocol_files,
+)
 from app.services import blinding, studies
 from app.services.audit import Actor
 from app.services.staff import accounts, users
@@ -76,16 +86,109 @@ def create_user(
     return redirect_with_notice(request, "/admin/users", f"Created {username.strip().lower()}.")
 
 
-def _new_study_form(error: str, name: str, title: str) -> dict[str, str]:
-    """The New study form's values, with the name rule in the server's own words (the browser's
-    "match the requested format" does not say what the format is)."""
-    return {"error": error, "name": name, "title": title, "name_rule": STUDY_NAME.sentence}
+@dataclass(frozen=True)
+class ShippedChoice:
+    """A shipped protocol as the New study form offers it."""
+
+    file: str
+    title: str
+    description: str
+    languages: str
+    """Their native names, said as a list is ("English and svenska")."""
+
+
+def _shipped_choices() -> list[ShippedChoice]:
+    choices = []
+    for file in shipped_protocol_files():
+        study = shipped_protocol(file).protocol.study
+        names = [native_name(code) for code in study.languages]
+        languages = " and ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else names)
+        choices.append(ShippedChoice(file, study.title, study.description, languages))
+    return choices
+
+
+START_FILE, START_STUDY, START_SHIPPED = "file", "study", "shipped:"
+"""What a new study starts from: an uploaded file, a copy of a study's protocol, or
+``shipped:<file>``."""
+
+
+def _new_study_page(
+    request: Request,
+    db: SessionDep,
+    *,
+    error: str = "",
+    values: dict[str, str] | None = None,
+    status_code: int = 200,
+) -> Response:
+    """The New study form, with the name rule in the server's own words (the browser's "match
+    the requested format" does not say what the format is)."""
+    values = {
+        "name": "",
+        "title": "",
+        "start": START_SHIPPED + DEFAULT_PROTOCOL,
+        "from_study": "",
+        **(values or {}),
+    }
+    return render(
+        request,
+        "admin_new_study.html",
+        {
+            "error": error,
+            "values": values,
+            "name_rule": STUDY_NAME.sentence,
+            "shipped": _shipped_choices(),
+            "studies": studies.list_studies(db),
+            "start_file": START_FILE,
+            "start_study": START_STUDY,
+            "start_shipped": START_SHIPPED,
+        },
+        status_code=status_code,
+    )
 
 
 @router.get("/studies/new")
-def new_study_form(request: Request, admin: AdminUser) -> Response:
-    """Upload a protocol file to create a study."""
-    return render(request, "admin_new_study.html", _new_study_form("", "", ""))
+def new_study_form(request: Request, db: SessionDep, admin: AdminUser) -> Response:
+    """Start a study from a shipped protocol, a copy of a study's, or an uploaded file."""
+    return _new_study_page(request, db)
+
+
+def _uploaded_protocol(protocol: UploadFile | None) -> LoadedProtocol:
+    """The uploaded protocol file, validated; refusals as :class:`ProtocolError`."""
+    if protocol is None or not protocol.filename:
+        raise ProtocolError("protocol", [Problem("", "choose a protocol file to upload")])
+    raw = protocol.file.read(MAX_PROTOCOL_BYTES + 1)
+    if len(raw) > MAX_PROTOCOL_BYTES:
+        reason = f"the protocol file is larger than {MAX_PROTOCOL_BYTES // 1024} KiB"
+        raise ProtocolError(protocol.filename, [Problem("", reason)])
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise ProtocolError(
+            protocol.filename, [Problem("", "the protocol file is not UTF-8 text")]
+        ) from None
+    return parse_protocol(text, source=protocol.filename)
+
+
+def _starting_protocol(
+    db: SessionDep, start: str, from_study: str, protocol: UploadFile | None
+) -> tuple[LoadedProtocol, str]:
+    """The protocol a new study starts from, and what it was (for the audit log)."""
+    if start != START_FILE and protocol is not None and protocol.filename:
+        raise InvalidInput(
+            "a protocol file was chosen but the study is to start from another protocol: "
+            "choose “A protocol file” to use it, or remove the file"
+        )
+    if start == START_FILE:
+        loaded = _uploaded_protocol(protocol)
+        return loaded, f"file {protocol.filename if protocol else ''}"
+    if start == START_STUDY:
+        if not from_study:
+            raise InvalidInput("choose the study whose protocol the new one copies")
+        return studies.protocol_copy(db, from_study), f"study {from_study}"
+    if start.startswith(START_SHIPPED):
+        file = start.removeprefix(START_SHIPPED)
+        return shipped_protocol(file), f"shipped {file}"
+    raise InvalidInput("choose what the study starts from")
 
 
 @router.post("/studies")
@@ -94,37 +197,32 @@ def create_study(
     db: SessionDep,
     admin: AdminUser,
     name: Annotated[str, Form(max_length=64)],
-    protocol: Annotated[UploadFile, File()],
+    protocol: Annotated[UploadFile | None, File()] = None,
     title: Annotated[str, Form(max_length=400)] = "",
+    start: Annotated[str, Form(max_length=200)] = START_FILE,
+    from_study: Annotated[str, Form(max_length=64)] = "",
 ) -> Response:
-    """Create a study from an uploaded protocol TOML file."""
-    raw = protocol.file.read(MAX_PROTOCOL_BYTES + 1)
-    error = ""
-    if len(raw) > MAX_PROTOCOL_BYTES:
-        error = f"the protocol file is larger than {MAX_PROTOCOL_BYTES // 1024} KiB"
-    else:
-        try:
-            loaded = parse_protocol(raw.decode("utf-8"), source=protocol.filename or "protocol")
-        except UnicodeDecodeError:
-            error = "the protocol file is not UTF-8 text"
-        except ProtocolError as exc:
-            error = str(exc)
-    if not error:
-        try:
-            studies.create_study(
-                db, name=name.strip(), loaded=loaded, actor=Actor.of_user(admin), title=title
-            )
-        except (InvalidInput, Conflict) as exc:
-            db.rollback()
-            error = exc.message
-    if error:
-        return render(
-            request,
-            "admin_new_study.html",
-            _new_study_form(error, name, title),
-            status_code=422,
+    """Create a study from a shipped protocol, a copy of a study's protocol, or an uploaded
+    protocol TOML file (``start``; a client that only uploads a file need not say so)."""
+    try:
+        loaded, started_from = _starting_protocol(db, start, from_study, protocol)
+        studies.create_study(
+            db,
+            name=name.strip(),
+            loaded=loaded,
+            actor=Actor.of_user(admin),
+            title=title,
+            started_from=started_from,
         )
-    return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")
+    except ProtocolError as exc:
+        error = str(exc)
+    except (InvalidInput, Conflict, NotFound) as exc:
+        db.rollback()
+        error = exc.message
+    else:
+        return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")
+    values = {"name": name, "title": title, "start": start, "from_study": from_study}
+    return _new_study_page(request, db, error=error, values=values, status_code=422)
 
 
 @router.post("/studies/{name}/status")

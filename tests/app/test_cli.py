@@ -18,6 +18,7 @@ from analysis.exports import EXPORT_FORMATS
 from app import demo, schema
 from app.cli import cli
 from app.db import Database
+from app.services import studies
 from app.services.staff import users
 from app.settings import REPO_ROOT, Settings
 from tests.conftest import protocol_text, sqlite_only
@@ -163,6 +164,27 @@ def test_study_create_list_enroll_withdraw(database_url: str, tmp_path: Path) ->
     listed = json.loads(out)["studies"][0]
     assert listed["name"] == "lab"
     assert sum(by["withdrawn"] for by in listed["enrolment"].values()) == 1
+
+
+def test_a_study_starts_from_a_shipped_protocol_or_a_copy(database_url: str) -> None:
+    code, out, _ = run(database_url, "study", "protocols", "--json")
+    shipped = {row["file"]: row for row in json.loads(out)}
+    assert code == 0 and shipped["fast_adaptation_trust_sv.toml"]["languages"] == ["en", "sv"]
+    swedish = ("--shipped", "fast_adaptation_trust_sv.toml")
+    assert run(database_url, "study", "create", *swedish, "--name", "w1")[0] == 0
+    code, out, _ = run(database_url, "study", "create", "--copy-of", "w1", "--name", "w2")
+    assert (code, out.strip().split(":")[0]) == (0, "created study 'w2'")
+    with Database(database_url).writing() as db:
+        first, second = (studies.get_study(db, name) for name in ("w1", "w2"))
+        assert second.protocol_source == first.protocol_source
+    for options, said in [
+        ((), "say what the study starts from: one of --protocol, --shipped, --copy-of"),
+        ((*swedish, "--copy-of", "w1"), "say what the study starts from"),
+        (("--shipped", "nope.toml"), "nope.toml: trustlab ships no protocol of that name"),
+        (("--copy-of", "ghost"), "no study named 'ghost'"),
+    ]:
+        code, _, err = run(database_url, "study", "create", *options, "--name", "w3")
+        assert code != 0 and said in err, (options, err)
 
 
 @sqlite_only("the protocol file is refused before any query")

@@ -11,13 +11,15 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from httpx import Response
+from sqlalchemy import select
 
 from app.db import Database
 from app.inputs import STUDY_NAME
-from app.protocol import default_protocol
+from app.protocol import default_protocol, shipped_protocol, shipped_protocol_files
+from app.services import studies
 from app.services.audit import Actor
 from app.services.sessions import stations
-from app.tables import Role
+from app.tables import AuditEvent, Role
 from tests.conftest import UserClientFactory, protocol_text, sqlite_only
 
 
@@ -104,6 +106,62 @@ def test_admin_uploads_a_protocol(user_client: UserClientFactory) -> None:
     assert "Study created." in accepted.text
     closed = admin.post("/admin/studies/lab/status", data={"status": "closed"})
     assert "Study is now closed." in closed.text and "Reopen enrolment" in closed.text
+
+
+def test_a_study_starts_from_a_shipped_protocol_or_a_copy_of_a_studys(
+    user_client: UserClientFactory, database: Database
+) -> None:
+    """Issue 50 item 1: no TOML file needed to start; each start is audited."""
+    admin = user_client(Role.ADMIN)
+    form = admin.get("/admin/studies/new").text
+    for file in shipped_protocol_files():
+        loaded = shipped_protocol(file)
+        assert f'value="shipped:{file}"' in form
+        assert html.escape(loaded.protocol.study.title) in form
+    assert "In English and Svenska" in form  # the two-language one
+    assert 'value="shipped:fast_adaptation_trust.toml" checked' in form  # the default
+
+    swedish = "fast_adaptation_trust_sv.toml"
+    made = admin.post(
+        "/admin/studies", data={"name": "wave-1", "start": f"shipped:{swedish}", "title": "W1"}
+    )
+    assert made.status_code == 200 and "Study created." in made.text
+    copied = admin.post(
+        "/admin/studies", data={"name": "wave-2", "start": "study", "from_study": "wave-1"}
+    )
+    assert copied.status_code == 200 and "Study created." in copied.text
+    with database.read_session() as db:
+        first, second = (studies.get_study(db, name) for name in ("wave-1", "wave-2"))
+        assert first.protocol_source == shipped_protocol(swedish).source_text  # byte for byte
+        assert second.protocol_source == first.protocol_source
+        assert second.protocol_sha256 == first.protocol_sha256
+        assert second.allocation_seed != first.allocation_seed  # a sequence of its own
+        started = [
+            e.details["started_from"]
+            for e in db.scalars(select(AuditEvent).where(AuditEvent.action == "study.created"))
+            if "started_from" in e.details
+        ]
+    assert started == [f"shipped {swedish}", "study wave-1"]
+
+    for data, said in [
+        ({"start": "study"}, "choose the study whose protocol the new one copies"),
+        ({"start": "study", "from_study": "ghost"}, "no study named"),
+        ({"start": "shipped:../../etc/passwd"}, "trustlab ships no protocol of that name"),
+        ({"start": "file"}, "choose a protocol file to upload"),
+        ({"start": "elsewhere"}, "choose what the study starts from"),
+    ]:
+        refused = admin.post("/admin/studies", data={"name": "wave-3", **data})
+        assert refused.status_code == 422, data
+        assert said in html.unescape(refused.text), (data, refused.text)
+        assert 'value="wave-3"' in refused.text  # what was typed stays
+    both = admin.post(
+        "/admin/studies",
+        data={"name": "wave-3", "start": f"shipped:{swedish}"},
+        files={"protocol": ("mine.toml", b"[study]", "text/plain")},
+    )
+    assert both.status_code == 422 and "a protocol file was chosen" in both.text
+    with database.read_session() as db:
+        assert "wave-3" not in [study.name for study in studies.list_studies(db)]
 
 
 @pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # a form, not storage

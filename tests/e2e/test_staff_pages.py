@@ -192,3 +192,35 @@ def test_a_live_refresh_keeps_what_the_experimenter_is_typing(
     expect(field).to_have_value("P-TYP")
     expect(field).to_be_focused()
     page.context.close()
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("width", "height"), SIZES)
+def test_a_new_study_starts_from_a_shipped_protocol_by_keyboard(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    artifacts: Path,
+    width: int,
+    height: int,
+) -> None:
+    """Issue 50 item 1: the shipped protocols are named, described and chosen without a file."""
+    make_user(database, "operator", Role.ADMIN)
+    page = browser.new_context(viewport={"width": width, "height": height}).new_page()
+    sign_in_page(page, live_server, "/admin/studies/new")
+    assert _overflow(page, "fieldset label") == []
+    page.screenshot(path=str(artifacts / f"new-study-{width}.png"), full_page=True)
+    page.get_by_label("Name").fill("sv-pilot")
+    swedish = page.get_by_role("radio", name=re.compile("fast_adaptation_trust_sv.toml"))
+    swedish.focus()
+    page.keyboard.press("Space")
+    expect(swedish).to_be_checked()
+    page.get_by_role("button", name="Create study").press("Enter")
+    expect(page).to_have_url(f"{live_server.url}/studies/sv-pilot")
+    expect(page.get_by_text("Study created.")).to_be_visible()
+    page.goto(f"{live_server.url}/admin/studies/new")  # now a study can be copied too
+    page.get_by_role("radio", name=re.compile("A copy of a study")).check()
+    page.get_by_label("Study to copy").select_option("sv-pilot")
+    assert _overflow(page, "fieldset label") == []
+    page.screenshot(path=str(artifacts / f"new-study-copy-{width}.png"), full_page=True)
+    page.context.close()
