@@ -50,6 +50,7 @@ from app.web import (
     docs,
     live,
     participants,
+    preview,
     room,
     tablet_pages,
 )
@@ -130,6 +131,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         audit_pages.router,
         docs.router,
         tablet_pages.router,
+        preview.router,
         assets.router,
     ):
         everything.include_router(pages)

@@ -129,6 +129,11 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("GET", "/studies/{name}"): get("/studies/rt"),
     ("GET", "/studies/{name}/dashboard"): get("/studies/rt/dashboard"),
+    ("GET", "/studies/{name}/preview"): get("/studies/rt/preview"),
+    ("GET", "/studies/{name}/preview/{language}/{number}"): get("/studies/rt/preview/en/1"),
+    ("POST", "/studies/{name}/preview/{language}/{number}"): send(
+        "POST", "/studies/rt/preview/en/1", data={"accept": "yes"}
+    ),
     ("GET", "/studies/{name}/dashboard.json"): get("/studies/rt/dashboard.json"),
     ("GET", "/studies/{name}/events"): stream("/studies/rt/events"),
     ("GET", "/studies/{name}/participants/{code}"): get("/studies/rt/participants/P001"),

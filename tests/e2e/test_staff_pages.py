@@ -12,6 +12,9 @@ import pytest
 from playwright.sync_api import Browser, Page, expect
 
 from app.db import Database
+from app.protocol import shipped_protocol
+from app.services import studies
+from app.services.audit import Actor
 from app.tables import Participant, ParticipantStatus, Role
 from tests.conftest import Lab, create_blinded_study, make_user
 from tests.e2e.conftest import sign_in_page
@@ -223,4 +226,41 @@ def test_a_new_study_starts_from_a_shipped_protocol_by_keyboard(
     page.get_by_label("Study to copy").select_option("sv-pilot")
     assert _overflow(page, "fieldset label") == []
     page.screenshot(path=str(artifacts / f"new-study-copy-{width}.png"), full_page=True)
+    page.context.close()
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("width", "height"), SIZES)
+def test_a_study_is_previewed_as_a_participant_sees_it(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    artifacts: Path,
+    width: int,
+    height: int,
+) -> None:
+    """Issue 50 item 3: the tablet's pages in the study's other language, checked as the
+    tablet checks them, with a banner saying nothing is stored."""
+    make_user(database, "operator", Role.ADMIN)
+    with database.writing() as db:
+        studies.create_study(
+            db,
+            name="sv-preview",
+            loaded=shipped_protocol("fast_adaptation_trust_sv.toml"),
+            actor=Actor.system("test"),
+        )
+    page = browser.new_context(viewport={"width": width, "height": height}).new_page()
+    sign_in_page(page, live_server, "/studies/sv-preview")
+    page.get_by_role("link", name="Preview as a participant").click()
+    page.get_by_role("link", name="svenska").click()
+    page.get_by_role("link", name="Start the preview").click()
+    expect(page.locator("html")).to_have_attribute("lang", "sv")
+    expect(page.get_by_role("note")).to_contain_text("nothing entered here is stored")
+    page.get_by_role("button").first.click()  # sent without the box ticked
+    expect(page.locator("#err-accept")).to_be_visible()
+    page.screenshot(path=str(artifacts / f"preview-consent-{width}.png"), full_page=True)
+    page.get_by_role("checkbox").check()
+    page.get_by_role("button").first.click()
+    expect(page).to_have_url(f"{live_server.url}/studies/sv-preview/preview/sv/2")
+    page.screenshot(path=str(artifacts / f"preview-questionnaire-{width}.png"), full_page=True)
     page.context.close()

@@ -187,6 +187,17 @@ def page_for(participant: Participant, protocol: Protocol, where: Progress) -> P
     return Page("wait")
 
 
+def every_page(protocol: Protocol) -> list[Page]:
+    """The pages a participant meets, in order: consent, the pre-study questionnaires, one
+    session's (the same after every session, ``session`` 1 standing for each), the post-study
+    ones. What a preview of the study walks through (app/web/preview.py)."""
+    pages = [Page("consent")]
+    pages += [Page("questionnaire", i) for i in protocol.instruments_at("pre")]
+    pages += [Page("questionnaire", i, 1) for i in protocol.instruments_at("session")]
+    pages += [Page("questionnaire", i) for i in protocol.instruments_at("post")]
+    return pages
+
+
 def next_page(db: Session, participant: Participant, protocol: Protocol) -> Page:
     """The one page this participant should be on (one query)."""
     if participant.status == ParticipantStatus.WITHDRAWN:
@@ -551,6 +562,12 @@ class ConsentChanged(Conflict):
     """The consent text changed while the participant was reading it: show them the new one."""
 
 
+def check_consent_given(accepted: bool) -> None:
+    """Refuse a consent page sent without its box ticked (what the page says beside it)."""
+    if not accepted:
+        raise QuestionnaireInvalid({"accept": Message("Please tick the box to take part.")})
+
+
 def accept_consent(
     db: Session,
     *,
@@ -570,8 +587,7 @@ def accept_consent(
     not see. Accepting again after a new version was added is a re-consent."""
     participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
-    if not accepted:
-        raise QuestionnaireInvalid({"accept": Message("Please tick the box to take part.")})
+    check_consent_given(accepted)
     text = consent.shown(db, study_id=participant.study_id, protocol=protocol)
     if version is not None and version != text.number:
         raise ConsentChanged(f"the consent text changed (now version {text.number}): read it again")
