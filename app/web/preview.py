@@ -10,6 +10,7 @@ sign-in and CSRF token guard the forms, as on every staff page.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from fastapi import Request
@@ -74,10 +75,29 @@ def preview_index(
     )
 
 
+@dataclass(frozen=True)
+class _Previewed:
+    """One page of a study's preview: the study, its protocol in the page's language, how many
+    pages there are and which this is."""
+
+    study: Study
+    protocol: Protocol
+    pages: int
+    page: questionnaires.Page
+
+
+def _previewed(db: SessionDep, name: str, language: str, number: int) -> _Previewed:
+    study = studies.get_study(db, name)
+    protocol = _language(study, studies.protocol_of(study), language)
+    pages = questionnaires.every_page(protocol)
+    if not 1 <= number <= len(pages):
+        raise NotFound(f"the preview of {name!r} has pages 1 to {len(pages)}")
+    return _Previewed(study, protocol, len(pages), pages[number - 1])
+
+
 def _page(
     request: Request,
     db: SessionDep,
-    user: CurrentUser,
     name: str,
     language: str,
     number: int,
@@ -86,12 +106,8 @@ def _page(
     errors: dict[str, Any] | None = None,
     status_code: int = 200,
 ) -> Response:
-    study = studies.get_study(db, name)
-    protocol = _language(study, studies.protocol_of(study), language)
-    pages = questionnaires.every_page(protocol)
-    if not 1 <= number <= len(pages):
-        raise NotFound(f"the preview of {name!r} has pages 1 to {len(pages)}")
-    page = pages[number - 1]
+    shown = _previewed(db, name, language, number)
+    study, protocol, page = shown.study, shown.protocol, shown.page
     words = catalogue(language)
     said = {key: words.say(text) for key, text in (errors or {}).items()}
     viewer = request.state.viewer
@@ -101,7 +117,7 @@ def _page(
             "language": native_name(language),
             "index": f"{_preview_path(name, language)}?language={language}",
             "number": number,
-            "of": len(pages),
+            "of": shown.pages,
         },
         "study_title": protocol.study.title,
         "catalogue": words,
@@ -138,7 +154,7 @@ def preview_page(
     request: Request, db: SessionDep, user: CurrentUser, name: str, language: str, number: int
 ) -> Response:
     """Page ``number`` of the participant's pages, in ``language``."""
-    return _page(request, db, user, name, language, number)
+    return _page(request, db, name, language, number)
 
 
 @router.post("/studies/{name}/preview/{language}/{number}")
@@ -153,32 +169,20 @@ def check_preview_page(
 ) -> Response:
     """Check what was entered as the tablet would, store nothing, and go on to the next page
     (or show the problems beside their items)."""
-    study = studies.get_study(db, name)
-    protocol = _language(study, studies.protocol_of(study), language)
-    pages = questionnaires.every_page(protocol)
-    if not 1 <= number <= len(pages):
-        raise NotFound(f"the preview of {name!r} has pages 1 to {len(pages)}")
-    page = pages[number - 1]
+    shown = _previewed(db, name, language, number)
+    page = shown.page
     answers = {k: v for k, v in fields.items() if k not in ("csrf_token", "version")}
     try:
         if page.kind == "consent":
             questionnaires.check_consent_given(answers.get("accept") == "yes")
         else:
             assert page.instrument is not None
-            questionnaires.validate_answers(page.instrument, protocol, answers)
+            questionnaires.validate_answers(page.instrument, shown.protocol, answers)
     except questionnaires.QuestionnaireInvalid as exc:
         return _page(
-            request,
-            db,
-            user,
-            name,
-            language,
-            number,
-            values=answers,
-            errors=exc.errors,
-            status_code=422,
+            request, db, name, language, number, values=answers, errors=exc.errors, status_code=422
         )
-    if number < len(pages):
+    if number < shown.pages:
         return RedirectResponse(_preview_path(name, language, number + 1), status_code=303)
     return RedirectResponse(
         f"{_preview_path(name, language)}?language={language}&finished=true", status_code=303
