@@ -76,6 +76,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/studies/{name}"): USERS,
     ("GET", "/studies/{name}/dashboard"): USERS,
     ("GET", "/studies/{name}/preview"): USERS,
+    ("GET", "/studies/{name}/protocol.toml"): ANALYSTS,
     ("GET", "/studies/{name}/preview/{language}/{number}"): USERS,
     ("POST", "/studies/{name}/preview/{language}/{number}"): USERS,
     ("GET", "/studies/{name}/dashboard.json"): USERS,

@@ -10,6 +10,7 @@ from fastapi.responses import Response
 
 from app.deps import (
     AdminUser,
+    AnalystUser,
     CurrentUser,
     ExperimenterUser,
     FormFields,
@@ -113,6 +114,21 @@ def _study_page(
 def study_page(request: Request, db: SessionDep, user: CurrentUser, name: str) -> Response:
     """One study: protocol summary, participants, enrolment form."""
     return _study_page(request, db, user, name)
+
+
+@router.get("/studies/{name}/protocol.toml")
+def protocol_file(db: SessionDep, user: AnalystUser, name: str) -> Response:
+    """The protocol file the study was created with, byte for byte (for the roles that see
+    conditions: the file names them): to keep, to start another study from, to cite."""
+    study = studies.get_study(db, name)
+    return Response(
+        study.protocol_source,
+        media_type="application/toml; charset=utf-8",
+        headers={
+            "Content-Disposition": f'attachment; filename="{study.name}-protocol.toml"',
+            "X-Content-SHA256": study.protocol_sha256,
+        },
+    )
 
 
 @router.post("/studies/{name}/participants")

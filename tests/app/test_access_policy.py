@@ -130,6 +130,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/studies/{name}"): get("/studies/rt"),
     ("GET", "/studies/{name}/dashboard"): get("/studies/rt/dashboard"),
     ("GET", "/studies/{name}/preview"): get("/studies/rt/preview"),
+    ("GET", "/studies/{name}/protocol.toml"): get("/studies/rt/protocol.toml"),
     ("GET", "/studies/{name}/preview/{language}/{number}"): get("/studies/rt/preview/en/1"),
     ("POST", "/studies/{name}/preview/{language}/{number}"): send(
         "POST", "/studies/rt/preview/en/1", data={"accept": "yes"}

@@ -89,7 +89,9 @@ def _admin_reads(study: str, station: str, username: str) -> list[str]:
             continue
         name = station if path.startswith(("/stations", "/api/v1/stations")) else study
         paths.append(
-            path.format(name=name, code="P001", username=username, language="sv", device_id=1)
+            path.format(
+                name=name, code="P001", username=username, language="sv", device_id=1, number=1
+            )
         )
     return paths
 

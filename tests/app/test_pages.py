@@ -162,6 +162,16 @@ def test_a_study_starts_from_a_shipped_protocol_or_a_copy_of_a_studys(
     assert both.status_code == 422 and "a protocol file was chosen" in both.text
     with database.read_session() as db:
         assert "wave-3" not in [study.name for study in studies.list_studies(db)]
+    downloaded = admin.get("/studies/wave-2/protocol.toml")
+    assert downloaded.status_code == 200
+    assert downloaded.text == shipped_protocol(swedish).source_text  # byte for byte
+    assert downloaded.headers["content-disposition"] == (
+        'attachment; filename="wave-2-protocol.toml"'
+    )
+    assert 'href="/studies/wave-2/protocol.toml"' in admin.get("/studies/wave-2").text
+    experimenter = user_client(Role.EXPERIMENTER, "ada")
+    assert experimenter.get("/studies/wave-2/protocol.toml").status_code == 403
+    assert "protocol.toml" not in experimenter.get("/studies/wave-2").text
 
 
 @pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # a form, not storage
