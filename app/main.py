@@ -51,6 +51,7 @@ from app.web import (
     live,
     participants,
     preview,
+    protocol_editor,
     room,
     tablet_pages,
 )
@@ -127,6 +128,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         station_pages.router,
         room.router,
         admin.router,
+        protocol_editor.router,
         accounts.router,
         audit_pages.router,
         docs.router,

@@ -129,6 +129,11 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("GET", "/studies/{name}"): get("/studies/rt"),
     ("GET", "/studies/{name}/dashboard"): get("/studies/rt/dashboard"),
+    ("GET", "/admin/protocols/edit"): get("/admin/protocols/edit"),
+    ("POST", "/admin/protocols/edit"): send(
+        "POST", "/admin/protocols/edit", data={"name": "probe", "origin": "x", "text": "x"}
+    ),
+    ("POST", "/admin/protocols/check"): send("POST", "/admin/protocols/check", data={"text": ""}),
     ("GET", "/studies/{name}/preview"): get("/studies/rt/preview"),
     ("GET", "/studies/{name}/protocol.toml"): get("/studies/rt/protocol.toml"),
     ("GET", "/studies/{name}/preview/{language}/{number}"): get("/studies/rt/preview/en/1"),

@@ -264,3 +264,27 @@ def test_a_study_is_previewed_as_a_participant_sees_it(
     expect(page).to_have_url(f"{live_server.url}/studies/sv-preview/preview/sv/2")
     page.screenshot(path=str(artifacts / f"preview-questionnaire-{width}.png"), full_page=True)
     page.context.close()
+
+
+@pytest.mark.e2e
+def test_a_protocol_is_checked_as_it_is_typed(
+    browser: Browser, live_server: ServerProcess, database: Database, artifacts: Path
+) -> None:
+    """Issue 50 item 2's first step: a mistake typed into the protocol's text is named with its
+    key beside it, without sending the form; put right, the list says so."""
+    make_user(database, "operator", Role.ADMIN)
+    page = browser.new_context(viewport={"width": 1366, "height": 768}).new_page()
+    sign_in_page(page, live_server, "/admin/studies/new")
+    page.get_by_role("button", name="Edit its text").click()
+    text = page.get_by_role("textbox", name="Protocol")
+    original = text.input_value()
+    text.fill(original.replace("sessions = 4", "sessions = 0"))
+    problems = page.locator("#protocol-problems")
+    expect(problems).to_contain_text("schedule.sessions")
+    page.screenshot(path=str(artifacts / "protocol-problem-1366.png"), full_page=False)
+    text.fill(original.replace("sessions = 4", "sessions = 3"))
+    expect(problems).to_contain_text("No problems")
+    page.get_by_label("Name").fill("three-sessions")
+    page.get_by_role("button", name="Create study").click()
+    expect(page).to_have_url(f"{live_server.url}/studies/three-sessions")
+    page.context.close()

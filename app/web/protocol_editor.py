@@ -1,0 +1,143 @@
+"""A protocol's text, edited in the browser and checked as it is typed, to start a study from.
+
+The text starts as a shipped protocol's or a study's (byte for byte) and is checked by the same
+rules as study creation (app.protocol.parse_protocol), every problem at once with its key path,
+while it is typed (htmx posts it to the check route, which answers with the problems only).
+Creating the study stores the text as typed, comments and all.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Form, Request
+from fastapi.responses import Response
+
+from app.deps import AdminUser, OneHopRouter, SessionDep
+from app.errors import Conflict, InvalidInput, NotFound
+from app.inputs import STUDY_NAME
+from app.protocol import (
+    DEFAULT_PROTOCOL,
+    LoadedProtocol,
+    Problem,
+    ProtocolError,
+    parse_protocol,
+    shipped_protocol,
+)
+from app.services import studies
+from app.services.audit import Actor
+from app.web.templating import redirect_with_notice, render
+
+router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
+
+MAX_TEXT = 512 * 1024
+SOURCE = "protocol"
+"""How the problems name the text (``protocol: schedule.sessions: …``)."""
+
+
+def _origin_text(db: SessionDep, start: str) -> tuple[str, str]:
+    """The text a ``start`` (``shipped:FILE`` or ``study:NAME``) begins with, and its name."""
+    kind, _, name = start.partition(":")
+    if kind == "shipped":
+        try:
+            return shipped_protocol(name).source_text, f"shipped {name}"
+        except ProtocolError as exc:
+            raise NotFound(str(exc)) from None
+    if kind == "study":
+        return studies.get_study(db, name).protocol_source, f"study {name}"
+    raise NotFound(f"no protocol to start from called {start!r} (shipped:FILE or study:NAME)")
+
+
+def _checked(text: str) -> tuple[LoadedProtocol | None, list[Problem]]:
+    try:
+        return parse_protocol(text, source=SOURCE), []
+    except ProtocolError as exc:
+        return None, exc.problems
+
+
+def _editor(
+    request: Request,
+    *,
+    text: str,
+    origin: str,
+    name: str = "",
+    title: str = "",
+    error: str = "",
+    problems: list[Problem] | None = None,
+    status_code: int = 200,
+) -> Response:
+    return render(
+        request,
+        "protocol_editor.html",
+        {
+            "text": text,
+            "origin": origin,
+            "name": name,
+            "title": title,
+            "error": error,
+            "problems": problems or [],
+            "name_rule": STUDY_NAME.sentence,
+        },
+        status_code=status_code,
+    )
+
+
+@router.get("/protocols/edit")
+def edit_protocol(
+    request: Request, db: SessionDep, admin: AdminUser, start: str = f"shipped:{DEFAULT_PROTOCOL}"
+) -> Response:
+    """A protocol's text to edit before a study starts from it."""
+    text, origin = _origin_text(db, start)
+    return _editor(request, text=text, origin=origin)
+
+
+@router.post("/protocols/check")
+def check_protocol(
+    request: Request,
+    admin: AdminUser,
+    text: Annotated[str, Form(max_length=MAX_TEXT)] = "",
+) -> Response:
+    """The problems of the text as typed (an htmx fragment): every one at once, with its key."""
+    _, problems = _checked(text)
+    return render(request, "_protocol_problems.html", {"problems": problems, "checked": True})
+
+
+@router.post("/protocols/edit")
+def create_from_text(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: Annotated[str, Form(max_length=64)],
+    origin: Annotated[str, Form(max_length=200)],
+    text: Annotated[str, Form(max_length=MAX_TEXT)] = "",
+    title: Annotated[str, Form(max_length=400)] = "",
+) -> Response:
+    """Create a study from the text as typed; its problems, or a name in use, keep the page."""
+    loaded, problems = _checked(text)
+    if loaded is not None:
+        try:
+            studies.create_study(
+                db,
+                name=name.strip(),
+                loaded=loaded,
+                actor=Actor.of_user(admin),
+                title=title,
+                started_from=f"text edited from {origin}",
+            )
+        except (InvalidInput, Conflict) as exc:
+            db.rollback()
+            error = exc.message
+        else:
+            return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")
+    else:
+        error = "the protocol has problems: see the list beside the text"
+    return _editor(
+        request,
+        text=text,
+        origin=origin,
+        name=name,
+        title=title,
+        error=error,
+        problems=problems,
+        status_code=422,
+    )
