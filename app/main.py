@@ -110,6 +110,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         station_audio.router,
         session.router,
         studies_api.router,
+        studies_api.protocols_router,
         stations.router,
         stations.devices_router,
         tablet.router,

@@ -15,7 +15,8 @@ class RequestBody(BaseModel):
 
 
 class StudyCreate(RequestBody):
-    """A new study: its name and the protocol as TOML text."""
+    """A new study: its name and what it starts from, exactly one of the protocol as TOML text,
+    a shipped protocol (``GET /api/v1/protocols``) or a copy of a study's protocol."""
 
     name: str = Field(max_length=64, examples=["pilot-2026"])
     title: str | None = Field(
@@ -24,7 +25,28 @@ class StudyCreate(RequestBody):
         description="Shown on every page; the protocol's title when left out.",
         examples=["Pilot, spring 2026"],
     )
-    protocol_toml: str = Field(max_length=512 * 1024, description="The protocol file's content.")
+    protocol_toml: str | None = Field(
+        default=None, max_length=512 * 1024, description="The protocol file's content."
+    )
+    shipped: str | None = Field(
+        default=None,
+        max_length=200,
+        description="A shipped protocol's file name.",
+        examples=["fast_adaptation_trust_sv.toml"],
+    )
+    copy_of: str | None = Field(
+        default=None, max_length=64, description="The name of a study whose protocol to copy."
+    )
+
+
+class ShippedProtocol(BaseModel):
+    """A protocol trustlab ships, to start a study from."""
+
+    file: str
+    title: str
+    description: str
+    languages: list[str]
+    sha256: str
 
 
 class StudyStatusChange(RequestBody):

@@ -16,6 +16,7 @@ from app.api.schemas import (
     ErasureOut,
     ErasureRequest,
     ParticipantOut,
+    ShippedProtocol,
     StudyCreate,
     StudyStatusChange,
     StudySummary,
@@ -24,7 +25,7 @@ from app.api.schemas import (
 )
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
-from app.protocol import ProtocolError, parse_protocol
+from app.protocol import ProtocolError, parse_protocol, shipped_protocol, shipped_protocol_files
 from app.services import blinding, studies
 from app.services.audit import Actor
 from app.services.participants import enrolment, questionnaires, tablet_tokens
@@ -32,6 +33,26 @@ from app.services.privacy import consent, erasure, sites
 from app.tables import Participant, Study, StudyStatus
 
 router = APIRouter(prefix="/studies", tags=["studies"])
+protocols_router = APIRouter(prefix="/protocols", tags=["studies"])
+
+
+@protocols_router.get("")
+def list_shipped_protocols(user: CurrentUser) -> list[ShippedProtocol]:
+    """The protocols trustlab ships, to start a study from (``shipped`` of a new study)."""
+    rows = []
+    for file in shipped_protocol_files():
+        loaded = shipped_protocol(file)
+        info = loaded.protocol.study
+        rows.append(
+            ShippedProtocol(
+                file=file,
+                title=info.title,
+                description=info.description,
+                languages=info.languages,
+                sha256=loaded.sha256,
+            )
+        )
+    return rows
 
 
 def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
@@ -95,13 +116,30 @@ def list_studies(db: SessionDep, user: CurrentUser) -> list[StudySummary]:
 
 @router.post("", status_code=status.HTTP_201_CREATED)
 def create_study(body: StudyCreate, db: SessionDep, admin: AdminUser) -> StudySummary:
-    """Create a study from protocol TOML (admin)."""
+    """Create a study (admin) from protocol TOML, a shipped protocol or a copy of a study's."""
+    given = [
+        key for key in ("protocol_toml", "shipped", "copy_of") if getattr(body, key) is not None
+    ]
+    if len(given) != 1:
+        raise InvalidInput("give exactly one of protocol_toml, shipped and copy_of")
     try:
-        loaded = parse_protocol(body.protocol_toml, source="protocol_toml")
+        if body.protocol_toml is not None:
+            loaded = parse_protocol(body.protocol_toml, source="protocol_toml")
+            started_from = "text protocol_toml"
+        elif body.shipped is not None:
+            loaded, started_from = shipped_protocol(body.shipped), f"shipped {body.shipped}"
+        else:
+            assert body.copy_of is not None
+            loaded, started_from = studies.protocol_copy(db, body.copy_of), f"study {body.copy_of}"
     except ProtocolError as exc:
         raise InvalidInput(str(exc)) from exc
     study = studies.create_study(
-        db, name=body.name, loaded=loaded, actor=Actor.of_user(admin), title=body.title
+        db,
+        name=body.name,
+        loaded=loaded,
+        actor=Actor.of_user(admin),
+        title=body.title,
+        started_from=started_from,
     )
     return _summary(db, study, Actor.of_user(admin))
 

@@ -150,6 +150,29 @@ def test_admin_creates_a_study_and_bad_protocols_are_explained(
     assert again.status_code == 409
 
 
+def test_a_study_starts_from_a_shipped_protocol_or_a_copy_over_the_api(
+    user_client: UserClientFactory, database: Database
+) -> None:
+    admin = user_client(Role.ADMIN)
+    listed = {row["file"]: row for row in admin.get("/api/v1/protocols").json()}
+    swedish = listed["fast_adaptation_trust_sv.toml"]
+    assert swedish["languages"] == ["en", "sv"]
+    made = admin.post("/api/v1/studies", json={"name": "w1", "shipped": swedish["file"]})
+    assert made.status_code == 201 and made.json()["protocol_sha256"] == swedish["sha256"]
+    copied = admin.post("/api/v1/studies", json={"name": "w2", "copy_of": "w1"})
+    assert copied.status_code == 201 and copied.json()["protocol_sha256"] == swedish["sha256"]
+    for body, said in [
+        ({}, "give exactly one of protocol_toml, shipped and copy_of"),
+        ({"shipped": swedish["file"], "copy_of": "w1"}, "give exactly one of"),
+        ({"shipped": "../etc/passwd"}, "trustlab ships no protocol of that name"),
+    ]:
+        refused = admin.post("/api/v1/studies", json={"name": "w3", **body})
+        assert refused.status_code == 422 and said in refused.json()["detail"], refused.text
+    assert admin.post("/api/v1/studies", json={"name": "w3", "copy_of": "x"}).status_code == 404
+    with database.read_session() as db:
+        assert "w3" not in [study.name for study in studies.list_studies(db)]
+
+
 def test_blinded_study_hides_conditions_from_experimenters(
     user_client: UserClientFactory, database: Database
 ) -> None:
