@@ -20,6 +20,7 @@ from app.deps import CurrentUser, FormFields, OneHopRouter, SessionDep
 from app.errors import NotFound
 from app.i18n.catalogues import catalogue
 from app.i18n.languages import native_name
+from app.inputs import PageNumber
 from app.protocol import Protocol
 from app.services import studies
 from app.services.participants import languages, questionnaires
@@ -151,7 +152,12 @@ def _page(
 
 @router.get("/studies/{name}/preview/{language}/{number}")
 def preview_page(
-    request: Request, db: SessionDep, user: CurrentUser, name: str, language: str, number: int
+    request: Request,
+    db: SessionDep,
+    user: CurrentUser,
+    name: str,
+    language: str,
+    number: PageNumber,
 ) -> Response:
     """Page ``number`` of the participant's pages, in ``language``."""
     return _page(request, db, name, language, number)
@@ -164,7 +170,7 @@ def check_preview_page(
     user: CurrentUser,
     name: str,
     language: str,
-    number: int,
+    number: PageNumber,
     fields: FormFields,
 ) -> Response:
     """Check what was entered as the tablet would, store nothing, and go on to the next page

@@ -152,7 +152,7 @@ def test_a_preview_refuses_what_the_study_does_not_have(
     assert staff.get("/studies/sv/preview/de/1").status_code == 404
     said = html.unescape(staff.get("/studies/sv/preview?language=de").text)
     assert "study 'sv' is not offered in 'de' (it is in en, sv)" in said
-    assert staff.get("/studies/sv/preview/en/0").status_code == 404
+    assert staff.get("/studies/sv/preview/en/0").status_code == 422  # pages count from 1
     assert staff.get("/studies/sv/preview/en/99").status_code == 404
     assert staff.get("/studies/ghost/preview").status_code == 404
     signed_out = TestClient(client.app).get("/studies/sv/preview", follow_redirects=False)
