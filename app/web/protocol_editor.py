@@ -59,6 +59,7 @@ def _editor(
     request: Request,
     *,
     text: str,
+    start: str,
     origin: str,
     name: str = "",
     title: str = "",
@@ -71,6 +72,7 @@ def _editor(
         "protocol_editor.html",
         {
             "text": text,
+            "start": start,
             "origin": origin,
             "name": name,
             "title": title,
@@ -88,7 +90,7 @@ def edit_protocol(
 ) -> Response:
     """A protocol's text to edit before a study starts from it."""
     text, origin = _origin_text(db, start)
-    return _editor(request, text=text, origin=origin)
+    return _editor(request, text=text, start=start, origin=origin)
 
 
 @router.post("/protocols/check")
@@ -108,11 +110,13 @@ def create_from_text(
     db: SessionDep,
     admin: AdminUser,
     name: Annotated[str, Form(max_length=64)],
-    origin: Annotated[str, Form(max_length=200)],
+    start: Annotated[str, Form(max_length=200)],
     text: Annotated[str, Form(max_length=MAX_TEXT)] = "",
     title: Annotated[str, Form(max_length=400)] = "",
 ) -> Response:
-    """Create a study from the text as typed; its problems, or a name in use, keep the page."""
+    """Create a study from the text as typed; its problems, or a name in use, keep the page.
+    The audit log says what the text started as, and whether it was changed."""
+    original, origin = _origin_text(db, start)
     loaded, problems = _checked(text)
     if loaded is not None:
         try:
@@ -122,7 +126,7 @@ def create_from_text(
                 loaded=loaded,
                 actor=Actor.of_user(admin),
                 title=title,
-                started_from=f"text edited from {origin}",
+                started_from=origin if text == original else f"text edited from {origin}",
             )
         except (InvalidInput, Conflict) as exc:
             db.rollback()
@@ -134,6 +138,7 @@ def create_from_text(
     return _editor(
         request,
         text=text,
+        start=start,
         origin=origin,
         name=name,
         title=title,

@@ -132,7 +132,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/api/v1/protocols"): get("/api/v1/protocols"),
     ("GET", "/admin/protocols/edit"): get("/admin/protocols/edit"),
     ("POST", "/admin/protocols/edit"): send(
-        "POST", "/admin/protocols/edit", data={"name": "probe", "origin": "x", "text": "x"}
+        "POST", "/admin/protocols/edit", data={"name": "probe", "start": "x", "text": "x"}
     ),
     ("POST", "/admin/protocols/check"): send("POST", "/admin/protocols/check", data={"text": ""}),
     ("GET", "/studies/{name}/preview"): get("/studies/rt/preview"),

@@ -6,10 +6,12 @@ from __future__ import annotations
 import html
 import re
 
+from sqlalchemy import select
+
 from app.db import Database
 from app.protocol import DEFAULT_PROTOCOL, shipped_protocol
 from app.services import studies
-from app.tables import Role
+from app.tables import AuditEvent, Role
 from tests.conftest import UserClientFactory, sqlite_only
 
 SHIPPED = shipped_protocol(DEFAULT_PROTOCOL).source_text
@@ -58,7 +60,7 @@ def test_a_study_starts_from_the_edited_text_and_a_refusal_keeps_it(
     broken = edited.replace("block_sizes = [2, 4]", "block_sizes = [3]")
     refused = admin.post(
         "/admin/protocols/edit",
-        data={"name": "short", "origin": f"shipped {DEFAULT_PROTOCOL}", "text": broken},
+        data={"name": "short", "start": f"shipped:{DEFAULT_PROTOCOL}", "text": broken},
     )
     assert refused.status_code == 422
     assert "the protocol has problems" in refused.text
@@ -66,7 +68,7 @@ def test_a_study_starts_from_the_edited_text_and_a_refusal_keeps_it(
     assert _textarea(refused.text) == broken  # nothing typed is lost
     made = admin.post(
         "/admin/protocols/edit",
-        data={"name": "short", "origin": f"shipped {DEFAULT_PROTOCOL}", "text": edited},
+        data={"name": "short", "start": f"shipped:{DEFAULT_PROTOCOL}", "text": edited},
     )
     assert made.status_code == 200 and "Study created." in made.text
     with database.read_session() as db:
@@ -76,10 +78,24 @@ def test_a_study_starts_from_the_edited_text_and_a_refusal_keeps_it(
     copy = admin.get("/admin/protocols/edit?start=study:short").text
     assert _textarea(copy) == edited
     taken = admin.post(
-        "/admin/protocols/edit", data={"name": "short", "origin": "study short", "text": edited}
+        "/admin/protocols/edit", data={"name": "short", "start": "study:short", "text": edited}
     )
     assert taken.status_code == 422
     assert "already exists" in html.unescape(taken.text) and _textarea(taken.text) == edited
+    unchanged = admin.post(
+        "/admin/protocols/edit", data={"name": "same", "start": "study:short", "text": edited}
+    )
+    assert unchanged.status_code == 200
+    with database.read_session() as db:
+        started = dict(
+            db.execute(
+                select(AuditEvent.subject, AuditEvent.details).where(
+                    AuditEvent.action == "study.created"
+                )
+            ).all()
+        )
+    assert started["short"]["started_from"] == f"text edited from shipped {DEFAULT_PROTOCOL}"
+    assert started["same"]["started_from"] == "study short"  # not edited: a plain copy
     assert admin.get("/admin/protocols/edit?start=shipped:nope.toml").status_code == 404
     assert admin.get("/admin/protocols/edit?start=study:ghost").status_code == 404
     assert admin.get("/admin/protocols/edit?start=elsewhere").status_code == 404
