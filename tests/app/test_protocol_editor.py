@@ -9,7 +9,7 @@ import re
 from sqlalchemy import select
 
 from app.db import Database
-from app.protocol import DEFAULT_PROTOCOL, shipped_protocol
+from app.protocol import DEFAULT_PROTOCOL, shipped_protocol, shipped_protocol_files
 from app.services import studies
 from app.tables import AuditEvent, Role
 from tests.conftest import UserClientFactory, sqlite_only
@@ -102,3 +102,24 @@ def test_a_study_starts_from_the_edited_text_and_a_refusal_keeps_it(
     new_study = admin.get("/admin/studies/new").text
     assert 'action="/admin/protocols/edit"' in new_study
     assert 'value="study:short"' in new_study
+
+
+def test_every_shipped_protocol_round_trips_through_the_editor(
+    user_client: UserClientFactory, database: Database
+) -> None:
+    """Issue 50's quality bar: byte for byte in the text view, and a study made from the text
+    unchanged holds that protocol, recorded as where it came from."""
+    admin = user_client(Role.ADMIN)
+    for number, file in enumerate(shipped_protocol_files()):
+        shipped = shipped_protocol(file)
+        shown = _textarea(admin.get(f"/admin/protocols/edit?start=shipped:{file}").text)
+        assert shown == shipped.source_text, file
+        name = f"round-{number}"
+        made = admin.post(
+            "/admin/protocols/edit", data={"name": name, "start": f"shipped:{file}", "text": shown}
+        )
+        assert made.status_code == 200, made.text
+        with database.read_session() as db:
+            study = studies.get_study(db, name)
+            assert study.protocol_sha256 == shipped.sha256
+            assert studies.protocol_of(study) == shipped.protocol
