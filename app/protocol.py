@@ -52,6 +52,8 @@ Colour = Annotated[str, StringConstraints(pattern=r"^#[0-9a-fA-F]{6}$")]
 """An LED colour as ``#rrggbb``."""
 
 DEFAULT_PROTOCOL = "fast_adaptation_trust.toml"
+MAX_PROTOCOL_BYTES = 512 * 1024
+"""The largest protocol text accepted (a file, a form's text, the API's ``protocol_toml``)."""
 """The seed paper's protocol, shipped in app/protocols/."""
 
 
@@ -1216,20 +1218,31 @@ def default_protocol() -> LoadedProtocol:
     return shipped_protocol(DEFAULT_PROTOCOL)
 
 
-def shipped_protocol_files() -> list[str]:
-    """The file names of the protocols trustlab ships (app/protocols/), the default first."""
+@functools.cache
+def _shipped_files() -> tuple[str, ...]:
     files = sorted(
         entry.name
         for entry in resources.files("app.protocols").iterdir()
         if entry.name.endswith(".toml")
     )
-    return sorted(files, key=lambda name: name != DEFAULT_PROTOCOL)
+    return tuple(sorted(files, key=lambda name: name != DEFAULT_PROTOCOL))
+
+
+def shipped_protocol_files() -> list[str]:
+    """The file names of the protocols trustlab ships (app/protocols/), the default first."""
+    return list(_shipped_files())
 
 
 def shipped_protocol(file: str) -> LoadedProtocol:
     """One shipped protocol by its file name (as :func:`shipped_protocol_files` names it);
-    another name is refused, never looked up as a path."""
-    if file not in shipped_protocol_files():
+    another name is refused, never looked up as a path. Parsed once per process (package
+    data does not change; the result is frozen)."""
+    if file not in _shipped_files():
         raise ProtocolError(file, [Problem("", "trustlab ships no protocol of that name")])
+    return _parsed_shipped(file)
+
+
+@functools.cache
+def _parsed_shipped(file: str) -> LoadedProtocol:
     text = resources.files("app.protocols").joinpath(file).read_text(encoding="utf-8")
     return parse_protocol(text, source=f"app/protocols/{file}")

@@ -7,6 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.protocol import MAX_PROTOCOL_BYTES
+
 
 class RequestBody(BaseModel):
     """Base for request bodies: a misspelt field is an error, not a silent default."""
@@ -26,7 +28,7 @@ class StudyCreate(RequestBody):
         examples=["Pilot, spring 2026"],
     )
     protocol_toml: str | None = Field(
-        default=None, max_length=512 * 1024, description="The protocol file's content."
+        default=None, max_length=MAX_PROTOCOL_BYTES, description="The protocol file's content."
     )
     shipped: str | None = Field(
         default=None,

@@ -126,11 +126,10 @@ def create_study(body: StudyCreate, db: SessionDep, admin: AdminUser) -> StudySu
         if body.protocol_toml is not None:
             loaded = parse_protocol(body.protocol_toml, source="protocol_toml")
             started_from = "text protocol_toml"
-        elif body.shipped is not None:
-            loaded, started_from = shipped_protocol(body.shipped), f"shipped {body.shipped}"
         else:
-            assert body.copy_of is not None
-            loaded, started_from = studies.protocol_copy(db, body.copy_of), f"study {body.copy_of}"
+            loaded, started_from = studies.starting_protocol(
+                db, shipped=body.shipped, copy_of=body.copy_of
+            )
     except ProtocolError as exc:
         raise InvalidInput(str(exc)) from exc
     study = studies.create_study(

@@ -273,7 +273,7 @@ def study_create(
     as_json: JsonFlag = False,
 ) -> None:
     """Create a study from a protocol file, a shipped protocol or a copy of a study's."""
-    from app.protocol import load_protocol_file, shipped_protocol
+    from app.protocol import load_protocol_file
     from app.services import studies
     from app.services.audit import Actor
 
@@ -293,13 +293,13 @@ def study_create(
     # A file is read and checked before the database is opened: its problems come first.
     if protocol is not None:
         loaded, started_from = load_protocol_file(protocol), f"file {protocol}"
-    elif shipped:
-        loaded, started_from = shipped_protocol(shipped), f"shipped {shipped}"
     database = open_database(read_settings())
     require_current_schema(database)
     with database.writing() as db:
-        if copy_of:
-            loaded, started_from = studies.protocol_copy(db, copy_of), f"study {copy_of}"
+        if protocol is None:
+            loaded, started_from = studies.starting_protocol(
+                db, shipped=shipped or None, copy_of=copy_of or None
+            )
         study = studies.create_study(
             db,
             name=name,

@@ -11,7 +11,13 @@ from sqlalchemy.orm import Session
 
 from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import STUDY_NAME
-from app.protocol import LoadedProtocol, Protocol, parse_protocol, protocol_from_dict
+from app.protocol import (
+    LoadedProtocol,
+    Protocol,
+    parse_protocol,
+    protocol_from_dict,
+    shipped_protocol,
+)
 from app.services import audit
 from app.services.audit import Actor
 from app.services.sessions import populations
@@ -92,6 +98,19 @@ def create_study(
     )
     db.commit()
     return study
+
+
+def starting_protocol(
+    db: Session, *, shipped: str | None = None, copy_of: str | None = None
+) -> tuple[LoadedProtocol, str]:
+    """A shipped protocol (by file name) or a copy of study ``copy_of``'s, exactly one, and
+    what :func:`create_study`'s ``started_from`` calls it."""
+    if (shipped is None) == (copy_of is None):
+        raise InvalidInput("start from a shipped protocol or from a copy of a study's, one")
+    if shipped is not None:
+        return shipped_protocol(shipped), f"shipped {shipped}"
+    assert copy_of is not None
+    return protocol_copy(db, copy_of), f"study {copy_of}"
 
 
 def protocol_copy(db: Session, name: str) -> LoadedProtocol:

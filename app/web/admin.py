@@ -15,6 +15,7 @@ from app.i18n.languages import native_name
 from app.inputs import STUDY_NAME
 from app.protocol import (
     DEFAULT_PROTOCOL,
+    MAX_PROTOCOL_BYTES,
     LoadedProtocol,
     Problem,
     ProtocolError,
@@ -29,8 +30,6 @@ from app.tables import Role, StudyStatus
 from app.web.templating import redirect_with_notice, render
 
 router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
-
-MAX_PROTOCOL_BYTES = 512 * 1024
 
 
 def _users_page(
@@ -184,10 +183,9 @@ def _starting_protocol(
     if start == START_STUDY:
         if not from_study:
             raise InvalidInput("choose the study whose protocol the new one copies")
-        return studies.protocol_copy(db, from_study), f"study {from_study}"
+        return studies.starting_protocol(db, copy_of=from_study)
     if start.startswith(START_SHIPPED):
-        file = start.removeprefix(START_SHIPPED)
-        return shipped_protocol(file), f"shipped {file}"
+        return studies.starting_protocol(db, shipped=start.removeprefix(START_SHIPPED))
     raise InvalidInput("choose what the study starts from")
 
 

@@ -18,11 +18,11 @@ from app.errors import Conflict, InvalidInput, NotFound
 from app.inputs import STUDY_NAME
 from app.protocol import (
     DEFAULT_PROTOCOL,
+    MAX_PROTOCOL_BYTES,
     LoadedProtocol,
     Problem,
     ProtocolError,
     parse_protocol,
-    shipped_protocol,
 )
 from app.services import studies
 from app.services.audit import Actor
@@ -30,7 +30,6 @@ from app.web.templating import redirect_with_notice, render
 
 router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
 
-MAX_TEXT = 512 * 1024
 SOURCE = "protocol"
 """How the problems name the text (``protocol: schedule.sessions: …``)."""
 
@@ -38,14 +37,15 @@ SOURCE = "protocol"
 def _origin_text(db: SessionDep, start: str) -> tuple[str, str]:
     """The text a ``start`` (``shipped:FILE`` or ``study:NAME``) begins with, and its name."""
     kind, _, name = start.partition(":")
-    if kind == "shipped":
-        try:
-            return shipped_protocol(name).source_text, f"shipped {name}"
-        except ProtocolError as exc:
-            raise NotFound(str(exc)) from None
-    if kind == "study":
-        return studies.get_study(db, name).protocol_source, f"study {name}"
-    raise NotFound(f"no protocol to start from called {start!r} (shipped:FILE or study:NAME)")
+    if kind not in ("shipped", "study"):
+        raise NotFound(f"no protocol to start from called {start!r} (shipped:FILE or study:NAME)")
+    try:
+        loaded, origin = studies.starting_protocol(
+            db, **({"shipped": name} if kind == "shipped" else {"copy_of": name})
+        )
+    except ProtocolError as exc:  # no shipped protocol of that name
+        raise NotFound(str(exc)) from None
+    return loaded.source_text, origin
 
 
 def _checked(text: str) -> tuple[LoadedProtocol | None, list[Problem]]:
@@ -97,7 +97,7 @@ def edit_protocol(
 def check_protocol(
     request: Request,
     admin: AdminUser,
-    text: Annotated[str, Form(max_length=MAX_TEXT)] = "",
+    text: Annotated[str, Form(max_length=MAX_PROTOCOL_BYTES)] = "",
 ) -> Response:
     """The problems of the text as typed (an htmx fragment): every one at once, with its key."""
     _, problems = _checked(text)
@@ -111,7 +111,7 @@ def create_from_text(
     admin: AdminUser,
     name: Annotated[str, Form(max_length=64)],
     start: Annotated[str, Form(max_length=200)],
-    text: Annotated[str, Form(max_length=MAX_TEXT)] = "",
+    text: Annotated[str, Form(max_length=MAX_PROTOCOL_BYTES)] = "",
     title: Annotated[str, Form(max_length=400)] = "",
 ) -> Response:
     """Create a study from the text as typed; its problems, or a name in use, keep the page.
