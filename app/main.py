@@ -57,6 +57,7 @@ from app.web import (
 )
 from app.web import stations as station_pages
 from app.web import studies as studies_pages
+from app.web import study_phases as study_phases_pages
 from app.web.assets import STATIC_ROOT, VersionedStaticFiles
 
 API_PREFIX = "/api/v1"
@@ -130,6 +131,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         room.router,
         admin.router,
         protocol_editor.router,
+        study_phases_pages.router,
         accounts.router,
         audit_pages.router,
         docs.router,

@@ -103,6 +103,19 @@ def entry_at(
     raise AssertionError("unreachable: the sequence is infinite")  # pragma: no cover
 
 
+def pilot_seed(seed: bytes) -> bytes:
+    """The seed of a study's pilot sequence: derived from the study's seed under its own key, so
+    that the pilot's allocations (which staff see, and which a reset deletes) tell nothing of the
+    live sequence, and the live sequence starts at its first entry when the study goes live."""
+    return hmac.new(seed, b"trustlab-pilot-sequence-v1", hashlib.sha256).digest()
+
+
+def sequence_seed(study_seed_hex: str, *, pilot: bool) -> bytes:
+    """The seed of a study's live sequence (its stored seed), or of its pilot's."""
+    seed = bytes.fromhex(study_seed_hex)
+    return pilot_seed(seed) if pilot else seed
+
+
 def stratum_key(values: dict[str, str]) -> str:
     """A canonical name for a stratum, e.g. ``gender=female;site=b`` ("" when unstratified)."""
     return ";".join(f"{key}={values[key]}" for key in sorted(values))

@@ -102,6 +102,14 @@ class StudyStatus(StrEnum):
     CLOSED = "closed"
 
 
+class StudyPhase(StrEnum):
+    """How far a study is from its real participants (app.services.study_phases)."""
+
+    DRAFT = "draft"
+    PILOT = "pilot"
+    LIVE = "live"
+
+
 class ParticipantStatus(StrEnum):
     """Where a participant stands in the study as a whole."""
 
@@ -161,7 +169,7 @@ class Study(Base):
     """A study: its validated protocol, its concealed allocation seed and whether it is open."""
 
     __tablename__ = "study"
-    __table_args__ = (_one_of("status", StudyStatus),)
+    __table_args__ = (_one_of("status", StudyStatus), _one_of("phase", StudyPhase))
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(64), unique=True)
@@ -185,6 +193,10 @@ class Study(Base):
     # Set once, by an admin, when a blinded study's learner data may be shown (app.services.
     # blinding); never cleared: what has been seen cannot be unseen.
     unblinded_at: Mapped[datetime | None]
+    phase: Mapped[str] = mapped_column(String(16), default=StudyPhase.LIVE, server_default="live")
+    """Draft, pilot or live (app.services.study_phases); "closed" is the enrolment status."""
+    live_at: Mapped[datetime | None]
+    """When it went live, its protocol frozen (a study created live: its creation)."""
 
 
 class Participant(Base):
@@ -195,6 +207,7 @@ class Participant(Base):
         UniqueConstraint("study_id", "code"),
         _one_of("status", ParticipantStatus),
         Index("ix_participant_token_hash", "token_hash", unique=True),
+        NEVER_REUSED_IDS,  # a pilot reset deletes participants (0025)
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -218,6 +231,9 @@ class Participant(Base):
     erased_at: Mapped[datetime | None]
     """Set when the participant's data was erased (app.services.privacy.erasure): the row stays,
     under a pseudonym, only so that their allocation slot keeps the sequence whole."""
+    pilot: Mapped[bool] = mapped_column(default=False, server_default=false())
+    """Enrolled while the study was in its pilot phase: marked on every page and export, left
+    out of the analyses, allocated from the pilot's own sequence, deleted by a pilot reset."""
     anonymised_at: Mapped[datetime | None]
     """Set when a retention deadline anonymised the participant (app.services.privacy.retention):
     the code is a random id, free text and transcripts are gone."""
@@ -233,13 +249,14 @@ class Allocation(Base):
 
     Rows exist only once revealed (at enrolment); the sequence itself is a pure function of the
     study's secret seed (see :mod:`app.randomisation`), so nothing unrevealed is ever stored or
-    shown. ``UNIQUE(study_id, stratum, sequence_index)`` makes a reused entry impossible even under
-    concurrent enrolments; a replacement has no sequence entry and points at whom it replaces.
+    shown. ``UNIQUE(study_id, pilot, stratum, sequence_index)`` makes a reused entry impossible
+    even under concurrent enrolments; a replacement has no sequence entry and points at whom it
+    replaces.
     """
 
     __tablename__ = "allocation"
     __table_args__ = (
-        UniqueConstraint("study_id", "stratum", "sequence_index"),
+        UniqueConstraint("study_id", "pilot", "stratum", "sequence_index"),
         CheckConstraint(
             "(sequence_index IS NULL) = (replaces_participant_id IS NOT NULL)",
             name="sequence_or_replacement",
@@ -257,6 +274,9 @@ class Allocation(Base):
     replaces_participant_id: Mapped[int | None] = mapped_column(
         ForeignKey("participant.id"), unique=True
     )
+    pilot: Mapped[bool] = mapped_column(default=False, server_default=false())
+    """Its participant's ``pilot``: which sequence the slot is of (the pilot's has its own
+    seed, app.randomisation.pilot_seed), here so that the unique slot can name it."""
     revealed_at: Mapped[datetime] = mapped_column(default=utcnow)
 
     participant: Mapped[Participant] = relationship(

@@ -39,6 +39,11 @@ class StudyCreate(RequestBody):
     copy_of: str | None = Field(
         default=None, max_length=64, description="The name of a study whose protocol to copy."
     )
+    phase: Literal["draft", "pilot", "live"] = Field(
+        default="live",
+        description="live: enrols real participants now; pilot: enrolments are pilot "
+        "participants; draft: nobody enrols while the protocol is edited and previewed.",
+    )
 
 
 class ShippedProtocol(BaseModel):
@@ -57,6 +62,19 @@ class StudyStatusChange(RequestBody):
     status: Literal["open", "closed"]
 
 
+class StudyPhaseChange(RequestBody):
+    """Move a study between draft, pilot and live (live is final: the protocol is frozen)."""
+
+    phase: Literal["draft", "pilot", "live"]
+
+
+class PilotResetOut(BaseModel):
+    """What a pilot reset deleted."""
+
+    participants: list[str] = Field(description="The pilot participants' codes, now deleted.")
+    removed: dict[str, int] = Field(description="Rows deleted per table.")
+
+
 class ConditionCount(BaseModel):
     """Participants of one condition (or neutral group, for blinded roles) by status."""
 
@@ -72,6 +90,9 @@ class StudySummary(BaseModel):
     name: str
     title: str
     status: str
+    phase: str = Field(description="draft, pilot or live.")
+    live_at: datetime | None = Field(description="When it went live, its protocol frozen.")
+    pilots: int = Field(description="Pilot participants, not counted in ``enrolment``.")
     created_at: datetime
     protocol_sha256: str
     blinded: bool = Field(description="Whether the protocol blinds the study.")
@@ -152,6 +173,9 @@ class ParticipantOut(BaseModel):
     )
     site: str | None = Field(
         default=None, description="The participant's site (None in a study without sites)."
+    )
+    pilot: bool = Field(
+        default=False, description="A pilot participant: left out of every analysis."
     )
     consent: ConsentStandingOut | None = Field(
         default=None, description="Where they stand with the consent text (None: erased)."

@@ -16,8 +16,10 @@ from app.api.schemas import (
     ErasureOut,
     ErasureRequest,
     ParticipantOut,
+    PilotResetOut,
     ShippedProtocol,
     StudyCreate,
+    StudyPhaseChange,
     StudyStatusChange,
     StudySummary,
     TabletLink,
@@ -26,11 +28,11 @@ from app.api.schemas import (
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol, shipped_protocol, shipped_protocol_files
-from app.services import blinding, studies
+from app.services import blinding, studies, study_phases
 from app.services.audit import Actor
 from app.services.participants import enrolment, questionnaires, tablet_tokens
 from app.services.privacy import consent, erasure, sites
-from app.tables import Participant, Study, StudyStatus
+from app.tables import Participant, Study, StudyPhase, StudyStatus
 
 router = APIRouter(prefix="/studies", tags=["studies"])
 protocols_router = APIRouter(prefix="/protocols", tags=["studies"])
@@ -61,6 +63,9 @@ def _summary(db: SessionDep, study: Study, actor: Actor) -> StudySummary:
         name=study.name,
         title=study.title,
         status=study.status,
+        phase=study.phase,
+        live_at=study.live_at,
+        pilots=study_phases.pilot_count(db, study),
         created_at=study.created_at,
         protocol_sha256=study.protocol_sha256,
         blinded=protocol.study.blinded,
@@ -103,6 +108,7 @@ def _participant(
         locked=participant.locked_at is not None,
         language=participant.language,
         site=participant.site,
+        pilot=participant.pilot,
         consent=_consent(standing),
     )
 
@@ -139,6 +145,7 @@ def create_study(body: StudyCreate, db: SessionDep, admin: AdminUser) -> StudySu
         actor=Actor.of_user(admin),
         title=body.title,
         started_from=started_from,
+        phase=StudyPhase(body.phase),
     )
     return _summary(db, study, Actor.of_user(admin))
 
@@ -174,6 +181,22 @@ def set_status(
     actor = Actor.of_user(admin)
     study = studies.set_study_status(db, name=name, status=StudyStatus(body.status), actor=actor)
     return _summary(db, study, actor)
+
+
+@router.post("/{name}/phase")
+def set_phase(name: str, body: StudyPhaseChange, db: SessionDep, admin: AdminUser) -> StudySummary:
+    """Move a study between draft, pilot and live (admin; audited). Going live freezes the
+    protocol and starts the concealed sequence; a live study stays live (409)."""
+    actor = Actor.of_user(admin)
+    study = study_phases.set_phase(db, name=name, phase=StudyPhase(body.phase), actor=actor)
+    return _summary(db, study, actor)
+
+
+@router.post("/{name}/pilot/reset")
+def reset_pilot(name: str, db: SessionDep, admin: AdminUser) -> PilotResetOut:
+    """Delete every pilot participant of the study and all their data (admin; audited)."""
+    reset = study_phases.reset_pilot(db, name=name, actor=Actor.of_user(admin))
+    return PilotResetOut(participants=reset.participants, removed=reset.removed)
 
 
 @router.post("/{name}/unblind")

@@ -270,12 +270,20 @@ def study_create(
     title: Annotated[
         str, typer.Option(help="Shown on every page (default: the protocol's title).")
     ] = "",
+    phase: Annotated[
+        str,
+        typer.Option(
+            help="live (enrols real participants now), pilot, or draft (edit and preview first)."
+        ),
+    ] = "live",
     as_json: JsonFlag = False,
 ) -> None:
     """Create a study from a protocol file, a shipped protocol or a copy of a study's."""
     from app.protocol import load_protocol_file
-    from app.services import studies
+    from app.services import studies, study_phases
     from app.services.audit import Actor
+
+    starts_in = study_phases.parse_phase(phase)
 
     chosen = [
         option
@@ -307,11 +315,71 @@ def study_create(
             actor=Actor.command_line(),
             title=title,
             started_from=started_from,
+            phase=starts_in,
         )
         if as_json:
-            emit_json({"name": study.name, "title": study.title, "sha256": study.protocol_sha256})
+            emit_json(
+                {
+                    "name": study.name,
+                    "title": study.title,
+                    "sha256": study.protocol_sha256,
+                    "phase": study.phase,
+                }
+            )
         else:
-            typer.echo(f"created study {study.name!r}: {study.title}")
+            note = "" if starts_in == "live" else f" ({study.phase})"
+            typer.echo(f"created study {study.name!r}{note}: {study.title}")
+
+
+@study_cli.command("phase")
+def study_phase(
+    name: Annotated[str, typer.Argument(help="The study.")],
+    phase: Annotated[str, typer.Argument(help="draft, pilot or live (live cannot be undone).")],
+    yes: Annotated[bool, typer.Option("--yes", help="Do not ask before going live.")] = False,
+) -> None:
+    """Move a study between draft, pilot and live (audited). Going live freezes its protocol
+    and starts its concealed sequence; pilot participants stay marked as pilot."""
+    from app.services import study_phases
+    from app.services.audit import Actor
+
+    target = study_phases.parse_phase(phase)
+    database = open_database(read_settings())
+    require_current_schema(database)
+    if target == "live" and not yes:
+        if not sys.stdin.isatty():
+            raise InvalidInput(f"taking {name!r} live cannot be undone: add --yes to confirm")
+        typer.confirm(
+            f"Take {name!r} live? Its protocol is frozen and real participants enrol from "
+            "now on; this cannot be undone.",
+            abort=True,
+        )
+    with database.writing() as db:
+        study = study_phases.set_phase(db, name=name, phase=target, actor=Actor.command_line())
+        typer.echo(f"study {study.name!r} is {study.phase}")
+
+
+@study_cli.command("reset-pilot")
+def study_reset_pilot(
+    name: Annotated[str, typer.Argument(help="The study whose pilot participants go.")],
+    yes: Annotated[bool, typer.Option("--yes", help="Do not ask for confirmation.")] = False,
+) -> None:
+    """Delete every pilot participant of a study and all their data (audited). Live
+    participants and the live sequence are not touched."""
+    from app.services import study_phases
+    from app.services.audit import Actor
+
+    database = open_database(read_settings())
+    require_current_schema(database)
+    if not yes:
+        if not sys.stdin.isatty():
+            raise InvalidInput(f"resetting the pilot of {name!r} deletes data: add --yes")
+        typer.confirm(
+            f"Delete every pilot participant of {name!r} and their data? This cannot be undone.",
+            abort=True,
+        )
+    with database.writing() as db:
+        reset = study_phases.reset_pilot(db, name=name, actor=Actor.command_line())
+        typer.echo(reset.describe())
 
 
 @study_cli.command("protocols")
@@ -344,6 +412,7 @@ def study_list(as_json: JsonFlag = False) -> None:
                 "name": s.name,
                 "title": s.title,
                 "status": s.status,
+                "phase": s.phase,
                 "created_at": s.created_at.isoformat(),
                 "enrolment": studies.enrolment_counts(db, s, actor=Actor.command_line()),
             }
@@ -360,7 +429,9 @@ def study_list(as_json: JsonFlag = False) -> None:
             f"{condition} {by_status['active'] + by_status['completed']}"
             for condition, by_status in enrolled.items()
         )
-        typer.echo(f"{row['name']:<24} {row['status']:<7} {counts:<20} {row['title']}")
+        typer.echo(
+            f"{row['name']:<24} {row['phase']:<5} {row['status']:<7} {counts:<20} {row['title']}"
+        )
 
 
 @study_cli.command("unblind")

@@ -79,6 +79,13 @@ def export(
         str | None,
         typer.Option(help="Only this site's participants (a study with \\[sites]; default: all)."),
     ] = None,
+    pilot: Annotated[
+        bool,
+        typer.Option(
+            "--pilot",
+            help="The pilot participants' data instead of the study's (every row marked pilot).",
+        ),
+    ] = False,
     as_json: JsonFlag = False,
 ) -> None:
     """Write an export of a study: CSV (long, wide, steps), codebook, SPSS .sav, the mixed
@@ -109,7 +116,7 @@ def export(
     with database.read_session() as db:
         found = studies.get_study(db, study)
         scope = sites.Scope.every_site().narrowed(site or "", found)
-        dataset = study_data.load_dataset(db, study=found, scope=scope)
+        dataset = study_data.load_dataset(db, study=found, scope=scope, pilot=pilot)
         study_id, sealed = found.id, is_sealed(found)
         if key is not None:
             dataset = pseudonyms.pseudonymised(dataset, key=key, study=study)
@@ -148,7 +155,8 @@ def export(
                 "for_unblinded_use": sealed,
                 "pseudonymised": key is not None,
                 "sites": None if scope.sites is None else sorted(scope.sites),
-            },
+            }
+            | ({"pilot": True} if pilot else {}),
         )
         db.commit()
     if sealed:

@@ -21,7 +21,15 @@ from app.protocol import (
 from app.services import audit
 from app.services.audit import Actor
 from app.services.sessions import populations
-from app.tables import Allocation, Participant, ParticipantStatus, Study, StudyStatus, utcnow
+from app.tables import (
+    Allocation,
+    Participant,
+    ParticipantStatus,
+    Study,
+    StudyPhase,
+    StudyStatus,
+    utcnow,
+)
 
 DEFAULT_STUDY_NAME = "default"
 TITLE_MAX_LENGTH = 200
@@ -60,11 +68,14 @@ def create_study(
     actor: Actor,
     title: str | None = None,
     started_from: str | None = None,
+    phase: StudyPhase = StudyPhase.LIVE,
 ) -> Study:
     """Create an open study with a fresh secret allocation seed (and, if blinded, a fresh secret
     assignment of neutral labels: :func:`draw_neutral_labels`); commits. ``title``: see
     :func:`study_title`; ``started_from``: where the protocol came from, for the audit log
-    (``shipped F``, ``study S``, ``file F``)."""
+    (``shipped F``, ``study S``, ``file F``); ``phase``: live (ready for its participants, as
+    a study from a finished protocol file is), or a draft to edit, preview and pilot first
+    (app.services.study_phases)."""
     STUDY_NAME.check(name)
     shown_title = study_title(title, loaded)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:
@@ -79,6 +90,8 @@ def create_study(
         allocation_seed=secrets.token_hex(32),
         neutral_labels=draw_neutral_labels(loaded.protocol),
         created_by=actor.name,
+        phase=phase,
+        live_at=utcnow() if phase == StudyPhase.LIVE else None,
     )
     db.add(study)
     try:
@@ -92,7 +105,7 @@ def create_study(
         action="study.created",
         study_id=study.id,
         subject=name,
-        details={"protocol_sha256": loaded.sha256}
+        details={"protocol_sha256": loaded.sha256, "phase": str(phase)}
         | ({"started_from": started_from} if started_from else {})
         | (population or {}),
     )
@@ -238,13 +251,15 @@ def count_studies(db: Session) -> int:
     return db.scalar(select(func.count()).select_from(Study)) or 0
 
 
-def enrolment_counts(db: Session, study: Study, *, actor: Actor) -> dict[str, dict[str, int]]:
+def enrolment_counts(
+    db: Session, study: Study, *, actor: Actor, pilot: bool = False
+) -> dict[str, dict[str, int]]:
     """Participants per condition and status: ``{condition: {status: n}}``, of the sites
-    ``actor`` may see (app.services.privacy.sites)."""
+    ``actor`` may see (app.services.privacy.sites); the live participants, or the pilot's."""
     query = (
         select(Allocation.condition, Participant.status, func.count())
         .join(Participant, Participant.id == Allocation.participant_id)
-        .where(Allocation.study_id == study.id)
+        .where(Allocation.study_id == study.id, Participant.pilot.is_(pilot))
     )
     if actor.sites is not None:
         query = query.where(Participant.site.in_(sorted(actor.sites)))

@@ -23,10 +23,10 @@ from app.protocol import (
     shipped_protocol,
     shipped_protocol_files,
 )
-from app.services import blinding, studies
+from app.services import blinding, studies, study_phases
 from app.services.audit import Actor
 from app.services.staff import accounts, users
-from app.tables import Role, StudyStatus
+from app.tables import Role, StudyPhase, StudyStatus
 from app.web.templating import redirect_with_notice, render
 
 router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
@@ -126,6 +126,7 @@ def _new_study_page(
         "title": "",
         "start": START_SHIPPED + DEFAULT_PROTOCOL,
         "from_study": "",
+        "phase": StudyPhase.DRAFT,
         **(values or {}),
     }
     return render(
@@ -199,6 +200,7 @@ def create_study(
     title: Annotated[str, Form(max_length=400)] = "",
     start: Annotated[str, Form(max_length=200)] = START_FILE,
     from_study: Annotated[str, Form(max_length=64)] = "",
+    phase: Annotated[str, Form(max_length=16)] = StudyPhase.LIVE,
 ) -> Response:
     """Create a study from a shipped protocol, a copy of a study's protocol, or an uploaded
     protocol TOML file (``start``; a client that only uploads a file need not say so)."""
@@ -211,6 +213,7 @@ def create_study(
             actor=Actor.of_user(admin),
             title=title,
             started_from=started_from,
+            phase=study_phases.parse_phase(phase),
         )
     except ProtocolError as exc:
         error = str(exc)
@@ -219,7 +222,13 @@ def create_study(
         error = exc.message
     else:
         return redirect_with_notice(request, f"/studies/{name.strip()}", "Study created.")
-    values = {"name": name, "title": title, "start": start, "from_study": from_study}
+    values = {
+        "name": name,
+        "title": title,
+        "start": start,
+        "from_study": from_study,
+        "phase": phase,
+    }
     return _new_study_page(request, db, error=error, values=values, status_code=422)
 
 

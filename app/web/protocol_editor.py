@@ -24,8 +24,9 @@ from app.protocol import (
     ProtocolError,
     parse_protocol,
 )
-from app.services import studies
+from app.services import studies, study_phases
 from app.services.audit import Actor
+from app.tables import StudyPhase
 from app.web.templating import redirect_with_notice, render
 
 router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
@@ -63,6 +64,7 @@ def _editor(
     origin: str,
     name: str = "",
     title: str = "",
+    phase: str = StudyPhase.DRAFT,
     error: str = "",
     problems: list[Problem] | None = None,
     status_code: int = 200,
@@ -76,6 +78,7 @@ def _editor(
             "origin": origin,
             "name": name,
             "title": title,
+            "phase": phase,
             "error": error,
             "problems": problems or [],
             "name_rule": STUDY_NAME.sentence,
@@ -113,6 +116,7 @@ def create_from_text(
     start: Annotated[str, Form(max_length=200)],
     text: Annotated[str, Form(max_length=MAX_PROTOCOL_BYTES)] = "",
     title: Annotated[str, Form(max_length=400)] = "",
+    phase: Annotated[str, Form(max_length=16)] = StudyPhase.LIVE,
 ) -> Response:
     """Create a study from the text as typed; its problems, or a name in use, keep the page.
     The audit log says what the text started as, and whether it was changed."""
@@ -127,6 +131,7 @@ def create_from_text(
                 actor=Actor.of_user(admin),
                 title=title,
                 started_from=origin if text == original else f"text edited from {origin}",
+                phase=study_phases.parse_phase(phase),
             )
         except (InvalidInput, Conflict) as exc:
             db.rollback()
@@ -142,6 +147,7 @@ def create_from_text(
         origin=origin,
         name=name,
         title=title,
+        phase=phase,
         error=error,
         problems=problems,
         status_code=422,

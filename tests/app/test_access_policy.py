@@ -245,6 +245,12 @@ PROBES: dict[tuple[str, str], Probe] = {
         "POST", "/api/v1/studies/ghost/status", json={"status": "open"}
     ),
     ("POST", "/api/v1/studies/{name}/unblind"): send("POST", "/api/v1/studies/ghost/unblind"),
+    ("POST", "/api/v1/studies/{name}/phase"): send(
+        "POST", "/api/v1/studies/ghost/phase", json={"phase": "live"}
+    ),
+    ("POST", "/api/v1/studies/{name}/pilot/reset"): send(
+        "POST", "/api/v1/studies/ghost/pilot/reset"
+    ),
     ("POST", "/api/v1/stations"): send("POST", "/api/v1/stations", json={}),
     ("PATCH", "/api/v1/stations/{name}"): send(
         "PATCH", "/api/v1/stations/ghost", json={"site": None}
@@ -285,6 +291,14 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/admin/studies/{name}/unblind"): get("/admin/studies/ghost/unblind"),
     ("POST", "/admin/studies/{name}/unblind"): send(
         "POST", "/admin/studies/ghost/unblind", data={}
+    ),
+    ("GET", "/admin/studies/{name}/phase"): get("/admin/studies/ghost/phase?to=live"),
+    ("POST", "/admin/studies/{name}/phase"): send(
+        "POST", "/admin/studies/ghost/phase", data={"phase": "live"}
+    ),
+    ("GET", "/admin/studies/{name}/pilot/reset"): get("/admin/studies/ghost/pilot/reset"),
+    ("POST", "/admin/studies/{name}/pilot/reset"): send(
+        "POST", "/admin/studies/ghost/pilot/reset", data={}
     ),
     ("POST", "/admin/studies/{name}/consent"): send(
         "POST", "/admin/studies/ghost/consent", data={"confirm": "yes"}

@@ -65,6 +65,8 @@ class ParticipantRow:
     last_activity: datetime | None
     consent: str = ""
     """What is due about the consent text ('' when nothing): re-consent needed, or declined."""
+    pilot: bool = False
+    """A pilot participant (app.services.study_phases): listed, marked, never counted."""
 
 
 @dataclass
@@ -87,6 +89,8 @@ class StudyOverview:
     questionnaires_total: int = 0
     erased: int = 0
     """Participants whose data was erased: counted in their group as withdrawn, never listed."""
+    pilots: int = 0
+    """Pilot participants: listed (marked), not counted in the groups."""
 
 
 def _latest(*values: datetime | None) -> datetime | None:
@@ -160,8 +164,11 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
             participant.enrolled_at,
         )
         group = condition_label(study, condition, actor=actor)
-        counts = overview.groups.setdefault(group, dict.fromkeys(ParticipantStatus, 0))
-        counts[participant.status] += 1
+        if participant.pilot:
+            overview.pilots += 1
+        else:
+            counts = overview.groups.setdefault(group, dict.fromkeys(ParticipantStatus, 0))
+            counts[participant.status] += 1
         if participant.erased_at is not None:
             overview.erased += 1
             continue
@@ -182,6 +189,7 @@ def study_overview(db: Session, *, study: Study, actor: Actor) -> StudyOverview:
                 consent=consents[participant.id].note
                 if participant.id in consents and participant.status != ParticipantStatus.WITHDRAWN
                 else "",
+                pilot=participant.pilot,
             )
         )
         if participant.status == ParticipantStatus.WITHDRAWN:

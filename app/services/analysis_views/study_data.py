@@ -45,6 +45,9 @@ from app.tables import (
     utcnow,
 )
 
+PILOT_COLUMN = "pilot"
+"""The participant attribute (1) a pilot's dataset carries in every export row."""
+
 SOFTWARE = (
     "trustlab",
     "numpy",
@@ -238,12 +241,15 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
     return summary
 
 
-def _of_scope(study: Study, scope: Scope) -> ColumnElement[bool]:
-    """The study's participants in ``scope`` (app.services.privacy.sites)."""
-    return (Participant.study_id == study.id) & scope.where()
+def _of_scope(study: Study, scope: Scope, *, pilot: bool) -> ColumnElement[bool]:
+    """The study's participants in ``scope`` (app.services.privacy.sites): its live ones, or
+    its pilot's (app.services.study_phases)."""
+    return (Participant.study_id == study.id) & scope.where() & Participant.pilot.is_(pilot)
 
 
-def _participants(db: Session, study: Study, protocol: Protocol, scope: Scope) -> pd.DataFrame:
+def _participants(
+    db: Session, protocol: Protocol, whom: ColumnElement[bool], *, pilot: bool
+) -> pd.DataFrame:
     rows = db.execute(
         select(
             Participant.code,
@@ -254,12 +260,14 @@ def _participants(db: Session, study: Study, protocol: Protocol, scope: Scope) -
             Participant.strata,
         )
         .join(Allocation, Allocation.participant_id == Participant.id)
-        .where(_of_scope(study, scope), Participant.erased_at.is_(None))
+        .where(whom, Participant.erased_at.is_(None))
         .order_by(Participant.enrolled_at, Participant.id)
     ).all()
     # A multi-site study's site is a participant attribute like the language: the exports put it
     # in every row (analysis.exports.tables), and the mixed models can adjust for it.
     site_column = [SITE_FACTOR] if protocol.sites is not None else []
+    # A pilot's data say so in every row of every export made of them (never mixed with live).
+    pilot_column = [PILOT_COLUMN] if pilot else []
     frame = pd.DataFrame(
         [
             {
@@ -269,6 +277,7 @@ def _participants(db: Session, study: Study, protocol: Protocol, scope: Scope) -
                 # Not chosen yet (the tablet asks first): the language the study would use.
                 "language": language or protocol.default_language,
                 **({SITE_FACTOR: site} if site_column else {}),
+                **({PILOT_COLUMN: 1} if pilot else {}),
                 **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
             }
             for code, condition, status, language, site, strata in rows
@@ -279,6 +288,7 @@ def _participants(db: Session, study: Study, protocol: Protocol, scope: Scope) -
             "status",
             "language",
             *site_column,
+            *pilot_column,
             *protocol.allocation.stratify_by,
         ],
     )
@@ -286,10 +296,7 @@ def _participants(db: Session, study: Study, protocol: Protocol, scope: Scope) -
 
 
 def _responses(
-    db: Session,
-    study: Study,
-    instruments: tuple[AnalysisInstrument, ...],
-    scope: Scope,
+    db: Session, instruments: tuple[AnalysisInstrument, ...], whom: ColumnElement[bool]
 ) -> pd.DataFrame:
     numeric = {
         (spec.name, item.key)
@@ -302,7 +309,7 @@ def _responses(
             Participant.code, Response.instrument, Response.session, Response.item, Response.value
         )
         .join(Participant, Participant.id == Response.participant_id)
-        .where(_of_scope(study, scope))
+        .where(whom)
         .order_by(Participant.id, Response.instrument, Response.session, Response.id)
     ).all()
     # Plain tuples: pandas reads SQLAlchemy's Row objects several times slower (0.2 s of the
@@ -322,7 +329,7 @@ def _responses(
     return frame
 
 
-def _steps(db: Session, study: Study, categories: set[str], scope: Scope) -> pd.DataFrame:
+def _steps(db: Session, categories: set[str], whom: ColumnElement[bool]) -> pd.DataFrame:
     rows = db.execute(
         select(
             Participant.code,
@@ -349,7 +356,7 @@ def _steps(db: Session, study: Study, categories: set[str], scope: Scope) -> pd.
         .join(Participant, Participant.id == Answer.participant_id)
         .join(Allocation, Allocation.participant_id == Participant.id)
         .where(
-            _of_scope(study, scope),
+            whom,
             Prompt.adapts.is_(True),
             Prompt.category.in_(categories),
         )
@@ -394,21 +401,24 @@ def _data_sha256(*frames: pd.DataFrame) -> str:
 
 
 def load_dataset(
-    db: Session, *, study: Study, scope: Scope, for_staff: bool = False
+    db: Session, *, study: Study, scope: Scope, for_staff: bool = False, pilot: bool = False
 ) -> StudyDataset:
     """The whole study as the analysis package expects it, with real condition ids (exports are
     for analysts and admins). ``for_staff``: for a signed-in person, so while the study is
     blinded the step log is withheld (app.services.blinding); the command line passes False.
     ``scope``: whose participants (a site-limited account's sites, a page's site filter, or
     every site on the command line: app.services.privacy.sites), required, so that no page can
-    forget it; the manifest names the sites of a limited one."""
+    forget it; the manifest names the sites of a limited one. ``pilot``: the pilot participants'
+    data instead of the live ones' (app.services.study_phases), to try the analysis and the
+    exports on; the analyses, reports and registrations of the study never see them."""
     protocol = protocol_of(study)
     instruments = instruments_of(protocol)
     summary = protocol_summary(study, protocol)
-    participants = _participants(db, study, protocol, scope)
-    responses = _responses(db, study, instruments, scope)
+    whom = _of_scope(study, scope, pilot=pilot)
+    participants = _participants(db, protocol, whom, pilot=pilot)
+    responses = _responses(db, instruments, whom)
     withheld = LEARNERS_SEALED if for_staff and not shows_learners(study) else ""
-    steps = empty_steps() if withheld else _steps(db, study, set(summary["categories"]), scope)
+    steps = empty_steps() if withheld else _steps(db, set(summary["categories"]), whom)
     digests = db.scalars(
         select(LearnerState.checkpoint_sha256)
         .join(Participant, Participant.id == LearnerState.participant_id)
@@ -434,6 +444,8 @@ def load_dataset(
     }
     if scope.sites is not None:
         manifest["sites"] = sorted(scope.sites)
+    if pilot:
+        manifest["participants"] = "pilot"
     registration, registration_source = registrations.latest(db, study)
     return StudyDataset(
         participants=participants,

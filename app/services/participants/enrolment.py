@@ -3,8 +3,9 @@
 An allocation is revealed only here, at the moment a participant is enrolled: the study row is
 locked (``SELECT … FOR UPDATE`` on PostgreSQL; SQLite's write transactions are serial anyway), the
 next unrevealed entry of the participant's stratum is computed from the secret seed and stored,
-and the reveal is audited, all in one transaction. ``UNIQUE(study_id, stratum, sequence_index)``
-backs the lock up: no entry can ever be handed out twice.
+and the reveal is audited, all in one transaction. ``UNIQUE(study_id, pilot, stratum,
+sequence_index)`` backs the lock up: no entry can ever be handed out twice. A pilot participant
+(app.services.study_phases) takes the next entry of the pilot's own sequence.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from sqlalchemy.orm import Session, aliased
 from app.errors import Conflict, InvalidInput
 from app.inputs import PARTICIPANT_CODE, STRATUM_VALUE
 from app.protocol import SITE_FACTOR, AllocationSpec, Protocol
-from app.randomisation import entry_at, stratum_key
+from app.randomisation import entry_at, sequence_seed, stratum_key
 from app.services import audit, blinding
 from app.services.audit import Actor
 from app.services.participants import languages, participant_changes
@@ -37,6 +38,7 @@ from app.tables import (
     RunStatus,
     SessionStatus,
     Study,
+    StudyPhase,
     StudyStatus,
     utcnow,
 )
@@ -103,14 +105,24 @@ def _validate_strata(spec: AllocationSpec, strata: Mapping[str, str]) -> dict[st
     return clean
 
 
-def _next_code(db: Session, study: Study, site: str | None) -> str:
+PILOT_CODE_PREFIX = "pilot-"
+"""What a pilot participant's automatic code begins with (after its site's prefix)."""
+
+
+def _next_code(db: Session, study: Study, site: str | None, *, pilot: bool) -> str:
     """``P001``, ``P002``…; at a site, numbered per site after its name (``uppsala-001``), so a
-    code tells where the participant is and says nothing of how many the other sites have."""
-    query = select(func.count()).where(Participant.study_id == study.id)
+    code tells where the participant is and says nothing of how many the other sites have.
+    A pilot participant's is ``pilot-001`` (``uppsala-pilot-001``), numbered apart: seen in a
+    list or a file, it says what it is."""
+    query = select(func.count()).where(
+        Participant.study_id == study.id, Participant.pilot.is_(pilot)
+    )
     prefix = "P"
     if site is not None:
         query = query.where(Participant.site == site)
         prefix = sites.code_prefix(site)
+    if pilot:
+        prefix = (prefix if site is not None else "") + PILOT_CODE_PREFIX
     number = (db.scalar(query) or 0) + 1
     while True:
         code = f"{prefix}{number:03d}"
@@ -124,14 +136,18 @@ def _code_taken(db: Session, study: Study, code: str) -> bool:
     return db.scalar(query) is not None
 
 
-def _dropout_to_replace(db: Session, study: Study, stratum: str) -> Participant | None:
-    """The earliest-withdrawn participant of the stratum whom nobody replaces yet."""
+def _dropout_to_replace(
+    db: Session, study: Study, stratum: str, *, pilot: bool
+) -> Participant | None:
+    """The earliest-withdrawn participant of the stratum (and of the pilot, or not) whom nobody
+    replaces yet."""
     replacement = aliased(Allocation)
     return db.scalar(
         select(Participant)
         .where(
             Participant.study_id == study.id,
             Participant.stratum == stratum,
+            Participant.pilot.is_(pilot),
             Participant.status == ParticipantStatus.WITHDRAWN,
             ~exists().where(replacement.replaces_participant_id == Participant.id),
         )
@@ -140,18 +156,21 @@ def _dropout_to_replace(db: Session, study: Study, stratum: str) -> Participant 
     )
 
 
-def _next_sequence_index(db: Session, study: Study, stratum: str) -> int:
+def _next_sequence_index(db: Session, study: Study, stratum: str, *, pilot: bool) -> int:
     last = db.scalar(
         select(func.max(Allocation.sequence_index)).where(
-            Allocation.study_id == study.id, Allocation.stratum == stratum
+            Allocation.study_id == study.id,
+            Allocation.stratum == stratum,
+            Allocation.pilot.is_(pilot),
         )
     )
     return 0 if last is None else last + 1
 
 
 def _reveal(db: Session, study: Study, protocol: Protocol, participant: Participant) -> Allocation:
+    pilot = participant.pilot
     if protocol.allocation.replace_dropouts:
-        dropout = _dropout_to_replace(db, study, participant.stratum)
+        dropout = _dropout_to_replace(db, study, participant.stratum, pilot=pilot)
         if dropout is not None:
             return Allocation(
                 study_id=study.id,
@@ -159,10 +178,11 @@ def _reveal(db: Session, study: Study, protocol: Protocol, participant: Particip
                 stratum=participant.stratum,
                 condition=dropout.allocation.condition,
                 replaces_participant_id=dropout.id,
+                pilot=pilot,
             )
-    index = _next_sequence_index(db, study, participant.stratum)
+    index = _next_sequence_index(db, study, participant.stratum, pilot=pilot)
     entry = entry_at(
-        bytes.fromhex(study.allocation_seed),
+        sequence_seed(study.allocation_seed, pilot=pilot),
         participant.stratum,
         [condition.id for condition in protocol.conditions],
         protocol.allocation.block_sizes,
@@ -176,6 +196,7 @@ def _reveal(db: Session, study: Study, protocol: Protocol, participant: Particip
         block_number=entry.block_number,
         block_size=entry.block_size,
         condition=entry.condition,
+        pilot=pilot,
     )
 
 
@@ -227,7 +248,7 @@ def enroll_participant(
     name and a hyphen (``uppsala-017``), as automatic codes do, so that a code can only ever
     clash with one of its own site's (app.services.privacy.sites.check_code).
 
-    Raises NotFound for an unknown study, Conflict for a closed study or a taken code,
+    Raises NotFound for an unknown study, Conflict for a closed or draft study or a taken code,
     PermissionDenied for a site the actor's account is not limited to, and InvalidInput for a
     malformed code (or one without its site's prefix), a language the study does not offer, a
     site it does not declare or strata that do not match the protocol.
@@ -235,6 +256,12 @@ def enroll_participant(
     study = get_study(db, study_name, for_update=True)
     if study.status != StudyStatus.OPEN:
         raise Conflict(f"study {study.name!r} is closed to enrolment; an admin can reopen it")
+    if study.phase == StudyPhase.DRAFT:
+        raise Conflict(
+            f"study {study.name!r} is a draft: nobody enrols until an admin starts its pilot "
+            "or takes it live"
+        )
+    pilot = study.phase == StudyPhase.PILOT
     protocol = protocol_of(study)
     clean_strata = _validate_strata(protocol.allocation, strata or {})
     site = sites.enrolment_site(protocol, site, actor=actor, study=study)
@@ -255,12 +282,13 @@ def enroll_participant(
             raise Conflict(f"participant code {code!r} is already used in study {study.name!r}")
     participant = Participant(
         study_id=study.id,
-        code=code or _next_code(db, study, site),
+        code=code or _next_code(db, study, site, pilot=pilot),
         stratum=stratum_key(clean_strata),
         strata=clean_strata,
         enrolled_by=actor.name,
         language=language,
         site=site,
+        pilot=pilot,
     )
     db.add(participant)
     db.flush()
@@ -278,7 +306,8 @@ def enroll_participant(
             "stratum": participant.stratum,
             "language": participant.language,
             "site": participant.site,
-        },
+        }
+        | ({"pilot": True} if pilot else {}),
     )
     audit.record(
         db,

@@ -232,14 +232,7 @@ def erase(
 ) -> dict[str, int]:
     """Remove everything of one participant inside :func:`opened_guards` (no commit, no audit
     event of its own); the rows removed per table."""
-    code = participant.code
-    learner_ids = list(
-        db.scalars(select(LearnerState.id).where(LearnerState.participant_id == participant.id))
-    )
-    db.info.setdefault(_FORGET_KEY, []).extend(learner_ids)
-    removed = _remove_data(db, participant)
-    scrub_audit(db, study, code, pseudonym, about={"erased": True})
-    scrub_devices(db, code)
+    removed = remove_data(db, study, participant, pseudonym=pseudonym, about={"erased": True})
     participant = db.get_one(Participant, participant.id)
     if participant.status != ParticipantStatus.WITHDRAWN:
         participant.status = ParticipantStatus.WITHDRAWN
@@ -251,6 +244,25 @@ def erase(
     participant.language = None
     participant.token_hash = None
     participant.token_generation += 1
+    return removed
+
+
+def remove_data(
+    db: Session, study: Study, participant: Participant, *, pseudonym: str, about: dict[str, Any]
+) -> dict[str, int]:
+    """Inside :func:`opened_guards`: delete every row of the participant's data, unseat them,
+    and rewrite the audit events naming them (``pseudonym`` for the code, ``about`` for the
+    details of events about them); the rows removed per table. The participant and allocation
+    rows stay: an erasure keeps them as the slot, a pilot reset deletes them after
+    (app.services.study_phases)."""
+    code = participant.code
+    learner_ids = list(
+        db.scalars(select(LearnerState.id).where(LearnerState.participant_id == participant.id))
+    )
+    db.info.setdefault(_FORGET_KEY, []).extend(learner_ids)
+    removed = _remove_data(db, participant)
+    scrub_audit(db, study, code, pseudonym, about=about)
+    scrub_devices(db, code)
     return removed
 
 

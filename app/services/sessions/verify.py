@@ -15,7 +15,8 @@
 - **allocation**: every sequence allocation is the seed's entry at its index, indices have no gaps,
   replacements replace a withdrawn participant of the same stratum and take their condition, and
   the groups stay within half the largest block of each other per stratum (an erased
-  participant's slot counts: it stays, as a withdrawal);
+  participant's slot counts: it stays, as a withdrawal); the pilot's sequence (its own seed,
+  app.randomisation.pilot_seed) is checked the same way, apart from the live one;
 - **erasures**: nothing but the allocation slot remains of an erased participant;
 - **consent**: every version of the consent text matches its SHA-256, and every participant's
   consent record names a version and that version's hash in the record's language.
@@ -31,7 +32,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
-from app.randomisation import entry_at
+from app.randomisation import entry_at, sequence_seed
 from app.services.participants import languages
 from app.services.privacy import consent
 from app.services.sessions import learners, replies
@@ -460,16 +461,21 @@ def _check_timeline(data: _Study, report: VerifyReport) -> None:
 
 def _check_allocation(data: _Study, report: VerifyReport) -> None:
     protocol = data.protocol
-    seed = bytes.fromhex(data.study.allocation_seed)
     conditions = [c.id for c in protocol.conditions]
     sizes = protocol.allocation.block_sizes
     allocated = {a.participant_id for a in data.allocations}
     for participant in data.participants.values():
         if participant.id not in allocated:
             report.findings.append(Finding("allocation", participant.code, "no allocation"))
-    by_stratum: dict[str, list[Allocation]] = defaultdict(list)
+    # The live sequence and the pilot's (its own seed) are checked apart, slot by slot.
+    by_stratum: dict[tuple[bool, str], list[Allocation]] = defaultdict(list)
     for allocation in data.allocations:
         code = data.code(allocation.participant_id)
+        owner = data.participants.get(allocation.participant_id)
+        if owner is not None and owner.pilot != allocation.pilot:
+            report.findings.append(
+                Finding("allocation", code, "pilot participant and allocation slot disagree")
+            )
         if allocation.sequence_index is None:
             replaced = data.participants.get(allocation.replaces_participant_id or -1)
             original = next(
@@ -480,6 +486,7 @@ def _check_allocation(data: _Study, report: VerifyReport) -> None:
                 replaced is None
                 or replaced.status != ParticipantStatus.WITHDRAWN
                 or replaced.stratum != allocation.stratum
+                or replaced.pilot != allocation.pilot
                 or original is None
                 or original.condition != allocation.condition
             ):
@@ -489,7 +496,8 @@ def _check_allocation(data: _Study, report: VerifyReport) -> None:
                     )
                 )
             continue
-        by_stratum[allocation.stratum].append(allocation)
+        by_stratum[(allocation.pilot, allocation.stratum)].append(allocation)
+        seed = sequence_seed(data.study.allocation_seed, pilot=allocation.pilot)
         entry = entry_at(seed, allocation.stratum, conditions, sizes, allocation.sequence_index)
         if entry.condition != allocation.condition:
             report.findings.append(
@@ -500,21 +508,18 @@ def _check_allocation(data: _Study, report: VerifyReport) -> None:
                     f"{allocation.condition} but the seed gives {entry.condition}",
                 )
             )
-    for stratum, allocations in by_stratum.items():
+    for (pilot, stratum), allocations in by_stratum.items():
+        name = ("pilot " if pilot else "") + f"stratum {stratum or '(all)'}"
         indices = sorted(a.sequence_index or 0 for a in allocations)
         if indices != list(range(len(indices))):
-            report.findings.append(
-                Finding("allocation", None, f"stratum {stratum or '(all)'}: indices have gaps")
-            )
+            report.findings.append(Finding("allocation", None, f"{name}: indices have gaps"))
         counts = Counter(a.condition for a in allocations)
         spread = max(counts.get(c, 0) for c in conditions) - min(
             counts.get(c, 0) for c in conditions
         )
         if spread > max(sizes) // len(conditions):
             report.findings.append(
-                Finding(
-                    "allocation", None, f"stratum {stratum or '(all)'}: groups differ by {spread}"
-                )
+                Finding("allocation", None, f"{name}: groups differ by {spread}")
             )
 
 
