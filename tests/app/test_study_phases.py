@@ -98,6 +98,13 @@ def test_a_pilot_runs_apart_and_going_live_starts_the_real_sequence_afresh(
     for _ in range(2):  # the last pilot practises and answers a session, as a real one would
         draft.start_session()
         assert draft.run_session() > 0
+    curves = draft.experimenter.get(f"/studies/{DRAFT}/dashboard.json").json()
+    assert curves["adaptation"]["data"] == []  # the live dashboard draws no pilot
+    assert curves["measures"][0]["payload"]["data"] == []
+    seated = draft.experimenter.get(f"/stations/{draft.station}")
+    record = draft.experimenter.get(f"/studies/{DRAFT}/participants/{pilots[-1]}")
+    assert 'title="A pilot participant: left out of the analyses">pilot<' in seated.text
+    assert 'id="pilot-badge"' in record.text
     summary = _phase(admin, "live")
     assert summary["phase"] == "live" and summary["pilots"] == 3 and summary["live_at"]
     live = [

@@ -5,10 +5,11 @@ them (``COUNT``, ``SUM(x)``, ``SUM(x²)``) and this module turns them into t int
 payloads with the analysis package — the same builders the PI's report uses, so the dashboard and
 the report can never disagree. Cost grows with the number of cells, not of participants.
 
-Withdrawn participants are left out; in a blinded study, roles that may not see conditions get the
-neutral group labels, and the cells are listed by those labels (the condition ids, or rows in their
-order, would give the mapping away). Until a blinded study is unblinded nobody gets the adaptation
-curves (C1 starts at exactly 1/K and C2 does not: app.services.blinding).
+Withdrawn and pilot participants are left out; in a blinded study, roles that may not see
+conditions get the neutral group labels, and the cells are listed by those labels (the condition
+ids, or rows in their order, would give the mapping away). Until a blinded study is unblinded
+nobody gets the adaptation curves (C1 starts at exactly 1/K and C2 does not:
+app.services.blinding).
 
 Live dashboards ask for this several times a second while robots answer in the same process, so
 the computation is kept lean: what depends only on the protocol and the labels (items, titles,
@@ -191,9 +192,12 @@ def data_key(study: Study, actor: Actor) -> PlanKey:
 
 
 def _participants(study_id: int, sites: tuple[str, ...] | None) -> Any:
+    """The participants the curves show: not withdrawn, not pilots (app.services.study_phases),
+    of the reader's sites."""
     return and_(
         Participant.study_id == study_id,
         Participant.status != ParticipantStatus.WITHDRAWN,
+        Participant.pilot.is_(False),
         true() if sites is None else Participant.site.in_(sites),
     )
 
