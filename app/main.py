@@ -58,6 +58,7 @@ from app.web import (
 from app.web import stations as station_pages
 from app.web import studies as studies_pages
 from app.web import study_phases as study_phases_pages
+from app.web import study_protocol as study_protocol_pages
 from app.web.assets import STATIC_ROOT, VersionedStaticFiles
 
 API_PREFIX = "/api/v1"
@@ -132,6 +133,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         admin.router,
         protocol_editor.router,
         study_phases_pages.router,
+        study_protocol_pages.router,
         accounts.router,
         audit_pages.router,
         docs.router,

@@ -647,6 +647,28 @@ class Submission(Base):
     revised_at: Mapped[datetime | None]
 
 
+class ProtocolVersion(Base):
+    """One version of a study's protocol: the text byte for byte, who saved it, when and why.
+
+    Version 1 is the one the study was created with; each save of a draft's protocol in the
+    browser (app.services.protocol_versions) adds the next, and an undo adds the previous text
+    again, so no version is ever edited or deleted. The study row holds the current one."""
+
+    __tablename__ = "protocol_version"
+    __table_args__ = (UniqueConstraint("study_id", "number"), _one_of("phase", StudyPhase))
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    study_id: Mapped[int] = mapped_column(ForeignKey("study.id"), index=True)
+    number: Mapped[int] = mapped_column(Integer)
+    sha256: Mapped[str] = mapped_column(String(64))
+    source: Mapped[str] = mapped_column(Text)
+    saved_at: Mapped[datetime] = mapped_column(default=utcnow)
+    saved_by: Mapped[str] = mapped_column(String(64), default="")
+    reason: Mapped[str] = mapped_column(Text, default="")
+    phase: Mapped[str] = mapped_column(String(16))
+    """The study's phase when this version was saved."""
+
+
 class ConsentVersion(Base):
     """One version of a study's consent text, in every one of its languages.
 

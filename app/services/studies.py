@@ -25,6 +25,7 @@ from app.tables import (
     Allocation,
     Participant,
     ParticipantStatus,
+    ProtocolVersion,
     Study,
     StudyPhase,
     StudyStatus,
@@ -99,6 +100,16 @@ def create_study(
     except IntegrityError:
         db.rollback()
         raise Conflict(f"a study named {name!r} already exists") from None
+    db.add(
+        ProtocolVersion(
+            study_id=study.id,
+            number=1,
+            sha256=loaded.sha256,
+            source=loaded.source_text,
+            saved_by=actor.name,
+            phase=phase,
+        )
+    )
     audit.record(
         db,
         actor=actor,

@@ -49,7 +49,9 @@ def _origin_text(db: SessionDep, start: str) -> tuple[str, str]:
     return loaded.source_text, origin
 
 
-def _checked(text: str) -> tuple[LoadedProtocol | None, list[Problem]]:
+def checked_text(text: str) -> tuple[LoadedProtocol | None, list[Problem]]:
+    """The text parsed as a protocol, or every problem it has (the study's own protocol editor,
+    app.web.study_protocol, checks its saves with this too)."""
     try:
         return parse_protocol(text, source=SOURCE), []
     except ProtocolError as exc:
@@ -103,7 +105,7 @@ def check_protocol(
     text: Annotated[str, Form(max_length=MAX_PROTOCOL_BYTES)] = "",
 ) -> Response:
     """The problems of the text as typed (an htmx fragment): every one at once, with its key."""
-    _, problems = _checked(text)
+    _, problems = checked_text(text)
     return render(request, "_protocol_problems.html", {"problems": problems, "checked": True})
 
 
@@ -121,7 +123,7 @@ def create_from_text(
     """Create a study from the text as typed; its problems, or a name in use, keep the page.
     The audit log says what the text started as, and whether it was changed."""
     original, origin = _origin_text(db, start)
-    loaded, problems = _checked(text)
+    loaded, problems = checked_text(text)
     if loaded is not None:
         try:
             studies.create_study(

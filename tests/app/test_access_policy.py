@@ -292,6 +292,13 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/admin/studies/{name}/unblind"): send(
         "POST", "/admin/studies/ghost/unblind", data={}
     ),
+    ("GET", "/admin/studies/{name}/protocol"): get("/admin/studies/ghost/protocol"),
+    ("POST", "/admin/studies/{name}/protocol"): send(
+        "POST", "/admin/studies/ghost/protocol", data={"base": "0" * 64, "text": "x = 1"}
+    ),
+    ("POST", "/admin/studies/{name}/protocol/undo"): send(
+        "POST", "/admin/studies/ghost/protocol/undo", data={"base": "0" * 64}
+    ),
     ("GET", "/admin/studies/{name}/phase"): get("/admin/studies/ghost/phase?to=live"),
     ("POST", "/admin/studies/{name}/phase"): send(
         "POST", "/admin/studies/ghost/phase", data={"phase": "live"}

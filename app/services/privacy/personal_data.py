@@ -40,6 +40,7 @@ from app.tables import (
     LoginSession,
     Participant,
     Prompt,
+    ProtocolVersion,
     Response,
     RoomPresence,
     Run,
@@ -322,6 +323,10 @@ NOT_PERSONAL: dict[type[DeclarativeBase], NotPersonal] = {
             "protocol_source": "the protocol",
             "neutral_labels": "blinded labels",
         },
+    ),
+    ProtocolVersion: NotPersonal(
+        "every version of a study's protocol, written by staff",
+        {"source": "the protocol", "reason": "why staff changed it"},
     ),
     ConsentVersion: NotPersonal(
         "the consent texts, written by staff",

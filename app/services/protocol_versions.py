@@ -1,0 +1,204 @@
+"""A study's protocol over time: a draft's edits saved as versions, each checked against the
+version its editor started from, and the last change undone (issue 50).
+
+Every save is a new :class:`~app.tables.ProtocolVersion` (the text byte for byte), checked by the
+rules study creation uses, and the study row takes it as its current protocol. Two people editing
+at once: each save names the SHA-256 of the protocol its editor started from, and when that is
+no longer the study's, the save is refused with what changed in between (a diff of the two
+texts), so the second person can merge by hand and nothing either typed is lost. An undo saves
+the previous version's text again as a new version: history is never rewritten.
+
+Only a draft's protocol changes here: a pilot's participants, and a live study's, ran under the
+current one (app.services.study_phases).
+"""
+
+from __future__ import annotations
+
+import difflib
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from app.errors import Conflict
+from app.protocol import LoadedProtocol, parse_protocol
+from app.services import audit, studies
+from app.services.audit import Actor
+from app.tables import ProtocolVersion, Study, StudyPhase
+
+REASON_MAX = 2000
+
+
+class EditConflict(Conflict):
+    """The protocol changed since the editor opened it; ``changes``: what changed, as a diff."""
+
+    def __init__(self, message: str, changes: str) -> None:
+        super().__init__(message)
+        self.changes = changes
+
+    @property
+    def extra(self) -> dict[str, object]:
+        return {"changes": self.changes}
+
+
+def versions(db: Session, study: Study) -> list[ProtocolVersion]:
+    """Every version of the study's protocol, newest first."""
+    query = (
+        select(ProtocolVersion)
+        .where(ProtocolVersion.study_id == study.id)
+        .order_by(ProtocolVersion.number.desc())
+    )
+    return list(db.scalars(query))
+
+
+def current_number(db: Session, study: Study) -> int:
+    """The number of the study's current protocol version (1 for a study never edited)."""
+    query = select(func.max(ProtocolVersion.number)).where(ProtocolVersion.study_id == study.id)
+    return db.scalar(query) or 1
+
+
+def require_editable(study: Study) -> None:
+    """Refuse to change the protocol of a study that is not a draft, saying what to do."""
+    if study.phase == StudyPhase.DRAFT:
+        return
+    if study.phase == StudyPhase.PILOT:
+        raise Conflict(
+            f"study {study.name!r} is in its pilot: its pilot participants run under this "
+            "protocol. Reset the pilot and take it back to draft to change it"
+        )
+    raise Conflict(
+        f"study {study.name!r} is live: its protocol is frozen. Start a new study from a copy "
+        "of its protocol to change it"
+    )
+
+
+def changes_between(older: str, newer: str, *, older_name: str, newer_name: str) -> str:
+    """What changed from one protocol text to another, as a unified diff (for people)."""
+    lines = difflib.unified_diff(
+        older.splitlines(),
+        newer.splitlines(),
+        fromfile=older_name,
+        tofile=newer_name,
+        lineterm="",
+    )
+    return "\n".join(lines)
+
+
+def _check_base(db: Session, study: Study, base_sha256: str) -> None:
+    """Refuse a save whose editor started from another version than the study's current one."""
+    if base_sha256 == study.protocol_sha256:
+        return
+    history = versions(db, study)
+    current = history[0]
+    base = next((v for v in history if v.sha256 == base_sha256), None)
+    who = f"version {current.number}, saved by {current.saved_by or 'someone'} at " + (
+        f"{current.saved_at:%Y-%m-%d %H:%M} UTC"
+    )
+    if base is None:
+        changes = ""
+        started = "a version this study never had"
+    else:
+        changes = changes_between(
+            base.source,
+            current.source,
+            older_name=f"version {base.number} (where your edit started)",
+            newer_name=who,
+        )
+        started = f"version {base.number}"
+    raise EditConflict(
+        f"the protocol of {study.name!r} changed while you edited it: you started from "
+        f"{started}, and it is now {who}. Your text is kept below; carry your changes over to "
+        "the current version and save again",
+        changes,
+    )
+
+
+def _apply(
+    db: Session,
+    study: Study,
+    loaded: LoadedProtocol,
+    *,
+    actor: Actor,
+    reason: str,
+    action: str,
+) -> ProtocolVersion:
+    """Make ``loaded`` the study's protocol as a new version; audited; no commit."""
+    population = studies.check_population_use(db, loaded.protocol)
+    number = current_number(db, study) + 1
+    before = study.protocol_sha256
+    version = ProtocolVersion(
+        study_id=study.id,
+        number=number,
+        sha256=loaded.sha256,
+        source=loaded.source_text,
+        saved_by=actor.name,
+        reason=reason,
+        phase=study.phase,
+    )
+    db.add(version)
+    study.protocol = loaded.protocol.model_dump(mode="json")
+    study.protocol_source = loaded.source_text
+    study.protocol_sha256 = loaded.sha256
+    # Nobody has been allocated in a draft: a blinded draft's labels are drawn again for the
+    # conditions it has now.
+    study.neutral_labels = studies.draw_neutral_labels(loaded.protocol)
+    audit.record(
+        db,
+        actor=actor,
+        action=action,
+        study_id=study.id,
+        subject=study.name,
+        details={"version": number, "from_sha256": before, "protocol_sha256": loaded.sha256}
+        | ({"reason": reason} if reason else {})
+        | (population or {}),
+    )
+    return version
+
+
+def save_protocol(
+    db: Session,
+    *,
+    name: str,
+    loaded: LoadedProtocol,
+    base_sha256: str,
+    actor: Actor,
+    reason: str = "",
+) -> ProtocolVersion | None:
+    """Save ``loaded`` as the draft study's next protocol version; commits. None when it is the
+    current protocol already (nothing to save).
+
+    Raises Conflict for a study that is not a draft, EditConflict when the protocol changed
+    since the editor opened it (``base_sha256``), and InvalidInput as study creation does."""
+    study = studies.get_study(db, name, for_update=True)
+    require_editable(study)
+    _check_base(db, study, base_sha256)
+    reason = reason.strip()[:REASON_MAX]
+    if loaded.sha256 == study.protocol_sha256:
+        return None
+    version = _apply(db, study, loaded, actor=actor, reason=reason, action="study.protocol_saved")
+    db.commit()
+    return version
+
+
+def undo_last_change(db: Session, *, name: str, base_sha256: str, actor: Actor) -> ProtocolVersion:
+    """Save the version before the current one again, as the next version; commits.
+
+    Raises Conflict for a study that is not a draft or has nothing to undo, and EditConflict
+    when the protocol changed since the page offering the undo was drawn."""
+    study = studies.get_study(db, name, for_update=True)
+    require_editable(study)
+    _check_base(db, study, base_sha256)
+    history = versions(db, study)
+    if len(history) < 2:
+        raise Conflict(f"the protocol of {study.name!r} has not been changed: nothing to undo")
+    current, previous = history[0], history[1]
+    loaded = parse_protocol(previous.source, source=f"version {previous.number}")
+    version = _apply(
+        db,
+        study,
+        loaded,
+        actor=actor,
+        reason=f"undid version {current.number} (back to version {previous.number})",
+        action="study.protocol_saved",
+    )
+    db.commit()
+    return version

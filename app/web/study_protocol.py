@@ -1,0 +1,143 @@
+"""A draft study's protocol in the browser: its text edited and checked as it is typed, saved as
+a new version, the last change undone, every version listed (app.services.protocol_versions).
+
+The page carries the SHA-256 of the protocol it was drawn with; a save from a page drawn before
+someone else's save is refused with what changed, the text as typed kept on the page."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import Form, Request
+from fastapi.responses import Response
+
+from app.deps import AdminUser, OneHopRouter, SessionDep
+from app.errors import Conflict, InvalidInput
+from app.protocol import MAX_PROTOCOL_BYTES, Problem, ProtocolError
+from app.services import protocol_versions, studies
+from app.services.audit import Actor
+from app.services.protocol_versions import EditConflict
+from app.web.protocol_editor import checked_text
+from app.web.templating import redirect_with_notice, render
+
+router = OneHopRouter(prefix="/admin", tags=["pages"], include_in_schema=False)
+
+
+def _page(
+    request: Request,
+    db: SessionDep,
+    name: str,
+    *,
+    text: str | None = None,
+    base: str | None = None,
+    reason: str = "",
+    error: str = "",
+    changes: str = "",
+    problems: list[Problem] | None = None,
+    status_code: int = 200,
+) -> Response:
+    study = studies.get_study(db, name)
+    try:
+        protocol_versions.require_editable(study)
+        frozen = ""
+    except Conflict as exc:
+        frozen = exc.message
+    return render(
+        request,
+        "study_protocol.html",
+        {
+            "study": study,
+            "text": study.protocol_source if text is None else text,
+            "base": study.protocol_sha256 if base is None else base,
+            "reason": reason,
+            "versions": protocol_versions.versions(db, study),
+            "frozen": frozen,
+            "error": error,
+            "changes": changes,
+            "problems": problems or [],
+        },
+        status_code=status_code,
+    )
+
+
+@router.get("/studies/{name}/protocol")
+def protocol_page(request: Request, db: SessionDep, admin: AdminUser, name: str) -> Response:
+    """The study's protocol: editable while it is a draft, with every version."""
+    return _page(request, db, name)
+
+
+@router.post("/studies/{name}/protocol")
+def save(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    base: Annotated[str, Form(max_length=64)],
+    text: Annotated[str, Form(max_length=MAX_PROTOCOL_BYTES)] = "",
+    reason: Annotated[str, Form(max_length=protocol_versions.REASON_MAX)] = "",
+) -> Response:
+    """Save the text as the next version; problems, a frozen study or a newer version keep
+    the page with the text as typed."""
+    loaded, problems = checked_text(text)
+
+    def kept(error: str, status_code: int, changes: str = "") -> Response:
+        """The page again with everything as typed."""
+        return _page(
+            request,
+            db,
+            name,
+            text=text,
+            base=base,
+            reason=reason,
+            error=error,
+            changes=changes,
+            problems=problems,
+            status_code=status_code,
+        )
+
+    if loaded is None:
+        return kept("the protocol has problems: see the list beside the text", 422)
+    try:
+        saved = protocol_versions.save_protocol(
+            db,
+            name=name,
+            loaded=loaded,
+            base_sha256=base,
+            actor=Actor.of_user(admin),
+            reason=reason,
+        )
+    except EditConflict as exc:
+        db.rollback()
+        return kept(exc.message, 409, exc.changes)
+    except (InvalidInput, Conflict) as exc:
+        db.rollback()
+        return kept(exc.message, exc.status_code)
+    notice = "Nothing changed." if saved is None else f"Saved as version {saved.number}."
+    return redirect_with_notice(request, f"/admin/studies/{name}/protocol", notice)
+
+
+@router.post("/studies/{name}/protocol/undo")
+def undo(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    base: Annotated[str, Form(max_length=64)],
+) -> Response:
+    """Save the version before the current one again (audited)."""
+    try:
+        saved = protocol_versions.undo_last_change(
+            db, name=name, base_sha256=base, actor=Actor.of_user(admin)
+        )
+    except EditConflict as exc:
+        db.rollback()
+        return _page(request, db, name, error=exc.message, changes=exc.changes, status_code=409)
+    except (InvalidInput, Conflict) as exc:
+        db.rollback()
+        return _page(request, db, name, error=exc.message, status_code=exc.status_code)
+    except ProtocolError as exc:  # the earlier text no longer passes (a checkpoint gone)
+        db.rollback()
+        return _page(request, db, name, problems=exc.problems, status_code=422)
+    return redirect_with_notice(
+        request, f"/admin/studies/{name}/protocol", f"Undone: saved as version {saved.number}."
+    )
