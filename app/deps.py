@@ -71,6 +71,9 @@ SAFE_METHODS = frozenset({"GET", "HEAD", "OPTIONS"})
 SESSION_COOKIE = "tl_session"
 CSRF_HEADER = "X-CSRF-Token"
 CSRF_FIELD = "csrf_token"
+FORM_MAX_FIELDS = 5000
+"""Fields a form may have (Starlette's default is 1000): a protocol's questionnaires section
+draws an input per item setting (app.protocol_forms); the body limit (app.main) bounds the rest."""
 
 
 def set_private_cookie(
@@ -226,7 +229,7 @@ async def submitted_csrf_token(request: Request) -> str | None:
         return header
     content_type = request.headers.get("content-type", "")
     if content_type.startswith(("application/x-www-form-urlencoded", "multipart/form-data")):
-        value = (await request.form()).get(CSRF_FIELD)
+        value = (await request.form(max_fields=FORM_MAX_FIELDS)).get(CSRF_FIELD)
         return value if isinstance(value, str) else None
     return None
 

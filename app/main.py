@@ -52,6 +52,7 @@ from app.web import (
     participants,
     preview,
     protocol_editor,
+    protocol_sections,
     room,
     tablet_pages,
 )
@@ -134,6 +135,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         protocol_editor.router,
         study_phases_pages.router,
         study_protocol_pages.router,
+        protocol_sections.router,
         accounts.router,
         audit_pages.router,
         docs.router,

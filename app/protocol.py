@@ -52,9 +52,9 @@ Colour = Annotated[str, StringConstraints(pattern=r"^#[0-9a-fA-F]{6}$")]
 """An LED colour as ``#rrggbb``."""
 
 DEFAULT_PROTOCOL = "fast_adaptation_trust.toml"
+"""The seed paper's protocol, shipped in app/protocols/."""
 MAX_PROTOCOL_BYTES = 512 * 1024
 """The largest protocol text accepted (a file, a form's text, the API's ``protocol_toml``)."""
-"""The seed paper's protocol, shipped in app/protocols/."""
 
 
 class _Strict(BaseModel):

@@ -103,7 +103,7 @@ class StudyStatus(StrEnum):
 
 
 class StudyPhase(StrEnum):
-    """How far a study is from its real participants (app.services.study_phases)."""
+    """How far a study is from its real participants (app.services.design.study_phases)."""
 
     DRAFT = "draft"
     PILOT = "pilot"
@@ -194,7 +194,7 @@ class Study(Base):
     # blinding); never cleared: what has been seen cannot be unseen.
     unblinded_at: Mapped[datetime | None]
     phase: Mapped[str] = mapped_column(String(16), default=StudyPhase.LIVE, server_default="live")
-    """Draft, pilot or live (app.services.study_phases); "closed" is the enrolment status."""
+    """Draft, pilot or live (app.services.design.study_phases); "closed" is the enrolment status."""
     live_at: Mapped[datetime | None]
     """When it went live, its protocol frozen (a study created live: its creation)."""
 
@@ -651,8 +651,8 @@ class ProtocolVersion(Base):
     """One version of a study's protocol: the text byte for byte, who saved it, when and why.
 
     Version 1 is the one the study was created with; each save of a draft's protocol in the
-    browser (app.services.protocol_versions) adds the next, and an undo adds the previous text
-    again, so no version is ever edited or deleted. The study row holds the current one."""
+    browser (app.services.design.protocol_versions) adds the next, and an undo adds the previous
+    text again, so no version is ever edited or deleted. The study row holds the current one."""
 
     __tablename__ = "protocol_version"
     __table_args__ = (UniqueConstraint("study_id", "number"), _one_of("phase", StudyPhase))

@@ -28,8 +28,9 @@ from app.api.schemas import (
 from app.deps import AdminUser, CurrentUser, ExperimenterUser, SessionDep, SettingsDep
 from app.errors import InvalidInput
 from app.protocol import ProtocolError, parse_protocol, shipped_protocol, shipped_protocol_files
-from app.services import blinding, studies, study_phases
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.design import study_phases
 from app.services.participants import enrolment, questionnaires, tablet_tokens
 from app.services.privacy import consent, erasure, sites
 from app.tables import Participant, Study, StudyPhase, StudyStatus

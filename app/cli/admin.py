@@ -280,8 +280,9 @@ def study_create(
 ) -> None:
     """Create a study from a protocol file, a shipped protocol or a copy of a study's."""
     from app.protocol import load_protocol_file
-    from app.services import studies, study_phases
+    from app.services import studies
     from app.services.audit import Actor
+    from app.services.design import study_phases
 
     starts_in = study_phases.parse_phase(phase)
 
@@ -339,8 +340,8 @@ def study_phase(
 ) -> None:
     """Move a study between draft, pilot and live (audited). Going live freezes its protocol
     and starts its concealed sequence; pilot participants stay marked as pilot."""
-    from app.services import study_phases
     from app.services.audit import Actor
+    from app.services.design import study_phases
 
     target = study_phases.parse_phase(phase)
     database = open_database(read_settings())
@@ -365,8 +366,8 @@ def study_reset_pilot(
 ) -> None:
     """Delete every pilot participant of a study and all their data (audited). Live
     participants and the live sequence are not touched."""
-    from app.services import study_phases
     from app.services.audit import Actor
+    from app.services.design import study_phases
 
     database = open_database(read_settings())
     require_current_schema(database)

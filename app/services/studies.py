@@ -76,7 +76,7 @@ def create_study(
     :func:`study_title`; ``started_from``: where the protocol came from, for the audit log
     (``shipped F``, ``study S``, ``file F``); ``phase``: live (ready for its participants, as
     a study from a finished protocol file is), or a draft to edit, preview and pilot first
-    (app.services.study_phases)."""
+    (app.services.design.study_phases)."""
     STUDY_NAME.check(name)
     shown_title = study_title(title, loaded)
     if db.scalar(select(Study.id).where(Study.name == name)) is not None:

@@ -23,8 +23,9 @@ from app.protocol import (
     shipped_protocol,
     shipped_protocol_files,
 )
-from app.services import blinding, studies, study_phases
+from app.services import blinding, studies
 from app.services.audit import Actor
+from app.services.design import study_phases
 from app.services.staff import accounts, users
 from app.tables import Role, StudyPhase, StudyStatus
 from app.web.templating import redirect_with_notice, render

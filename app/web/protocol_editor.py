@@ -24,8 +24,9 @@ from app.protocol import (
     ProtocolError,
     parse_protocol,
 )
-from app.services import studies, study_phases
+from app.services import studies
 from app.services.audit import Actor
+from app.services.design import study_phases
 from app.tables import StudyPhase
 from app.web.templating import redirect_with_notice, render
 

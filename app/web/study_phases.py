@@ -1,5 +1,5 @@
 """A study's phase in the browser: start the pilot, go back to draft, go live, reset the pilot
-(admins; app.services.study_phases). Each asks first on a page of its own that says what will
+(admins; app.services.design.study_phases). Each asks first on a page of its own that says what will
 happen, and a refusal stays on that page in words."""
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from fastapi.responses import Response
 
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
-from app.services import studies, study_phases
+from app.services import studies
 from app.services.audit import Actor
+from app.services.design import study_phases
 from app.tables import StudyPhase
 from app.web.templating import redirect_with_notice, render
 

@@ -1,5 +1,5 @@
 """A draft study's protocol in the browser: its text edited and checked as it is typed, saved as
-a new version, the last change undone, every version listed (app.services.protocol_versions).
+a new version, the last change undone, every version listed (app.services.design.protocol_versions).
 
 The page carries the SHA-256 of the protocol it was drawn with; a save from a page drawn before
 someone else's save is refused with what changed, the text as typed kept on the page."""
@@ -14,9 +14,11 @@ from fastapi.responses import Response
 from app.deps import AdminUser, OneHopRouter, SessionDep
 from app.errors import Conflict, InvalidInput
 from app.protocol import MAX_PROTOCOL_BYTES, Problem, ProtocolError
-from app.services import protocol_versions, studies
+from app.protocol_forms import SECTIONS
+from app.services import studies
 from app.services.audit import Actor
-from app.services.protocol_versions import EditConflict
+from app.services.design import protocol_versions
+from app.services.design.protocol_versions import EditConflict
 from app.web.protocol_editor import checked_text
 from app.web.templating import redirect_with_notice, render
 
@@ -55,6 +57,7 @@ def _page(
             "error": error,
             "changes": changes,
             "problems": problems or [],
+            "sections": SECTIONS,
         },
         status_code=status_code,
     )

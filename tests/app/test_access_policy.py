@@ -299,6 +299,13 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/admin/studies/{name}/protocol/undo"): send(
         "POST", "/admin/studies/ghost/protocol/undo", data={"base": "0" * 64}
     ),
+    ("GET", "/admin/studies/{name}/design/{slug}"): get("/admin/studies/ghost/design/study"),
+    ("POST", "/admin/studies/{name}/design/{slug}"): send(
+        "POST", "/admin/studies/ghost/design/study", data={"base": "0" * 64}
+    ),
+    ("POST", "/admin/studies/{name}/design/{slug}/check"): send(
+        "POST", "/admin/studies/ghost/design/study/check", data={"base": "0" * 64}
+    ),
     ("GET", "/admin/studies/{name}/phase"): get("/admin/studies/ghost/phase?to=live"),
     ("POST", "/admin/studies/{name}/phase"): send(
         "POST", "/admin/studies/ghost/phase", data={"phase": "live"}

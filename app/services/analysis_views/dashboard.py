@@ -192,8 +192,8 @@ def data_key(study: Study, actor: Actor) -> PlanKey:
 
 
 def _participants(study_id: int, sites: tuple[str, ...] | None) -> Any:
-    """The participants the curves show: not withdrawn, not pilots (app.services.study_phases),
-    of the reader's sites."""
+    """The participants the curves show: not withdrawn, not pilots
+    (app.services.design.study_phases), of the reader's sites."""
     return and_(
         Participant.study_id == study_id,
         Participant.status != ParticipantStatus.WITHDRAWN,

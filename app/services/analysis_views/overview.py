@@ -66,7 +66,7 @@ class ParticipantRow:
     consent: str = ""
     """What is due about the consent text ('' when nothing): re-consent needed, or declined."""
     pilot: bool = False
-    """A pilot participant (app.services.study_phases): listed, marked, never counted."""
+    """A pilot participant (app.services.design.study_phases): listed, marked, never counted."""
 
 
 @dataclass

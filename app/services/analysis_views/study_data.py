@@ -243,7 +243,7 @@ def population_used(db: Session, study: Study) -> dict[str, Any] | None:
 
 def _of_scope(study: Study, scope: Scope, *, pilot: bool) -> ColumnElement[bool]:
     """The study's participants in ``scope`` (app.services.privacy.sites): its live ones, or
-    its pilot's (app.services.study_phases)."""
+    its pilot's (app.services.design.study_phases)."""
     return (Participant.study_id == study.id) & scope.where() & Participant.pilot.is_(pilot)
 
 
@@ -409,7 +409,7 @@ def load_dataset(
     ``scope``: whose participants (a site-limited account's sites, a page's site filter, or
     every site on the command line: app.services.privacy.sites), required, so that no page can
     forget it; the manifest names the sites of a limited one. ``pilot``: the pilot participants'
-    data instead of the live ones' (app.services.study_phases), to try the analysis and the
+    data instead of the live ones' (app.services.design.study_phases), to try the analysis and the
     exports on; the analyses, reports and registrations of the study never see them."""
     protocol = protocol_of(study)
     instruments = instruments_of(protocol)

@@ -5,7 +5,7 @@ locked (``SELECT … FOR UPDATE`` on PostgreSQL; SQLite's write transactions are
 next unrevealed entry of the participant's stratum is computed from the secret seed and stored,
 and the reveal is audited, all in one transaction. ``UNIQUE(study_id, pilot, stratum,
 sequence_index)`` backs the lock up: no entry can ever be handed out twice. A pilot participant
-(app.services.study_phases) takes the next entry of the pilot's own sequence.
+(app.services.design.study_phases) takes the next entry of the pilot's own sequence.
 """
 
 from __future__ import annotations

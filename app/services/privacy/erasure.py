@@ -254,7 +254,7 @@ def remove_data(
     and rewrite the audit events naming them (``pseudonym`` for the code, ``about`` for the
     details of events about them); the rows removed per table. The participant and allocation
     rows stay: an erasure keeps them as the slot, a pilot reset deletes them after
-    (app.services.study_phases)."""
+    (app.services.design.study_phases)."""
     code = participant.code
     learner_ids = list(
         db.scalars(select(LearnerState.id).where(LearnerState.participant_id == participant.id))

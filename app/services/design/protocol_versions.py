@@ -9,7 +9,7 @@ texts), so the second person can merge by hand and nothing either typed is lost.
 the previous version's text again as a new version: history is never rewritten.
 
 Only a draft's protocol changes here: a pilot's participants, and a live study's, ran under the
-current one (app.services.study_phases).
+current one (app.services.design.study_phases).
 """
 
 from __future__ import annotations
@@ -48,6 +48,19 @@ def versions(db: Session, study: Study) -> list[ProtocolVersion]:
         .order_by(ProtocolVersion.number.desc())
     )
     return list(db.scalars(query))
+
+
+def source_of(db: Session, study: Study, sha256: str) -> str | None:
+    """The text of the study's protocol version with this SHA-256 (None: it never had one):
+    what a form drawn from that version is written into."""
+    if sha256 == study.protocol_sha256:
+        return study.protocol_source
+    query = (
+        select(ProtocolVersion.source)
+        .where(ProtocolVersion.study_id == study.id, ProtocolVersion.sha256 == sha256)
+        .limit(1)
+    )
+    return db.scalar(query)
 
 
 def current_number(db: Session, study: Study) -> int:
