@@ -54,6 +54,7 @@ from sqlalchemy import event, select
 from sqlalchemy.engine import Connection
 from sqlalchemy.orm import ORMExecuteState, Session, SessionTransaction
 from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import FormData
 
 from app.db import WRITE_OPTION, Database
 from app.errors import NotAuthenticated, NotFound, PermissionDenied
@@ -232,6 +233,15 @@ async def submitted_csrf_token(request: Request) -> str | None:
         value = (await request.form(max_fields=FORM_MAX_FIELDS)).get(CSRF_FIELD)
         return value if isinstance(value, str) else None
     return None
+
+
+async def submitted_form(request: Request) -> FormData:
+    """A posted form with up to :data:`FORM_MAX_FIELDS` fields, read before the (synchronous)
+    endpoint runs: an async endpoint would hold the event loop through its database work."""
+    return await request.form(max_fields=FORM_MAX_FIELDS)
+
+
+SubmittedForm = Annotated[FormData, Depends(submitted_form)]
 
 
 @dataclass(frozen=True)

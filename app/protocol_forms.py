@@ -34,6 +34,7 @@ from pydantic_core import PydanticUndefined
 from tomlkit.items import AoT, Array, InlineTable, Table
 
 from app.i18n import protocol_texts
+from app.i18n.languages import native_name
 from app.protocol import Protocol
 
 Kind = Literal[
@@ -70,6 +71,8 @@ class Section:
     title: str
     summary: str
     paths: tuple[str, ...]
+    skip: tuple[str, ...] = ()
+    """Key paths of fields another section edits (the languages, in the study section)."""
 
 
 SECTIONS = (
@@ -79,6 +82,7 @@ SECTIONS = (
         "The title, the rules participants are told, blinding, the schedule, the consent text, "
         "what a withdrawal may do with the data and how long it is kept.",
         ("study", "schedule", "questionnaires.consent", "withdrawal", "retention"),
+        skip=("study.languages", "study.language_choice"),
     ),
     Section(
         "conditions",
@@ -165,8 +169,16 @@ class FormField:
     """A list entry the form added, not in the protocol yet."""
     removed: bool = False
     problems: list[str] = field(default_factory=list)
+    theirs: str | None = None
+    """After a refused save: the value someone else saved meanwhile, where this form changed
+    the same field (the form's own value is shown)."""
     annotation: Any = None
     optional: bool = True
+
+    @property
+    def title(self) -> str:
+        """The label as people read it (``language choice`` for ``language_choice``)."""
+        return self.label.replace("_", " ")
 
     @property
     def id(self) -> str:
@@ -288,7 +300,9 @@ def _rule(info: FieldInfo, annotation: Any, metadata: list[Any], required: bool)
         parts.append("Required.")
     else:
         default = _default(info)
-        if default not in (None, "", [], {}) and not isinstance(default, BaseModel):
+        if isinstance(default, bool):
+            parts.append(f"Default: {'on' if default else 'off'}.")
+        elif default not in (None, "", [], {}) and not isinstance(default, BaseModel):
             parts.append(f"Default: {_display(default)}.")
     return " ".join(p for p in parts if p)
 
@@ -433,9 +447,17 @@ def section_fields(
         made = _field(location[-1], info, annotation, location, data, counts)
         if made is not None:
             fields.append(made)
+    fields = _without(fields, section.skip)
     if section.slug == "languages":
         fields += _translation_fields(data, languages)
     return fields
+
+
+def _without(fields: list[FormField], skip: Sequence[str]) -> list[FormField]:
+    kept = [made for made in fields if made.name not in skip]
+    for made in kept:
+        made.children = _without(made.children, skip)
+    return kept
 
 
 def _translation_fields(data: dict[str, Any], languages: Sequence[str]) -> list[FormField]:
@@ -479,7 +501,7 @@ def _translation_fields(data: dict[str, Any], languages: Sequence[str]) -> list[
         groups.append(
             FormField(
                 name=_name(base),
-                label=language,
+                label=f"{native_name(language)} ({language})",
                 kind="group",
                 location=base,
                 children=children,
@@ -522,6 +544,70 @@ def shown_with(
             elif made.name in form:
                 made.value = _normalised(str(form[made.name]))
     return fields
+
+
+def _submitted(made: FormField, form: Mapping[str, Any]) -> str | None:
+    """What the form says of a field (None: it does not carry it)."""
+    if made.kind == "checkbox":
+        return "on" if made.name in form else ""
+    return _normalised(str(form[made.name])) if made.name in form else None
+
+
+def rebase_form(
+    section: Section, base_text: str, current_text: str, form: Mapping[str, Any]
+) -> tuple[list[tuple[str, str]], dict[str, str]]:
+    """A form drawn from an earlier version carried over to the current one, after a refused
+    save: each field the form changed keeps the form's value, every other field takes the
+    current one (so saving it again undoes nobody's change unseen), and entries the form added
+    follow the current entries. Also returns, for each field both changed, the current value."""
+    languages = form_languages(form) if section.slug == "languages" else []
+    base = section_fields(section, base_text, form_counts(form), languages)
+    current = section_fields(section, current_text, {}, languages)
+    current_leaves = {leaf.name: leaf for top in current for leaf in top.leaves()}
+    lists = {made.name: made for top in current for made in top.walk() if made.kind == "list"}
+    values = {name: leaf.value for name, leaf in current_leaves.items()}
+    added: dict[str, int] = {}
+    theirs: dict[str, str] = {}
+    for made in (made for top in base for made in top.walk() if made.kind == "list"):
+        stored = sum(1 for entry in made.children if not entry.new)
+        added[made.name] = len(made.children) - stored
+    for leaf in (leaf for top in base for leaf in top.leaves()):
+        submitted = _submitted(leaf, form)
+        if submitted is None or (submitted == _normalised(leaf.value) and not _is_new(leaf, base)):
+            continue
+        target = _moved(leaf.name, base, lists)
+        mine = current_leaves.get(target)
+        if mine is not None and _normalised(mine.value) not in (_normalised(leaf.value), submitted):
+            theirs[target] = mine.value
+        values[target] = submitted
+    pairs = [(name, value) for name, value in values.items() if value or name in current_leaves]
+    pairs = [
+        (name, value)
+        for name, value in pairs
+        if not (name in current_leaves and current_leaves[name].kind == "checkbox" and not value)
+    ]
+    for name, made in lists.items():
+        pairs.append((name + ENTRIES, str(len(made.children) + added.get(name, 0))))
+    for name, count in added.items():
+        if name not in lists and count:
+            pairs.append((name + ENTRIES, str(count)))
+    pairs += [(REMOVE, str(name)) for name in _getlist(form, REMOVE)]
+    return pairs, theirs
+
+
+def _is_new(leaf: FormField, fields: list[FormField]) -> bool:
+    return _inside_new(leaf, fields)
+
+
+def _moved(name: str, base: list[FormField], current_lists: Mapping[str, FormField]) -> str:
+    """The name a field of an entry the form added takes after the current entries."""
+    for made in (made for top in base for made in top.walk() if made.kind == "list"):
+        stored = sum(1 for entry in made.children if not entry.new)
+        found = re.fullmatch(re.escape(made.name) + r"\[(\d+)\](.*)", name)
+        if found and int(found.group(1)) >= stored:
+            now = len(current_lists[made.name].children) if made.name in current_lists else 0
+            return f"{made.name}[{now + int(found.group(1)) - stored}]{found.group(2)}"
+    return name
 
 
 def _normalised(value: str) -> str:
@@ -606,14 +692,14 @@ def _entry_values(group: FormField, form: Mapping[str, Any]) -> dict[str, Any]:
         if child.kind == "group":
             nested = _entry_values(child, form)
             if nested:
-                values[child.label] = nested
+                values[str(child.location[-1])] = nested
             continue
         if child.kind == "list":
             continue  # a new entry's own lists are filled in once it is saved
         shown = _normalised(str(form.get(child.name, "")))
         value = _parsed(child, "on" if child.kind == "checkbox" and child.name in form else shown)
         if value not in (None, [], {}, False):
-            values[child.label] = value
+            values[str(child.location[-1])] = value
     return values
 
 
@@ -693,9 +779,30 @@ def _getlist(form: Mapping[str, Any], key: str) -> list[Any]:
     return [] if value is None else (value if isinstance(value, list) else [value])
 
 
-def place_problems(fields: list[FormField], problems: Sequence[tuple[str, str]]) -> list[str]:
+@dataclass(frozen=True)
+class Elsewhere:
+    """A problem no field of the section holds, and the section that edits its key."""
+
+    text: str
+    section: Section | None
+
+
+def section_of(path: str) -> Section | None:
+    """The section whose form edits the key ``path`` (None: the TOML view only)."""
+    found = None
+    for section in SECTIONS:
+        for prefix in section.paths:
+            if path == prefix or path.startswith((f"{prefix}.", f"{prefix}[")):
+                found = section
+    if path.startswith(f"{protocol_texts.TRANSLATIONS}."):
+        return SECTION_SLUGS["languages"]
+    return found
+
+
+def place_problems(fields: list[FormField], problems: Sequence[tuple[str, str]]) -> list[Elsewhere]:
     """Put each problem ``(key path, reason)`` beside the field whose name is the longest prefix
-    of its path; what no field of the section holds is returned (shown above the form)."""
+    of its path; what no field of the section holds is returned (shown above the form, with
+    the section to put it right in)."""
     by_name = {made.name: made for top in fields for made in top.walk() if made.name}
     elsewhere = []
     for path, reason in problems:
@@ -703,7 +810,8 @@ def place_problems(fields: list[FormField], problems: Sequence[tuple[str, str]])
         if holder is not None:
             holder.problems.append(reason)
         else:
-            elsewhere.append(f"{path}: {reason}" if path else reason)
+            text = f"{path}: {reason}" if path else reason
+            elsewhere.append(Elsewhere(text, section_of(path) if path else None))
     return elsewhere
 
 

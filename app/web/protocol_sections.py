@@ -12,9 +12,9 @@ from typing import Any
 
 from fastapi import Request
 from fastapi.responses import Response
-from starlette.datastructures import FormData
+from starlette.datastructures import FormData, UploadFile
 
-from app.deps import FORM_MAX_FIELDS, AdminUser, OneHopRouter, SessionDep
+from app.deps import AdminUser, OneHopRouter, SessionDep, SubmittedForm
 from app.errors import Conflict, InvalidInput, NotFound
 from app.protocol import MAX_PROTOCOL_BYTES, ProtocolError, parse_protocol
 from app.protocol_forms import (
@@ -22,12 +22,14 @@ from app.protocol_forms import (
     REMOVE,
     SECTION_SLUGS,
     SECTIONS,
+    Elsewhere,
     FormField,
     Section,
     apply_form,
     form_counts,
     form_languages,
     place_problems,
+    rebase_form,
     section_fields,
     shown_with,
 )
@@ -79,7 +81,7 @@ def _page(
     *,
     fields: list[FormField],
     base: str,
-    elsewhere: list[str] | None = None,
+    elsewhere: list[Elsewhere] | None = None,
     reason: str = "",
     error: str = "",
     changes: str = "",
@@ -113,6 +115,43 @@ def _page(
     )
 
 
+def _carried_over(
+    request: Request,
+    db: SessionDep,
+    name: str,
+    section: Section,
+    form: FormData,
+    refused: EditConflict,
+    *,
+    base_text: str,
+) -> Response:
+    """After a save refused for someone else's: the form carried over to the current version
+    (app.protocol_forms.rebase_form), each field both changed saying so."""
+    study = studies.get_study(db, name)
+    pairs, theirs = rebase_form(section, base_text, study.protocol_source, form)
+    rebased = FormData(list[tuple[str, str | UploadFile]](pairs))
+    fields, text = _drawn_again(section, study.protocol_source, rebased)
+    for made in (made for top in fields for made in top.walk()):
+        made.theirs = theirs.get(made.name)
+    advice = (
+        "Your changes are carried over to that version below (fields you both changed say "
+        "so): check them and save again"
+    )
+    return _page(
+        request,
+        db,
+        study,
+        section,
+        fields=fields,
+        base=study.protocol_sha256,
+        elsewhere=place_problems(fields, _problems(text)),
+        reason=str(form.get("reason", "")),
+        error=f"{refused.headline}. {advice}",
+        changes=refused.changes,
+        status_code=409,
+    )
+
+
 @router.get("/studies/{name}/design/{slug}")
 def section_page(
     request: Request, db: SessionDep, admin: AdminUser, name: str, slug: str
@@ -127,10 +166,6 @@ def section_page(
     )
 
 
-async def _submitted(request: Request) -> FormData:
-    return await request.form(max_fields=FORM_MAX_FIELDS)
-
-
 def _drawn_again(
     section: Section, base_text: str, form: FormData, *, add: str = ""
 ) -> tuple[list[FormField], str]:
@@ -143,36 +178,49 @@ def _drawn_again(
 
 
 @router.post("/studies/{name}/design/{slug}/check")
-async def check_section(
-    request: Request, db: SessionDep, admin: AdminUser, name: str, slug: str
+def check_section(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    slug: str,
+    form: SubmittedForm,
 ) -> Response:
     """The problems of the protocol the form would make: each beside its field (out-of-band
     swaps), the rest in the summary; nothing is saved."""
     study = studies.get_study(db, name)
     section = _section(slug)
-    form = await _submitted(request)
     fields, text = _drawn_again(section, _base_text(db, study, str(form.get("base", ""))), form)
     elsewhere = place_problems(fields, _problems(text))
     return render(
         request,
         "_section_problems.html",
-        {"fields": fields, "elsewhere": elsewhere, "checked": True, "section": section},
+        {
+            "fields": fields,
+            "elsewhere": elsewhere,
+            "checked": True,
+            "section": section,
+            "study": study,
+        },
     )
 
 
 @router.post("/studies/{name}/design/{slug}")
-async def save_section(
-    request: Request, db: SessionDep, admin: AdminUser, name: str, slug: str
+def save_section(
+    request: Request,
+    db: SessionDep,
+    admin: AdminUser,
+    name: str,
+    slug: str,
+    form: SubmittedForm,
 ) -> Response:
     """Save the section (a new version), or draw it again with one entry more (``add``)."""
     study = studies.get_study(db, name)
     section = _section(slug)
-    form = await _submitted(request)
     base = str(form.get("base", ""))
     reason = str(form.get("reason", ""))[: protocol_versions.REASON_MAX]
-    fields, text = _drawn_again(
-        section, _base_text(db, study, base), form, add=str(form.get("add", ""))
-    )
+    base_text = _base_text(db, study, base)
+    fields, text = _drawn_again(section, base_text, form, add=str(form.get("add", "")))
     elsewhere = place_problems(fields, _problems(text))
     kept: dict[str, Any] = {"fields": fields, "base": base, "reason": reason}
     if form.get("add"):
@@ -194,17 +242,7 @@ async def save_section(
         )
     except EditConflict as exc:
         db.rollback()
-        study = studies.get_study(db, name)
-        return _page(
-            request,
-            db,
-            study,
-            section,
-            error=exc.message,
-            changes=exc.changes,
-            status_code=409,
-            **kept,
-        )
+        return _carried_over(request, db, name, section, form, exc, base_text=base_text)
     except (InvalidInput, Conflict) as exc:
         db.rollback()
         study = studies.get_study(db, name)

@@ -84,13 +84,14 @@ def save(
     loaded, problems = checked_text(text)
 
     def kept(error: str, status_code: int, changes: str = "") -> Response:
-        """The page again with everything as typed."""
+        """The page again with everything as typed; after a refused save, to be saved over the
+        current version (None: the study's), the changes shown above it."""
         return _page(
             request,
             db,
             name,
             text=text,
-            base=base,
+            base=None if changes else base,
             reason=reason,
             error=error,
             changes=changes,

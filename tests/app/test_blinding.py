@@ -140,6 +140,7 @@ def _experimenter_pages() -> list[str]:
         name = "lab-b" if "station" in path else "blind"
         filled = path.replace("{name}", name).replace("{code}", "P001")
         filled = filled.replace("{language}/{number}", "en/1")  # a preview page
+        filled = filled.replace("{slug}", "study")  # a designer section
         paths.append(filled.replace("{language}", "sv"))
     return paths
 

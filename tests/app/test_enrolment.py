@@ -90,7 +90,13 @@ def _admin_reads(study: str, station: str, username: str) -> list[str]:
         name = station if path.startswith(("/stations", "/api/v1/stations")) else study
         paths.append(
             path.format(
-                name=name, code="P001", username=username, language="sv", device_id=1, number=1
+                name=name,
+                code="P001",
+                username=username,
+                language="sv",
+                device_id=1,
+                number=1,
+                slug="study",
             )
         )
     return paths

@@ -22,6 +22,7 @@ from app.protocol_forms import (
     SECTIONS,
     apply_form,
     place_problems,
+    rebase_form,
     section_fields,
 )
 from app.services import studies
@@ -136,7 +137,10 @@ def test_problems_go_beside_their_fields() -> None:
     elsewhere = place_problems(fields, problems)
     gamma = next(f for top in fields for f in top.walk() if f.name == "learners.exp3.gamma")
     assert gamma.problems and "valid number" in gamma.problems[0]
-    assert any("allocation.block_sizes" in line for line in elsewhere)  # another section's
+    assert [(other.text.split(":")[0], other.section) for other in elsewhere] == [
+        ("allocation.block_sizes[0]", SECTION_SLUGS["allocation"]),
+        ("allocation.block_sizes[1]", SECTION_SLUGS["allocation"]),
+    ]  # another section's, with where to put them right
 
 
 def _draft(database: Database, file: str = SV) -> None:
@@ -188,6 +192,37 @@ def test_a_section_saved_in_the_browser_is_the_next_version(
     )
     assert stale.status_code == 409 and "+sessions = 3" in html.unescape(stale.text)
     assert 'name="schedule.sessions" value="5"' in stale.text  # what was typed stays
+    assert "someone else too, to: <q>3</q>" in stale.text
+    carried = {"base": _base(stale.text), "schedule.sessions": "5"}
+    again = admin.post(
+        f"/admin/studies/{NAME}/design/study", data=_as_submitted(text, "study") | carried
+    )
+    assert "Saved as version 3." in again.text
+
+
+def test_a_stale_form_is_carried_over_to_the_current_version() -> None:
+    """Each field the form changed keeps its value, every other takes the current one: saving
+    the carried-over form undoes nobody's change."""
+    base = shipped_protocol(SV).source_text
+    theirs = apply_form(
+        SECTION_SLUGS["speech"],
+        base,
+        _as_submitted(base, "speech", **{"speech.reprompt": "Pardon? Yes or no."}),
+    )
+    mine = _as_submitted(base, "speech", **{"speech.attempts": "2", "speech.listen_seconds": "6"})
+    pairs, both = rebase_form(SECTION_SLUGS["speech"], base, theirs, mine)
+    assert both == {}
+    merged = parse_protocol(apply_form(SECTION_SLUGS["speech"], theirs, FormData(pairs)))
+    speech = merged.protocol.speech
+    assert (speech.reprompt, speech.attempts, speech.listen_seconds) == (
+        "Pardon? Yes or no.",
+        2,
+        6.0,
+    )
+    clash = _as_submitted(base, "speech", **{"speech.reprompt": "Say again?"})
+    pairs, both = rebase_form(SECTION_SLUGS["speech"], base, theirs, clash)
+    assert both == {"speech.reprompt": "Pardon? Yes or no."}
+    assert dict(pairs)["speech.reprompt"] == "Say again?"
 
 
 def test_a_refused_section_keeps_what_was_typed_and_says_why_beside_it(

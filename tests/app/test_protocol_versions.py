@@ -116,9 +116,10 @@ def test_the_second_editor_is_shown_what_changed_and_keeps_what_they_typed(
         assert studies.protocol_of(studies.get_study(db, NAME)).schedule.sessions == 3
         assert studies.protocol_of(studies.get_study(db, NAME)).schedule.runs_per_session == 3
     # The page now carries the current version: the merge saves.
+    assert _base(refused.text) == _base(saved.text)
     merged = theirs.replace("sessions = 4", "sessions = 3")
     again = second.post(
-        f"/admin/studies/{NAME}/protocol", data={"base": _base(saved.text), "text": merged}
+        f"/admin/studies/{NAME}/protocol", data={"base": _base(refused.text), "text": merged}
     )
     assert "Saved as version 3." in again.text
 

@@ -159,6 +159,7 @@ def _fill(path: str, *, station: str, code: str, export: str = "long-csv") -> st
         .replace("{code}", code)
         .replace("{export}", export)
         .replace("{language}/{number}", "en/1")
+        .replace("{slug}", "study")
     )
 
 

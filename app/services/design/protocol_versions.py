@@ -29,10 +29,13 @@ REASON_MAX = 2000
 
 
 class EditConflict(Conflict):
-    """The protocol changed since the editor opened it; ``changes``: what changed, as a diff."""
+    """The protocol changed since the editor opened it; ``changes``: what changed, as a diff;
+    ``headline``: the message without its advice (a form that carries the edit over itself
+    gives its own)."""
 
-    def __init__(self, message: str, changes: str) -> None:
-        super().__init__(message)
+    def __init__(self, headline: str, advice: str, changes: str) -> None:
+        super().__init__(f"{headline}. {advice}")
+        self.headline = headline
         self.changes = changes
 
     @property
@@ -119,8 +122,9 @@ def _check_base(db: Session, study: Study, base_sha256: str) -> None:
         started = f"version {base.number}"
     raise EditConflict(
         f"the protocol of {study.name!r} changed while you edited it: you started from "
-        f"{started}, and it is now {who}. Your text is kept below; carry your changes over to "
-        "the current version and save again",
+        f"{started}, and it is now {who}",
+        "Your text is kept below, now to be saved over that version: carry the changes shown "
+        "into it (or your save undoes them), then save again",
         changes,
     )
 
