@@ -162,6 +162,8 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/admin/studies/{name}/protocol"): ADMINS,
     ("POST", "/admin/studies/{name}/protocol"): ADMINS,
     ("POST", "/admin/studies/{name}/protocol/undo"): ADMINS,
+    ("POST", "/admin/studies/{name}/protocol/check"): ADMINS,
+    ("POST", "/admin/studies/{name}/split"): ADMINS,
     ("GET", "/admin/studies/{name}/design/{slug}"): ADMINS,
     ("POST", "/admin/studies/{name}/design/{slug}"): ADMINS,
     ("POST", "/admin/studies/{name}/design/{slug}/check"): ADMINS,

@@ -231,6 +231,8 @@ class Participant(Base):
     erased_at: Mapped[datetime | None]
     """Set when the participant's data was erased (app.services.privacy.erasure): the row stays,
     under a pseudonym, only so that their allocation slot keeps the sequence whole."""
+    protocol_version: Mapped[int | None] = mapped_column(Integer)
+    """The study's protocol version when they enrolled (their sessions say theirs)."""
     pilot: Mapped[bool] = mapped_column(default=False, server_default=false())
     """Enrolled while the study was in its pilot phase: marked on every page and export, left
     out of the analyses, allocated from the pilot's own sequence, deleted by a pilot reset."""
@@ -470,6 +472,8 @@ class StudySession(Base):
     started_by: Mapped[str] = mapped_column(String(64), default="")
     ended_at: Mapped[datetime | None]
     ended_by: Mapped[str] = mapped_column(String(64), default="")
+    protocol_version: Mapped[int | None] = mapped_column(Integer)
+    """The study's protocol version when the session started (app.services.design)."""
 
 
 class Run(Base):

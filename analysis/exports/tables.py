@@ -118,7 +118,10 @@ def _sessions(dataset: StudyDataset) -> list[int]:
 
 
 def _attribute_names(dataset: StudyDataset) -> dict[str, str]:
-    taken = set(PARTICIPANT_COLUMNS)
+    """Each participant attribute's column name: SPSS-safe, and never one of the answers' or
+    scores' columns (a stratification factor ``gender`` beside the item ``gender`` becomes
+    ``gender_2``, rather than one of the two being lost)."""
+    taken = set(PARTICIPANT_COLUMNS) | {column.name for column in _measure_columns(dataset)}
     names = {}
     for column in dataset.attribute_columns:
         name = spss_name(str(column), taken)
@@ -131,6 +134,12 @@ def wide_columns(dataset: StudyDataset) -> list[WideColumn]:
     """The wide table's columns in order, with what each holds."""
     columns = [WideColumn(c, "participant", c) for c in PARTICIPANT_COLUMNS]
     columns += [WideColumn(n, "participant", c) for c, n in _attribute_names(dataset).items()]
+    return columns + _measure_columns(dataset)
+
+
+def _measure_columns(dataset: StudyDataset) -> list[WideColumn]:
+    """The wide table's answer and score columns, in order."""
+    columns: list[WideColumn] = []
     sessions = _sessions(dataset)
     for spec in dataset.instruments:
         for source in ("raw", "reversed"):

@@ -50,6 +50,13 @@ def _origin_text(db: SessionDep, start: str) -> tuple[str, str]:
     return loaded.source_text, origin
 
 
+def typed_text(text: str) -> str:
+    """A protocol's text as typed into a text area: browsers send its line breaks as CRLF,
+    whatever the text had, so they are put back to the LF the protocols are written with (an
+    unchanged text then keeps its SHA-256)."""
+    return text.replace("\r\n", "\n")
+
+
 def checked_text(text: str) -> tuple[LoadedProtocol | None, list[Problem]]:
     """The text parsed as a protocol, or every problem it has (the study's own protocol editor,
     app.web.study_protocol, checks its saves with this too)."""
@@ -106,7 +113,7 @@ def check_protocol(
     text: Annotated[str, Form(max_length=MAX_PROTOCOL_BYTES)] = "",
 ) -> Response:
     """The problems of the text as typed (an htmx fragment): every one at once, with its key."""
-    _, problems = checked_text(text)
+    _, problems = checked_text(typed_text(text))
     return render(request, "_protocol_problems.html", {"problems": problems, "checked": True})
 
 
@@ -124,6 +131,7 @@ def create_from_text(
     """Create a study from the text as typed; its problems, or a name in use, keep the page.
     The audit log says what the text started as, and whether it was changed."""
     original, origin = _origin_text(db, start)
+    text = typed_text(text)
     loaded, problems = checked_text(text)
     if loaded is not None:
         try:

@@ -36,7 +36,7 @@ from app.protocol_forms import (
 from app.services import studies
 from app.services.audit import Actor
 from app.services.design import protocol_versions
-from app.services.design.protocol_versions import EditConflict
+from app.services.design.protocol_versions import EditConflict, NotComparable
 from app.tables import Study
 from app.web.templating import redirect_with_notice, render
 
@@ -85,13 +85,10 @@ def _page(
     reason: str = "",
     error: str = "",
     changes: str = "",
+    not_comparable: list[str] | None = None,
+    split_text: str = "",
     status_code: int = 200,
 ) -> Response:
-    try:
-        protocol_versions.require_editable(study)
-        frozen = ""
-    except Conflict as exc:
-        frozen = exc.message
     return render(
         request,
         "protocol_section.html",
@@ -103,7 +100,10 @@ def _page(
             "base": base,
             "elsewhere": elsewhere or [],
             "reason": reason,
-            "frozen": frozen,
+            "frozen": protocol_versions.frozen_because(study),
+            "amendment": protocol_versions.is_amendment(study),
+            "not_comparable": not_comparable or [],
+            "split_text": split_text,
             "error": error,
             "changes": changes,
             "entries_suffix": ENTRIES,
@@ -201,6 +201,7 @@ def check_section(
             "checked": True,
             "section": section,
             "study": study,
+            "amendment_changes": protocol_versions.amendment_changes(db, study, text),
         },
     )
 
@@ -243,6 +244,21 @@ def save_section(
     except EditConflict as exc:
         db.rollback()
         return _carried_over(request, db, name, section, form, exc, base_text=base_text)
+    except NotComparable as exc:
+        db.rollback()
+        study = studies.get_study(db, name)
+        return _page(
+            request,
+            db,
+            study,
+            section,
+            elsewhere=elsewhere,
+            error="this change needs a new study",
+            not_comparable=exc.problems,
+            split_text=text,
+            status_code=409,
+            **kept,
+        )
     except (InvalidInput, Conflict) as exc:
         db.rollback()
         study = studies.get_study(db, name)

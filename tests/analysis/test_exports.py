@@ -88,6 +88,21 @@ def test_wide_table_names_and_values(dataset: StudyDataset) -> None:
     assert row["tipi_extraversion"] == (answers["tipi_1"] + 8 - answers["tipi_6"]) / 2
 
 
+def test_an_attribute_named_like_an_item_keeps_both_columns(dataset: StudyDataset) -> None:
+    """A stratification factor ``age`` beside the demographics item ``age``: neither is lost (the
+    attribute's column is renamed, as the codebook says)."""
+    people = dataset.participants.assign(age=["young", "old"] * 3)
+    wide = wide_table(dataset_with(dataset, participants=people))
+    assert list(wide["age_2"]) == ["young", "old"] * 3
+    answered = dataset.responses[dataset.responses["item"] == "age"]
+    ages = dict(zip(answered["participant"], answered["value"], strict=True))
+    row = wide.set_index("participant").loc["P00002"]
+    assert row["age"] == ages["P00002"]
+    codebook = codebook_table(dataset_with(dataset, participants=people))
+    wide_rows = codebook[codebook["file"] == "wide"]
+    assert {"age", "age_2"} <= set(wide_rows["column"])
+
+
 def test_wide_table_keeps_columns_for_missing_sessions(dataset: StudyDataset) -> None:
     wide = wide_table(dataset)
     dropped = dataset.participants.loc[dataset.participants.status != "completed", "participant"]

@@ -299,6 +299,12 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/admin/studies/{name}/protocol/undo"): send(
         "POST", "/admin/studies/ghost/protocol/undo", data={"base": "0" * 64}
     ),
+    ("POST", "/admin/studies/{name}/protocol/check"): send(
+        "POST", "/admin/studies/ghost/protocol/check", data={"text": "x = 1"}
+    ),
+    ("POST", "/admin/studies/{name}/split"): send(
+        "POST", "/admin/studies/ghost/split", data={"text": "x = 1", "new_name": "ghost-2"}
+    ),
     ("GET", "/admin/studies/{name}/design/{slug}"): get("/admin/studies/ghost/design/study"),
     ("POST", "/admin/studies/{name}/design/{slug}"): send(
         "POST", "/admin/studies/ghost/design/study", data={"base": "0" * 64}

@@ -38,6 +38,7 @@ from app.tables import (
     LearnerState,
     Participant,
     Prompt,
+    ProtocolVersion,
     Response,
     Run,
     Study,
@@ -47,6 +48,9 @@ from app.tables import (
 
 PILOT_COLUMN = "pilot"
 """The participant attribute (1) a pilot's dataset carries in every export row."""
+VERSION_COLUMN = "protocol_versions"
+"""The participant attribute naming the protocol versions they ran under (``2``, ``1+2``), in a
+study whose protocol has more than one version (app.services.design.protocol_versions)."""
 
 SOFTWARE = (
     "trustlab",
@@ -247,9 +251,35 @@ def _of_scope(study: Study, scope: Scope, *, pilot: bool) -> ColumnElement[bool]
     return (Participant.study_id == study.id) & scope.where() & Participant.pilot.is_(pilot)
 
 
+def _versions_run_under(db: Session, whom: ColumnElement[bool]) -> dict[str, str]:
+    """Participant code → the protocol versions their sessions ran under (``1`` or ``1+2``;
+    their enrolment's before any session)."""
+    query = select(Participant.code, Participant.protocol_version).where(whom)
+    enrolled = dict(db.execute(query).all())
+    ran: dict[str, set[int]] = {}
+    for code, version in db.execute(
+        select(Participant.code, StudySession.protocol_version)
+        .join(StudySession, StudySession.participant_id == Participant.id)
+        .where(whom, StudySession.protocol_version.is_not(None))
+        .distinct()
+    ):
+        ran.setdefault(code, set()).add(int(version or 1))
+    return {
+        code: "+".join(str(v) for v in sorted(ran.get(code) or {version or 1}))
+        for code, version in enrolled.items()
+    }
+
+
 def _participants(
-    db: Session, protocol: Protocol, whom: ColumnElement[bool], *, pilot: bool
+    db: Session,
+    protocol: Protocol,
+    whom: ColumnElement[bool],
+    *,
+    pilot: bool,
+    amended: bool,
 ) -> pd.DataFrame:
+    """One row per participant; ``amended``: the study has had more than one protocol version,
+    so each row says which its participant ran under (:data:`VERSION_COLUMN`)."""
     rows = db.execute(
         select(
             Participant.code,
@@ -268,6 +298,8 @@ def _participants(
     site_column = [SITE_FACTOR] if protocol.sites is not None else []
     # A pilot's data say so in every row of every export made of them (never mixed with live).
     pilot_column = [PILOT_COLUMN] if pilot else []
+    version_column = [VERSION_COLUMN] if amended else []
+    versions = _versions_run_under(db, whom) if amended else {}
     frame = pd.DataFrame(
         [
             {
@@ -278,6 +310,7 @@ def _participants(
                 "language": language or protocol.default_language,
                 **({SITE_FACTOR: site} if site_column else {}),
                 **({PILOT_COLUMN: 1} if pilot else {}),
+                **({VERSION_COLUMN: versions.get(code, "")} if amended else {}),
                 **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
             }
             for code, condition, status, language, site, strata in rows
@@ -289,6 +322,7 @@ def _participants(
             "language",
             *site_column,
             *pilot_column,
+            *version_column,
             *protocol.allocation.stratify_by,
         ],
     )
@@ -415,7 +449,11 @@ def load_dataset(
     instruments = instruments_of(protocol)
     summary = protocol_summary(study, protocol)
     whom = _of_scope(study, scope, pilot=pilot)
-    participants = _participants(db, protocol, whom, pilot=pilot)
+    versions = select(ProtocolVersion.number, ProtocolVersion.sha256).where(
+        ProtocolVersion.study_id == study.id
+    )
+    history: dict[int, str] = {number: sha256 for number, sha256 in db.execute(versions).all()}  # noqa: C416
+    participants = _participants(db, protocol, whom, pilot=pilot, amended=len(history) > 1)
     responses = _responses(db, instruments, whom)
     withheld = LEARNERS_SEALED if for_staff and not shows_learners(study) else ""
     steps = empty_steps() if withheld else _steps(db, set(summary["categories"]), whom)
@@ -446,6 +484,8 @@ def load_dataset(
         manifest["sites"] = sorted(scope.sites)
     if pilot:
         manifest["participants"] = "pilot"
+    if len(history) > 1:
+        manifest["protocol_versions"] = {str(n): history[n] for n in sorted(history)}
     registration, registration_source = registrations.latest(db, study)
     return StudyDataset(
         participants=participants,

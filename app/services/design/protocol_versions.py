@@ -8,8 +8,11 @@ no longer the study's, the save is refused with what changed in between (a diff 
 texts), so the second person can merge by hand and nothing either typed is lost. An undo saves
 the previous version's text again as a new version: history is never rewritten.
 
-Only a draft's protocol changes here: a pilot's participants, and a live study's, ran under the
-current one (app.services.design.study_phases).
+A draft's protocol changes freely. A live study's changes only as an amendment: with a reason
+(audited), and only where its participants stay comparable (app.services.design.comparability);
+anything else is a new study started from the changed protocol (a split). Each participant and
+session records the version it ran under. A pilot's protocol does not change: its participants
+ran under it (reset the pilot and go back to draft; app.services.design.study_phases).
 """
 
 from __future__ import annotations
@@ -19,11 +22,19 @@ import difflib
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from app.errors import Conflict
+from app.errors import Conflict, InvalidInput
 from app.protocol import LoadedProtocol, parse_protocol
 from app.services import audit, studies
 from app.services.audit import Actor
-from app.tables import ProtocolVersion, Study, StudyPhase
+from app.services.design import comparability
+from app.tables import (
+    Participant,
+    ProtocolVersion,
+    SessionStatus,
+    Study,
+    StudyPhase,
+    StudySession,
+)
 
 REASON_MAX = 2000
 
@@ -72,19 +83,83 @@ def current_number(db: Session, study: Study) -> int:
     return db.scalar(query) or 1
 
 
+class NotComparable(Conflict):
+    """A live study's new version would break comparability; ``problems``: why, one each."""
+
+    def __init__(self, study: str, problems: list[str]) -> None:
+        super().__init__(
+            f"this change would make the participants of {study!r} incomparable, so it needs a "
+            f"new study (a split): {'; '.join(problems)}"
+        )
+        self.problems = problems
+
+    @property
+    def extra(self) -> dict[str, object]:
+        return {"problems": self.problems}
+
+
 def require_editable(study: Study) -> None:
-    """Refuse to change the protocol of a study that is not a draft, saying what to do."""
-    if study.phase == StudyPhase.DRAFT:
-        return
+    """Refuse to change a pilot's protocol, saying what to do (a draft's changes freely, a live
+    study's as an amendment)."""
     if study.phase == StudyPhase.PILOT:
         raise Conflict(
             f"study {study.name!r} is in its pilot: its pilot participants run under this "
             "protocol. Reset the pilot and take it back to draft to change it"
         )
-    raise Conflict(
-        f"study {study.name!r} is live: its protocol is frozen. Start a new study from a copy "
-        "of its protocol to change it"
+
+
+def frozen_because(study: Study) -> str:
+    """Why the study's protocol cannot change now ('' when it can)."""
+    try:
+        require_editable(study)
+    except Conflict as exc:
+        return exc.message
+    return ""
+
+
+def is_amendment(study: Study) -> bool:
+    """Whether a change to the study's protocol is an amendment of a live study."""
+    return study.phase == StudyPhase.LIVE
+
+
+def amendment_changes(db: Session, study: Study, text: str) -> str:
+    """For a live study: what ``text`` changes against the version in force, as a diff (''
+    for a draft, or no change)."""
+    if not is_amendment(study) or text == study.protocol_source:
+        return ""
+    number = current_number(db, study)
+    return changes_between(
+        study.protocol_source,
+        text,
+        older_name=f"version {number} (in force)",
+        newer_name="your change",
     )
+
+
+def check_amendment(db: Session, study: Study, loaded: LoadedProtocol, reason: str) -> None:
+    """Refuse a live study's new version without a reason, while a session runs (a session runs
+    under one version), or one that breaks comparability."""
+    running = db.scalar(
+        select(func.count())
+        .select_from(StudySession)
+        .join(Participant, Participant.id == StudySession.participant_id)
+        .where(Participant.study_id == study.id, StudySession.status == SessionStatus.RUNNING)
+    )
+    if running:
+        raise Conflict(
+            f"{running} session(s) of {study.name!r} are running: save the amendment once they "
+            "have ended (each session runs under one protocol version)"
+        )
+    if not reason:
+        raise InvalidInput(
+            f"study {study.name!r} is live: a change to its protocol is an amendment; say what "
+            "changed and why (kept with the version and in the audit log)"
+        )
+    current = studies.protocol_of(study)
+    used = comparability.in_use(db, study, current)
+    problems = comparability.problems(current, loaded.protocol, used)
+    if problems:
+        raise NotComparable(study.name, problems)
 
 
 def changes_between(older: str, newer: str, *, older_name: str, newer_name: str) -> str:
@@ -155,16 +230,22 @@ def _apply(
     study.protocol = loaded.protocol.model_dump(mode="json")
     study.protocol_source = loaded.source_text
     study.protocol_sha256 = loaded.sha256
-    # Nobody has been allocated in a draft: a blinded draft's labels are drawn again for the
-    # conditions it has now.
-    study.neutral_labels = studies.draw_neutral_labels(loaded.protocol)
+    if study.phase == StudyPhase.DRAFT:
+        # Nobody has been allocated in a draft: a blinded draft's labels are drawn again for
+        # the conditions it has now (a live study's conditions cannot change).
+        study.neutral_labels = studies.draw_neutral_labels(loaded.protocol)
     audit.record(
         db,
         actor=actor,
         action=action,
         study_id=study.id,
         subject=study.name,
-        details={"version": number, "from_sha256": before, "protocol_sha256": loaded.sha256}
+        details={
+            "version": number,
+            "from_sha256": before,
+            "protocol_sha256": loaded.sha256,
+            "phase": study.phase,
+        }
         | ({"reason": reason} if reason else {})
         | (population or {}),
     )
@@ -183,14 +264,20 @@ def save_protocol(
     """Save ``loaded`` as the draft study's next protocol version; commits. None when it is the
     current protocol already (nothing to save).
 
-    Raises Conflict for a study that is not a draft, EditConflict when the protocol changed
-    since the editor opened it (``base_sha256``), and InvalidInput as study creation does."""
+    A live study's version is an amendment: ``reason`` is required and the change must keep
+    its participants comparable (:func:`check_amendment`).
+
+    Raises Conflict for a pilot, EditConflict when the protocol changed since the editor opened
+    it (``base_sha256``), NotComparable for an amendment that needs a split, and InvalidInput as
+    study creation does (and for an amendment without a reason)."""
     study = studies.get_study(db, name, for_update=True)
     require_editable(study)
     _check_base(db, study, base_sha256)
     reason = reason.strip()[:REASON_MAX]
     if loaded.sha256 == study.protocol_sha256:
         return None
+    if is_amendment(study):
+        check_amendment(db, study, loaded, reason)
     version = _apply(db, study, loaded, actor=actor, reason=reason, action="study.protocol_saved")
     db.commit()
     return version
@@ -209,13 +296,9 @@ def undo_last_change(db: Session, *, name: str, base_sha256: str, actor: Actor) 
         raise Conflict(f"the protocol of {study.name!r} has not been changed: nothing to undo")
     current, previous = history[0], history[1]
     loaded = parse_protocol(previous.source, source=f"version {previous.number}")
-    version = _apply(
-        db,
-        study,
-        loaded,
-        actor=actor,
-        reason=f"undid version {current.number} (back to version {previous.number})",
-        action="study.protocol_saved",
-    )
+    reason = f"undid version {current.number} (back to version {previous.number})"
+    if is_amendment(study):
+        check_amendment(db, study, loaded, reason)
+    version = _apply(db, study, loaded, actor=actor, reason=reason, action="study.protocol_saved")
     db.commit()
     return version

@@ -24,6 +24,7 @@ from app.protocol import SITE_FACTOR, AllocationSpec, Protocol
 from app.randomisation import entry_at, sequence_seed, stratum_key
 from app.services import audit, blinding
 from app.services.audit import Actor
+from app.services.design.protocol_versions import current_number
 from app.services.participants import languages, participant_changes
 from app.services.participants.participant_changes import Change
 from app.services.privacy import sites
@@ -289,6 +290,7 @@ def enroll_participant(
         language=language,
         site=site,
         pilot=pilot,
+        protocol_version=current_number(db, study),
     )
     db.add(participant)
     db.flush()

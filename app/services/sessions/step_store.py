@@ -232,8 +232,9 @@ def run_of_step(cursor: Cursor, *, step_id: int, participant_id: int) -> RunStat
 
 _OPEN_SESSION = Statement(
     """INSERT INTO study_session (participant_id, station_id, number, status, started_at,
-    started_by, ended_by) VALUES (:participant, :station, :number, :status, :now, :actor, '')
-    RETURNING id"""
+    started_by, ended_by, protocol_version) VALUES (:participant, :station, :number, :status,
+    :now, :actor, '', (SELECT max(v.number) FROM protocol_version v JOIN participant p
+    ON p.study_id = v.study_id WHERE p.id = :participant)) RETURNING id"""
 )
 
 

@@ -31,7 +31,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from app.protocol import Protocol
+from app.protocol import Protocol, parse_protocol
 from app.randomisation import entry_at, sequence_seed
 from app.services.participants import languages
 from app.services.privacy import consent
@@ -51,6 +51,7 @@ from app.tables import (
     Participant,
     ParticipantStatus,
     Prompt,
+    ProtocolVersion,
     Run,
     RunStatus,
     SessionStatus,
@@ -170,20 +171,36 @@ class _Study:
         }
         self.sessions_by_id = {s.id: s for s in self.sessions}
         self.runs_by_id = {r.id: r for r in self.runs}
+        # Every version a session ran under (a live study's amendments: app.services.design).
+        used = {s.protocol_version for s in self.sessions if s.protocol_version is not None}
+        self.versions: dict[int, Protocol] = {
+            row.number: parse_protocol(row.source, source=f"version {row.number}").protocol
+            for row in db.scalars(
+                select(ProtocolVersion).where(
+                    ProtocolVersion.study_id == study.id, ProtocolVersion.number.in_(used)
+                )
+            )
+        }
+
+    def protocol_of_session(self, session: StudySession) -> Protocol:
+        """The protocol version the session ran under (the study's, for an older row)."""
+        if session.protocol_version is None:
+            return self.protocol
+        return self.versions.get(session.protocol_version, self.protocol)
 
     def code(self, participant_id: int) -> str | None:
         participant = self.participants.get(participant_id)
         return participant.code if participant else None
 
-    def protocol_asked_in(self, prompt: Prompt) -> Protocol:
-        """The protocol in the language this prompt was asked in: the participant's, or another
-        of the study's when its question is that language's (an admin may have changed the
-        language after a session, with a recorded reason). The participant's when no language's
-        text matches, so the check reports the mismatch."""
+    def protocol_asked_in(self, prompt: Prompt, protocol: Protocol) -> Protocol:
+        """``protocol`` (its session's version) in the language this prompt was asked in: the
+        participant's, or another of the study's when its question is that language's (an
+        admin may have changed the language after a session, with a recorded reason). The
+        participant's when no language's text matches, so the check reports the mismatch."""
         participant = self.participants.get(prompt.participant_id)
-        own = languages.protocol_for(participant.language if participant else None, self.protocol)
-        for language in (own.default_language, *self.protocol.study.languages):
-            candidate = self.protocol.in_language(language)
+        own = languages.protocol_for(participant.language if participant else None, protocol)
+        for language in (own.default_language, *protocol.study.languages):
+            candidate = protocol.in_language(language)
             category = next((c for c in candidate.categories if c.name == prompt.category), None)
             questions = category.questions if category is not None else []
             if 0 <= prompt.action < len(questions) and questions[prompt.action] == prompt.question:
@@ -299,8 +316,6 @@ def _states_close(replayed: dict[str, Any], stored: dict[str, Any]) -> bool:
 
 
 def _check_steps(data: _Study, report: VerifyReport) -> None:
-    protocol = data.protocol
-    categories = {c.name: c for c in protocol.categories}
     specs = {(row.participant_id, row.category): learners.spec_of(row) for row in data.learners}
     for prompt in data.prompts:
         report.steps += 1
@@ -312,6 +327,8 @@ def _check_steps(data: _Study, report: VerifyReport) -> None:
             )
             continue
         session = data.sessions_by_id[run.session_id]
+        protocol = data.protocol_of_session(session)
+        categories = {c.name: c for c in protocol.categories}
         if prompt.adapts != (session.number != FAMILIARISATION):
             report.findings.append(
                 Finding(
@@ -324,7 +341,7 @@ def _check_steps(data: _Study, report: VerifyReport) -> None:
         if category is None or not 0 <= prompt.action < len(category.questions):
             report.findings.append(Finding("step", code, f"step {prompt.id}: unknown question"))
             continue
-        asked_in = data.protocol_asked_in(prompt)
+        asked_in = data.protocol_asked_in(prompt, protocol)
         if prompt.question != asked_in.category(prompt.category).questions[prompt.action]:
             report.findings.append(
                 Finding("step", code, f"step {prompt.id}: question text is not the protocol's")
