@@ -168,10 +168,15 @@ def test_a_study_starts_from_a_shipped_protocol_or_a_copy_of_a_studys(
     assert downloaded.headers["content-disposition"] == (
         'attachment; filename="wave-2-protocol.toml"'
     )
-    assert 'href="/studies/wave-2/protocol.toml"' in admin.get("/studies/wave-2").text
+    # Admins download it from the designer; analysts from the study's page.
+    assert 'href="/admin/studies/wave-2/design/study"' in admin.get("/studies/wave-2").text
+    designer = admin.get("/admin/studies/wave-2/design/study").text
+    assert 'href="/studies/wave-2/protocol.toml"' in designer
     experimenter = user_client(Role.EXPERIMENTER, "ada")
     assert experimenter.get("/studies/wave-2/protocol.toml").status_code == 403
     assert "protocol.toml" not in experimenter.get("/studies/wave-2").text
+    analyst = user_client(Role.ANALYST, "bea")
+    assert 'href="/studies/wave-2/protocol.toml"' in analyst.get("/studies/wave-2").text
 
 
 @pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # a form, not storage

@@ -53,6 +53,7 @@ def test_a_draft_is_designed_section_by_section(
     page = browser.new_context(viewport={"width": width, "height": height}).new_page()
     sign_in_page(page, live_server, f"/studies/{NAME}", username=WHO)
     expect(page.locator("#study-phase")).to_contain_text("Nobody can enrol")
+    assert _overflow(page, ".heading .actions .button, #study-phase .button") == []
     page.screenshot(path=str(artifacts / f"draft-study-{width}.png"), full_page=True)
     page.get_by_role("link", name="Design the protocol").click()
     expect(page.get_by_role("heading", name="Study and consent")).to_be_visible()
