@@ -51,6 +51,7 @@ from app.web import (
     live,
     participants,
     preview,
+    preview_room,
     protocol_editor,
     protocol_sections,
     room,
@@ -140,6 +141,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         audit_pages.router,
         docs.router,
         tablet_pages.router,
+        preview_room.router,  # before preview's /{language}/{number}, which would take it
         preview.router,
         assets.router,
     ):

@@ -36,7 +36,7 @@ def _preview_path(study: str, language: str, number: int | None = None) -> str:
     return base if number is None else f"{base}/{language}/{number}"
 
 
-def _language(study: Study, protocol: Protocol, language: str) -> Protocol:
+def in_offered_language(study: Study, protocol: Protocol, language: str) -> Protocol:
     """The protocol in ``language``, one the study offers."""
     if language not in protocol.study.languages:
         offered = ", ".join(protocol.study.languages)
@@ -58,7 +58,7 @@ def preview_index(
     study = studies.get_study(db, name)
     protocol = studies.protocol_of(study)
     language = language or protocol.default_language
-    shown = _language(study, protocol, language)
+    shown = in_offered_language(study, protocol, language)
     return render(
         request,
         "preview.html",
@@ -89,7 +89,7 @@ class _Previewed:
 
 def _previewed(db: SessionDep, name: str, language: str, number: int) -> _Previewed:
     study = studies.get_study(db, name)
-    protocol = _language(study, studies.protocol_of(study), language)
+    protocol = in_offered_language(study, studies.protocol_of(study), language)
     pages = questionnaires.every_page(protocol)
     if not 1 <= number <= len(pages):
         raise NotFound(f"the preview of {name!r} has pages 1 to {len(pages)}")

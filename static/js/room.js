@@ -25,6 +25,10 @@ import {
 
 const root = document.getElementById("room");
 const station = root.dataset.station;
+// Where the station API is: the robot API's, or a study's preview (app.web.preview_room), which
+// answers the same requests for signed-in staff, from memory, and needs no device key.
+const API = root.dataset.api || "/api/v1/station";
+const PREVIEW = root.dataset.preview === "true";
 const stores = {
   key: `trustlab.room.key.${station}`,
   answer: `trustlab.room.answer.${station}`,
@@ -46,7 +50,7 @@ const LISTEN = (options.get("listen") ?? (options.get("voice") === "off" ? "off"
 const NOT_LISTENING = { available: false, listen: async () => null, stop() {} };
 
 const room = {
-  key: localStorage.getItem(stores.key) || "",
+  key: PREVIEW ? "preview" : localStorage.getItem(stores.key) || "",
   socket: null,
   layout: null,
   segments: [],
@@ -576,7 +580,7 @@ async function loadRoom() {
   let response;
   room.loading = true;
   try {
-    response = await fetch("/api/v1/station/room", {
+    response = await fetch(`${API}/room`, {
       headers: { Authorization: `Bearer ${key}` },
       cache: "no-store",
     });
@@ -621,7 +625,7 @@ async function switchLanguage(code) {
 
 async function refreshRules() {
   try {
-    const response = await fetch("/api/v1/station/room", {
+    const response = await fetch(`${API}/room`, {
       headers: { Authorization: `Bearer ${room.key}` },
       cache: "no-store",
     });
@@ -644,7 +648,7 @@ function speechSettings() {
 async function loadSpeech() {
   const key = room.key;
   try {
-    const response = await fetch("/api/v1/station/speech", {
+    const response = await fetch(`${API}/speech`, {
       headers: { Authorization: `Bearer ${key}` },
       cache: "no-store",
     });
@@ -664,7 +668,7 @@ async function loadSpeech() {
     room.listener = NOT_LISTENING; // the server knows no words of this language: buttons
   } else {
     const scheme = location.protocol === "https:" ? "wss" : "ws";
-    const url = `${scheme}://${location.host}/api/v1/station/audio`;
+    const url = `${scheme}://${location.host}${API}/audio`;
     room.listener = new ServerListener(url, () => room.key, LISTEN);
   }
 }
@@ -673,7 +677,7 @@ async function loadSpeech() {
  * "unavailable" when the server cannot synthesise (captions only), or null. */
 async function serverLine(text) {
   try {
-    const response = await fetch(`/api/v1/station/speech/audio?text=${encodeURIComponent(text)}`, {
+    const response = await fetch(`${API}/speech/audio?text=${encodeURIComponent(text)}`, {
       headers: { Authorization: `Bearer ${room.key}` },
     });
     if (response.status === 503) return "unavailable";
@@ -716,7 +720,8 @@ function buildRoom(description) {
 
 function connect() {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
-  room.socket = new StationSocket(`${scheme}://${location.host}/api/v1/station/ws`, room.key, {
+  const query = root.dataset.socketQuery || ""; // a preview's condition
+  room.socket = new StationSocket(`${scheme}://${location.host}${API}/ws${query}`, room.key, {
     status: setConnection,
     refused: () => refuse(staff("The room was closed: this device's key was revoked or is unknown. Ask an admin for a new key on the Stations page.")),
     hello: (message) => {

@@ -136,6 +136,16 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("POST", "/admin/protocols/check"): send("POST", "/admin/protocols/check", data={"text": ""}),
     ("GET", "/studies/{name}/preview"): get("/studies/rt/preview"),
+    ("GET", "/studies/{name}/preview/room/{language}"): get("/studies/rt/preview/room/en"),
+    ("GET", "/studies/{name}/preview/room/{language}/api/room"): get(
+        "/studies/rt/preview/room/en/api/room"
+    ),
+    ("GET", "/studies/{name}/preview/room/{language}/api/speech"): get(
+        "/studies/rt/preview/room/en/api/speech"
+    ),
+    ("GET", "/studies/{name}/preview/room/{language}/api/speech/audio"): get(
+        "/studies/rt/preview/room/en/api/speech/audio?text=nope"
+    ),
     ("GET", "/studies/{name}/protocol.toml"): get("/studies/rt/protocol.toml"),
     ("GET", "/studies/{name}/preview/{language}/{number}"): get("/studies/rt/preview/en/1"),
     ("POST", "/studies/{name}/preview/{language}/{number}"): send(
@@ -411,10 +421,25 @@ def test_every_cell(world: World) -> None:
     assert wrong == [], "\n".join(wrong)
 
 
-SOCKETS = [("WS", "/api/v1/station/ws"), ("WS", "/api/v1/station/audio")]
+PREVIEW_SOCKET = ("WS", "/studies/{name}/preview/room/{language}/api/ws")
+SOCKETS = [("WS", "/api/v1/station/ws"), ("WS", "/api/v1/station/audio"), PREVIEW_SOCKET]
 
 
-@pytest.mark.parametrize("socket", SOCKETS, ids=["station", "audio"])
+def test_the_room_preview_socket_admits_signed_in_staff_only(world: World) -> None:
+    for principal in Principal:
+        client = client_for(world, principal)
+        allowed = principal in POLICY[PREVIEW_SOCKET]
+        with client.websocket_connect("/studies/rt/preview/room/en/api/ws") as ws:
+            ws.send_json({"type": "auth", "key": "anything"})  # the room client's first words
+            if allowed:
+                assert ws.receive_json()["type"] == "hello"
+            else:
+                with pytest.raises(WebSocketDisconnect) as closed:
+                    ws.receive_json()
+                assert closed.value.code == 4401
+
+
+@pytest.mark.parametrize("socket", SOCKETS[:2], ids=["station", "audio"])
 def test_the_station_sockets_admit_devices_only(world: World, socket: tuple[str, str]) -> None:
     for principal in Principal:
         client = client_for(world, principal)

@@ -266,12 +266,18 @@ def test_translations_are_edited_beside_the_first_language(
     assert "missing: every participant-facing text in &#39;de&#39;" in refused.text
 
 
-@pytest.mark.parametrize("slug", [section.slug for section in SECTIONS])
-def test_every_section_page_draws_for_a_live_study_without_a_way_to_save(
-    exp3_study: str, admin: TestClient, slug: str
+@pytest.mark.parametrize("engine_name", ["sqlite"], indirect=True)  # pages, not storage
+def test_every_section_page_draws_for_a_live_study_as_an_amendment_and_a_pilot_frozen(
+    exp3_study: str, admin: TestClient, database: Database
 ) -> None:
-    page = admin.get(f"/admin/studies/{exp3_study}/design/{slug}")
-    assert page.status_code == 200 and 'id="protocol-frozen"' in page.text
-    assert '<fieldset class="stack plain" disabled>' in page.text
+    _draft(database)
+    assert admin.post(f"/api/v1/studies/{NAME}/phase", json={"phase": "pilot"}).status_code == 200
+    for section in SECTIONS:
+        live = admin.get(f"/admin/studies/{exp3_study}/design/{section.slug}")
+        assert live.status_code == 200 and 'id="protocol-amendment"' in live.text
+        assert '<fieldset class="stack plain">' in live.text  # editable, as an amendment
+        pilot = admin.get(f"/admin/studies/{NAME}/design/{section.slug}")
+        assert pilot.status_code == 200 and 'id="protocol-frozen"' in pilot.text
+        assert '<fieldset class="stack plain" disabled>' in pilot.text
     missing = admin.get(f"/admin/studies/{exp3_study}/design/nowhere")
     assert missing.status_code == 404

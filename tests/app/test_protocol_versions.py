@@ -124,7 +124,7 @@ def test_the_second_editor_is_shown_what_changed_and_keeps_what_they_typed(
     assert "Saved as version 3." in again.text
 
 
-def test_a_protocol_with_problems_is_not_saved_and_a_pilot_or_live_one_is_frozen(
+def test_a_protocol_with_problems_is_not_saved_a_pilot_frozen_and_a_live_one_amended(
     database: Database, admin: TestClient, exp3_study: str
 ) -> None:
     original = protocol_text(**EXP3_ONLY)
@@ -136,16 +136,19 @@ def test_a_protocol_with_problems_is_not_saved_and_a_pilot_or_live_one_is_frozen
     )
     assert broken.status_code == 422 and "schedule.sessions" in broken.text
     live = admin.get(f"/admin/studies/{exp3_study}/protocol")
-    assert 'id="protocol-frozen"' in live.text and "<textarea" not in live.text
+    assert 'id="protocol-amendment"' in live.text and "<textarea" in live.text
     with database.read_session() as db:
         live_base = studies.get_study(db, exp3_study).protocol_sha256
+    amended = original.replace("sessions = 4", "sessions = 3")
     refused = admin.post(
-        f"/admin/studies/{exp3_study}/protocol", data={"base": live_base, "text": original}
+        f"/admin/studies/{exp3_study}/protocol", data={"base": live_base, "text": amended}
     )
-    assert refused.status_code == 409 and "frozen" in refused.text
+    assert refused.status_code == 422 and "an amendment" in refused.text  # no reason given
     assert admin.post(f"/api/v1/studies/{NAME}/phase", json={"phase": "pilot"}).status_code == 200
     pilot = admin.post(f"/admin/studies/{NAME}/protocol", data={"base": base, "text": original})
     assert pilot.status_code == 409 and "Reset the pilot and take it back to draft" in pilot.text
+    frozen = admin.get(f"/admin/studies/{NAME}/protocol")
+    assert 'id="protocol-frozen"' in frozen.text and "<textarea" not in frozen.text
     with database.read_session() as db:
         assert len(db.scalars(select(ProtocolVersion)).all()) == 2  # the two studies' first
 

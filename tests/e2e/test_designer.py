@@ -1,8 +1,9 @@
-"""The protocol designer and the study's phases in Chromium (issue 50, items 2 and 4), at a
-laptop's and a tablet's width, by keyboard where a person would: a mistake is said beside its
-field as it is typed and put right; a section is saved as a version; translations stand beside
-the first language; a second editor's stale save is refused with what changed; a draft is
-piloted with a marked pilot participant and taken live."""
+"""The protocol designer, the room's preview and the study's phases in Chromium (issue 50,
+items 2, 3 and 4), at a laptop's and a tablet's width, by keyboard where a person would: a
+mistake is said beside its field as it is typed and put right; a section is saved as a version;
+translations stand beside the first language; a second editor's stale save is refused with what
+changed; the room is walked in preview; a draft is piloted with a marked pilot participant and
+taken live."""
 
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ from app.protocol import shipped_protocol
 from app.services import studies
 from app.services.audit import Actor
 from app.tables import Role, StudyPhase
+from tests.app.test_preview import _rows
 from tests.conftest import make_user
+from tests.e2e import room_driver as drive
 from tests.e2e.conftest import sign_in_page
 from tests.e2e.test_refusals import SIZES
 from tests.e2e.test_staff_pages import _overflow
@@ -158,3 +161,41 @@ def test_a_draft_is_piloted_and_taken_live(
     expect(page.locator("#participant-rows")).not_to_contain_text("pilot-001")
     expect(page.locator("#study-phase")).to_have_count(0)
     page.context.close()
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("width", "height"), SIZES)
+def test_the_room_is_previewed_as_a_participant_walks_it(
+    browser: Browser,
+    live_server: ServerProcess,
+    database: Database,
+    artifacts: Path,
+    width: int,
+    height: int,
+) -> None:
+    """Issue 50 item 3's room: walk into a zone, hear and answer its question in Swedish, hear
+    the reply; every reply line listed to hear; nothing stored."""
+    make_user(database, WHO, Role.EXPERIMENTER)
+    _draft(database)
+    page = browser.new_context(viewport={"width": width, "height": height}).new_page()
+    page.add_init_script("window.speechSynthesis && (window.speechSynthesis.speak = () => {});")
+    sign_in_page(page, live_server, f"/studies/{NAME}/preview?language=sv", username=WHO)
+    before = _rows(database)  # signed in: from here on nothing may be stored
+    page.get_by_role("link", name="Walk the room").click()
+    drive.wait_ready(page)
+    expect(page.get_by_role("note")).to_contain_text("nothing is stored")
+    swedish = shipped_protocol("fast_adaptation_trust_sv.toml").protocol.in_language("sv")
+    drive.walk(page, drive.TO_CONATION)
+    question = drive.wait_question(page, "conation")
+    assert question in swedish.category("conation").questions
+    expect(page.locator("#caption-text")).to_have_text(question)
+    page.keyboard.press("KeyJ")  # Swedish: J for ja
+    drive.wait_reply(page)
+    replies = {level.line(True) for level in swedish.replies.levels}
+    reply = page.locator("#caption-text").inner_text()
+    assert any(reply.startswith(line) for line in replies), reply
+    page.screenshot(path=str(artifacts / f"room-preview-{width}.png"), full_page=False)
+    page.get_by_text("Every reply, by level").click()
+    expect(page.locator(".room-preview audio")).to_have_count(2 * len(swedish.replies.levels))
+    page.context.close()
+    assert _rows(database) == before
