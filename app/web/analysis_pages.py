@@ -22,6 +22,7 @@ from app.services.analysis_views.fit_runner import FitRunner, Fitting
 from app.services.analysis_views.mixed_view import mixed_view
 from app.services.analysis_views.power_view import PlanForm, plan_view
 from app.services.audit import Actor
+from app.services.design import study_phases
 from app.services.privacy import pseudonyms, sites
 from app.web.templating import is_htmx, render
 
@@ -88,6 +89,7 @@ def analysis_page(
             "site": site.strip(),
             "site_choices": sites.choices(studies.protocol_of(study), Actor.of_user(user)),
             "study_sites": sites.names(studies.protocol_of(study)),
+            "pilots": study_phases.pilot_count(db, study),
         },
         block="results",
     )
@@ -194,7 +196,8 @@ def download(
     site: SiteFilter = "",
 ) -> Response:
     """One export file, built now from the stored data (the download is audited); only the
-    participants of the sites the user sees (``?site=``: of that one)."""
+    participants of the sites the user sees (``?site=``: of that one); ``?pilot=1``: the pilot
+    participants' instead of the study's (app.services.design.study_phases)."""
     spec = EXPORT_FORMATS.get(export)
     if spec is None:
         raise NotFound(f"no export {export!r}; choose one of {', '.join(EXPORT_FORMATS)}")
@@ -207,7 +210,8 @@ def download(
     if pseudonymise:
         configured = request.app.state.settings.pseudonym_key
         key = pseudonyms.require_key(configured.get_secret_value() if configured else None)
-    dataset = study_data.load_dataset(db, study=study, for_staff=True, scope=scope)
+    pilot = request.query_params.get("pilot") in ("1", "true", "yes")
+    dataset = study_data.load_dataset(db, study=study, for_staff=True, scope=scope, pilot=pilot)
     if key is not None:
         dataset = pseudonyms.pseudonymised(dataset, key=key, study=study.name)
     analyses = None
@@ -228,7 +232,8 @@ def download(
                 "data_sha256": dataset.manifest["data_sha256"],
                 "pseudonymised": key is not None,
                 "sites": None if scope.sites is None else sorted(scope.sites),
-            },
+            }
+            | ({"pilot": True} if pilot else {}),
         )
         writer.commit()
 
@@ -239,7 +244,7 @@ def download(
     return FileResponse(
         path,
         media_type=spec.media_type,
-        filename=f"{study.name}-{spec.filename}",
+        filename=f"{study.name}-{'pilot-' if pilot else ''}{spec.filename}",
         headers={"X-Content-SHA256": digest, "Cache-Control": "no-store"},
         background=BackgroundTask(cleanup),
     )

@@ -89,7 +89,9 @@ def room_preview(
                 "language": protocol.default_language,
                 "condition": condition,
                 "conditions": conditions if shown else [],
-                "levels": protocol.replies.levels,
+                # Every level's lines side by side would tell a blinded experimenter what each
+                # reply on the console means of a learner: listed for those who see conditions.
+                "levels": protocol.replies.levels if shown else [],
                 "speech_api": f"{base}/api/speech/audio",
                 "index": f"/studies/{name}/preview",
             },

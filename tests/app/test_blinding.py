@@ -133,14 +133,16 @@ def _experimenter_pages() -> list[str]:
     for (method, path), allowed in sorted(POLICY.items()):
         if method != "GET" or Principal.EXPERIMENTER not in allowed:
             continue
-        if path.endswith("/events") or "{token}" in path:
-            continue  # streams carry types only (below); tablet links need a participant's token
+        if path.endswith(("/events", "/speech/audio")) or "{token}" in path:
+            continue  # streams carry types only (below); tablet links need a participant's
+            # token; a preview's spoken line is a protocol line (its text is required)
         if path in {"/static", "/api/v1/docs", "/api/v1/openapi.json"}:
             continue
         name = "lab-b" if "station" in path else "blind"
         filled = path.replace("{name}", name).replace("{code}", "P001")
         filled = filled.replace("{language}/{number}", "en/1")  # a preview page
         filled = filled.replace("{slug}", "study")  # a designer section
+        filled = filled.replace("/preview/room/{language}", "/preview/room/en")
         paths.append(filled.replace("{language}", "sv"))
     return paths
 

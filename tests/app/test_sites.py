@@ -145,8 +145,8 @@ def _staff_reads(role: Principal) -> list[str]:
     for (method, path), allowed in sorted(POLICY.items()):
         if method != "GET" or role not in allowed or Principal.ANONYMOUS in allowed:
             continue
-        if path.endswith("/events"):
-            continue
+        if path.endswith(("/events", "/speech/audio")):
+            continue  # a preview's spoken line is a protocol line: no participant's anything
         paths.append(path)
     return paths
 
@@ -159,6 +159,7 @@ def _fill(path: str, *, station: str, code: str, export: str = "long-csv") -> st
         .replace("{code}", code)
         .replace("{export}", export)
         .replace("{language}/{number}", "en/1")
+        .replace("{language}", "en")
         .replace("{slug}", "study")
     )
 

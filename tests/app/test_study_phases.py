@@ -314,3 +314,11 @@ def test_the_pilots_export_apart_marked_as_pilot(
     assert "pilot" in header and "pilot" not in study_rows.splitlines()[0].split(",")
     row = dict(zip(header, pilot_rows.splitlines()[1].split(","), strict=False))
     assert row["pilot"] == "1"
+    # The same from the analysis page, for whoever downloads rather than types commands.
+    page = admin.get(f"/studies/{DRAFT}/analysis").text
+    assert 'id="pilot-downloads"' in page and "?pilot=1" in page
+    download = admin.get(f"/studies/{DRAFT}/exports/wide-csv?pilot=1")
+    assert download.status_code == 200
+    assert f"{DRAFT}-pilot-participants_wide.csv" in download.headers["content-disposition"]
+    assert pilot in download.text and real not in download.text
+    assert real in admin.get(f"/studies/{DRAFT}/exports/wide-csv").text
