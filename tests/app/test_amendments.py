@@ -18,7 +18,7 @@ from app.cli import cli
 from app.services import studies
 from app.services.sessions import verify
 from app.tables import AuditEvent, Participant, Role, StudySession
-from tests.conftest import Lab, UserClientFactory
+from tests.conftest import Lab, UserClientFactory, sqlite_only
 
 HIGH = "Awesome, I knew you would say so."
 AMENDED = "Wonderful, just as I thought."
@@ -91,6 +91,7 @@ def test_an_amendment_is_a_version_each_session_records_and_verify_follows(
     assert wide.loc[later, "protocol_versions"] == "2"
 
 
+@sqlite_only("refusals decided before any write; versions per session are tested on both engines")
 def test_a_change_that_breaks_comparability_is_refused_and_can_start_a_new_study(
     lab: Lab, user_client: UserClientFactory
 ) -> None:
@@ -137,6 +138,7 @@ def test_a_change_that_breaks_comparability_is_refused_and_can_start_a_new_study
         assert audited.details["started_from"] == f"split from study {lab.study} version 1"
 
 
+@sqlite_only("refusals decided before any write; versions per session are tested on both engines")
 def test_an_amendment_waits_for_running_sessions_and_an_unanswered_item_may_change(
     lab: Lab, user_client: UserClientFactory
 ) -> None:

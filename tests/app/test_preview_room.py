@@ -18,7 +18,7 @@ from app.services.audit import Actor
 from app.services.design.preview_room import PreviewRoom
 from app.tables import Role
 from tests.app.test_preview import _rows
-from tests.conftest import UserClientFactory
+from tests.conftest import UserClientFactory, sqlite_only
 
 SV = "fast_adaptation_trust_sv.toml"
 
@@ -39,6 +39,7 @@ def _ask(ws: WebSocketTestSession, number: int, kind: str, **fields: Any) -> dic
             return dict(message)
 
 
+@sqlite_only("the preview lives in memory; the database is only read")
 @pytest.mark.parametrize(("language", "condition"), [("sv", "C2"), ("en", "C1")])
 def test_a_whole_session_is_walked_in_the_preview_and_nothing_is_stored(
     user_client: UserClientFactory,
@@ -81,6 +82,7 @@ def test_a_whole_session_is_walked_in_the_preview_and_nothing_is_stored(
     assert _rows(database) == before  # no participant, step, answer or audit entry
 
 
+@sqlite_only("the preview lives in memory; the database is only read")
 def test_every_reply_line_is_spoken_on_request_and_nothing_else(
     user_client: UserClientFactory, bilingual: Protocol
 ) -> None:

@@ -28,7 +28,7 @@ from app.protocol_forms import (
 from app.services import studies
 from app.services.audit import Actor
 from app.tables import Role, StudyPhase
-from tests.conftest import UserClientFactory
+from tests.conftest import UserClientFactory, sqlite_only
 
 SV = "fast_adaptation_trust_sv.toml"
 NAME = "designed"
@@ -165,6 +165,7 @@ def admin(user_client: UserClientFactory) -> TestClient:
     return user_client(Role.ADMIN)
 
 
+@sqlite_only("forms rendered and parsed; saving a version is tested on both engines")
 def test_a_section_saved_in_the_browser_is_the_next_version(
     database: Database, admin: TestClient
 ) -> None:
@@ -225,6 +226,7 @@ def test_a_stale_form_is_carried_over_to_the_current_version() -> None:
     assert dict(pairs)["speech.reprompt"] == "Say again?"
 
 
+@sqlite_only("forms rendered and parsed; saving a version is tested on both engines")
 def test_a_refused_section_keeps_what_was_typed_and_says_why_beside_it(
     database: Database, admin: TestClient
 ) -> None:
@@ -250,6 +252,7 @@ def test_a_refused_section_keeps_what_was_typed_and_says_why_beside_it(
         assert studies.get_study(db, NAME).protocol_source == text  # nothing saved
 
 
+@sqlite_only("forms rendered and parsed; saving a version is tested on both engines")
 def test_translations_are_edited_beside_the_first_language(
     database: Database, admin: TestClient
 ) -> None:

@@ -16,7 +16,7 @@ from app.protocol import parse_protocol, shipped_protocol, shipped_protocol_file
 from app.services import studies
 from app.services.audit import Actor
 from app.tables import AuditEvent, ProtocolVersion, Role, StudyPhase
-from tests.conftest import EXP3_ONLY, UserClientFactory, protocol_text
+from tests.conftest import EXP3_ONLY, UserClientFactory, protocol_text, sqlite_only
 
 NAME = "drafted"
 
@@ -49,6 +49,7 @@ def admin(user_client: UserClientFactory) -> TestClient:
     return user_client(Role.ADMIN)
 
 
+@sqlite_only("pages and checks; the version check under a row lock is tested on both engines")
 def test_a_draft_is_saved_as_versions_and_the_last_change_undone(
     database: Database, admin: TestClient
 ) -> None:
@@ -124,6 +125,7 @@ def test_the_second_editor_is_shown_what_changed_and_keeps_what_they_typed(
     assert "Saved as version 3." in again.text
 
 
+@sqlite_only("pages and checks; the version check under a row lock is tested on both engines")
 def test_a_protocol_with_problems_is_not_saved_a_pilot_frozen_and_a_live_one_amended(
     database: Database, admin: TestClient, exp3_study: str
 ) -> None:
@@ -153,6 +155,7 @@ def test_a_protocol_with_problems_is_not_saved_a_pilot_frozen_and_a_live_one_ame
         assert len(db.scalars(select(ProtocolVersion)).all()) == 2  # the two studies' first
 
 
+@sqlite_only("pages and checks; the version check under a row lock is tested on both engines")
 @pytest.mark.parametrize("file", shipped_protocol_files())
 def test_every_shipped_protocol_round_trips_through_the_study_editor(
     database: Database, admin: TestClient, file: str

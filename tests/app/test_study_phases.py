@@ -28,7 +28,7 @@ from app.tables import (
     Role,
     Study,
 )
-from tests.conftest import Lab, UserClientFactory
+from tests.conftest import Lab, UserClientFactory, sqlite_only
 
 DRAFT = "pilot-me"
 
@@ -81,6 +81,7 @@ def _allocations(lab: Lab) -> list[tuple[str, bool, int | None, str]]:
     return [tuple(row) for row in rows]  # type: ignore[misc]
 
 
+@sqlite_only("phase rules and pages; the pilot's sequence and reset are tested on both engines")
 def test_nobody_enrols_in_a_draft(draft: Lab) -> None:
     refused = draft.experimenter.post(f"/api/v1/studies/{DRAFT}/participants", json={})
     assert refused.status_code == 409
@@ -190,6 +191,7 @@ def test_a_pilot_reset_deletes_the_pilots_and_nothing_else(draft: Lab, admin: Te
     assert again.json() == {"participants": [], "removed": {}}
 
 
+@sqlite_only("phase rules and pages; the pilot's sequence and reset are tested on both engines")
 def test_the_way_back_is_short(draft: Lab, admin: TestClient) -> None:
     _phase(admin, "pilot")
     draft.enrol_and_assign(questionnaires=False)
@@ -207,6 +209,7 @@ def test_the_way_back_is_short(draft: Lab, admin: TestClient) -> None:
     assert experimenter.status_code == 403
 
 
+@sqlite_only("phase rules and pages; the pilot's sequence and reset are tested on both engines")
 def test_the_pages_ask_first_and_mark_the_pilots(
     draft: Lab, user_client: UserClientFactory
 ) -> None:
@@ -242,6 +245,7 @@ def test_the_pages_ask_first_and_mark_the_pilots(
     assert 'name="phase"' not in stays.text
 
 
+@sqlite_only("phase rules and pages; the pilot's sequence and reset are tested on both engines")
 def test_the_command_line_moves_and_resets(lab: Lab, database_url: str) -> None:
     def run(*args: str) -> str:
         result = CliRunner().invoke(cli, list(args), env={"TRUSTLAB_DATABASE_URL": database_url})
@@ -264,6 +268,7 @@ def test_the_command_line_moves_and_resets(lab: Lab, database_url: str) -> None:
     assert refused.exit_code != 0 and "stays live" in refused.output
 
 
+@sqlite_only("phase rules and pages; the pilot's sequence and reset are tested on both engines")
 def test_a_study_made_in_the_browser_starts_as_a_draft_unless_told(
     lab: Lab, admin: TestClient
 ) -> None:
@@ -288,6 +293,7 @@ def test_a_study_made_in_the_browser_starts_as_a_draft_unless_told(
         assert db.scalar(select(Study).where(Study.name == "odd")) is None
 
 
+@sqlite_only("phase rules and pages; the pilot's sequence and reset are tested on both engines")
 def test_the_pilots_export_apart_marked_as_pilot(
     draft: Lab, admin: TestClient, database_url: str, tmp_path: Path
 ) -> None:

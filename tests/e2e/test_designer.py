@@ -30,6 +30,21 @@ NAME = "designed"
 WHO = "designer"
 
 
+def _at_each_size(
+    page: Page, artifacts: Path, name: str, *, fits: str = "", full_page: bool = False
+) -> None:
+    """Look at the page as it is at a laptop's and at a tablet's width (``fits``: elements that
+    must stay inside their card at each), one screenshot each, then back to the first width:
+    one walk through a flow serves both sizes."""
+    for width, height in SIZES:
+        page.set_viewport_size({"width": width, "height": height})
+        if fits:
+            assert _overflow(page, fits) == [], (name, width)
+        page.screenshot(path=str(artifacts / f"{name}-{width}.png"), full_page=full_page)
+    width, height = SIZES[0]
+    page.set_viewport_size({"width": width, "height": height})
+
+
 def _draft(database: Database) -> None:
     with database.writing() as db:
         studies.create_study(
@@ -42,22 +57,17 @@ def _draft(database: Database) -> None:
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize(("width", "height"), SIZES)
 def test_a_draft_is_designed_section_by_section(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    artifacts: Path,
-    width: int,
-    height: int,
+    browser: Browser, live_server: ServerProcess, database: Database, artifacts: Path
 ) -> None:
     make_user(database, WHO, Role.ADMIN)
     _draft(database)
+    width, height = SIZES[0]
     page = browser.new_context(viewport={"width": width, "height": height}).new_page()
     sign_in_page(page, live_server, f"/studies/{NAME}", username=WHO)
     expect(page.locator("#study-phase")).to_contain_text("Nobody can enrol")
-    assert _overflow(page, ".heading .actions .button, #study-phase .button") == []
-    page.screenshot(path=str(artifacts / f"draft-study-{width}.png"), full_page=True)
+    fits = ".heading .actions .button, #study-phase .button"
+    _at_each_size(page, artifacts, "draft-study", fits=fits, full_page=True)
     page.get_by_role("link", name="Design the protocol").click()
     expect(page.get_by_role("heading", name="Study and consent")).to_be_visible()
     sessions = page.get_by_label("sessions", exact=True)
@@ -65,7 +75,7 @@ def test_a_draft_is_designed_section_by_section(
     beside = page.locator("#problems-f-schedule_sessions")
     expect(beside).to_contain_text("greater than or equal to 1")
     expect(page.locator("#section-problems")).to_contain_text("1 problem")
-    page.screenshot(path=str(artifacts / f"designer-problem-{width}.png"), full_page=False)
+    _at_each_size(page, artifacts, "designer-problem", fits=".design-form input")
     sessions.fill("3")
     expect(page.locator("#section-problems")).to_contain_text("No problems")
     expect(beside).to_be_empty()
@@ -73,12 +83,13 @@ def test_a_draft_is_designed_section_by_section(
     page.get_by_label("What changed, and why").press("Enter")
     expect(page.get_by_text("Saved as version 2.")).to_be_visible()
     expect(page.get_by_label("sessions", exact=True)).to_have_value("3")
-    assert _overflow(page, ".design-form input, .design-form textarea") == []
+    _at_each_size(
+        page, artifacts, "designer-saved", fits=".design-form input, .design-form textarea"
+    )
 
     page.get_by_role("link", name="Languages and translations").click()
     expect(page.get_by_text("Vill du ta dig ut ur rummet?")).to_be_visible()
-    assert _overflow(page, ".translation") == []
-    page.screenshot(path=str(artifacts / f"designer-translations-{width}.png"), full_page=False)
+    _at_each_size(page, artifacts, "designer-translations", fits=".translation")
 
     page.get_by_role("link", name="Conditions and learners").click()
     page.get_by_role("button", name="Add to conditions").click()
@@ -88,7 +99,7 @@ def test_a_draft_is_designed_section_by_section(
     new.get_by_label("label", exact=True).fill("Exact filter")
     new.get_by_label("learner").select_option("bayes")
     expect(page.locator("#section-problems")).to_contain_text("allocation.block_sizes")
-    page.screenshot(path=str(artifacts / f"designer-conditions-{width}.png"), full_page=False)
+    _at_each_size(page, artifacts, "designer-conditions", fits=".design-entry")
     page.context.close()
 
 
@@ -125,17 +136,12 @@ def test_the_second_editor_sees_what_changed_and_keeps_their_text(
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize(("width", "height"), SIZES)
 def test_a_draft_is_piloted_and_taken_live(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    artifacts: Path,
-    width: int,
-    height: int,
+    browser: Browser, live_server: ServerProcess, database: Database, artifacts: Path
 ) -> None:
     make_user(database, WHO, Role.ADMIN)
     _draft(database)
+    width, height = SIZES[0]
     page = browser.new_context(viewport={"width": width, "height": height}).new_page()
     sign_in_page(page, live_server, f"/studies/{NAME}", username=WHO)
     page.get_by_role("link", name="Start the pilot…").click()
@@ -146,10 +152,10 @@ def test_a_draft_is_piloted_and_taken_live(
     expect(row.locator(".badge", has_text=re.compile("^pilot$"))).to_be_visible()
     expect(page.locator("#study-phase")).to_contain_text("(1 so far)")  # updated beside it
     expect(page.get_by_role("link", name="Back to draft…")).to_have_count(0)
-    page.screenshot(path=str(artifacts / f"pilot-study-{width}.png"), full_page=True)
+    _at_each_size(page, artifacts, "pilot-study", fits="#participant-rows", full_page=True)
     page.get_by_role("link", name="Go live…").click()
     expect(page.get_by_text("This cannot be undone")).to_be_visible()
-    page.screenshot(path=str(artifacts / f"go-live-{width}.png"), full_page=False)
+    _at_each_size(page, artifacts, "go-live", fits="#phase-confirmation button")
     page.get_by_role("button", name="Go live").click()
     expect(page.get_by_text("The study is live")).to_be_visible()
     expect(page.locator("#study-phase")).to_contain_text("Pilot participants")
@@ -164,19 +170,14 @@ def test_a_draft_is_piloted_and_taken_live(
 
 
 @pytest.mark.e2e
-@pytest.mark.parametrize(("width", "height"), SIZES)
 def test_the_room_is_previewed_as_a_participant_walks_it(
-    browser: Browser,
-    live_server: ServerProcess,
-    database: Database,
-    artifacts: Path,
-    width: int,
-    height: int,
+    browser: Browser, live_server: ServerProcess, database: Database, artifacts: Path
 ) -> None:
     """Issue 50 item 3's room: walk into a zone, hear and answer its question in Swedish, hear
     the reply; every reply line listed to hear; nothing stored."""
     make_user(database, WHO, Role.EXPERIMENTER)
     _draft(database)
+    width, height = SIZES[0]
     page = browser.new_context(viewport={"width": width, "height": height}).new_page()
     page.add_init_script("window.speechSynthesis && (window.speechSynthesis.speak = () => {});")
     sign_in_page(page, live_server, f"/studies/{NAME}/preview?language=sv", username=WHO)
@@ -194,7 +195,7 @@ def test_the_room_is_previewed_as_a_participant_walks_it(
     replies = {level.line(True) for level in swedish.replies.levels}
     reply = page.locator("#caption-text").inner_text()
     assert any(reply.startswith(line) for line in replies), reply
-    page.screenshot(path=str(artifacts / f"room-preview-{width}.png"), full_page=False)
+    _at_each_size(page, artifacts, "room-preview", fits=".room-preview")
     page.get_by_text("Every reply, by level").click()
     expect(page.locator(".room-preview audio")).to_have_count(2 * len(swedish.replies.levels))
     page.context.close()
