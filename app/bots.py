@@ -286,13 +286,22 @@ class _Lane:
         mid-session (Ctrl-C, a failed lane): the session is ended early, as an experimenter
         would, so that the next run finds the station free instead of a participant it may not
         unseat. Someone else seated there (the seating was refused) is left alone."""
-        state = await self.experimenter.station_state(self.station)
-        if state.get("participant") != code:
-            return
-        session = state.get("session") or {}
-        if session.get("status") == "running":
-            await self.experimenter.end_session(self.station)
-        await self.experimenter.unassign(self.station)
+        for _ in range(LEAVE_ATTEMPTS):
+            state = await self.experimenter.station_state(self.station)
+            if state.get("participant") != code:
+                return
+            session = state.get("session") or {}
+            try:
+                if session.get("status") == "running":
+                    await self.experimenter.end_session(self.station)
+                await self.experimenter.unassign(self.station)
+                return
+            except ApiError as exc:
+                # A request the stopped lane still had in flight (its last answer, ending the
+                # session) reached the server in between: look again, as an experimenter would.
+                if exc.status != 409:
+                    raise
+        raise ApiError(409, f"{code} could not be unseated from {self.station}")
 
     async def _run_session(self, categories: list[str], preferred: dict[str, int]) -> None:
         """Answer runs until the session is over; each run visits its categories in a new order."""
@@ -317,6 +326,9 @@ class _Lane:
 
 T = TypeVar("T")
 
+LEAVE_ATTEMPTS = 3
+"""How often a stopping lane looks at its station again when freeing it was refused because the
+station changed in between (a request of the lane's still on its way)."""
 SETTLE_SECONDS = 15.0
 """How long a stopped run waits for a seating or session start in flight to be answered: one
 request's timeout. A server that has not answered by then is not waited for any longer."""

@@ -153,6 +153,36 @@ def test_a_lane_stopped_while_it_seats_waits_for_the_seating_then_stops() -> Non
     assert asyncio.run(not_stopped()) == "seated"
 
 
+def test_a_stopping_lane_looks_again_when_its_station_changed_in_between() -> None:
+    """The lane's last answer, still on its way when the run was stopped, ends the session
+    after the lane saw it running: ending it is refused (409), so the lane looks again and
+    unseats the participant instead of leaving them seated."""
+    calls: list[str] = []
+
+    class Experimenter:
+        def __init__(self) -> None:
+            self.running = True
+
+        async def station_state(self, station: str) -> dict[str, object]:
+            calls.append("state")
+            status = "running" if self.running else "completed"
+            return {"participant": "P001", "session": {"status": status}}
+
+        async def end_session(self, station: str) -> None:
+            calls.append("end")
+            self.running = False  # the answer in flight ended it first
+            raise ApiError(409, "no session is running at bot-1")
+
+        async def unassign(self, station: str) -> None:
+            calls.append("unassign")
+
+    lane = bots._Lane.__new__(bots._Lane)
+    lane.experimenter = Experimenter()  # type: ignore[assignment]
+    lane.station = "bot-1"
+    asyncio.run(lane._leave_station("P001"))
+    assert calls == ["state", "end", "state", "unassign"]
+
+
 def test_a_lane_stopped_while_it_seats_gives_up_on_a_server_that_never_answers() -> None:
     cancelled = []
 
