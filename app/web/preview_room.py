@@ -124,7 +124,7 @@ def preview_speech(db: SessionDep, user: CurrentUser, name: str, language: str) 
 
 
 @router.get(BASE + "/api/speech/audio")
-async def preview_spoken_line(
+def preview_spoken_line(
     request: Request,
     user: CurrentUser,
     db: SessionDep,
@@ -138,7 +138,7 @@ async def preview_spoken_line(
     if text not in spoken_lines(protocol):
         raise NotFound(f"not a line of study {name!r} in {protocol.default_language!r}")
     synthesiser: Synthesiser = request.app.state.synthesiser
-    wav = await run_in_threadpool(synthesiser.wav, text, protocol.default_language)
+    wav = synthesiser.wav(text, protocol.default_language)  # a synchronous route: in a thread
     return Response(wav, media_type="audio/wav")
 
 
