@@ -18,6 +18,7 @@ import pytest
 
 from app.robots.robot import Cue, Heard, RobotError, RobotLost, RobotUnreachable
 from app.robots.rosbridge import RosbridgeOptions, RosbridgeRobot, decode_heard, new_listen_id
+from tests.robots.harness import wait_for
 from tests.robots.standins.rosbridge import CUE, HEARD, SAID, RosbridgeStandIn
 from tests.robots.standins.script import Drop, Said, Script, Silence, Words
 
@@ -124,6 +125,9 @@ def test_the_late_result_of_a_listen_cut_off_by_a_drop_is_not_taken_after_reconn
             robot.listen(PHRASES, 30)
         robot.connect()
         assert robot.listen(PHRASES, 0.3) is None
+        # The give-up's cancel is on its way when listen returns: the stand-in logs it soon after
+        # (under load, after the block would have closed it).
+        wait_for(lambda: len(stand_in.listen_log) == 4)
         robot.close()
     cut_off, asked = (request["id"] for request in stand_in.listen_requests)
     assert cut_off != asked
