@@ -44,6 +44,8 @@ ADMINS = frozenset({P.ADMIN})
 PARTICIPANTS = frozenset({P.PARTICIPANT_OWN, P.PARTICIPANT_OTHER})
 DEVICES = frozenset({P.DEVICE_OWN, P.DEVICE_OTHER})
 OWN_DEVICE = frozenset({P.DEVICE_OWN})
+NOBODY_ELSE: frozenset[Principal] = frozenset()
+"""A route only its own kind of caller reaches (an online participant's cookie)."""
 
 POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # public: health, API description, sign-in, static files, tablet links (the token is the key)
@@ -61,6 +63,13 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/stations/{name}/room"): EVERYONE,  # a shell: the device key typed into it is the key
     ("GET", "/tablet/left"): EVERYONE,  # an erased participant's thank-you page: names nobody
     ("GET", "/api/v1/languages/{language}/words"): EVERYONE,  # interface sentences only
+    # an online study's public link (app.online.pages): the platform's ID is the key
+    ("GET", "/join/{study}"): EVERYONE,
+    ("POST", "/join/{study}"): EVERYONE,
+    # an online participant's own pages: only the cookie their join set opens them, which none
+    # of the principals here holds (tests/app/test_online_pages.py tries them with it)
+    ("GET", "/online"): NOBODY_ELSE,
+    ("POST", "/online/start"): NOBODY_ELSE,
     # signed-in people
     ("POST", "/logout"): USERS,
     ("GET", "/api/v1/session"): USERS,

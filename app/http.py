@@ -122,7 +122,9 @@ def wants_json(request: Request) -> bool:
     return "application/json" in accept and "text/html" not in accept
 
 
-TABLET_PATHS = ("/tablet", "/t/", "/k/")
+ONLINE_PATHS = ("/join/", "/online")
+"""An online participant's own pages (app.online.pages): no tablet, no experimenter."""
+TABLET_PATHS = ("/tablet", "/t/", "/k/", *ONLINE_PATHS)
 """Participant pages: their errors are participant pages too (no staff styling or links)."""
 
 TABLET_HEADINGS = {
@@ -150,6 +152,7 @@ def _error_response(
             # server's English for staff (a path, a validation detail), so the heading says it.
             "message": words.say(message) if isinstance(message, catalogues.Message) else "",
             "catalogue": words,
+            "online": request.url.path.startswith(ONLINE_PATHS),
         }
         return render(request, "tablet_message.html", context, status_code=status)
     return render(request, "error.html", {"status": status, "message": message}, status_code=status)

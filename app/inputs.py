@@ -70,7 +70,10 @@ VersionNumber = Annotated[int, _Canonical, Field(ge=1, le=10**6)]
 Count = Annotated[int, _Canonical, Field(ge=0, le=MAX_ROW_ID)]
 """A non-negative count or option (a sample size, a sums-of-squares type): 0 … 2**63 - 1."""
 
-INTEGER_TYPES = (RowId, PageNumber, SessionNumber, VersionNumber, Count)
+ScreenPixels = Annotated[int, _Canonical, Field(ge=0, le=100_000)]
+"""A browser window's width or height in CSS pixels (the online browser check)."""
+
+INTEGER_TYPES = (RowId, PageNumber, SessionNumber, VersionNumber, Count, ScreenPixels)
 """Every integer shape a request may use (the route-walking test checks for these)."""
 
 

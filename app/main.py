@@ -33,6 +33,7 @@ from app.api.schemas import ERROR_RESPONSES
 from app.db import Database
 from app.events import PostgresListener
 from app.http import BodyLimit, SecurityHeaders, install_error_handlers
+from app.online import pages as online_pages
 from app.services.analysis_views.fit_runner import FitRunner
 from app.services.analysis_views.freshness import FreshnessCache
 from app.services.staff import login_throttle
@@ -141,6 +142,7 @@ def _routes() -> tuple[BaseRoute, ...]:
         audit_pages.router,
         docs.router,
         tablet_pages.router,
+        online_pages.router,
         preview_room.router,  # before preview's /{language}/{number}, which would take it
         preview.router,
         assets.router,

@@ -36,6 +36,7 @@ from pydantic import (
 
 from app.i18n import catalogues, protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
+from app.online.spec import OnlineSpec, check_online
 from app.periods import Period
 from app.room import RoomSpec, check_room, default_room
 from app.speech.vocabulary import DEFAULT_MIN_CONFIDENCE, DEFAULT_NO, DEFAULT_YES, normalise
@@ -550,6 +551,11 @@ class Protocol(_Strict):
     room: RoomSpec | None = Field(
         default=None, description="The escape room's floor plan (app/room.py); default layout."
     )
+    online: OnlineSpec | None = Field(
+        default=None,
+        description="Run the study from a public link with no experimenter (app/online; none: "
+        "in the lab only).",
+    )
     translations: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="Every participant-facing text in each further language of study.languages "
@@ -1023,6 +1029,13 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
     if protocol.room is not None:
         categories = [c.name for c in protocol.categories]
         problems += [Problem(at, why) for at, why in check_room(protocol.room, categories)]
+    if protocol.online is not None:
+        online_problems = check_online(
+            protocol.online,
+            stratify_by=protocol.allocation.stratify_by,
+            site_names=None if protocol.sites is None else protocol.sites.names,
+        )
+        problems += [Problem(at, why) for at, why in online_problems]
     return problems
 
 

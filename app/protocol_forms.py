@@ -133,6 +133,14 @@ SECTIONS = (
         ("sites",),
     ),
     Section(
+        "online",
+        "Online",
+        "Running the study from a public link with no experimenter: the recruitment platform's "
+        "parameters, the completion and screen-out links, the time limit, the devices allowed "
+        "and the participants wanted per condition (none: in the lab only).",
+        ("online",),
+    ),
+    Section(
         "languages",
         "Languages and translations",
         "The study's languages, and every participant-facing text in each further language "

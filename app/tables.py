@@ -349,6 +349,9 @@ class Station(Base):
     study_id: Mapped[int | None] = mapped_column(ForeignKey("study.id"))
     # Hidden from the station list (the bots' stations after the demo); keys and logs stay.
     archived_at: Mapped[datetime | None]
+    online: Mapped[bool] = mapped_column(default=False, server_default=false())
+    """A participant's own virtual station in an online study (app/online): made when they
+    join, used by their browser's room only, and not listed with the lab's stations."""
     site: Mapped[str | None] = mapped_column(String(40))
     """The site this station belongs to (a name some study's ``[sites]`` declares): only its
     participants are seated here, and an account limited to other sites does not see it. None:
@@ -649,6 +652,62 @@ class Submission(Base):
     submitted_at: Mapped[datetime] = mapped_column(default=utcnow)
     revision: Mapped[int] = mapped_column(default=1)
     revised_at: Mapped[datetime | None]
+
+
+class OnlineStatus(StrEnum):
+    """Where an online participation stands (app/online/participation.py)."""
+
+    ACTIVE = "active"
+    COMPLETED = "completed"
+    SCREENED_OUT = "screened_out"
+    """Their browser could not run the study, or they arrived when it was full: not enrolled."""
+    EXPIRED = "expired"
+    """The time limit passed before they finished."""
+    ENDED = "ended"
+    """Withdrawn or erased by staff, or their data was: nothing more is asked of them."""
+
+
+class OnlineParticipation(Base):
+    """One recruitment ID's one participation in an online study: who they are to the platform
+    (only a keyed hash of the ID, app.online.recruitment), their enrolled participant and
+    virtual station, and how far they are. ``UNIQUE(study_id, recruitment_hash)`` makes a second
+    participation impossible even when one ID joins twice at once."""
+
+    __tablename__ = "online_participation"
+    __table_args__ = (
+        UniqueConstraint("study_id", "recruitment_hash"),
+        _one_of("status", OnlineStatus),
+        NEVER_REUSED_IDS,
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    study_id: Mapped[int] = mapped_column(ForeignKey("study.id"), index=True)
+    recruitment_hash: Mapped[str | None] = mapped_column(String(64))
+    """HMAC of the recruitment ID under the server's key (app.online.recruitment); emptied when
+    the participant is anonymised (the row stays for the data-quality figures)."""
+    participant_id: Mapped[int | None] = mapped_column(ForeignKey("participant.id"), unique=True)
+    station_id: Mapped[int | None] = mapped_column(ForeignKey("station.id"), unique=True)
+    status: Mapped[str] = mapped_column(String(16), default=OnlineStatus.ACTIVE)
+    reason: Mapped[str] = mapped_column(String(200), default="")
+    """Why they were screened out (the browser check's finding, "full")."""
+    parameters: Mapped[dict[str, Any] | None] = mapped_column(default=dict)
+    """The platform's further URL parameters (``[online] parameters``) as they arrived."""
+    browser: Mapped[str | None] = mapped_column(String(64), default="")
+    """A hash of the browser's own random id (a cookie): the same browser under a second
+    recruitment ID is flagged, never refused."""
+    device: Mapped[str] = mapped_column(String(16), default="")
+    step: Mapped[str] = mapped_column(String(80), default="")
+    """The page they are on (``consent``, ``questionnaire:nars``, ``session:2``, ``done``)."""
+    step_at: Mapped[datetime] = mapped_column(default=utcnow)
+    joined_at: Mapped[datetime] = mapped_column(default=utcnow)
+    expires_at: Mapped[datetime]
+    finished_at: Mapped[datetime | None]
+    last_seen_at: Mapped[datetime] = mapped_column(default=utcnow)
+    key_generation: Mapped[int] = mapped_column(default=1)
+    """The generation of their virtual station's device key (derived, app.online.keys)."""
+    flags: Mapped[dict[str, Any]] = mapped_column(default=dict)
+    """Data-quality and duplicate flags, by name (app.online.quality)."""
+    pilot: Mapped[bool] = mapped_column(default=False, server_default=false())
 
 
 class ProtocolVersion(Base):

@@ -14,13 +14,24 @@ from babel.messages.pofile import write_po
 from app.i18n.catalogues import DOMAIN, SOURCE_LANGUAGE, path_of, read_catalog
 from app.settings import REPO_ROOT
 
-PARTICIPANT_TEMPLATES = ("tablet_*.html", "_tablet_progress.html", "_rules.html", "room.html")
+PARTICIPANT_TEMPLATES = (
+    "tablet_*.html",
+    "_tablet_progress.html",
+    "_rules.html",
+    "room.html",
+    "online_*.html",
+)
 """The templates (under templates/) whose words participants read. Every template a tablet or
 room route renders, and everything it extends or includes, must be one of these, and their only
 words are marked for translation (or, the room's device-key form, marked ``data-staff``):
 tests/app/test_languages.py fails on a new one left out or a literal word in one."""
 
-PARTICIPANT_SCRIPTS = ("static/js/room.js", "static/js/room/*.js", "static/js/tablet.js")
+PARTICIPANT_SCRIPTS = (
+    "static/js/room.js",
+    "static/js/room/*.js",
+    "static/js/tablet.js",
+    "static/js/online_check.js",
+)
 """The scripts participant pages load: every sentence in them goes through ``_()``/``show()``
 (or ``staff()``, English on purpose for the lab's staff); tests/app/test_languages.py scans them
 and the scripts the participant templates load for any other."""

@@ -22,6 +22,7 @@ from app.errors import Conflict, InvalidInput, NotAuthenticated, PermissionDenie
 from app.i18n.catalogues import Catalogue, Message, catalogue
 from app.i18n.languages import native_name
 from app.inputs import SessionNumber, VersionNumber
+from app.online.participation import is_online
 from app.protocol import InstrumentSpec
 from app.security import same
 from app.services.audit import Actor
@@ -342,6 +343,8 @@ def _simple_page(kind: str, template: str) -> Callable[..., Response]:
         current = _current_or_redirect(db, tablet, kind)
         if isinstance(current, Response):
             return current
+        if is_online(db, tablet.participant.id):  # no experimenter to wait for: the room
+            return _no_store(RedirectResponse("/online", status_code=303))
         return _no_store(render(request, template, _context(request, tablet, settings)))
 
     page.__doc__ = f"The {kind} page."

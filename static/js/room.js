@@ -29,6 +29,9 @@ const station = root.dataset.station;
 // answers the same requests for signed-in staff, from memory, and needs no device key.
 const API = root.dataset.api || "/api/v1/station";
 const PREVIEW = root.dataset.preview === "true";
+// An online participant's own room (app.online.pages): its key comes with the page, the
+// participant starts each session, and the room hands over to their next page when its part ends.
+const ONLINE = Boolean(root.dataset.start);
 const stores = {
   key: `trustlab.room.key.${station}`,
   answer: `trustlab.room.answer.${station}`,
@@ -50,7 +53,7 @@ const LISTEN = (options.get("listen") ?? (options.get("voice") === "off" ? "off"
 const NOT_LISTENING = { available: false, listen: async () => null, stop() {} };
 
 const room = {
-  key: PREVIEW ? "preview" : localStorage.getItem(stores.key) || "",
+  key: PREVIEW ? "preview" : root.dataset.key || localStorage.getItem(stores.key) || "",
   socket: null,
   layout: null,
   segments: [],
@@ -486,15 +489,22 @@ function render() {
   // A card in front of the room: the last reply's caption goes (it would linger under the card).
   hideCaption();
   const action = state.expected.action;
+  if (ONLINE && action !== "start_session") {
+    leaveRoom(); // a questionnaire, the end, or a withdrawal: /online knows which page
+    return;
+  }
   if (action === "start_session") {
     const next = state.expected.session;
     const title = next === 0 ? _("A practice run comes first") : _("Session %(number)s comes next", { number: next });
-    showNotice(title, _("The experimenter starts it in a moment. Meanwhile, the rules:"), { rules: true });
+    if (ONLINE) showNotice(title, _("Start when you are ready. The rules:"), { rules: true, start: true });
+    else showNotice(title, _("The experimenter starts it in a moment. Meanwhile, the rules:"), { rules: true });
   } else {
     const [title, text] = WAITING[action] ? WAITING[action]() : [_("Please wait"), ""];
     showNotice(title, text, { rules: action === "assign" });
   }
-  showDetail(serverWords(state.expected.message));
+  // The server's hint names the experimenter's next step: an online participant has none.
+  showDetail(ONLINE ? "" : serverWords(state.expected.message));
+  if (ONLINE && action === "start_session") el("start-session").focus();
 }
 
 function zoneState(category) {
@@ -505,14 +515,15 @@ function zoneState(category) {
   return "pending";
 }
 
-function showNotice(title, text, { rules = false, form = false, forget = false } = {}) {
+function showNotice(title, text, { rules = false, form = false, forget = false, start = false } = {}) {
   el("notice").hidden = false;
+  el("start-session").hidden = !start;
   put(el("notice-title"), title);
   put(el("notice-text"), text);
   el("rules").hidden = !(rules && el("rules").childElementCount > 0);
   el("key-form").hidden = !form;
   // Not on the participant's cards: one click would close the room for the day.
-  el("forget-key").hidden = form || !room.key || !(forget || options.has("setup"));
+  el("forget-key").hidden = ONLINE || form || !room.key || !(forget || options.has("setup"));
   if (form) el("key-input").focus();
 }
 
@@ -556,7 +567,33 @@ function askForKey(problem) {
   el("key-error").textContent = problem || "";
 }
 
+function leaveRoom() {
+  if (room.leaving) return;
+  room.leaving = true;
+  if (room.socket) room.socket.stop();
+  location.assign(root.dataset.leave);
+}
+
+async function startSession() {
+  const button = el("start-session");
+  button.disabled = true;
+  try {
+    const response = await fetch(root.dataset.start, { method: "POST", credentials: "same-origin" });
+    // 409: it had started already (a second tab) or is not theirs to start: /online tells which.
+    if (!response.ok && response.status !== 409) throw new Error(String(response.status));
+    if (response.status === 409) leaveRoom();
+  } catch (error) {
+    showDetail(_("The session did not start: please try again."));
+  } finally {
+    button.disabled = false;
+  }
+}
+
 function refuse(problem) {
+  if (ONLINE) {
+    leaveRoom(); // their key was revoked: the time limit passed, or staff ended it
+    return;
+  }
   localStorage.removeItem(stores.key);
   room.key = "";
   if (room.socket) room.socket.stop();
@@ -793,6 +830,7 @@ window.addEventListener("pagehide", () => {
 });
 window.addEventListener("resize", () => room.scene && room.scene.resize());
 
+el("start-session").addEventListener("click", startSession);
 el("answer-yes").addEventListener("click", () => answer("yes", "button"));
 el("answer-no").addEventListener("click", () => answer("no", "button"));
 

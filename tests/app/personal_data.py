@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import subprocess
+import time
 from pathlib import Path
 
 from sqlalchemy.engine import make_url
@@ -109,7 +110,16 @@ def dump_database(database: Database, *others: Database) -> bytes:
         for engine in (database, *others):
             engine.dispose()
         path = Path(str(url.database))
-        assert WalCheckpointer(str(path)).truncate(), "a reader still holds an old snapshot"
+        # The served app's own threads (its activity flusher, its background checkpoints) may
+        # be mid-transaction at this moment: wait for them to let go, however long that takes
+        # on a loaded machine, rather than read a dump with an earlier page still in the WAL.
+        checkpointer = WalCheckpointer(str(path))
+        for _attempt in range(600):
+            if checkpointer.truncate():
+                break
+            time.sleep(0.05)
+        else:
+            raise AssertionError("a reader still holds an old snapshot after 30 s")
         return b"".join(
             p.read_bytes() for p in (path, path.with_name(path.name + "-wal")) if p.exists()
         )

@@ -375,6 +375,10 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("GET", "/tablet/done"): get("/tablet/done"),
     ("GET", "/tablet/withdrawn"): get("/tablet/withdrawn"),
     ("GET", "/tablet/left"): get("/tablet/left"),
+    ("GET", "/join/{study}"): get("/join/rt"),
+    ("POST", "/join/{study}"): send("POST", "/join/rt", data={"query": "PROLIFIC_PID=probe"}),
+    ("GET", "/online"): get("/online"),
+    ("POST", "/online/start"): send("POST", "/online/start"),
     ("GET", "/tablet/events"): stream("/tablet/events"),
 }
 OWNERSHIP_CHECKED = {("POST", "/api/v1/station/steps/{step_id}/answer")}

@@ -138,6 +138,8 @@ def _experimenter_pages() -> list[str]:
             # token; a preview's spoken line is a protocol line (its text is required)
         if path in {"/static", "/api/v1/docs", "/api/v1/openapi.json"}:
             continue
+        if path.startswith("/join/"):
+            continue  # an online study's public link: a participant's page, of no study here
         name = "lab-b" if "station" in path else "blind"
         filled = path.replace("{name}", name).replace("{code}", "P001")
         filled = filled.replace("{language}/{number}", "en/1")  # a preview page

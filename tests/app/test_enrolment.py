@@ -81,7 +81,8 @@ def _admin_reads(study: str, station: str, username: str) -> list[str]:
         if (
             path.endswith("/events")
             or "{token}" in path
-            or path.startswith(("/static", "/api/v1/docs", "/api/v1/openapi"))
+            # an online study's public link (/join/) is a participant's page
+            or path.startswith(("/static", "/api/v1/docs", "/api/v1/openapi", "/join/"))
         ):
             continue
         if "{export}" in path:

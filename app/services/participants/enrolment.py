@@ -10,7 +10,7 @@ sequence_index)`` backs the lock up: no entry can ever be handed out twice. A pi
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -236,8 +236,13 @@ def enroll_participant(
     checkpoint_dir: Path | None = None,
     language: str | None = None,
     site: str | None = None,
+    along: Callable[[Participant], None] | None = None,
 ) -> Enrolment:
     """Enrol a participant and reveal their allocation; commits.
+
+    ``along``: called with the new participant before the commit, for rows that must exist
+    exactly when the enrolment does (an online participation, app.online.participation); an
+    IntegrityError of theirs is a Conflict like a concurrent enrolment's.
 
     ``language``: one of the study's languages; without it the participant gets the study's
     first, or chooses on the tablet when the protocol lets them
@@ -326,6 +331,8 @@ def enroll_participant(
     )
     participant_changes.participant_changed(db, participant, Change.ENROLLED)
     try:
+        if along is not None:
+            along(participant)
         db.commit()
     except IntegrityError as exc:
         db.rollback()

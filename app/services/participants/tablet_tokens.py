@@ -59,6 +59,16 @@ def issue_participant_token(
     db: Session, *, participant: Participant, secret: bytes, actor: Actor
 ) -> str:
     """Issue (or reissue) the participant's tablet link; earlier links stop working; commits."""
+    token = grant_participant_token(db, participant=participant, secret=secret, actor=actor)
+    db.commit()
+    return token
+
+
+def grant_participant_token(
+    db: Session, *, participant: Participant, secret: bytes, actor: Actor
+) -> str:
+    """:func:`issue_participant_token` inside the caller's transaction (an online participant's
+    enrolment issues their link with it, app.online.participation)."""
     if participant.status == ParticipantStatus.WITHDRAWN:
         raise Conflict(f"{participant.code} has withdrawn: no tablet link")
     participant.token_generation += 1
@@ -75,7 +85,6 @@ def issue_participant_token(
         subject=participant.code,
         details={"generation": participant.token_generation},
     )
-    db.commit()
     return token
 
 

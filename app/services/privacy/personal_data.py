@@ -38,6 +38,7 @@ from app.tables import (
     LearnerState,
     LoginAttempt,
     LoginSession,
+    OnlineParticipation,
     Participant,
     Prompt,
     ProtocolVersion,
@@ -240,6 +241,20 @@ TABLES: tuple[PersonalTable, ...] = (
         Anonymised.DELETED,
         "room",
         free_text={"utterance": "the last line said: the robot's, or the words heard"},
+    ),
+    PersonalTable(
+        OnlineParticipation,
+        "an online participant's recruitment ID (a keyed hash), the platform's parameters, "
+        "their browser's hash, steps, time limit and data-quality flags",
+        Erased.DELETED,
+        Anonymised.KEPT,
+        "enrolment",
+        cleared=("recruitment_hash", "browser", "parameters"),
+        free_text={
+            "parameters": "the platform's URL parameters (a study's or session's id)",
+            "reason": "why they were screened out (the browser check's finding)",
+            "flags": "data-quality flags (names and figures)",
+        },
     ),
     PersonalTable(
         Station,

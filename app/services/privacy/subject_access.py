@@ -30,6 +30,7 @@ from app.tables import (
     Answer,
     AnswerAudio,
     AuditEvent,
+    OnlineParticipation,
     Prompt,
     Response,
     RoomPresence,
@@ -136,6 +137,7 @@ def participant_record(
         .order_by(AuditEvent.id)
     )
     station = db.scalar(select(Station.name).where(Station.participant_id == pid))
+    online = db.scalar(select(OnlineParticipation).where(OnlineParticipation.participant_id == pid))
     sections: dict[str, Any] = {
         "enrolment": {
             "enrolled_at": _when(participant.enrolled_at),
@@ -146,6 +148,7 @@ def participant_record(
             "withdrawn_at": _when(participant.withdrawn_at),
             "withdrawal_reason": participant.withdrawal_reason or None,
             "station": station,
+            "online": None if online is None else _online(online),
         },
         "consent": [
             {
@@ -179,6 +182,21 @@ def participant_record(
         "participant": participant.code,
         "exported_at": _when(datetime.now().astimezone()),
         **{section: sections[section] for section in personal_data.SUBJECT_ACCESS_SECTIONS},
+    }
+
+
+def _online(online: OnlineParticipation) -> dict[str, Any]:
+    """An online participation as their copy shows it (the recruitment ID is stored only as a
+    keyed hash, which tells them nothing: its presence is said, not the hash)."""
+    return {
+        "recruitment_id": "stored as a keyed hash" if online.recruitment_hash else None,
+        "platform_parameters": dict(online.parameters or {}),
+        "joined_at": _when(online.joined_at),
+        "status": online.status,
+        "step": online.step,
+        "device": online.device,
+        "finished_at": _when(online.finished_at),
+        "data_quality_flags": dict(online.flags),
     }
 
 

@@ -40,6 +40,8 @@ from app.tables import (
 )
 
 KEY_PREFIX = "tlk_"
+ONLINE_STATIONS = "online-"
+"""The names of online participants' virtual stations begin so (app.online.participation)."""
 DEVICE_REVOKED = "device_revoked"
 DEVICE_CONNECTION = "device_connection"
 DEVICE_NOTICE = "device_notice"
@@ -73,8 +75,9 @@ def get_station(db: Session, name: str, *, for_update: bool = False) -> Station:
 
 
 def list_stations(db: Session, *, archived: bool | None = None) -> list[Station]:
-    """Stations by name: every one (``archived=None``), or only the shown or archived ones."""
-    query = select(Station).order_by(Station.name)
+    """The lab's stations by name: every one (``archived=None``), or only the shown or archived
+    ones. Online participants' own stations are not the lab's: the online monitor shows them."""
+    query = select(Station).where(Station.online.is_(False)).order_by(Station.name)
     if archived is not None:
         hidden = Station.archived_at.is_not(None)
         query = query.where(hidden if archived else ~hidden)
@@ -152,6 +155,11 @@ def seating_questions(db: Session, *, station: Station, participant: Participant
 def create_station(db: Session, *, name: str, actor: Actor, site: str | None = None) -> Station:
     """Create a station, of ``site`` (empty: shared by every site); commits."""
     STATION_NAME.check(name)
+    if name.startswith(ONLINE_STATIONS):
+        raise InvalidInput(
+            f"station names beginning with {ONLINE_STATIONS!r} are kept for online participants' "
+            "own stations: choose another name"
+        )
     site = sites.station_site(db, site)
     if db.scalar(select(Station.id).where(Station.name == name)) is not None:
         raise Conflict(f"a station named {name!r} already exists")

@@ -1,0 +1,292 @@
+"""The online participant's pages: the public link, the browser check, the room in the same tab,
+and the way back to the recruitment platform.
+
+``/join/STUDY?PROLIFIC_PID=…`` shows the browser check (static/js/online_check.js), which posts
+what it found; the server decides (app.online.participation.BrowserCheck) and either screens the
+participant out politely or enrols them and sets two cookies: the tablet's (their questionnaire
+pages are the lab tablet's own) and ``tl_online`` (their participation). ``/online`` then always
+sends them where they should be, as the tablet's home does: a questionnaire page, the room when a
+session comes next (its device key in the page, a button that starts the session), or the
+completion page that returns them to the platform with its code.
+
+Every handler is one admitted unit of work (app.db): a join may commit more than once (an
+enrolment that lost a race is tried again), so it does not use the request's one-write session.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Annotated, Any, TypeVar
+from urllib.parse import parse_qsl
+
+from fastapi import APIRouter, Form, Request
+from fastapi.responses import RedirectResponse, Response
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.db import Database
+from app.deps import set_private_cookie
+from app.errors import NotAuthenticated
+from app.i18n.catalogues import Catalogue, Message, catalogue
+from app.inputs import ScreenPixels
+from app.online import participation as online
+from app.online.participation import BrowserCheck, Outcome
+from app.security import sign, unsign
+from app.services.participants import languages, questionnaires
+from app.services.studies import get_study, protocol_of
+from app.settings import Settings
+from app.tables import OnlineParticipation, OnlineStatus, Participant, Station, Study, utcnow
+from app.tablet import TABLET_COOKIE
+from app.web.room import ROOM_PERMISSIONS
+from app.web.templating import render
+
+router = APIRouter(tags=["online"], include_in_schema=False)
+
+ONLINE_COOKIE = "tl_online"
+COOKIE_DAYS = 2
+QUERY_MAX = 4000
+"""The longest query string a join keeps (platforms send a handful of short parameters)."""
+T = TypeVar("T")
+
+
+async def _unit(request: Request, work: Callable[[Session], T]) -> T:
+    """``work(db)`` in a write session of its own, as one admitted unit of work."""
+    database: Database = request.app.state.database
+
+    def run() -> T:
+        with database.write_session() as db:
+            return work(db)
+
+    async with database.admission():
+        return await database.run_unit_of_work(run, write=True)
+
+
+def _settings(request: Request) -> Settings:
+    settings: Settings = request.app.state.settings
+    return settings
+
+
+def _no_store(response: Response) -> Response:
+    response.headers["Cache-Control"] = "no-store"
+    return response
+
+
+def _words(study: Study, participant: Participant | None = None) -> Catalogue:
+    """The interface words of the participant's language (before enrolment: the study's)."""
+    protocol = protocol_of(study)
+    language = participant.language if participant is not None else None
+    return catalogue(languages.protocol_for(language, protocol).default_language)
+
+
+def _message(
+    request: Request,
+    study: Study,
+    outcome: Outcome,
+    *,
+    participation: OnlineParticipation | None = None,
+    participant: Participant | None = None,
+    status_code: int = 200,
+) -> Response:
+    """The page for a join or a visit that does not go on (screened out, full, expired…)."""
+    spec = protocol_of(study).online
+    assert spec is not None
+    context = {
+        "catalogue": _words(study, participant),
+        "study_title": protocol_of(study).study.title,
+        "outcome": outcome.value,
+        "reason": participation.reason if participation is not None else "",
+        "screen_out_url": spec.screen_out_url,
+        "completion": spec.completion_link() if outcome is Outcome.COMPLETED else None,
+        "completion_code": spec.completion_code if outcome is Outcome.COMPLETED else None,
+        "spec": spec,
+    }
+    return _no_store(render(request, "online_message.html", context, status_code=status_code))
+
+
+@router.get("/join/{study}")
+def join_page(request: Request, study: str) -> Response:
+    """The public link: the browser check, then on to the study."""
+    database: Database = request.app.state.database
+    with database.read_session() as db:
+        found = get_study(db, study)
+        spec = online.online_spec(found)
+        protocol = protocol_of(found)
+    context = {
+        "catalogue": catalogue(protocol.default_language),
+        "study_title": protocol.study.title,
+        "study": found.name,
+        "query": str(request.url.query)[:QUERY_MAX],
+        "spec": spec,
+        "has_id": bool(dict(parse_qsl(request.url.query)).get(spec.id_parameter)),
+        "id_parameter": spec.id_parameter,
+    }
+    return _no_store(render(request, "online_join.html", context))
+
+
+def _flag(value: str) -> bool:
+    return value == "1"
+
+
+@router.post("/join/{study}")
+async def join(
+    request: Request,
+    study: str,
+    query: Annotated[str, Form(max_length=QUERY_MAX)] = "",
+    webgl: Annotated[str, Form(max_length=1)] = "",
+    audio: Annotated[str, Form(max_length=1)] = "",
+    width: Annotated[ScreenPixels, Form()] = 0,
+    height: Annotated[ScreenPixels, Form()] = 0,
+    keyboard: Annotated[str, Form(max_length=1)] = "",
+    touch: Annotated[str, Form(max_length=1)] = "",
+    browser: Annotated[str, Form(max_length=64)] = "",
+) -> Response:
+    """Join with what the browser check found: enrolled or resumed (to ``/online``), or why
+    not."""
+    settings = _settings(request)
+    check = BrowserCheck(
+        webgl=_flag(webgl),
+        audio=_flag(audio),
+        width=width,
+        height=height,
+        keyboard=_flag(keyboard),
+        touch=_flag(touch),
+    )
+    parameters = dict(parse_qsl(query, max_num_fields=50))
+
+    def work(db: Session) -> tuple[online.Joined, Study]:
+        joined = online.join(
+            db,
+            study_name=study,
+            query=parameters,
+            browser_id=browser,
+            check=check,
+            secret=settings.secret,
+            checkpoint_dir=settings.checkpoint_dir,
+        )
+        found = get_study(db, study)
+        protocol_of(found)  # loaded while the session is open
+        return joined, found
+
+    joined, found = await _unit(request, work)
+    if joined.outcome in (Outcome.ENROLLED, Outcome.RESUMED):
+        assert joined.participation is not None and joined.token is not None
+        response = RedirectResponse("/online", status_code=303)
+        _remember(request, response, joined.participation, joined.token, settings)
+        return _no_store(response)
+    return _message(request, found, joined.outcome, participation=joined.participation)
+
+
+def _remember(
+    request: Request,
+    response: Response,
+    participation: OnlineParticipation,
+    token: str,
+    settings: Settings,
+) -> None:
+    age = COOKIE_DAYS * 86400
+    set_private_cookie(response, request, TABLET_COOKIE, token, max_age=age)
+    cookie = sign(settings.secret, f"online:{participation.id}")
+    set_private_cookie(response, request, ONLINE_COOKIE, cookie, max_age=age)
+
+
+def participation_of(request: Request, db: Session) -> OnlineParticipation:
+    """The participation of this browser's ``tl_online`` cookie."""
+    value = unsign(_settings(request).secret, request.cookies.get(ONLINE_COOKIE, ""))
+    found = None
+    if value is not None and value.startswith("online:") and value[7:].isdigit():
+        found = db.get(OnlineParticipation, int(value[7:]))
+    if found is None:
+        raise NotAuthenticated(
+            Message("open the study from the link the recruitment platform gave you")
+        )
+    return found
+
+
+def _step(page: questionnaires.Page) -> str:
+    if page.kind == "questionnaire" and page.instrument is not None:
+        suffix = f":{page.session}" if page.session is not None else ""
+        return f"questionnaire:{page.instrument.key}{suffix}"
+    return page.kind
+
+
+@router.get("/online")
+async def where_now(request: Request) -> Response:
+    """Send the participant where they should be now (the tablet home's online twin)."""
+    settings = _settings(request)
+
+    def work(db: Session) -> Response:
+        participation = participation_of(request, db)
+        study = db.get(Study, participation.study_id)
+        assert study is not None
+        participant = (
+            db.get(Participant, participation.participant_id)
+            if participation.participant_id is not None
+            else None
+        )
+        now = utcnow()
+        status = online.refresh(db, participation, at=now)
+        if status != OnlineStatus.ACTIVE or participant is None:
+            return _message(
+                request,
+                study,
+                Outcome(status),
+                participation=participation,
+                participant=participant,
+            )
+        protocol = languages.protocol_for(participant.language, protocol_of(study))
+        page = questionnaires.next_page(db, participant, protocol)
+        if page.kind == "done":
+            online.finish(db, participation, OnlineStatus.COMPLETED, at=now)
+            return _message(request, study, Outcome.COMPLETED, participant=participant)
+        if page.kind == "withdrawn":
+            online.finish(db, participation, OnlineStatus.ENDED, at=now)
+            return _message(request, study, Outcome.ENDED, participant=participant)
+        if page.kind != "wait":
+            online.record_step(db, participation, _step(page), at=now)
+            return RedirectResponse(page.path, status_code=303)
+        online.record_step(db, participation, _session_step(db, participation), at=now)
+        return _room(request, db, participation, participant, study, settings)
+
+    return _no_store(await _unit(request, work))
+
+
+def _session_step(db: Session, participation: OnlineParticipation) -> str:
+    station = db.get(Station, participation.station_id)
+    return f"room:{station.name}" if station is not None else "room"
+
+
+def _room(
+    request: Request,
+    db: Session,
+    participation: OnlineParticipation,
+    participant: Participant,
+    study: Study,
+    settings: Settings,
+) -> Response:
+    station = db.scalar(select(Station.name).where(Station.id == participation.station_id))
+    assert station is not None
+    context: dict[str, Any] = {
+        "station": station,
+        "catalogue": _words(study, participant),
+        "online": {
+            "key": online.station_key(settings.secret, participation),
+            "start": "/online/start",
+            "leave": "/online",
+        },
+    }
+    response = render(request, "room.html", context)
+    response.headers["permissions-policy"] = ROOM_PERMISSIONS
+    return response
+
+
+@router.post("/online/start", status_code=204)
+async def start_session(request: Request) -> Response:
+    """The participant is ready: start their next session (the room goes on by itself)."""
+
+    def work(db: Session) -> None:
+        participation = participation_of(request, db)
+        online.refresh(db, participation, at=utcnow())
+        online.start_session(db, participation)
+
+    await _unit(request, work)
+    return Response(status_code=204)
