@@ -22,6 +22,7 @@ from app.cli import (
     exports,
     languages,
     mixed,
+    online,
     population,
     power,
     prereg,
@@ -56,6 +57,7 @@ population.register(cli)
 speech.register(cli)
 languages.register(cli)
 retention.register(cli)
+online.register(cli)
 
 
 STARTUP_SECONDS = 1.0

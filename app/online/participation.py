@@ -36,6 +36,7 @@ from app.online.spec import DeviceKind, OnlineSpec
 from app.protocol import SITE_FACTOR, Protocol
 from app.randomisation import stratum_key
 from app.security import token_digest
+from app.services import audit
 from app.services.audit import Actor
 from app.services.participants import enrolment, participant_changes, tablet_tokens
 from app.services.participants.participant_changes import Change
@@ -487,3 +488,30 @@ def record_step(
         participation.step = step[:80]
         participation.step_at = at
     db.commit()
+
+
+def find_by_recruitment_id(
+    db: Session, *, study_name: str, recruitment_id: str, secret: bytes, actor: Actor
+) -> OnlineParticipation:
+    """The participation of a recruitment ID (an admin's request: a participant who writes
+    through the platform knows only their ID); audited, with the ID's hash only; commits.
+    NotFound when the ID never joined this study (or its data was erased)."""
+    study = get_study(db, study_name)
+    online_spec(study)
+    given = check_recruitment_id(recruitment_id, parameter="recruitment ID")
+    found = _participation(db, study.id, recruitment_hash(secret, study.id, given))
+    if found is None:
+        raise NotFound(f"no participation of that recruitment ID in study {study.name!r}")
+    participant = (
+        db.get(Participant, found.participant_id) if found.participant_id is not None else None
+    )
+    audit.record(
+        db,
+        actor=actor,
+        action="online.recruitment_id_looked_up",
+        study_id=study.id,
+        subject=participant.code if participant is not None else "",
+        details={"participation": found.id},
+    )
+    db.commit()
+    return found

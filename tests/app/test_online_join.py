@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import threading
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 import pytest
 from sqlalchemy import func, select
+from typer.testing import CliRunner
 
+from app.cli import cli
 from app.db import Database
 from app.errors import InvalidInput, NotFound
 from app.online import participation as online
@@ -17,8 +20,10 @@ from app.protocol import ProtocolError, parse_protocol
 from app.services import studies
 from app.services.audit import Actor
 from app.services.participants import tablet_tokens
+from app.services.privacy import erasure
 from app.services.sessions import stations
 from app.tables import (
+    AuditEvent,
     Device,
     OnlineParticipation,
     OnlineStatus,
@@ -245,3 +250,49 @@ def test_online_protocol_checks() -> None:
 def test_staff_cannot_name_a_station_as_online_participants_are_named(database: Database) -> None:
     with database.writing() as db, pytest.raises(InvalidInput, match="kept for online"):
         stations.create_station(db, name="online-7", actor=Actor.system())
+
+
+@sqlite_only("a command's words, not the database's")
+def test_an_admin_finds_a_recruitment_id_on_request_and_the_lookup_is_audited(
+    database: Database, database_url: str, web_study: str, tmp_path: Path
+) -> None:
+    joined = join(database, web_study, "PID-ASKS")
+    assert joined.participation is not None
+    env = {
+        "TRUSTLAB_DATABASE_URL": database_url,
+        "TRUSTLAB_SECRET_KEY": SECRET.decode(),
+        "TRUSTLAB_VAR_DIR": str(tmp_path),
+    }
+    found = CliRunner().invoke(
+        cli, ["online", "find", "--study", "web", "--id", "PID-ASKS"], env=env
+    )
+    assert found.exit_code == 0, found.output
+    assert found.output.startswith("P001: active, joined 2026-12-07 10:00 UTC")
+    unknown = CliRunner().invoke(
+        cli, ["online", "find", "--study", "web", "--id", "NOBODY"], env=env
+    )
+    assert unknown.exit_code != 0 and "no participation of that recruitment ID" in unknown.output
+    with database.read_session() as db:
+        logged = db.scalars(
+            select(AuditEvent).where(AuditEvent.action == "online.recruitment_id_looked_up")
+        ).all()
+        assert [(e.subject, e.details) for e in logged] == [
+            ("P001", {"participation": joined.participation.id})
+        ]
+        assert "PID-ASKS" not in repr([e.details for e in logged])
+
+
+def test_erasing_an_online_participant_removes_their_recruitment_id(
+    database: Database, web_study: str
+) -> None:
+    joined = join(database, web_study, "PID-GONE")
+    assert joined.participation is not None
+    with database.writing() as db:
+        result = erasure.erase_participant(
+            db, study_name=web_study, code="P001", actor=Actor.system(), secret=SECRET
+        )
+    assert result.removed["online_participation"] == 1
+    assert count(database, OnlineParticipation) == 0
+    with database.read_session() as db:
+        station = db.scalar(select(Station))
+        assert station is not None and station.participant_id is None
