@@ -25,7 +25,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from app.db import Database
-from app.deps import set_private_cookie
+from app.deps import SettingsDep, set_private_cookie
 from app.errors import NotAuthenticated
 from app.i18n.catalogues import Catalogue, Message, catalogue
 from app.inputs import ScreenPixels
@@ -61,16 +61,6 @@ async def _unit(request: Request, work: Callable[[Session], T]) -> T:
         return await database.run_unit_of_work(run, write=True)
 
 
-def _settings(request: Request) -> Settings:
-    settings: Settings = request.app.state.settings
-    return settings
-
-
-def _no_store(response: Response) -> Response:
-    response.headers["Cache-Control"] = "no-store"
-    return response
-
-
 def _words(study: Study, participant: Participant | None = None) -> Catalogue:
     """The interface words of the participant's language (before enrolment: the study's)."""
     protocol = protocol_of(study)
@@ -100,7 +90,7 @@ def _message(
         "completion_code": spec.completion_code if outcome is Outcome.COMPLETED else None,
         "spec": spec,
     }
-    return _no_store(render(request, "online_message.html", context, status_code=status_code))
+    return render(request, "online_message.html", context, status_code=status_code)
 
 
 @router.get("/join/{study}")
@@ -120,7 +110,7 @@ def join_page(request: Request, study: str) -> Response:
         "has_id": bool(dict(parse_qsl(request.url.query)).get(spec.id_parameter)),
         "id_parameter": spec.id_parameter,
     }
-    return _no_store(render(request, "online_join.html", context))
+    return render(request, "online_join.html", context)
 
 
 def _flag(value: str) -> bool:
@@ -139,10 +129,11 @@ async def join(
     keyboard: Annotated[str, Form(max_length=1)] = "",
     touch: Annotated[str, Form(max_length=1)] = "",
     browser: Annotated[str, Form(max_length=64)] = "",
+    *,
+    settings: SettingsDep,
 ) -> Response:
     """Join with what the browser check found: enrolled or resumed (to ``/online``), or why
     not."""
-    settings = _settings(request)
     check = BrowserCheck(
         webgl=_flag(webgl),
         audio=_flag(audio),
@@ -172,7 +163,7 @@ async def join(
         assert joined.participation is not None and joined.token is not None
         response = RedirectResponse("/online", status_code=303)
         _remember(request, response, joined.participation, joined.token, settings)
-        return _no_store(response)
+        return response
     return _message(request, found, joined.outcome, participation=joined.participation)
 
 
@@ -189,9 +180,9 @@ def _remember(
     set_private_cookie(response, request, ONLINE_COOKIE, cookie, max_age=age)
 
 
-def participation_of(request: Request, db: Session) -> OnlineParticipation:
+def participation_of(request: Request, db: Session, secret: bytes) -> OnlineParticipation:
     """The participation of this browser's ``tl_online`` cookie."""
-    value = unsign(_settings(request).secret, request.cookies.get(ONLINE_COOKIE, ""))
+    value = unsign(secret, request.cookies.get(ONLINE_COOKIE, ""))
     found = None
     if value is not None and value.startswith("online:") and value[7:].isdigit():
         found = db.get(OnlineParticipation, int(value[7:]))
@@ -203,19 +194,21 @@ def participation_of(request: Request, db: Session) -> OnlineParticipation:
 
 
 def _step(page: questionnaires.Page) -> str:
+    """Where the participant is, for the monitor: ``questionnaire:trust:2``, ``room:2``…"""
+    suffix = f":{page.session}" if page.session is not None else ""
     if page.kind == "questionnaire" and page.instrument is not None:
-        suffix = f":{page.session}" if page.session is not None else ""
         return f"questionnaire:{page.instrument.key}{suffix}"
+    if page.kind == "wait":  # an online participant's wait is the room
+        return f"room{suffix}"
     return page.kind
 
 
 @router.get("/online")
-async def where_now(request: Request) -> Response:
+async def where_now(request: Request, settings: SettingsDep) -> Response:
     """Send the participant where they should be now (the tablet home's online twin)."""
-    settings = _settings(request)
 
     def work(db: Session) -> Response:
-        participation = participation_of(request, db)
+        participation = participation_of(request, db, settings.secret)
         study = db.get(Study, participation.study_id)
         assert study is not None
         participant = (
@@ -241,18 +234,12 @@ async def where_now(request: Request) -> Response:
         if page.kind == "withdrawn":
             online.finish(db, participation, OnlineStatus.ENDED, at=now)
             return _message(request, study, Outcome.ENDED, participant=participant)
+        online.record_step(db, participation, _step(page), at=now)
         if page.kind != "wait":
-            online.record_step(db, participation, _step(page), at=now)
             return RedirectResponse(page.path, status_code=303)
-        online.record_step(db, participation, _session_step(db, participation), at=now)
         return _room(request, db, participation, participant, study, settings)
 
-    return _no_store(await _unit(request, work))
-
-
-def _session_step(db: Session, participation: OnlineParticipation) -> str:
-    station = db.get(Station, participation.station_id)
-    return f"room:{station.name}" if station is not None else "room"
+    return await _unit(request, work)
 
 
 def _room(
@@ -280,11 +267,11 @@ def _room(
 
 
 @router.post("/online/start", status_code=204)
-async def start_session(request: Request) -> Response:
+async def start_session(request: Request, settings: SettingsDep) -> Response:
     """The participant is ready: start their next session (the room goes on by itself)."""
 
     def work(db: Session) -> None:
-        participation = participation_of(request, db)
+        participation = participation_of(request, db, settings.secret)
         online.refresh(db, participation, at=utcnow())
         online.start_session(db, participation)
 
