@@ -274,12 +274,18 @@ class _Lane:
                 await self._run_session(started.expected.categories, preferred)
                 self.summary.sessions += 1
         finally:
-            await tablet.aclose()
-            try:
-                await self._leave_station(code)
-            except (ApiError, ConnectionError, TimeoutError, OSError, httpx.HTTPError) as exc:
-                # recorded beside the lane's own error (if any), which goes on as it was
-                self.summary.errors.append(f"{self.station}: {code} was left seated: {exc}")
+            # Carried to its end: a stopping run cancels its lanes a second time (run_bots'
+            # cleanup), which would otherwise cut this one short and leave the participant seated.
+            await _to_its_end(self._clean_up(tablet, code))
+
+    async def _clean_up(self, tablet: _Tablet, code: str) -> None:
+        """Close the participant's tablet and free the station; a failure to free it is recorded
+        beside the lane's own error (if any), which goes on as it was."""
+        await tablet.aclose()
+        try:
+            await self._leave_station(code)
+        except (ApiError, ConnectionError, TimeoutError, OSError, httpx.HTTPError) as exc:
+            self.summary.errors.append(f"{self.station}: {code} was left seated: {exc}")
 
     async def _leave_station(self, code: str) -> None:
         """Free the bot station of participant ``code``, also when the run is stopped
@@ -335,9 +341,9 @@ request's timeout. A server that has not answered by then is not waited for any 
 
 
 async def _to_its_end(call: Awaitable[T], settle: float = SETTLE_SECONDS) -> T:
-    """Await a request that seats or starts to its response, even when the run is stopped
-    meanwhile (for at most ``settle`` seconds more), and only then stop (re-raise the
-    cancellation).
+    """Await a request that seats or starts (or a lane's cleanup) to its response, even when
+    the run is stopped meanwhile (for at most ``settle`` seconds more), and only then stop
+    (re-raise the cancellation).
 
     A request cancelled in flight may still be carried out by the server after the lane's
     cleanup has looked at the station and found it free: the participant would stay seated.

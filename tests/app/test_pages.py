@@ -5,6 +5,8 @@ from __future__ import annotations
 import html
 import json
 import re
+import threading
+import time
 from collections.abc import Callable
 
 import pytest
@@ -14,11 +16,13 @@ from httpx import Response
 from sqlalchemy import select
 
 from app.db import Database
+from app.events import EventHub
 from app.inputs import STUDY_NAME
 from app.protocol import default_protocol, shipped_protocol, shipped_protocol_files
 from app.services import studies
 from app.services.audit import Actor
 from app.services.sessions import stations
+from app.services.topics import station_topic_of
 from app.tables import AuditEvent, Role
 from tests.conftest import UserClientFactory, protocol_text, sqlite_only
 
@@ -285,6 +289,15 @@ def _first_types(client: TestClient, path: str, *, then: Callable[[], None]) -> 
         return [kind for kind in types if kind != "resync"]
 
 
+def _wait_until_heard(hub: EventHub, topic: str, kind: str) -> None:
+    """Wait (bounded, not timed) until ``hub`` has received an event ``kind`` on ``topic``."""
+    for _ in range(1500):
+        if any(event.type == kind for event in hub.since([topic], time.time() - 30) or []):
+            return
+        threading.Event().wait(0.02)
+    raise AssertionError(f"the hub never heard {kind} on {topic}")
+
+
 def test_a_live_page_hears_a_change_made_between_its_rendering_and_its_stream(
     user_client: UserClientFactory, study_name: str, database: Database, app: FastAPI
 ) -> None:
@@ -295,7 +308,9 @@ def test_a_live_page_hears_a_change_made_between_its_rendering_and_its_stream(
     # their reading cannot tell what came since, and sends "unknown" (a refresh all the same).
     app.state.database.hub.heard_from -= 60
     with database.write_session() as db:
-        stations.create_station(db, name="lab-1", actor=Actor.system("test"))
+        lab_topic = station_topic_of(
+            stations.create_station(db, name="lab-1", actor=Actor.system("test")).id
+        )
     overview = _stream_path(client.get("/studies/default").text, "sse-connect")
     dashboard = _stream_path(client.get("/studies/default/dashboard").text, "data-events")
     console = _stream_path(client.get("/stations/lab-1").text, "sse-connect")
@@ -311,6 +326,9 @@ def test_a_live_page_hears_a_change_made_between_its_rendering_and_its_stream(
     unseat = post("/stations/lab-1/unassign")
     assert _first_types(client, overview, then=seat) == ["participant_enrolled"]
     assert "participant_enrolled" in _first_types(client, dashboard, then=unseat)
+    # PostgreSQL hands the unseating to the hub through LISTEN, after its commit: the console's
+    # stream must open once the hub has it, or it comes live instead of in the first message.
+    _wait_until_heard(app.state.database.hub, lab_topic, "participant_unassigned")
     # The console was drawn before the seating and the unseating, which it is told of first.
     missed = ["participant_assigned", "participant_unassigned"]
     assert _first_types(client, console, then=seat) == missed
