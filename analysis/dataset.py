@@ -37,6 +37,8 @@ from analysis.scoring import DEFAULT_SCALES, RESPONSE_COLUMNS, ScaleSpec
 __all__ = [
     "DEFAULT_EXCLUDED_STATUSES",
     "PARTICIPANT_COLUMNS",
+    "QUALITY_COLUMNS",
+    "QUALITY_FLAGS_COLUMN",
     "ConditionSummary",
     "ProtocolSummary",
     "StudyDataset",
@@ -49,6 +51,32 @@ PARTICIPANT_COLUMNS = ("participant", "condition", "status")
 
 DEFAULT_EXCLUDED_STATUSES = frozenset({"withdrawn"})
 """Participant statuses left out of the statistics (listed as exclusions in the report)."""
+
+QUALITY_FLAGS_COLUMN = "quality_flags"
+"""The participant column naming each participant's data-quality flags, ``;``-separated (empty:
+none). A study's ``excluded_flags`` leave the participants who have them out of the analysis."""
+QUALITY_COLUMNS: dict[str, tuple[str, str]] = {
+    QUALITY_FLAGS_COLUMN: (
+        "Data-quality flags raised, separated by ';' (attention, speeding, straightlining, "
+        "away, second_id_same_browser)",
+        "string",
+    ),
+    "attention_failed": ("Attention checks answered otherwise than expected", "numeric"),
+    "fastest_seconds_per_item": (
+        "Quickest timed questionnaire page, in seconds per item",
+        "numeric",
+    ),
+    "straightlined_pages": (
+        "Questionnaire pages with the same answer to every Likert item",
+        "numeric",
+    ),
+    "seconds_away": (
+        "Seconds the study's page was hidden (another tab or window in front)",
+        "numeric",
+    ),
+}
+"""The data-quality participant columns a study with data-quality rules carries, with their
+codebook label and type (the app computes them: app/services/participants/data_quality.py)."""
 
 
 class ConditionSummary(TypedDict):
@@ -77,6 +105,10 @@ class ProtocolSummary(TypedDict):
     """Number of sessions (the within-subject factor)."""
     runs_per_session: int
     """Runs per session; each run prompts every category once."""
+    quality: NotRequired[dict[str, Any]]
+    """The data-quality rules (the protocol's ``[quality]``: ``min_seconds_per_item``,
+    ``straightlining_min_items``, ``max_away_seconds``, ``attention_failures_allowed`` and the
+    flags it ``exclude``s), when the study has them."""
     familiarisation_runs: NotRequired[int]
     """Runs before session 1 that are not used for adaptation (default 1)."""
     allocation: NotRequired[str]
@@ -172,6 +204,9 @@ class StudyDataset:
         Scores to compute (default: TIPI and NARS).
     excluded_statuses : frozenset of str
         Participants with these statuses are left out of the statistics and listed as excluded.
+    excluded_flags : frozenset of str
+        Participants with any of these data-quality flags (:data:`QUALITY_FLAGS_COLUMN`) are
+        left out of the statistics and listed as excluded: the protocol's pre-registered rules.
     steps_withheld : str
         Why ``steps`` is left empty although steps were recorded (a blinded study that has not
         been unblinded); shown where the adaptation results would be. Empty: nothing withheld.
@@ -197,6 +232,7 @@ class StudyDataset:
     instruments: tuple[InstrumentSpec, ...] = DEFAULT_INSTRUMENTS
     scales: tuple[ScaleSpec, ...] = DEFAULT_SCALES
     excluded_statuses: frozenset[str] = DEFAULT_EXCLUDED_STATUSES
+    excluded_flags: frozenset[str] = frozenset()
     steps_withheld: str = ""
     registration: Mapping[str, Any] | None = None
     registration_source: str = ""
@@ -228,6 +264,11 @@ class StudyDataset:
                     f"{name} mention participant(s) {describe_keys(strangers)} that are not in "
                     "participants"
                 )
+        if self.excluded_flags and QUALITY_FLAGS_COLUMN not in self.participants.columns:
+            raise InvalidInputError(
+                f"participants: excluding by data-quality flags needs a {QUALITY_FLAGS_COLUMN!r} "
+                "column"
+            )
         declared = {c["code"] for c in self.protocol["conditions"]}
         undeclared = sorted(set(self.participants["condition"]) - declared, key=str)
         if undeclared:
@@ -244,6 +285,16 @@ class StudyDataset:
     def condition_labels(self) -> dict[str, str]:
         """Condition code → label, from the protocol."""
         return {c["code"]: c["label"] for c in self.protocol["conditions"]}
+
+    def flagged(self) -> pd.Series:
+        """Per participant row: the excluding data-quality flags they have, ``;``-separated
+        (empty: none, or the study excludes by none)."""
+        if not self.excluded_flags:
+            return pd.Series("", index=self.participants.index, dtype=object)
+        cells = self.participants[QUALITY_FLAGS_COLUMN].fillna("").astype(str)
+        return cells.map(
+            lambda cell: ";".join(f for f in cell.split(";") if f in self.excluded_flags)
+        )
 
     def instrument(self, name: str) -> InstrumentSpec:
         """The specification of instrument ``name``."""

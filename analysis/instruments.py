@@ -50,6 +50,9 @@ class ItemSpec:
         Labels of the response options (Likert anchors, category names).
     reverse : bool
         Reverse-keyed: its scored value is ``minimum + maximum − value``.
+    expected : str or None
+        An attention check's expected answer: the item tells whether a participant read the
+        page, so it is exported but never analysed as an outcome (:attr:`is_measure`).
     """
 
     key: str
@@ -59,6 +62,13 @@ class ItemSpec:
     maximum: float | None = None
     value_labels: tuple[tuple[int | str, str], ...] = ()
     reverse: bool = False
+    expected: str | None = None
+
+    @property
+    def is_measure(self) -> bool:
+        """Whether the analysis treats its answers as a measure (a rating or a number that is
+        not an attention check)."""
+        return self.kind in ("likert", "numeric") and self.expected is None
 
     def __post_init__(self) -> None:
         if not self.key:

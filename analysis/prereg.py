@@ -46,6 +46,7 @@ __all__ = [
     "data_sentence",
     "plan_of",
     "planned_measures",
+    "quality_rules",
     "registered_plan",
     "registration_html",
     "registration_markdown",
@@ -68,6 +69,7 @@ def analysis_plan(
     excluded_statuses: Sequence[str],
     analyses: Sequence[PlannedAnalysis],
     alpha: float = ALPHA,
+    quality: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The checkable part of a registration: what a report must have run to be "as registered".
 
@@ -78,7 +80,27 @@ def analysis_plan(
     analyses : sequence of PlannedAnalysis
         The analysis specification (:func:`analysis.specification.analysis_specification`):
         ``models`` holds their descriptions, ``analyses`` their formulas and covariates.
+    quality : mapping or None
+        The data-quality rules (:class:`analysis.dataset.ProtocolSummary`'s ``quality``), when
+        the study has them: their thresholds and excluding flags become exclusion rules.
     """
+    exclusions: dict[str, Any] = {
+        "statuses": sorted(excluded_statuses),
+        "rules": [
+            "participants whose status is "
+            + (" or ".join(sorted(excluded_statuses)) or "(none)")
+            + " are left out of every analysis and listed with the reason",
+            "the mixed ANOVA of a measure keeps participants with a value in every session "
+            "(complete cases); the others are listed with the reason",
+            "participants without a single per-session rating or answer to the robot are "
+            "left out of every analysis (no data) and listed with the reason",
+            "the mixed models keep every participant with at least one value",
+            "reverse-keyed items are reverse-scored before any analysis",
+        ],
+    }
+    if quality is not None:
+        exclusions["quality"] = dict(quality)
+        exclusions["rules"] += quality_rules(quality)
     return {
         "protocol_sha256": protocol_sha256,
         "measures": [
@@ -95,21 +117,34 @@ def analysis_plan(
         "alpha": alpha,
         "ss_type": ss_type,
         "confidence": confidence,
-        "exclusions": {
-            "statuses": sorted(excluded_statuses),
-            "rules": [
-                "participants whose status is "
-                + (" or ".join(sorted(excluded_statuses)) or "(none)")
-                + " are left out of every analysis and listed with the reason",
-                "the mixed ANOVA of a measure keeps participants with a value in every session "
-                "(complete cases); the others are listed with the reason",
-                "participants without a single per-session rating or answer to the robot are "
-                "left out of every analysis (no data) and listed with the reason",
-                "the mixed models keep every participant with at least one value",
-                "reverse-keyed items are reverse-scored before any analysis",
-            ],
-        },
+        "exclusions": exclusions,
     }
+
+
+def quality_rules(quality: Mapping[str, Any]) -> list[str]:
+    """The data-quality rules in words: how each flag is raised, and which exclude."""
+    away = quality.get("max_away_seconds")
+    flags = [
+        f"'attention': more than {quality.get('attention_failures_allowed', 0)} attention "
+        "check(s) answered otherwise than expected",
+        f"'speeding': a questionnaire page answered in less than "
+        f"{quality.get('min_seconds_per_item')} s per item",
+        f"'straightlining': the same answer to every Likert item of a page with at least "
+        f"{quality.get('straightlining_min_items')} of them",
+        "'away': "
+        + (f"the study's page hidden for more than {away} s in all" if away is not None else "off"),
+        "'second_id_same_browser': an online participant's browser had joined under another "
+        "recruitment ID",
+    ]
+    excluded = list(quality.get("exclude", []))
+    consequence = (
+        "participants with the flag(s) "
+        + ", ".join(f"'{flag}'" for flag in excluded)
+        + " are left out of every analysis and listed with the reason"
+        if excluded
+        else "no flag excludes a participant: the flags are reported and exported only"
+    )
+    return ["data-quality flags: " + "; ".join(flags), consequence]
 
 
 def planned_measures(dataset: StudyDataset) -> list[dict[str, Any]]:
@@ -121,7 +156,7 @@ def planned_measures(dataset: StudyDataset) -> list[dict[str, Any]]:
         {"key": item.key, "label": item.text, "reverse_keyed": item.reverse}
         for spec in per_session
         for item in spec.items
-        if item.kind in ("likert", "numeric")
+        if item.is_measure
     ]
     names = {spec.name for spec in per_session}
     scales = [
@@ -144,6 +179,7 @@ def registered_plan(
         confidence=confidence,
         excluded_statuses=sorted(dataset.excluded_statuses),
         analyses=analysis_specification(dataset.protocol),
+        quality=dataset.protocol.get("quality"),
     )
 
 
@@ -193,6 +229,7 @@ def plan_of(result: StudyAnalysis) -> dict[str, Any]:
         confidence=result.confidence,
         excluded_statuses=sorted(result.dataset.excluded_statuses),
         analyses=analysis_specification(result.dataset.protocol),
+        quality=result.dataset.protocol.get("quality"),
     )
 
 

@@ -29,6 +29,7 @@ from analysis.scoring import score_responses, score_scales
 __all__ = [
     "ALL_ANALYSES",
     "EXCLUSION_LIST_COLUMNS",
+    "FLAG_REASON",
     "NO_DATA_REASON",
     "OutcomeAnalysis",
     "StudyAnalysis",
@@ -40,6 +41,9 @@ EXCLUSION_LIST_COLUMNS = ("participant", "condition", "analysis", "reason")
 
 ALL_ANALYSES = "all"
 """The ``analysis`` of an exclusion from every analysis (by status, or for having no data)."""
+
+FLAG_REASON = "data quality (protocol's exclusion rule): "
+"""How an exclusion by a data-quality flag begins (app/quality.py; the flags follow)."""
 
 NO_DATA_REASON = "no data: no rating in any session and no answer to the robot"
 """Why an enrolled participant with no per-session rating is left out of every analysis (and
@@ -109,10 +113,12 @@ class StudyAnalysis:
     confidence : float
         Coverage of every confidence interval.
     participants : pandas.DataFrame
-        Participants analysed: status not excluded, and at least one per-session rating (when
-        the protocol has per-session measures). ``sample["n"]`` ("N analysed") counts them.
+        Participants analysed: status not excluded, no excluding data-quality flag, and at
+        least one per-session rating (when the protocol has per-session measures).
+        ``sample["n"]`` ("N analysed") counts them.
     status_exclusions : pandas.DataFrame
-        ``participant``, ``condition``, ``status``, ``reason`` of those left out by status.
+        ``participant``, ``condition``, ``status``, ``reason`` of those left out of everything
+        by status or by a data-quality flag the protocol excludes (:data:`FLAG_REASON`).
     excluded : pandas.DataFrame
         The one list of exclusions (:data:`EXCLUSION_LIST_COLUMNS`), as :meth:`exclusions`
         gives it.
@@ -198,10 +204,11 @@ def analyse_study(
     Notes
     -----
     Exclusions: participants whose status is in ``dataset.excluded_statuses`` are left out of
-    everything, and so are those without a single per-session rating or answer to the robot
-    (:data:`NO_DATA_REASON`; when the protocol has per-session measures); for each outcome,
-    participants without a value for every session (1..``protocol["sessions"]``) are left out of
-    that outcome's ANOVA, with the reason. All of them are in :meth:`StudyAnalysis.exclusions`.
+    everything, and so are those with a flag in ``dataset.excluded_flags`` and those without a
+    single per-session rating or answer to the robot (:data:`NO_DATA_REASON`; when the protocol
+    has per-session measures); for each outcome, participants without a value for every session
+    (1..``protocol["sessions"]``) are left out of that outcome's ANOVA, with the reason. All of
+    them are in :meth:`StudyAnalysis.exclusions`.
     Every ANOVA p value is computed from its F and degrees of freedom.
     """
     if ss_type not in (2, 3):
@@ -209,15 +216,22 @@ def analyse_study(
     if not 0 < confidence < 1:
         raise InvalidInputError(f"confidence must be between 0 and 1, got {confidence!r}")
     participants = dataset.participants
-    excluded_mask = participants["status"].isin(dataset.excluded_statuses).to_numpy()
+    by_status = participants["status"].isin(dataset.excluded_statuses).to_numpy()
+    flagged = dataset.flagged()
+    by_flag = (flagged != "").to_numpy() & ~by_status
+    excluded_mask = by_status | by_flag
     status_exclusions = pd.DataFrame(
         {
             "participant": participants.loc[excluded_mask, "participant"].to_numpy(),
             "condition": participants.loc[excluded_mask, "condition"].to_numpy(),
             "status": participants.loc[excluded_mask, "status"].to_numpy(),
+            "reason": np.where(
+                by_status[excluded_mask],
+                "status: " + participants.loc[excluded_mask, "status"].astype(str),
+                FLAG_REASON + flagged[excluded_mask].str.replace(";", ", "),
+            ),
         }
     )
-    status_exclusions["reason"] = "status: " + status_exclusions["status"].astype(str)
     analysed = participants.loc[~excluded_mask].reset_index(drop=True)
 
     # Factorise the repeated string keys once; every later groupby then works on codes.
@@ -283,7 +297,7 @@ def _with_data(dataset: StudyDataset, scored: pd.DataFrame) -> set[Any] | None:
         for spec in dataset.instruments
         if spec.per_session
         for item in spec.items
-        if item.kind in ("likert", "numeric")
+        if item.is_measure
     }
     if not measures:
         return None
@@ -345,7 +359,7 @@ def _item_outcomes(
         if not spec.per_session:
             continue
         for item in spec.items:
-            if item.kind not in ("likert", "numeric"):
+            if not item.is_measure:
                 continue
             rows = by_item.get(item.key)
             if rows is None:

@@ -70,6 +70,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     # of the principals here holds (tests/app/test_online_pages.py tries them with it)
     ("GET", "/online"): NOBODY_ELSE,
     ("POST", "/online/start"): NOBODY_ELSE,
+    ("POST", "/online/away"): NOBODY_ELSE,
     # signed-in people
     ("POST", "/logout"): USERS,
     ("GET", "/api/v1/session"): USERS,

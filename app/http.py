@@ -23,6 +23,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.errors import DatabaseUnavailable, NotAuthenticated, TrustlabError
 from app.i18n import catalogues
+from app.tablet import ONLINE_COOKIE
 from app.web.templating import is_htmx, render, tablet_catalogue
 
 log = logging.getLogger(__name__)
@@ -152,7 +153,8 @@ def _error_response(
             # server's English for staff (a path, a validation detail), so the heading says it.
             "message": words.say(message) if isinstance(message, catalogues.Message) else "",
             "catalogue": words,
-            "online": request.url.path.startswith(ONLINE_PATHS),
+            # no tablet to hand to anyone: the online pages, or an online participant's
+            "online": request.url.path.startswith(ONLINE_PATHS) or ONLINE_COOKIE in request.cookies,
         }
         return render(request, "tablet_message.html", context, status_code=status)
     return render(request, "error.html", {"status": status, "message": message}, status_code=status)

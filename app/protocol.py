@@ -26,8 +26,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     StringConstraints,
     ValidationError,
@@ -38,7 +36,9 @@ from app.i18n import catalogues, protocol_texts
 from app.i18n.languages import UnknownLanguage, check_code
 from app.online.spec import OnlineSpec, check_online
 from app.periods import Period
+from app.quality import QualitySpec, check_quality
 from app.room import RoomSpec, check_room, default_room
+from app.spec_base import StrictSpec
 from app.speech.vocabulary import DEFAULT_MIN_CONFIDENCE, DEFAULT_NO, DEFAULT_YES, normalise
 
 if TYPE_CHECKING:  # the models (numpy) are imported where a feedback model is made
@@ -58,11 +58,7 @@ MAX_PROTOCOL_BYTES = 512 * 1024
 """The largest protocol text accepted (a file, a form's text, the API's ``protocol_toml``)."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class StudyInfo(_Strict):
+class StudyInfo(StrictSpec):
     """What the study is called and what participants are told."""
 
     title: Text
@@ -95,7 +91,7 @@ class LearnerKind(StrEnum):
     """The exact filter for ``[learners.feedback]`` (models/learners/exact.py, issue 36)."""
 
 
-class ConditionSpec(_Strict):
+class ConditionSpec(StrictSpec):
     """One arm of the trial, e.g. C1 (Exp3), C2 (meta-learned policy) or a third that runs the
     exact filter for the declared participants (``bayes``)."""
 
@@ -111,7 +107,7 @@ class ConditionSpec(_Strict):
     )
 
 
-class Exp3Settings(_Strict):
+class Exp3Settings(StrictSpec):
     """Exp3 (Auer et al. 2002) parameters."""
 
     gamma: float = Field(
@@ -122,7 +118,7 @@ class Exp3Settings(_Strict):
     )
 
 
-class MetaSettings(_Strict):
+class MetaSettings(StrictSpec):
     """Meta-learned policy parameters."""
 
     checkpoint: str = Field(
@@ -134,7 +130,7 @@ class MetaSettings(_Strict):
     )
 
 
-class FeedbackSettings(_Strict):
+class FeedbackSettings(StrictSpec):
     """How participants answer, as C2's meta-training and the simulations assume
     (models/feedback.py, docs/engine.md). Without this table: the seed paper's model, which the
     replication set was trained for, so protocols written before issue 19 keep their C2; the
@@ -163,7 +159,7 @@ class FeedbackSettings(_Strict):
     )
 
 
-class PopulationSettings(_Strict):
+class PopulationSettings(StrictSpec):
     """C2 meta-trained for a population fitted from earlier participants (issue 20,
     docs/engine.md "Basic trust from earlier participants"). Checked at study creation: the file
     against its hash, its categories' questions against this protocol's, each checkpoint against
@@ -181,7 +177,7 @@ class PopulationSettings(_Strict):
     )
 
 
-class LearnerSettings(_Strict):
+class LearnerSettings(StrictSpec):
     """Per-algorithm settings shared by every category."""
 
     exp3: Exp3Settings = Field(default_factory=Exp3Settings)
@@ -190,7 +186,7 @@ class LearnerSettings(_Strict):
     population: PopulationSettings | None = None
 
 
-class CategorySpec(_Strict):
+class CategorySpec(StrictSpec):
     """A mental-activity instance: an independent K-armed bandit over its questions."""
 
     name: Key
@@ -203,7 +199,7 @@ class CategorySpec(_Strict):
     )
 
 
-class ScheduleSpec(_Strict):
+class ScheduleSpec(StrictSpec):
     """How many sessions and runs a participant goes through."""
 
     sessions: int = Field(default=4, ge=1, le=50)
@@ -216,7 +212,7 @@ class ScheduleSpec(_Strict):
     )
 
 
-class ReplyLevel(_Strict):
+class ReplyLevel(StrictSpec):
     """A confidence level and what the robot says at it: ``text`` after either answer, or a
     line per answer (``yes``, ``no``); a per-answer line takes the place of ``text`` for it."""
 
@@ -245,7 +241,7 @@ ReplyBasis = Literal["chosen", "updated", "heard"]
 """What the reply level is computed from (models/replies.py; docs/engine.md, replies)."""
 
 
-class RepliesSpec(_Strict):
+class RepliesSpec(StrictSpec):
     """The robot's reply by a probability p: the first level whose threshold p is below, else
     the last (defaults: p < .5 low, < .65 medium-low, < .8 medium, else high)."""
 
@@ -263,7 +259,7 @@ class RepliesSpec(_Strict):
 Phrase = Annotated[str, StringConstraints(strip_whitespace=True, min_length=1, max_length=60)]
 
 
-class SpeechSpec(_Strict):
+class SpeechSpec(StrictSpec):
     """How a robot that hears (``trustlab bridge``) takes spoken answers (docs/robots.md).
 
     The recogniser listens for these phrases only; what it hears counts when it is one of them
@@ -340,14 +336,14 @@ class SpeechSpec(_Strict):
     )
 
 
-class RewardSpec(_Strict):
+class RewardSpec(StrictSpec):
     """How a participant's answer becomes the learner's reward (clipped into [0, 1] by Exp3)."""
 
     yes: float = 1.0
     no: float = 0.0
 
 
-class AllocationSpec(_Strict):
+class AllocationSpec(StrictSpec):
     """Concealed permuted-block randomisation."""
 
     block_sizes: list[int] = Field(default_factory=lambda: [2, 4], min_length=1)
@@ -364,7 +360,7 @@ SITE_FACTOR = "site"
 """The stratification factor a study's site becomes with ``[sites] stratify = true``."""
 
 
-class SitesSpec(_Strict):
+class SitesSpec(StrictSpec):
     """The places a multi-site study enrols at (app/services/privacy/sites.py): every participant
     belongs to one, staff accounts may be limited to some, and allocation may be stratified by
     them."""
@@ -393,7 +389,7 @@ WithdrawalOption = Literal["keep", "erase"]
 _BOTH_WITHDRAWAL_OPTIONS: list[WithdrawalOption] = ["keep", "erase"]
 
 
-class WithdrawalSpec(_Strict):
+class WithdrawalSpec(StrictSpec):
     """What a withdrawal may do with the data collected so far (app/services/privacy/erasure.py):
     keep it (the participant stays in the analysis as withdrawn) or erase it. The staff member who
     withdraws someone chooses among these; an ethics board may require either one alone."""
@@ -413,7 +409,7 @@ class WithdrawalSpec(_Strict):
         return options
 
 
-class RetentionSpec(_Strict):
+class RetentionSpec(StrictSpec):
     """How long identifiable data is kept after the study closes, and what happens to it then
     (app/services/privacy/retention.py, ``trustlab retention run``). Not declared: kept until
     someone erases it."""
@@ -450,7 +446,7 @@ class ItemKind(StrEnum):
     TEXT = "text"
 
 
-class ResponseScale(_Strict):
+class ResponseScale(StrictSpec):
     """A Likert scale: integer points from ``minimum`` to ``maximum`` with labelled anchors."""
 
     name: Key
@@ -461,7 +457,7 @@ class ResponseScale(_Strict):
     )
 
 
-class ChoiceOption(_Strict):
+class ChoiceOption(StrictSpec):
     """One option of a choice item; ``describe`` asks for a self-description in words."""
 
     value: Key
@@ -469,7 +465,7 @@ class ChoiceOption(_Strict):
     describe: bool = False
 
 
-class ItemSpec(_Strict):
+class ItemSpec(StrictSpec):
     """One question of an instrument."""
 
     key: Key
@@ -482,9 +478,24 @@ class ItemSpec(_Strict):
     maximum: int | None = Field(default=None, description="Highest allowed number (number items).")
     options: list[ChoiceOption] = Field(default_factory=list)
     max_length: int = Field(default=2000, ge=1, le=20000, description="Text items only.")
+    expected: str | None = Field(
+        default=None,
+        max_length=40,
+        description="An attention check: the answer an attentive participant gives (a scale "
+        "point, a number, or a choice's value). Flagged when missed (app/quality.py); never an "
+        "outcome or part of a score.",
+    )
+
+    @field_validator("expected", mode="before")
+    @classmethod
+    def _as_stored(cls, value: object) -> object:
+        """The answer as stored answers are written (``expected = 4`` and ``"4"`` are one)."""
+        if isinstance(value, bool):  # TOML's true is no answer an item can be given
+            raise ValueError("give the expected answer itself: a number or a choice's value")
+        return str(value) if isinstance(value, int) else value
 
 
-class InstrumentSpec(_Strict):
+class InstrumentSpec(StrictSpec):
     """A questionnaire page: shown before the study, after every session, or after the last."""
 
     key: Key
@@ -495,7 +506,7 @@ class InstrumentSpec(_Strict):
     items: list[ItemSpec] = Field(min_length=1)
 
 
-class ScoreSpec(_Strict):
+class ScoreSpec(StrictSpec):
     """A scale score computed from raw answers (reverse keys come from the items)."""
 
     name: Key
@@ -505,7 +516,7 @@ class ScoreSpec(_Strict):
     label: str = ""
 
 
-class ConsentSpec(_Strict):
+class ConsentSpec(StrictSpec):
     """The consent text participants must accept; its version is stored with the acceptance.
 
     This is version 1 of the study's consent text; an admin adds later versions while the study
@@ -521,7 +532,7 @@ class ConsentSpec(_Strict):
     )
 
 
-class QuestionnairesSpec(_Strict):
+class QuestionnairesSpec(StrictSpec):
     """Every instrument of the study, as data a lab can translate or adapt."""
 
     consent: ConsentSpec
@@ -530,7 +541,7 @@ class QuestionnairesSpec(_Strict):
     scores: list[ScoreSpec] = Field(default_factory=list)
 
 
-class Protocol(_Strict):
+class Protocol(StrictSpec):
     """A whole study protocol."""
 
     study: StudyInfo
@@ -555,6 +566,12 @@ class Protocol(_Strict):
         default=None,
         description="Run the study from a public link with no experimenter (app/online; none: "
         "in the lab only).",
+    )
+    quality: QualitySpec | None = Field(
+        default=None,
+        description="What counts as careless answering and which flags leave a participant out "
+        "of the analysis (app/quality.py; none: the defaults for an online study, no flags in "
+        "the lab).",
     )
     translations: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
@@ -588,6 +605,22 @@ class Protocol(_Strict):
             data = protocol_texts.translated(self.model_dump(mode="json"), language)
             localised = entry[1][language] = Protocol.model_validate(data)
         return localised
+
+    def quality_rules(self) -> QualitySpec | None:
+        """The data-quality rules in force: ``[quality]``, the defaults for an online study
+        (its participants are unattended), or None for a lab study that declares none."""
+        if self.quality is not None:
+            return self.quality
+        return QualitySpec() if self.online is not None else None
+
+    def attention_checks(self) -> list[tuple[str, ItemSpec]]:
+        """(instrument key, item) of every attention-check item, in protocol order."""
+        return [
+            (instrument.key, item)
+            for instrument in self.questionnaires.instruments
+            for item in instrument.items
+            if item.expected is not None
+        ]
 
     def room_layout(self) -> RoomSpec:
         """The floor plan the room client draws: ``[room]``, or the default for the categories."""
@@ -970,6 +1003,13 @@ def _check_scores(questionnaires: QuestionnairesSpec) -> list[Problem]:
                 problems.append(
                     Problem(f"{base}.items[{k_index}]", f"item {key!r} is not a Likert item")
                 )
+            elif item.expected is not None:
+                problems.append(
+                    Problem(
+                        f"{base}.items[{k_index}]",
+                        f"item {key!r} is an attention check: it cannot be part of a score",
+                    )
+                )
     return problems
 
 
@@ -993,7 +1033,34 @@ def _check_item(item: ItemSpec, path: str, scales: dict[str, ResponseScale]) -> 
         problems += _unique([o.value for o in item.options], f"{path}.options", "option")
     elif item.options:
         problems.append(Problem(f"{path}.options", "only choice items have options"))
+    if item.expected is not None:
+        problems += _check_expected(item, path, scales)
     return problems
+
+
+def _check_expected(item: ItemSpec, path: str, scales: dict[str, ResponseScale]) -> list[Problem]:
+    """An attention check's expected answer must be one the item can be given."""
+    where = f"{path}.expected"
+    if item.kind is ItemKind.TEXT:
+        return [Problem(where, "a text item cannot be an attention check")]
+    if not item.required:
+        return [Problem(f"{path}.required", "an attention check must be required")]
+    if item.kind is ItemKind.CHOICE:
+        values = [option.value for option in item.options]
+        if item.expected not in values:
+            return [Problem(where, f"must be one of the options' values: {', '.join(values)}")]
+        return []
+    assert item.expected is not None
+    if not re.fullmatch(r"-?[0-9]+", item.expected):
+        return [Problem(where, "must be a whole number")]
+    if item.kind is ItemKind.LIKERT:
+        scale = scales.get(item.scale or "")
+        low, high = (None, None) if scale is None else (scale.minimum, scale.maximum)
+    else:
+        low, high = item.minimum, item.maximum
+    if low is not None and high is not None and not low <= int(item.expected) <= high:
+        return [Problem(where, f"must be between {low} and {high}")]
+    return []
 
 
 def check_protocol(protocol: Protocol) -> list[Problem]:
@@ -1036,6 +1103,13 @@ def check_protocol(protocol: Protocol) -> list[Problem]:
             site_names=None if protocol.sites is None else protocol.sites.names,
         )
         problems += [Problem(at, why) for at, why in online_problems]
+    if protocol.quality is not None:
+        quality_problems = check_quality(
+            protocol.quality,
+            attention_checks=len(protocol.attention_checks()),
+            online=protocol.online is not None,
+        )
+        problems += [Problem(at, why) for at, why in quality_problems]
     return problems
 
 

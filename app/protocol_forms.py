@@ -141,6 +141,14 @@ SECTIONS = (
         ("online",),
     ),
     Section(
+        "quality",
+        "Data quality",
+        "What counts as careless answering (too fast, one answer throughout, away from the page, "
+        "failed attention checks) and which of those flags leave a participant out of the "
+        "analysis. Attention checks are items given an expected answer under Questionnaires.",
+        ("quality",),
+    ),
+    Section(
         "languages",
         "Languages and translations",
         "The study's languages, and every participant-facing text in each further language "

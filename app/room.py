@@ -19,24 +19,22 @@ import math
 from collections.abc import Sequence
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from app.spec_base import StrictSpec
 
 Metres = Annotated[float, Field(allow_inf_nan=False)]
 Radius = Annotated[float, Field(gt=0.0, le=10.0, allow_inf_nan=False)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Spot(_Strict):
+class Spot(StrictSpec):
     """A point on the floor (the red button, the keys, the robot)."""
 
     x: Metres
     z: Metres
 
 
-class Circle(_Strict):
+class Circle(StrictSpec):
     """A circle on the floor (the start and the exit)."""
 
     x: Metres
@@ -44,7 +42,7 @@ class Circle(_Strict):
     radius: Radius = 0.6
 
 
-class Wall(_Strict):
+class Wall(StrictSpec):
     """An inner wall from (x1, z1) to (x2, z2)."""
 
     x1: Metres
@@ -53,7 +51,7 @@ class Wall(_Strict):
     z2: Metres
 
 
-class Zone(_Strict):
+class Zone(StrictSpec):
     """Where walking in requests ``category``'s prompt."""
 
     category: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
@@ -62,7 +60,7 @@ class Zone(_Strict):
     radius: Radius = 0.6
 
 
-class RoomSpec(_Strict):
+class RoomSpec(StrictSpec):
     """The maze a browser room client draws."""
 
     width: Annotated[float, Field(ge=2.0, le=100.0, allow_inf_nan=False)]

@@ -652,6 +652,12 @@ class Submission(Base):
     submitted_at: Mapped[datetime] = mapped_column(default=utcnow)
     revision: Mapped[int] = mapped_column(default=1)
     revised_at: Mapped[datetime | None]
+    seconds_on_page: Mapped[float | None]
+    """How long the page was open before its first submission, as the page measured it (a
+    reload keeps counting); None: not measured (an API client). Revisions leave it."""
+    seconds_away: Mapped[float | None]
+    """Of that time, how long the page's tab was hidden (app/services/participants/
+    data_quality.py)."""
 
 
 class OnlineStatus(StrEnum):
@@ -708,6 +714,9 @@ class OnlineParticipation(Base):
     flags: Mapped[dict[str, Any]] = mapped_column(default=dict)
     """Data-quality and duplicate flags, by name (app.online.quality)."""
     pilot: Mapped[bool] = mapped_column(default=False, server_default=false())
+    room_seconds_away: Mapped[float] = mapped_column(default=0.0, server_default="0")
+    """How long, in all, the room's tab was hidden during their sessions (the room page's
+    beacons; questionnaire pages' time away is on their submissions)."""
 
 
 class ProtocolVersion(Base):

@@ -27,6 +27,9 @@ from app.services.studies import protocol_of
 from app.tables import Participant, Station, Study
 
 TABLET_COOKIE = "tl_tablet"
+ONLINE_COOKIE = "tl_online"
+"""An online participant's participation (app.online.pages); beside the tablet's, so that their
+questionnaire pages and their errors know there is no experimenter to turn to."""
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from typing import Any
 
 import pandas as pd
 
-from analysis.dataset import StudyDataset
+from analysis.dataset import QUALITY_COLUMNS, StudyDataset
 from analysis.exports.csvfile import CSV_TEXT_RULE
 from analysis.exports.tables import (
     LONG_COLUMNS,
@@ -101,6 +101,8 @@ def _item_entry(
         label += " (reverse-scored)"
     if column.session is not None:
         label += f" [session {column.session}]"
+    if item.expected is not None:
+        label += f" (attention check: expected {item.expected})"
     reverse = ""
     if item.reverse and item.minimum is not None and item.maximum is not None:
         reverse = f"yes: scored {item.minimum + item.maximum:g} − x"
@@ -174,6 +176,10 @@ def _participant_entries(dataset: StudyDataset, columns: list[WideColumn]) -> li
         "status": ("Participant status at export", "string", "nominal", "", ""),
         "language": (LANGUAGE_LABEL, "string", "nominal", "", ""),
         "site": (SITE_LABEL, "string", "nominal", "", ""),
+        **{
+            name: (label, kind, "scale" if kind == "numeric" else "nominal", "", "")
+            for name, (label, kind) in QUALITY_COLUMNS.items()
+        },
     }
     out = []
     for column in columns:

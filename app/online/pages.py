@@ -36,13 +36,12 @@ from app.services.participants import languages, questionnaires
 from app.services.studies import get_study, protocol_of
 from app.settings import Settings
 from app.tables import OnlineParticipation, OnlineStatus, Participant, Station, Study, utcnow
-from app.tablet import TABLET_COOKIE
+from app.tablet import ONLINE_COOKIE, TABLET_COOKIE
 from app.web.room import ROOM_PERMISSIONS
 from app.web.templating import render
 
 router = APIRouter(tags=["online"], include_in_schema=False)
 
-ONLINE_COOKIE = "tl_online"
 COOKIE_DAYS = 2
 QUERY_MAX = 4000
 """The longest query string a join keeps (platforms send a handful of short parameters)."""
@@ -259,6 +258,7 @@ def _room(
             "key": online.station_key(settings.secret, participation),
             "start": "/online/start",
             "leave": "/online",
+            "away": "/online/away",
         },
     }
     response = render(request, "room.html", context)
@@ -274,6 +274,20 @@ async def start_session(request: Request, settings: SettingsDep) -> Response:
         participation = participation_of(request, db, settings.secret)
         online.refresh(db, participation, at=utcnow())
         online.start_session(db, participation)
+
+    await _unit(request, work)
+    return Response(status_code=204)
+
+
+AwaySeconds = Annotated[float, Form(ge=0.0, le=online.LONGEST_AWAY_SECONDS, allow_inf_nan=False)]
+
+
+@router.post("/online/away", status_code=204)
+async def away(request: Request, settings: SettingsDep, seconds: AwaySeconds) -> Response:
+    """The room's tab was hidden for ``seconds`` (a beacon from static/js/room.js)."""
+
+    def work(db: Session) -> None:
+        online.record_away(db, participation_of(request, db, settings.secret), seconds)
 
     await _unit(request, work)
     return Response(status_code=204)

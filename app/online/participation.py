@@ -490,6 +490,29 @@ def record_step(
     db.commit()
 
 
+LONGEST_AWAY_SECONDS = 24 * 3600.0
+"""One report of time away from the room is at most a day (a study's time limit is shorter)."""
+
+
+def record_away(db: Session, participation: OnlineParticipation, seconds: float) -> None:
+    """Add one spell of the room's tab being hidden to their time away (data quality:
+    app/services/participants/data_quality.py); commits. Nothing once the participation is
+    over: a closing tab's last report may arrive after the completion."""
+    if participation.status != OnlineStatus.ACTIVE:
+        return
+    # One UPDATE adding to the column: two reports arriving at once (a hidden tab closed) both
+    # count, whichever commits first.
+    db.execute(
+        update(OnlineParticipation)
+        .where(OnlineParticipation.id == participation.id)
+        .values(
+            room_seconds_away=OnlineParticipation.room_seconds_away
+            + min(max(seconds, 0.0), LONGEST_AWAY_SECONDS)
+        )
+    )
+    db.commit()
+
+
 def find_by_recruitment_id(
     db: Session, *, study_name: str, recruitment_id: str, secret: bytes, actor: Actor
 ) -> OnlineParticipation:

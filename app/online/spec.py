@@ -16,7 +16,9 @@ from collections.abc import Sequence
 from enum import StrEnum
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints
+from pydantic import Field, StringConstraints
+
+from app.spec_base import StrictSpec
 
 ParameterName = Annotated[str, StringConstraints(pattern=r"^[A-Za-z][A-Za-z0-9_]{0,39}$")]
 """A URL parameter's name as platforms spell them (``PROLIFIC_PID``, ``workerId``)."""
@@ -41,11 +43,7 @@ class DeviceKind(StrEnum):
     """A small touch screen."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class OnlineSpec(_Strict):
+class OnlineSpec(StrictSpec):
     """Running the study from a public link, with no experimenter (docs/online.md)."""
 
     id_parameter: ParameterName = Field(

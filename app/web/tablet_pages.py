@@ -268,7 +268,8 @@ def _submit(
     fields: dict[str, str],
 ) -> Response:
     _check_form_token(tablet, settings, fields.pop("csrf_token", ""))
-    answers = dict(fields)
+    timing = questionnaires.PageTiming.from_form(fields)
+    answers = {k: v for k, v in fields.items() if k not in questionnaires.TIMING_FIELDS}
     try:
         questionnaires.submit(
             db,
@@ -278,6 +279,7 @@ def _submit(
             session=session,
             answers=answers,
             actor=participant_actor(tablet),
+            timing=timing,
         )
     except questionnaires.QuestionnaireInvalid as exc:
         db.rollback()

@@ -567,6 +567,25 @@ function askForKey(problem) {
   el("key-error").textContent = problem || "";
 }
 
+// An online participant's time away from the room (another tab or window in front) is part of
+// their data quality (app/services/participants/data_quality.py): each hidden spell is reported
+// when the room is seen again, or when the page goes away while hidden.
+function reportTimeAway() {
+  let hiddenSince = document.hidden ? Date.now() : null;
+  const report = () => {
+    if (hiddenSince === null) return;
+    const seconds = Math.max(0, Date.now() - hiddenSince) / 1000;
+    hiddenSince = null;
+    navigator.sendBeacon(root.dataset.away, new URLSearchParams({ seconds: seconds.toFixed(3) }));
+  };
+  document.addEventListener("visibilitychange", () => {
+    if (document.hidden) hiddenSince = Date.now();
+    else report();
+  });
+  window.addEventListener("pagehide", report);
+}
+if (ONLINE && root.dataset.away) reportTimeAway();
+
 function leaveRoom() {
   if (room.leaving) return;
   room.leaving = true;

@@ -5,15 +5,42 @@
   const form = document.querySelector("form[data-draft-key]");
   const draftKey = form ? "trustlab:draft:" + form.dataset.draftKey : null;
 
+  const timingOf = (key) => key.replace("trustlab:draft:", "trustlab:timing:");
+
   // A draft whose page was submitted is no longer needed once we are on another page.
   const submitted = sessionStorage.getItem(SUBMITTED);
   if (submitted && submitted !== draftKey) {
     localStorage.removeItem(submitted);
+    localStorage.removeItem(timingOf(submitted));
     sessionStorage.removeItem(SUBMITTED);
   }
 
   if (form) {
-    const fields = () => Array.from(form.elements).filter((el) => el.name && el.name !== "csrf_token");
+    // How long this page is open and, of that, how long its tab is hidden (data quality:
+    // app/services/participants/data_quality.py). Kept with the draft, so a reload or a return
+    // after closing the tab goes on counting from the first time the page was shown.
+    const timingKey = timingOf(draftKey);
+    const timing = JSON.parse(localStorage.getItem(timingKey) || "null") || { opened: Date.now(), away: 0 };
+    const keepTiming = () => localStorage.setItem(timingKey, JSON.stringify(timing));
+    keepTiming();
+    let hiddenSince = document.hidden ? Date.now() : null;
+    const hiddenUntilNow = () => (hiddenSince === null ? 0 : Math.max(0, Date.now() - hiddenSince));
+    document.addEventListener("visibilitychange", () => {
+      if (document.hidden) {
+        hiddenSince = Date.now();
+      } else {
+        timing.away += hiddenUntilNow();
+        hiddenSince = null;
+        keepTiming();
+      }
+    });
+    form.addEventListener("submit", () => {
+      const open = Math.max(0, Date.now() - timing.opened);
+      form.elements["page-seconds"].value = (open / 1000).toFixed(3);
+      form.elements["away-seconds"].value = ((timing.away + hiddenUntilNow()) / 1000).toFixed(3);
+    });
+
+    const fields = () => Array.from(form.elements).filter((el) => el.name && el.type !== "hidden");
     const saved = JSON.parse(localStorage.getItem(draftKey) || "null");
     if (saved) {
       for (const el of fields()) {

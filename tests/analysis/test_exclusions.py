@@ -13,6 +13,13 @@ import pandas as pd
 import pytest
 
 from analysis.dataset import StudyDataset
+from analysis.errors import InvalidInputError
+from analysis.prereg import (
+    build_registration,
+    check_registration,
+    registered_plan,
+    registration_markdown,
+)
 from analysis.report import build_report
 from analysis.study import ALL_ANALYSES, NO_DATA_REASON, StudyAnalysis, analyse_study
 from analysis.synthetic import synthetic_study
@@ -132,3 +139,76 @@ def test_a_participant_who_answered_the_robot_but_rated_nothing_is_analysed(
     assert NO_DATA in set(result.participants["participant"]) and result.sample["n"] == 3
     for outcome in result.outcomes:
         assert NO_DATA in set(outcome.excluded["subject"])
+
+
+QUALITY = {
+    "min_seconds_per_item": 2.0,
+    "straightlining_min_items": 5,
+    "max_away_seconds": 120.0,
+    "attention_failures_allowed": 0,
+    "exclude": ["attention"],
+}
+
+
+def _flagged_study(exclude: list[str]) -> StudyDataset:
+    """Six participants with data-quality columns: one failed an attention check, one sped."""
+    study = synthetic_study(6, seed=5)
+    participants = study.participants.copy()
+    participants["quality_flags"] = ["", "attention", "speeding", "", "attention;away", ""]
+    return dataclasses.replace(
+        study,
+        participants=participants,
+        protocol={**study.protocol, "quality": {**QUALITY, "exclude": exclude}},
+        excluded_flags=frozenset(exclude),
+    )
+
+
+def test_a_protocols_excluding_flags_leave_participants_out_with_the_reason() -> None:
+    study = _flagged_study(["attention"])
+    result = analyse_study(study)
+    codes = list(study.participants["participant"])
+    everywhere = result.exclusions()
+    everywhere = everywhere[everywhere["analysis"] == ALL_ANALYSES]
+    assert dict(zip(everywhere["participant"], everywhere["reason"], strict=True)) == {
+        codes[1]: "data quality (protocol's exclusion rule): attention",
+        codes[4]: "data quality (protocol's exclusion rule): attention",
+    }
+    assert result.sample["n"] == 4 and codes[2] in set(result.participants["participant"])
+    methods = _text(_section(build_report(result), "methods"))
+    assert "data quality (protocol's exclusion rule): attention: 2" in methods
+    # flags that exclude nothing are still exported: the column stays as it was
+    kept = analyse_study(_flagged_study([]))
+    assert kept.exclusions().empty and kept.sample["n"] == 6
+
+
+def test_excluding_by_flag_needs_the_flags_column() -> None:
+    study = synthetic_study(4, seed=1)
+    with pytest.raises(InvalidInputError, match="needs a 'quality_flags' column"):
+        dataclasses.replace(study, excluded_flags=frozenset({"attention"}))
+
+
+def test_the_registered_plan_holds_the_quality_rules_and_a_change_is_a_deviation() -> None:
+    registered = build_registration(
+        study={"name": "s", "title": "S"},
+        protocol_source="",
+        plan=registered_plan(_flagged_study(["attention"])),
+        hypotheses=[],
+        power=None,
+        software={},
+        seeds={},
+        created_at="2026-12-07",
+        data={"participants_enrolled": 0, "participants_answered": 0},
+    )
+    rules = registered["analysis_plan"]["exclusions"]["rules"]
+    assert any("'speeding': a questionnaire page answered in less than 2.0 s" in r for r in rules)
+    assert "participants with the flag(s) 'attention' are left out of every analysis" in " ".join(
+        rules
+    )
+    assert "Exclusion rules" in registration_markdown(registered)
+
+    def exclusion_deviations(exclude: list[str]) -> list[str]:
+        checked = check_registration(registered, analyse_study(_flagged_study(exclude)))
+        return [d for d in checked.deviations if d.startswith("exclusion rules")]
+
+    assert exclusion_deviations(["attention"]) == []
+    assert len(exclusion_deviations(["speeding"])) == 1

@@ -379,6 +379,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ("POST", "/join/{study}"): send("POST", "/join/rt", data={"query": "PROLIFIC_PID=probe"}),
     ("GET", "/online"): get("/online"),
     ("POST", "/online/start"): send("POST", "/online/start"),
+    ("POST", "/online/away"): send("POST", "/online/away", data={"seconds": "2.5"}),
     ("GET", "/tablet/events"): stream("/tablet/events"),
 }
 OWNERSHIP_CHECKED = {("POST", "/api/v1/station/steps/{step_id}/answer")}

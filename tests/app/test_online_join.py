@@ -51,11 +51,12 @@ def online_protocol(extra: str = "", **replacements: str) -> str:
     return protocol_text(**EXP3_ONLY, **replacements) + ONLINE + extra
 
 
-def create_online_study(database: Database, name: str = "web", extra: str = "") -> str:
+def create_online_study(
+    database: Database, name: str = "web", extra: str = "", **replacements: str
+) -> str:
+    loaded = parse_protocol(online_protocol(extra, **replacements))
     with database.writing() as db:
-        studies.create_study(
-            db, name=name, loaded=parse_protocol(online_protocol(extra)), actor=Actor.system()
-        )
+        studies.create_study(db, name=name, loaded=loaded, actor=Actor.system())
     return name
 
 

@@ -27,7 +27,7 @@ from analysis.scoring import ScaleSpec
 from app.protocol import SITE_FACTOR, InstrumentSpec, ItemKind, Protocol
 from app.services.analysis_views import registrations
 from app.services.blinding import LEARNERS_SEALED, shows_learners
-from app.services.participants import languages
+from app.services.participants import data_quality, languages
 from app.services.participants.questionnaires import CONSENT, DESCRIPTION_SUFFIX
 from app.services.privacy.sites import Scope
 from app.services.sessions import learners
@@ -87,10 +87,20 @@ def _items(protocol: Protocol, instrument: InstrumentSpec) -> tuple[AnalysisItem
                     scale.maximum,
                     labels,
                     item.reverse,
+                    expected=item.expected,
                 )
             )
         elif item.kind is ItemKind.NUMBER:
-            items.append(AnalysisItem(item.key, item.text, "numeric", item.minimum, item.maximum))
+            items.append(
+                AnalysisItem(
+                    item.key,
+                    item.text,
+                    "numeric",
+                    item.minimum,
+                    item.maximum,
+                    expected=item.expected,
+                )
+            )
         elif item.kind is ItemKind.CHOICE:
             items.append(
                 AnalysisItem(
@@ -98,6 +108,7 @@ def _items(protocol: Protocol, instrument: InstrumentSpec) -> tuple[AnalysisItem
                     item.text,
                     "categorical",
                     value_labels=tuple((option.value, option.label) for option in item.options),
+                    expected=item.expected,
                 )
             )
             if any(option.describe for option in item.options):
@@ -203,6 +214,9 @@ def protocol_summary(study: Study, protocol: Protocol) -> ProtocolSummary:
     }
     if protocol.speech.record_audio:
         summary["record_audio"] = True
+    rules = protocol.quality_rules()
+    if rules is not None:  # registered by trustlab prereg and applied by the analysis
+        summary["quality"] = rules.model_dump(mode="json")
     if len(protocol.study.languages) > 1:  # the codebook lists, and the report cites, each one
         summary["translations"] = languages.translation_summary(protocol)
     return summary
@@ -282,6 +296,7 @@ def _participants(
     so each row says which its participant ran under (:data:`VERSION_COLUMN`)."""
     rows = db.execute(
         select(
+            Participant.id,
             Participant.code,
             Allocation.condition,
             Participant.status,
@@ -300,6 +315,10 @@ def _participants(
     pilot_column = [PILOT_COLUMN] if pilot else []
     version_column = [VERSION_COLUMN] if amended else []
     versions = _versions_run_under(db, whom) if amended else {}
+    # With data-quality rules, every row carries its flags and their measures (every export,
+    # and the analysis's exclusions by flag: analysis.study).
+    quality = data_quality.quality_by_participant(db, protocol, whom)
+    quality_columns = list(data_quality.QUALITY_COLUMNS) if protocol.quality_rules() else []
     frame = pd.DataFrame(
         [
             {
@@ -312,8 +331,9 @@ def _participants(
                 **({PILOT_COLUMN: 1} if pilot else {}),
                 **({VERSION_COLUMN: versions.get(code, "")} if amended else {}),
                 **{factor: strata.get(factor) for factor in protocol.allocation.stratify_by},
+                **(quality[participant_id].columns() if quality_columns else {}),
             }
-            for code, condition, status, language, site, strata in rows
+            for participant_id, code, condition, status, language, site, strata in rows
         ],
         columns=[
             "participant",
@@ -324,6 +344,7 @@ def _participants(
             *pilot_column,
             *version_column,
             *protocol.allocation.stratify_by,
+            *quality_columns,
         ],
     )
     return frame
@@ -495,6 +516,7 @@ def load_dataset(
         manifest=manifest,
         instruments=instruments,
         scales=scales_of(protocol),
+        excluded_flags=frozenset(summary.get("quality", {}).get("exclude", [])),
         steps_withheld=withheld,
         registration=registration,
         registration_source=registration_source,

@@ -57,6 +57,36 @@ from app.tables import (
 CONSENT = "consent"
 DESCRIPTION_SUFFIX = "_description"
 DESCRIPTION_MAX = 200
+TIMING_FIELDS = ("page-seconds", "away-seconds")
+"""The form fields in which a page reports how long it was open and how long hidden (names no
+item key can have: keys are snake case)."""
+LONGEST_PAGE_SECONDS = 7 * 24 * 3600.0
+"""More than a week on one page is no measurement (a clock changed under the page)."""
+
+
+@dataclass(frozen=True)
+class PageTiming:
+    """How long a questionnaire page was open before its first submission and, of that, how
+    long its tab was hidden, as the page measured them (static/js/tablet.js): the 'speeding'
+    and 'away' flags are computed from them (app/services/participants/data_quality.py)."""
+
+    seconds_on_page: float
+    seconds_away: float
+
+    @classmethod
+    def from_form(cls, fields: Mapping[str, str]) -> PageTiming | None:
+        """The timing a form reported (None: it reported none, e.g. a page without its script);
+        InvalidInput for values that are not seconds."""
+        page, away = (fields.get(name, "").strip() for name in TIMING_FIELDS)
+        if not page and not away:
+            return None
+        try:
+            on_page, hidden = float(page), float(away or "0")
+        except ValueError:
+            raise InvalidInput("the page's timing is not a number of seconds") from None
+        if not (0 <= on_page <= LONGEST_PAGE_SECONDS and 0 <= hidden <= LONGEST_PAGE_SECONDS):
+            raise InvalidInput("the page's timing is out of range")
+        return cls(round(on_page, 3), round(min(hidden, on_page), 3))
 
 
 @dataclass(frozen=True)
@@ -407,6 +437,7 @@ def _store(
     actor: Actor,
     clear_missing: frozenset[str] = frozenset(),
     revising: bool,
+    timing: PageTiming | None = None,
 ) -> tuple[int, int]:
     """Store a page's values; (its revision, how many stored values changed).
 
@@ -494,7 +525,12 @@ def _store(
         db.execute(insert(Response), new_rows)
     if submission is None:
         submission = Submission(
-            participant_id=participant.id, instrument=instrument, session=session, submitted_at=now
+            participant_id=participant.id,
+            instrument=instrument,
+            session=session,
+            submitted_at=now,
+            seconds_on_page=None if timing is None else timing.seconds_on_page,
+            seconds_away=None if timing is None else timing.seconds_away,
         )
         db.add(submission)
         return 1, changed
@@ -704,8 +740,10 @@ def submit(
     session: int | None,
     answers: Mapping[str, str],
     actor: Actor,
+    timing: PageTiming | None = None,
 ) -> SubmitResult:
-    """Validate and store one questionnaire page all-or-nothing; commits."""
+    """Validate and store one questionnaire page all-or-nothing; commits. ``timing``: what the
+    page measured, kept with its first submission."""
     participant, station = _as_now(db, participant)
     _refuse_if_locked(participant)
     instrument = _instrument(protocol, instrument_key)
@@ -724,6 +762,7 @@ def submit(
         actor=actor,
         clear_missing=optional,
         revising=(instrument.key, session) in where.done,
+        timing=timing,
     )
     _publish(db, participant, station, instrument.key, session)
     where.done.add((instrument.key, session))
