@@ -85,6 +85,7 @@ POLICY: Mapping[tuple[str, str], frozenset[Principal]] = {
     ("GET", "/api/v1/studies/{name}/participants/{code}"): USERS,
     ("GET", "/studies/{name}"): USERS,
     ("GET", "/studies/{name}/dashboard"): USERS,
+    ("GET", "/studies/{name}/monitor"): USERS,
     ("GET", "/api/v1/protocols"): USERS,
     ("GET", "/admin/protocols/edit"): ADMINS,
     ("POST", "/admin/protocols/edit"): ADMINS,

@@ -703,7 +703,9 @@ class OnlineParticipation(Base):
     recruitment ID is flagged, never refused."""
     device: Mapped[str] = mapped_column(String(16), default="")
     step: Mapped[str] = mapped_column(String(80), default="")
-    """The page they are on (``consent``, ``questionnaire:nars``, ``session:2``, ``done``)."""
+    """The page their last visit to ``/online`` sent them to (``consent``, ``questionnaire:nars``,
+    ``room``, ``done``; app.online.monitor.step_of). The monitor places participants from their
+    progress instead, which every page keeps right."""
     step_at: Mapped[datetime] = mapped_column(default=utcnow)
     joined_at: Mapped[datetime] = mapped_column(default=utcnow)
     expires_at: Mapped[datetime]

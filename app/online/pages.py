@@ -30,6 +30,7 @@ from app.errors import NotAuthenticated
 from app.i18n.catalogues import Catalogue, Message, catalogue
 from app.inputs import ScreenPixels
 from app.online import participation as online
+from app.online.monitor import step_of
 from app.online.participation import BrowserCheck, Outcome
 from app.security import sign, unsign
 from app.services.participants import languages, questionnaires
@@ -192,16 +193,6 @@ def participation_of(request: Request, db: Session, secret: bytes) -> OnlinePart
     return found
 
 
-def _step(page: questionnaires.Page) -> str:
-    """Where the participant is, for the monitor: ``questionnaire:trust:2``, ``room:2``…"""
-    suffix = f":{page.session}" if page.session is not None else ""
-    if page.kind == "questionnaire" and page.instrument is not None:
-        return f"questionnaire:{page.instrument.key}{suffix}"
-    if page.kind == "wait":  # an online participant's wait is the room
-        return f"room{suffix}"
-    return page.kind
-
-
 @router.get("/online")
 async def where_now(request: Request, settings: SettingsDep) -> Response:
     """Send the participant where they should be now (the tablet home's online twin)."""
@@ -233,7 +224,7 @@ async def where_now(request: Request, settings: SettingsDep) -> Response:
         if page.kind == "withdrawn":
             online.finish(db, participation, OnlineStatus.ENDED, at=now)
             return _message(request, study, Outcome.ENDED, participant=participant)
-        online.record_step(db, participation, _step(page), at=now)
+        online.record_step(db, participation, step_of(page), at=now)
         if page.kind != "wait":
             return RedirectResponse(page.path, status_code=303)
         return _room(request, db, participation, participant, study, settings)

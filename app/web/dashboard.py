@@ -17,6 +17,7 @@ from app.services.analysis_views.freshness import FreshnessCache
 from app.services.audit import Actor
 from app.services.privacy import sites
 from app.services.sessions import learners
+from app.web.monitor_pages import monitor_context
 from app.web.templating import render
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
@@ -51,6 +52,7 @@ def dashboard_page(
             "population_source": source_label(population["source"]) if population else "",
             "site": site.strip(),
             "site_choices": sites.choices(protocol, actor),
+            "panels": monitor_context(db, study, sites.narrowed(actor, site, study)),
         },
     )
 

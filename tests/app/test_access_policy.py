@@ -129,6 +129,7 @@ PROBES: dict[tuple[str, str], Probe] = {
     ),
     ("GET", "/studies/{name}"): get("/studies/rt"),
     ("GET", "/studies/{name}/dashboard"): get("/studies/rt/dashboard"),
+    ("GET", "/studies/{name}/monitor"): get("/studies/rt/monitor"),
     ("GET", "/api/v1/protocols"): get("/api/v1/protocols"),
     ("GET", "/admin/protocols/edit"): get("/admin/protocols/edit"),
     ("POST", "/admin/protocols/edit"): send(
