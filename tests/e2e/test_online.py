@@ -17,7 +17,7 @@ from app.db import Database
 from app.protocol import parse_protocol
 from app.services import studies
 from app.services.audit import Actor
-from app.tables import Answer, OnlineParticipation, OnlineStatus, Participant
+from app.tables import Answer, OnlineParticipation, OnlineStatus, Participant, Submission
 from tests.app.test_online_join import online_protocol
 from tests.e2e.room_driver import PAPER_ORDER, answer_by_rules, wait_question, wait_ready, walk
 from tests.servers import ServerProcess
@@ -103,7 +103,20 @@ def _pre_study(page: Page, url: str) -> None:
         expect(page).to_have_url(f"{url}/tablet/q/{instrument}")
         for name in names:
             _likert(page, name, 3)
+        if instrument == "nars":
+            _look_away(page)
         page.get_by_role("button", name="Continue").click()
+
+
+def _look_away(page: Page) -> None:
+    """Another tab in front for a moment (at least 50 ms of it), then this one again."""
+    hide = """(hidden) => {
+        Object.defineProperty(document, "hidden", { configurable: true, get: () => hidden });
+        document.dispatchEvent(new Event("visibilitychange"));
+    }"""
+    page.evaluate(hide, True)
+    page.wait_for_timeout(50)  # a lower bound on the time away, not a race
+    page.evaluate(hide, False)
 
 
 def _join(page: Page, platform: FakePlatform, url: str) -> None:
@@ -136,6 +149,7 @@ def test_an_online_participant_goes_from_the_platform_and_back(
     start = page.get_by_role("button", name="I am ready: start")
     expect(start).to_be_visible()
     page.screenshot(path=str(artifacts / "02-room-ready.png"))
+    _look_away(page)  # the room's beacon reports it
     start.click()
     wait_ready(page)
     page.wait_for_function("() => window.trustlabRoom.state.expected.action === 'prompt'")
@@ -176,3 +190,10 @@ def test_an_online_participant_goes_from_the_platform_and_back(
         assert participation is not None and participation.status == OnlineStatus.COMPLETED
         assert participation.flags == {}  # one ID, even from a second browser
         assert len(db.scalars(select(Answer)).all()) == 3
+        # the pages timed themselves, and the time away of a questionnaire page and the room
+        # reached the server
+        timed = {row.instrument: row for row in db.scalars(select(Submission))}
+        assert all(timed[key].seconds_on_page for key in ("demographics", "nars", "trust"))
+        assert (timed["nars"].seconds_away or 0) >= 0.05
+        assert (timed["tipi"].seconds_away or 0) == 0
+        assert participation.room_seconds_away >= 0.05
