@@ -141,11 +141,35 @@ class _Robot:
             await self.rest.aclose()
 
 
+def categories_of(protocol: dict[str, Any]) -> list[_Category]:
+    """The protocol's categories: how many questions each has, and the rules' preferred one."""
+    return [
+        _Category(c["name"], len(c["questions"]), c.get("preferred"))
+        for c in protocol["categories"]
+    ]
+
+
+def attention_answers(protocol: dict[str, Any]) -> dict[str, str]:
+    """The expected answer of every attention-check item of a protocol (as the staff API shows
+    it): the bots read what an attentive participant reads on the page."""
+    return {
+        item["key"]: str(item["expected"])
+        for instrument in protocol["questionnaires"]["instruments"]
+        for item in instrument["items"]
+        if item.get("expected") is not None
+    }
+
+
 def questionnaire_answers(
-    page: dict[str, Any], model: ResponseModel, condition: str, rng: random.Random
+    page: dict[str, Any],
+    model: ResponseModel,
+    condition: str,
+    rng: random.Random,
+    attention: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """Valid answers to the questionnaire on a tablet ``page`` (as ``GET /api/v1/tablet`` shows it),
-    drawn from ``model``; session questionnaires shift by the condition's effect and slope."""
+    drawn from ``model``; session questionnaires shift by the condition's effect and slope, and
+    attention checks get their ``attention`` answer (:func:`attention_answers`)."""
     scales = {s["name"]: s for s in page["scales"]}
     session = page.get("session")
     shift = 0.0
@@ -153,7 +177,9 @@ def questionnaire_answers(
         shift = model.effect.get(condition, 0.0) + model.slope.get(condition, 0.0) * (session - 1)
     answers: dict[str, Any] = {}
     for item in page["instrument"]["items"]:
-        if item["kind"] == "likert":
+        if attention and item["key"] in attention:
+            answers[item["key"]] = attention[item["key"]]
+        elif item["kind"] == "likert":
             scale = scales[item["scale"]]
             answers[item["key"]] = model.likert(
                 rng, scale["minimum"], scale["maximum"], reverse=item["reverse"], shift=shift
@@ -172,7 +198,13 @@ class _Tablet:
     """A participant's tablet over the JSON tablet API."""
 
     def __init__(
-        self, url: str, token: str, model: ResponseModel, condition: str, rng: random.Random
+        self,
+        url: str,
+        token: str,
+        model: ResponseModel,
+        condition: str,
+        rng: random.Random,
+        attention: dict[str, str],
     ) -> None:
         self._client = httpx.AsyncClient(
             base_url=url.rstrip("/"), timeout=15.0, headers={"Authorization": f"Bearer {token}"}
@@ -180,9 +212,10 @@ class _Tablet:
         self.model = model
         self.condition = condition
         self.rng = rng
+        self.attention = attention
 
     def _answers(self, page: dict[str, Any]) -> dict[str, Any]:
-        return questionnaire_answers(page, self.model, self.condition, self.rng)
+        return questionnaire_answers(page, self.model, self.condition, self.rng, self.attention)
 
     async def _send(self, method: str, path: str, body: Any = None) -> dict[str, Any]:
         response = await self._client.request(method, path, json=body)
@@ -228,12 +261,14 @@ class _Lane:
         rng: random.Random,
         summary: BotSummary,
         tick: Callable[[], None],
+        attention: dict[str, str],
     ) -> None:
         self.config = config
         self.station = station
         self.experimenter = experimenter
         self.robot = robot
         self.categories = categories
+        self.attention = attention
         self.rng = rng
         self.summary = summary
         self.tick = tick
@@ -251,6 +286,7 @@ class _Lane:
             self.config.responses,
             str(enrolled["condition"]),
             self.rng,
+            self.attention,
         )
         preferred = {
             c.name: c.preferred if c.preferred is not None else self.rng.randrange(c.arms)
@@ -310,24 +346,53 @@ class _Lane:
         raise ApiError(409, f"{code} could not be unseated from {self.station}")
 
     async def _run_session(self, categories: list[str], preferred: dict[str, int]) -> None:
-        """Answer runs until the session is over; each run visits its categories in a new order."""
-        pending = list(categories)
-        while True:
-            order = list(pending)
-            self.rng.shuffle(order)
-            for category in order:
-                step = await self.robot.prompt(category)
-                says_yes = step.action == preferred[category]
-                if self.rng.random() < self.config.noise:
-                    says_yes = not says_yes
-                reply = await self.robot.answer(step.step_id, "yes" if says_yes else "no")
-                self.summary.steps += 1
-                self.tick()
-                if reply.expected.action != "prompt":
-                    return
-                if reply.run_completed:
-                    pending = reply.expected.categories
-                    break
+        await answer_session(
+            self.robot,
+            categories,
+            preferred,
+            rng=self.rng,
+            noise=self.config.noise,
+            on_step=self._answered,
+        )
+
+    def _answered(self) -> None:
+        self.summary.steps += 1
+        self.tick()
+
+
+async def answer_session(
+    robot: _Robot,
+    categories: list[str],
+    preferred: dict[str, int],
+    *,
+    rng: random.Random,
+    noise: float,
+    on_step: Callable[[], None] = lambda: None,
+    think: Callable[[], Awaitable[None]] | None = None,
+) -> int:
+    """Answer runs until the session is over, as the paper's rules say (``noise``: the chance of
+    answering against them); each run visits its categories in a new order. ``think``: awaited
+    before each answer (a person's pace). Returns how many steps were answered."""
+    pending = list(categories)
+    steps = 0
+    while True:
+        order = list(pending)
+        rng.shuffle(order)
+        for category in order:
+            step = await robot.prompt(category)
+            says_yes = step.action == preferred[category]
+            if rng.random() < noise:
+                says_yes = not says_yes
+            if think is not None:
+                await think()
+            reply = await robot.answer(step.step_id, "yes" if says_yes else "no")
+            steps += 1
+            on_step()
+            if reply.expected.action != "prompt":
+                return steps
+            if reply.run_completed:
+                pending = reply.expected.categories
+                break
 
 
 T = TypeVar("T")
@@ -417,10 +482,8 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
     async with ExperimenterClient(config.url) as admin:
         await admin.sign_in(config.username, config.password)
         protocol = await admin.protocol(config.study)
-        categories = [
-            _Category(c["name"], len(c["questions"]), c.get("preferred"))
-            for c in protocol["categories"]
-        ]
+        categories = categories_of(protocol)
+        attention = attention_answers(protocol)
         queue: asyncio.Queue[int] = asyncio.Queue()
         for index in range(config.participants):
             queue.put_nowait(index)
@@ -443,7 +506,9 @@ async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None
                 robot = _Robot(None, socket)
             else:
                 robot = _Robot(RobotClient(config.url, key), None)
-            lane = _Lane(config, station, admin, robot, categories, lane_rng, summary, tick)
+            lane = _Lane(
+                config, station, admin, robot, categories, lane_rng, summary, tick, attention
+            )
             try:
                 while not queue.empty():
                     queue.get_nowait()

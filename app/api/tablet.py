@@ -88,6 +88,9 @@ def _consent_out(db: SessionDep, tablet: Tablet) -> dict[str, Any]:
     }
 
 
+HIDDEN_FROM_PARTICIPANTS = {"items": {"__all__": {"expected"}}}
+
+
 def _page_out(db: SessionDep, tablet: Tablet, page: questionnaires.Page) -> PageOut:
     spec = tablet.protocol.questionnaires
     return PageOut(
@@ -99,7 +102,11 @@ def _page_out(db: SessionDep, tablet: Tablet, page: questionnaires.Page) -> Page
         ]
         if page.kind == "language"
         else [],
-        instrument=page.instrument.model_dump(mode="json") if page.instrument else None,
+        # An attention check's expected answer is for the analysis, not for the participant's
+        # browser to read.
+        instrument=page.instrument.model_dump(mode="json", exclude=HIDDEN_FROM_PARTICIPANTS)
+        if page.instrument
+        else None,
         session=page.session,
         consent=_consent_out(db, tablet) if page.kind == "consent" else None,
         scales=[s.model_dump(mode="json") for s in spec.scales] if page.instrument else [],

@@ -254,6 +254,20 @@ def bots(
             "needs its own)."
         ),
     ] = "bot",
+    online: Annotated[
+        bool,
+        typer.Option(
+            "--online",
+            help="Come through the study's public link as online participants would (an "
+            "online study: docs/online.md); the station prefix starts their recruitment IDs.",
+        ),
+    ] = False,
+    think_seconds: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help="With --online: a participant's mean pause before each page and answer."
+        ),
+    ] = 0.0,
     as_json: JsonFlag = False,
 ) -> None:
     """Simulated participants driven through the whole protocol over HTTP/WebSocket."""
@@ -262,6 +276,7 @@ def bots(
     from tqdm import tqdm
 
     from app.bots import BotConfig, BotStationsBusy, run_bots
+    from app.bots_online import OnlineStudyClosed, run_online_bots
     from app.client import ApiError
 
     if not password_stdin:
@@ -283,8 +298,12 @@ def bots(
     )
     with tqdm(desc="answers", unit="step", file=sys.stderr, disable=as_json) as bar:
         try:
-            summary = asyncio.run(run_bots(config, tick=lambda: bar.update(1)))
-        except BotStationsBusy as exc:
+            if online:
+                run = run_online_bots(config, think_seconds=think_seconds, tick=bar.update)
+            else:
+                run = run_bots(config, tick=lambda: bar.update(1))
+            summary = asyncio.run(run)
+        except (BotStationsBusy, OnlineStudyClosed) as exc:
             raise InvalidInput(str(exc)) from exc
         except ApiError as exc:
             raise InvalidInput(f"the server refused: {exc.detail}") from exc

@@ -287,6 +287,11 @@ def test_the_tablet_page_stores_its_timing_and_refuses_a_broken_one(
     assert accepted.status_code == 303, accepted.text
     page = browser.get("/tablet/q/demographics")
     assert 'name="page-seconds"' in page.text and 'name="away-seconds"' in page.text
+    # the tablet's JSON view of a page never tells an attention check's answer
+    token = browser.cookies["tl_tablet"]
+    shown = client_of(client, headers={"Authorization": f"Bearer {token}"}).get("/api/v1/tablet")
+    assert shown.json()["instrument"]["key"] == "demographics"
+    assert all("expected" not in item for item in shown.json()["instrument"]["items"])
     answers: dict[str, Any] = {
         "csrf_token": _form_token(page.text),
         **PRE_STUDY_ANSWERS["demographics"],
