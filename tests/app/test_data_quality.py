@@ -5,12 +5,16 @@ the flags every export carries and the analysis excludes by."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 from typing import Any
 
+import pandas as pd
+import pyreadstat
 import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import select
 
+from analysis.exports.files import write_export
 from app.db import Database
 from app.errors import InvalidInput
 from app.online import participation as online
@@ -176,7 +180,9 @@ def _participant_of(joined: online.Joined) -> int:
     return joined.participation.participant_id
 
 
-def test_flags_are_drawn_from_answers_page_times_and_time_away(database: Database) -> None:
+def test_flags_are_drawn_from_answers_page_times_and_time_away(
+    database: Database, tmp_path: Path
+) -> None:
     study = create_online_study(database, extra=QUALITY, **WITH_CHECK)
     careful = _participant_of(join(database, study, "PID-CAREFUL", browser="a" * 22))
     careless = _participant_of(join(database, study, "PID-CARELESS", browser="b" * 22))
@@ -245,6 +251,16 @@ def test_flags_are_drawn_from_answers_page_times_and_time_away(database: Databas
     nars = dataset.instrument("nars")
     check = next(item for item in nars.items if item.key == "nars_check")
     assert check.expected == "4" and not check.is_measure
+    # every export carries the flags: the wide file, the SPSS file and the codebook
+    wide = pd.read_csv(write_export(dataset, "wide-csv", tmp_path / "wide.csv"))
+    flags = dict(zip(wide["participant"], wide["quality_flags"].fillna(""), strict=True))
+    assert flags[codes[careless]] == "attention;speeding;straightlining;away"
+    spss, _meta = pyreadstat.read_sav(str(write_export(dataset, "sav", tmp_path / "s.sav")))
+    assert set(data_quality.QUALITY_COLUMNS) <= set(spss.columns)
+    codebook = pd.read_csv(write_export(dataset, "codebook-csv", tmp_path / "codebook.csv"))
+    labels = dict(zip(codebook["column"], codebook["label"], strict=False))
+    assert labels["attention_failed"] == "Attention checks answered otherwise than expected"
+    assert labels["nars_check"].endswith("(attention check: expected 4)")
 
 
 def _codes(database: Database) -> dict[int, str]:
