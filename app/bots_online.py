@@ -7,8 +7,9 @@ as static/js/tablet.js does), and in the room it takes the device key from the p
 *start* and answers the robot over the room's WebSocket as the paper's rules say (app.bots), until
 the completion page. ``think_seconds`` paces it like a person (an exponential pause before each
 page submission and each answer; 0 for tests). Every request's latency can be recorded by kind
-(``page``: a page load, ``form``: a submission, ``start``, ``prompt``, ``answer``) for the scale
-benchmark (bench/online.py).
+(``join``: the link's page, ``online``: ``/online``, which sends them on or shows the room,
+``page``: a questionnaire page, ``form``: a submission, ``start``, ``prompt``, ``answer``) for
+the scale benchmark (bench/online.py).
 
 The bots sign in as an admin only to read the protocol (the rules a participant is told, and the
 answers an attentive participant gives to its attention checks); everything they do as
@@ -100,8 +101,8 @@ class _Participant:
         if self.think_seconds > 0:
             await asyncio.sleep(self.rng.expovariate(1.0 / self.think_seconds))
 
-    async def _page(self, path: str) -> httpx.Response:
-        response = await self._timed("page", self.browser.get(path))
+    async def _page(self, path: str, kind: str = "page") -> httpx.Response:
+        response = await self._timed(kind, self.browser.get(path))
         if response.status_code >= 400:
             raise ApiError(response.status_code, f"{path}: {_said(response.text)}")
         return response
@@ -115,7 +116,7 @@ class _Participant:
 
     async def join(self) -> None:
         """The public link, then the browser check's verdict; ApiError when not enrolled."""
-        await self._page(f"/join/{self.config.study}?{self.query}")
+        await self._page(f"/join/{self.config.study}?{self.query}", kind="join")
         browser = f"bot-browser-{secrets.token_hex(8)}"
         joined = await self._submit(
             f"/join/{self.config.study}", {"query": self.query, "browser": browser, **DESKTOP_CHECK}
@@ -140,7 +141,7 @@ class _Participant:
         """From the link to the completion page; returns the outcome the last page names."""
         await self.join()
         for _ in range(MOST_PAGES):
-            where = await self._timed("page", self.browser.get("/online"))
+            where = await self._timed("online", self.browser.get("/online"))
             if where.status_code == 303:
                 await self._questionnaire(where.headers["location"])
                 continue
@@ -336,7 +337,7 @@ async def _run(
                 else:
                     summary.errors.append(f"{recruitment_id}: ended as {outcome}")
             except (ApiError, OnlineStudyClosed, httpx.HTTPError, OSError) as exc:
-                summary.errors.append(f"{recruitment_id}: {exc}")
+                summary.errors.append(f"{recruitment_id}: {type(exc).__name__}: {exc}")
             finally:
                 summary.sessions += participant.sessions
                 summary.questionnaires += participant.submitted

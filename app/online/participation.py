@@ -479,13 +479,23 @@ def station_key(secret: bytes, participation: OnlineParticipation) -> str:
     return device_key(secret, participation.id, participation.key_generation)
 
 
+SEEN_EVERY = timedelta(seconds=30)
+"""How stale ``last_seen_at`` may grow before a visit writes it again: the monitor's "online now"
+looks two minutes back, and a write on every visit to ``/online`` made each one a write
+transaction (a single SQLite writer's queue, at hundreds of participants: bench/online.py)."""
+
+
 def record_step(
     db: Session, participation: OnlineParticipation, step: str, *, at: datetime
 ) -> None:
-    """Note the page they are on (the monitoring's "where each is"); commits a change."""
+    """Note the page they are on and that they were seen; commits only a change (a new step,
+    or a sighting :data:`SEEN_EVERY` after the last one written)."""
+    step = step[:80]
+    if step == participation.step and at - participation.last_seen_at < SEEN_EVERY:
+        return
     participation.last_seen_at = at
     if step != participation.step:
-        participation.step = step[:80]
+        participation.step = step
         participation.step_at = at
     db.commit()
 
