@@ -163,7 +163,10 @@ class _Participant:
             raise ApiError(500, f"{path} has no form")
         opened = time.monotonic()
         assert self.tablet is not None
-        page = (await self.tablet.get("/api/v1/tablet")).json()
+        shown_json = await self.tablet.get("/api/v1/tablet")
+        if shown_json.status_code != 200:  # a busy server's 503, say: this participant stops
+            raise ApiError(shown_json.status_code, f"/api/v1/tablet: {shown_json.text[:120]}")
+        page = shown_json.json()
         form: dict[str, Any] = {"csrf_token": token.group(1)}
         if page["kind"] == "language":
             form["language"] = self.rng.choice([offered["code"] for offered in page["languages"]])
