@@ -470,12 +470,17 @@ async def _claim_stations(admin: ExperimenterClient, names: list[str]) -> None:
             )
 
 
-async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None) -> BotSummary:
-    """Drive ``config.participants`` simulated participants through the study."""
+def check_config(config: BotConfig) -> None:
+    """ValueError for a run that cannot be: no lanes, negative participants, noise outside 0–1."""
     if config.participants < 0 or config.concurrency < 1:
         raise ValueError("participants must be ≥ 0 and concurrency ≥ 1")
     if not 0.0 <= config.noise <= 1.0:
         raise ValueError("noise must lie in [0, 1]")
+
+
+async def run_bots(config: BotConfig, *, tick: Callable[[], None] = lambda: None) -> BotSummary:
+    """Drive ``config.participants`` simulated participants through the study."""
+    check_config(config)
     started = time.perf_counter()
     summary = BotSummary()
     rng = random.Random(config.seed)

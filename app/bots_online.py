@@ -37,6 +37,7 @@ from app.bots import (
     answer_session,
     attention_answers,
     categories_of,
+    check_config,
     questionnaire_answers,
 )
 from app.client import ApiError, ExperimenterClient, StationSocket
@@ -267,10 +268,7 @@ async def run_online_bots(
 ) -> BotSummary:
     """Drive ``config.participants`` simulated online participants through the study's public
     link, ``config.concurrency`` at once. OnlineStudyClosed when the study is not run online."""
-    if config.participants < 0 or config.concurrency < 1:
-        raise ValueError("participants must be ≥ 0 and concurrency ≥ 1")
-    if not 0.0 <= config.noise <= 1.0:
-        raise ValueError("noise must lie in [0, 1]")
+    check_config(config)
     if think_seconds < 0:
         raise ValueError("think_seconds must be ≥ 0")
     started = time.perf_counter()

@@ -22,7 +22,7 @@ from app.protocol import default_protocol, shipped_protocol, shipped_protocol_fi
 from app.services import studies
 from app.services.audit import Actor
 from app.services.sessions import stations
-from app.services.topics import station_topic_of
+from app.services.topics import station_topic_of, study_topic
 from app.tables import AuditEvent, Role
 from tests.conftest import UserClientFactory, protocol_text, sqlite_only
 
@@ -311,6 +311,7 @@ def test_a_live_page_hears_a_change_made_between_its_rendering_and_its_stream(
         lab_topic = station_topic_of(
             stations.create_station(db, name="lab-1", actor=Actor.system("test")).id
         )
+        study_id = studies.get_study(db, study_name).id
     overview = _stream_path(client.get("/studies/default").text, "sse-connect")
     dashboard = _stream_path(client.get("/studies/default/dashboard").text, "data-events")
     console = _stream_path(client.get("/stations/lab-1").text, "sse-connect")
@@ -321,14 +322,16 @@ def test_a_live_page_hears_a_change_made_between_its_rendering_and_its_stream(
     def assert_ok(response: Response) -> None:
         assert response.status_code == 200, response.text
 
+    hub = app.state.database.hub
     post("/studies/default/participants", code="K1")()  # after the pages, before their streams
     seat = post("/stations/lab-1/assign", study="default", code="K1")
     unseat = post("/stations/lab-1/unassign")
+    # PostgreSQL hands each change to the hub through LISTEN, after its commit: a stream must
+    # open once the hub has it, or it comes live instead of in the stream's first message.
+    _wait_until_heard(hub, study_topic(study_id), "participant_enrolled")
     assert _first_types(client, overview, then=seat) == ["participant_enrolled"]
     assert "participant_enrolled" in _first_types(client, dashboard, then=unseat)
-    # PostgreSQL hands the unseating to the hub through LISTEN, after its commit: the console's
-    # stream must open once the hub has it, or it comes live instead of in the first message.
-    _wait_until_heard(app.state.database.hub, lab_topic, "participant_unassigned")
+    _wait_until_heard(hub, lab_topic, "participant_unassigned")
     # The console was drawn before the seating and the unseating, which it is told of first.
     missed = ["participant_assigned", "participant_unassigned"]
     assert _first_types(client, console, then=seat) == missed
