@@ -489,7 +489,9 @@ function render() {
   // A card in front of the room: the last reply's caption goes (it would linger under the card).
   hideCaption();
   const action = state.expected.action;
-  if (ONLINE && action !== "start_session") {
+  // Only once no session runs: a running one whose floor plan is still loading (a reload's
+  // state can come first) is this room's to show, and would otherwise be left and come back.
+  if (ONLINE && action !== "start_session" && !sessionRunning()) {
     leaveRoom(); // a questionnaire, the end, or a withdrawal: /online knows which page
     return;
   }
