@@ -141,6 +141,15 @@ class _Robot:
             await self.rest.aclose()
 
 
+def preferences(categories: list[_Category], rng: random.Random) -> dict[str, int]:
+    """One participant's preferred question per category: the rules', or drawn where the
+    protocol leaves it open (once per participant, so they answer alike in every session)."""
+    return {
+        c.name: c.preferred if c.preferred is not None else rng.randrange(c.arms)
+        for c in categories
+    }
+
+
 def categories_of(protocol: dict[str, Any]) -> list[_Category]:
     """The protocol's categories: how many questions each has, and the rules' preferred one."""
     return [
@@ -288,10 +297,7 @@ class _Lane:
             self.rng,
             self.attention,
         )
-        preferred = {
-            c.name: c.preferred if c.preferred is not None else self.rng.randrange(c.arms)
-            for c in self.categories
-        }
+        preferred = preferences(self.categories, self.rng)
         try:
             # Inside the try: a run stopped while the seating's response is on its way (the
             # server has seated the participant) still frees the station.

@@ -38,6 +38,7 @@ from app.bots import (
     attention_answers,
     categories_of,
     check_config,
+    preferences,
     questionnaire_answers,
 )
 from app.client import ApiError, ExperimenterClient, StationSocket
@@ -79,7 +80,7 @@ class _Participant:
         self.condition_of = condition_of
         self.query = urlencode(parameters)
         self.rng = rng
-        self.categories = categories
+        self.preferred = preferences(categories, rng)
         self.attention = attention
         self.think_seconds = think_seconds
         self.record = record
@@ -201,14 +202,10 @@ class _Participant:
         try:
             state = await socket.current_state()
             if state.expected.action == "prompt":
-                preferred = {
-                    c.name: c.preferred if c.preferred is not None else self.rng.randrange(c.arms)
-                    for c in self.categories
-                }
                 await answer_session(
                     _TimedRobot(socket, self._timed),
                     state.expected.categories,
-                    preferred,
+                    self.preferred,
                     rng=self.rng,
                     noise=self.config.noise,
                     on_step=self.on_step,

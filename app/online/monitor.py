@@ -20,7 +20,7 @@ from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 
-from sqlalchemy import ColumnElement, select
+from sqlalchemy import ColumnElement, func, select
 from sqlalchemy.orm import Session
 
 from app.protocol import Protocol
@@ -134,14 +134,12 @@ def online_monitor(
     ).all()
     monitor = OnlineMonitor(now=now)
     if scope.sites is None:
-        monitor.screened_out = len(
-            db.scalars(
-                select(OnlineParticipation.id).where(
-                    OnlineParticipation.study_id == study.id,
-                    OnlineParticipation.status == OnlineStatus.SCREENED_OUT,
-                    OnlineParticipation.pilot.is_(False),
-                )
-            ).all()
+        monitor.screened_out = db.scalar(
+            select(func.count()).where(
+                OnlineParticipation.study_id == study.id,
+                OnlineParticipation.status == OnlineStatus.SCREENED_OUT,
+                OnlineParticipation.pilot.is_(False),
+            )
         )
     else:
         monitor.screened_out = None
