@@ -329,9 +329,14 @@ def _base_url(host: str, port: int) -> str:
 
 
 def _release(api: Any) -> None:
-    """Close the client's connections and its thread pool (the vendor's ApiClient starts one)."""
+    """Close the client's connections and its thread pool (the vendor's ApiClient starts one).
+
+    The pool is joined here, on the caller's thread: the vendor's ``ApiClient.__del__`` joins it
+    too, and when the garbage collector happens to run that on one of the pool's own threads,
+    the join raises ("cannot join current thread") in the middle of unrelated work."""
     api.api_client.rest_client.pool_manager.clear()
     api.api_client.pool.close()
+    api.api_client.pool.join()
 
 
 def _transport_errors() -> tuple[type[BaseException], ...]:

@@ -80,6 +80,7 @@ const room = {
   everOnline: false,
   lastReport: 0,
   said: null, // the last caption said ({kind, text}): the browser tests' view of it
+  speaking: null, // the robot's line being said (a promise, settled when it has been said)
   switching: null, // the language switch under way, and the newest state waiting for it
   waiting: null,
 };
@@ -425,7 +426,7 @@ function say(kind, text, { speak, hint } = {}) {
   el("captions").dataset.kind = kind;
   room.presence.said = { kind, text: text.slice(0, 300) };
   room.said = { kind, text };
-  if (speak) room.voice.say(text);
+  if (speak) room.speaking = room.voice.say(text);
 }
 
 function hideCaption() {
@@ -486,8 +487,6 @@ function render() {
     if (state) hideNotice();
     return;
   }
-  // A card in front of the room: the last reply's caption goes (it would linger under the card).
-  hideCaption();
   const action = state.expected.action;
   // Only once no session runs: a running one whose floor plan is still loading (a reload's
   // state can come first) is this room's to show, and would otherwise be left and come back.
@@ -495,6 +494,8 @@ function render() {
     leaveRoom(); // a questionnaire, the end, or a withdrawal: /online knows which page
     return;
   }
+  // A card in front of the room: the last reply's caption goes (it would linger under the card).
+  hideCaption();
   if (action === "start_session") {
     const next = state.expected.session;
     const title = next === 0 ? _("A practice run comes first") : _("Session %(number)s comes next", { number: next });
@@ -588,10 +589,19 @@ function reportTimeAway() {
 }
 if (ONLINE && root.dataset.away) reportTimeAway();
 
-function leaveRoom() {
+const LONGEST_GOODBYE_MS = 8000; // the most a leaving room waits for the robot's last line
+
+/** Go to /online, which knows the page that comes next. The robot's line being said (the
+ * reply to a session's last answer) is heard to its end first, with its caption: leaving the
+ * page would cut it off. */
+async function leaveRoom() {
   if (room.leaving) return;
   room.leaving = true;
   if (room.socket) room.socket.stop();
+  if (room.speaking) {
+    const bound = new Promise((resolve) => setTimeout(resolve, LONGEST_GOODBYE_MS));
+    await Promise.race([room.speaking, bound]);
+  }
   location.assign(root.dataset.leave);
 }
 

@@ -238,15 +238,20 @@ def wait_question(page: Page, category: str) -> str:
     return text
 
 
-def answer_by_rules(page: Page, category: str, question: str, *, how: str = "key") -> str:
+def answer_by_rules(
+    page: Page, category: str, question: str, *, how: str = "key", then_leaves: bool = False
+) -> str:
     """Answer as the paper's rules say (yes to the preferred question, no to the others), by the
-    Y/N keys or the on-screen buttons; waits until the robot's reply is shown."""
+    Y/N keys or the on-screen buttons; waits until the robot's reply is shown, unless
+    ``then_leaves``: an online room leaves for the next page after a session's last reply, and
+    the caller waits for that page instead."""
     said = "yes" if preferred_questions()[category] == question else "no"
     if how == "key":
         page.keyboard.press("KeyY" if said == "yes" else "KeyN")
     else:
         page.get_by_role("button", name="Yes" if said == "yes" else "No").click()
-    wait_reply(page)
+    if not then_leaves:
+        wait_reply(page)
     return said
 
 

@@ -158,9 +158,10 @@ def test_an_online_participant_goes_from_the_platform_and_back(
     answer_by_rules(page, first, wait_question(page, first))
     page.reload()  # mid-session: the room comes back where it was, nothing asked twice
     wait_ready(page)
-    for category, waypoints in rest:
+    for number, (category, waypoints) in enumerate(rest, start=1):
         walk(page, waypoints)
-        answer_by_rules(page, category, wait_question(page, category))
+        last = number == len(rest)
+        answer_by_rules(page, category, wait_question(page, category), then_leaves=last)
     # The session's last answer: the room hands over to the session's questionnaire.
     expect(page).to_have_url(f"{url}/tablet/q/trust/1")
     page.screenshot(path=str(artifacts / "03-trust.png"))
