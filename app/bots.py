@@ -28,7 +28,7 @@ from typing import Any, Literal, TypeVar
 import httpx
 
 from app.api.runtime_schemas import AnswerOut, IssuedDeviceOut, PromptOut
-from app.client import ApiError, ExperimenterClient, RobotClient, StationSocket
+from app.client import ApiError, ExperimenterClient, RobotClient, StationSocket, http_client
 
 
 @dataclass(frozen=True)
@@ -102,6 +102,8 @@ class BotSummary:
     questionnaires: int = 0
     errors: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    most_at_once: int = 0
+    """The most participants in the study at one moment (the online bots count it)."""
 
     def to_json(self) -> dict[str, Any]:
         """The summary as one JSON object."""
@@ -215,9 +217,7 @@ class _Tablet:
         rng: random.Random,
         attention: dict[str, str],
     ) -> None:
-        self._client = httpx.AsyncClient(
-            base_url=url.rstrip("/"), timeout=15.0, headers={"Authorization": f"Bearer {token}"}
-        )
+        self._client = http_client(url, timeout=15.0, headers={"Authorization": f"Bearer {token}"})
         self.model = model
         self.condition = condition
         self.rng = rng
@@ -375,16 +375,20 @@ async def answer_session(
     noise: float,
     on_step: Callable[[], None] = lambda: None,
     think: Callable[[], Awaitable[None]] | None = None,
+    walk: Callable[[], Awaitable[None]] | None = None,
 ) -> int:
     """Answer runs until the session is over, as the paper's rules say (``noise``: the chance of
-    answering against them); each run visits its categories in a new order. ``think``: awaited
-    before each answer (a person's pace). Returns how many steps were answered."""
+    answering against them); each run visits its categories in a new order. ``walk`` is awaited
+    before each question and ``think`` before each answer (a person's pace). Returns how many
+    steps were answered."""
     pending = list(categories)
     steps = 0
     while True:
         order = list(pending)
         rng.shuffle(order)
         for category in order:
+            if walk is not None:
+                await walk()
             step = await robot.prompt(category)
             says_yes = step.action == preferred[category]
             if rng.random() < noise:

@@ -5,8 +5,9 @@ A bot opens ``/join/STUDY?ID=…`` and passes the browser check, then does what 
 page after page: it loads each questionnaire page and submits its form (with the page's timing,
 as static/js/tablet.js does), and in the room it takes the device key from the page, presses
 *start* and answers the robot over the room's WebSocket as the paper's rules say (app.bots), until
-the completion page. ``think_seconds`` paces it like a person (an exponential pause before each
-page submission and each answer; 0 for tests). Every request's latency can be recorded by kind
+the completion page. A :class:`Pace` paces it like a person (pauses to read and answer a page, to
+walk to the next zone, to answer the robot; none for tests), and ``arrivals_seconds`` spreads the
+participants' arrivals as a platform's do. Every request's latency can be recorded by kind
 (``join``: the link's page, ``online``: ``/online``, which sends them on or shows the room,
 ``page``: a questionnaire page, ``form``: a submission, ``start``, ``prompt``, ``answer``) for
 the scale benchmark (bench/online.py).
@@ -24,6 +25,7 @@ import re
 import secrets
 import time
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
 from typing import Any, TypeVar
 from urllib.parse import urlencode
 
@@ -41,7 +43,7 @@ from app.bots import (
     preferences,
     questionnaire_answers,
 )
-from app.client import ApiError, ExperimenterClient, StationSocket
+from app.client import ApiError, ExperimenterClient, StationSocket, http_client
 
 Recorder = Callable[[str, float], None]
 """Called with each request's kind and its latency in seconds."""
@@ -60,6 +62,28 @@ class OnlineStudyClosed(Exception):
     """The study is not run online, or refused a bot: nothing to simulate."""
 
 
+@dataclass(frozen=True)
+class Pace:
+    """How fast a simulated participant goes: the mean seconds of each kind of pause (each
+    drawn from an exponential distribution). All zero, the default, is a machine's pace."""
+
+    action: float = 0.0
+    """Before each submission, session start and answer: reading, deciding, pressing."""
+    per_item: float = 0.0
+    """Added before a questionnaire page's submission for each item on it."""
+    walk: float = 0.0
+    """In the room, before each question: walking to the next zone."""
+
+    def __post_init__(self) -> None:
+        if min(self.action, self.per_item, self.walk) < 0:
+            raise ValueError("a pace's pauses are seconds ≥ 0")
+
+
+HUMAN_PACE = Pace(action=2.0, per_item=3.0, walk=5.0)
+"""A person's pace: about 3 s per questionnaire item (above the 2 s per item under which
+app.quality flags a page as sped through), 5 s to walk to a zone, 2 s to decide and press."""
+
+
 class _Participant:
     """One simulated online participant in a browser of its own."""
 
@@ -71,7 +95,7 @@ class _Participant:
         rng: random.Random,
         categories: list[_Category],
         attention: dict[str, str],
-        think_seconds: float,
+        pace: Pace,
         record: Recorder,
         on_step: Callable[[], None],
         condition_of: Callable[[str], Awaitable[str]],
@@ -82,10 +106,10 @@ class _Participant:
         self.rng = rng
         self.preferred = preferences(categories, rng)
         self.attention = attention
-        self.think_seconds = think_seconds
+        self.pace = pace
         self.record = record
         self.on_step = on_step
-        self.browser = httpx.AsyncClient(base_url=config.url.rstrip("/"), timeout=30.0)
+        self.browser = http_client(config.url, timeout=30.0)
         self.tablet: httpx.AsyncClient | None = None
         self.recruitment_id = recruitment_id
         self.condition = ""
@@ -98,10 +122,18 @@ class _Participant:
         self.record(kind, time.perf_counter() - started)
         return result
 
+    async def pause(self, mean: float) -> None:
+        """A person's pause of ``mean`` seconds on average (none when it is 0)."""
+        if mean > 0:
+            await asyncio.sleep(self.rng.expovariate(1.0 / mean))
+
     async def think(self) -> None:
-        """A person's pause (none when ``think_seconds`` is 0)."""
-        if self.think_seconds > 0:
-            await asyncio.sleep(self.rng.expovariate(1.0 / self.think_seconds))
+        """Before an action: deciding and pressing."""
+        await self.pause(self.pace.action)
+
+    async def walk(self) -> None:
+        """In the room: to the next zone."""
+        await self.pause(self.pace.walk)
 
     async def _page(self, path: str, kind: str = "page") -> httpx.Response:
         response = await self._timed(kind, self.browser.get(path))
@@ -133,10 +165,8 @@ class _Participant:
         assert token, "the join set no tablet cookie"
         # The page's own items come from the tablet's JSON view of the same page (what the
         # participant reads); the answers go back through the page's form.
-        self.tablet = httpx.AsyncClient(
-            base_url=self.config.url.rstrip("/"),
-            timeout=30.0,
-            headers={"Authorization": f"Bearer {token}"},
+        self.tablet = http_client(
+            self.config.url, timeout=30.0, headers={"Authorization": f"Bearer {token}"}
         )
 
     async def run(self) -> str:
@@ -183,7 +213,7 @@ class _Participant:
                 page, self.config.responses, self.condition, self.rng, self.attention
             )
             form |= {key: str(value) for key, value in answers.items()}
-            await self.think()
+            await self.pause(self.pace.action + self.pace.per_item * len(answers))
             form["page-seconds"] = f"{time.monotonic() - opened:.3f}"
             form["away-seconds"] = "0"
             await self._timed("form", self.browser.post(path, data=form))
@@ -210,6 +240,7 @@ class _Participant:
                     noise=self.config.noise,
                     on_step=self.on_step,
                     think=self.think,
+                    walk=self.walk,
                 )
                 self.sessions += 1
         finally:
@@ -259,15 +290,17 @@ def _parameters(
 async def run_online_bots(
     config: BotConfig,
     *,
-    think_seconds: float = 0.0,
+    pace: Pace = Pace(),
+    arrivals_seconds: float = 0.0,
     tick: Callable[[], None] = lambda: None,
     record: Recorder = lambda _kind, _seconds: None,
 ) -> BotSummary:
     """Drive ``config.participants`` simulated online participants through the study's public
-    link, ``config.concurrency`` at once. OnlineStudyClosed when the study is not run online."""
+    link, ``config.concurrency`` at once, arriving one after another evenly over
+    ``arrivals_seconds`` (0: all at once). OnlineStudyClosed when the study is not run online."""
     check_config(config)
-    if think_seconds < 0:
-        raise ValueError("think_seconds must be ≥ 0")
+    if arrivals_seconds < 0:
+        raise ValueError("arrivals_seconds must be ≥ 0")
     started = time.perf_counter()
     summary = BotSummary()
     rng = random.Random(config.seed)
@@ -283,15 +316,37 @@ async def run_online_bots(
             found = await admin.call("GET", f"/studies/{config.study}/participants/{code}")
             return str(found.get("condition") or "")
 
-        await _run(config, protocol, think_seconds, tick, record, condition_of, summary, rng)
+        arrivals = _Arrivals(arrivals_seconds, config.participants)
+        await _run(config, protocol, pace, arrivals, tick, record, condition_of, summary, rng)
     summary.seconds = round(time.perf_counter() - started, 3)
     return summary
+
+
+class _Arrivals:
+    """When each participant arrives, evenly over a window, and how many were in at once."""
+
+    def __init__(self, seconds: float, participants: int) -> None:
+        self.every = seconds / max(participants, 1)
+        self.began = time.monotonic()
+        self.active = 0
+
+    async def wait_for(self, index: int) -> None:
+        """Until participant ``index`` (from 0) arrives."""
+        await asyncio.sleep(max(0.0, self.began + index * self.every - time.monotonic()))
+
+    def arrived(self, summary: BotSummary) -> None:
+        self.active += 1
+        summary.most_at_once = max(summary.most_at_once, self.active)
+
+    def left(self) -> None:
+        self.active -= 1
 
 
 async def _run(
     config: BotConfig,
     protocol: dict[str, Any],
-    think_seconds: float,
+    pace: Pace,
+    arrivals: _Arrivals,
     tick: Callable[[], None],
     record: Recorder,
     condition_of: Callable[[str], Awaitable[str]],
@@ -313,6 +368,7 @@ async def _run(
     async def worker(worker_rng: random.Random) -> None:
         while not queue.empty():
             index = queue.get_nowait()
+            await arrivals.wait_for(index)
             recruitment_id = f"{config.station_prefix}-{run}-{index + 1}"
             person_rng = random.Random(worker_rng.random())
             participant = _Participant(
@@ -322,12 +378,13 @@ async def _run(
                 person_rng,
                 categories,
                 attention,
-                think_seconds,
+                pace,
                 record,
                 answered,
                 condition_of,
             )
             summary.participants += 1
+            arrivals.arrived(summary)
             try:
                 outcome = await participant.run()
                 if outcome == "completed":
@@ -337,6 +394,7 @@ async def _run(
             except (ApiError, OnlineStudyClosed, httpx.HTTPError, OSError) as exc:
                 summary.errors.append(f"{recruitment_id}: {type(exc).__name__}: {exc}")
             finally:
+                arrivals.left()
                 summary.sessions += participant.sessions
                 summary.questionnaires += participant.submitted
                 await participant.aclose()

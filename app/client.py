@@ -49,6 +49,17 @@ Model = TypeVar("Model", bound=BaseModel)
 Answer = Literal["yes", "no"]
 
 RETRYABLE_STATUS = {502, 503, 504}
+IDLE_CONNECTION_SECONDS = 30.0
+"""A client closes a connection idle this long, well before the server would
+(app.settings.KEEP_ALIVE_SECONDS): a request is never sent on a connection the server is closing
+at that moment, which fails without an answer."""
+
+
+def http_client(base_url: str, **options: Any) -> httpx.AsyncClient:
+    """An httpx client for trustlab's server (``options`` as httpx takes them)."""
+    limits = httpx.Limits(keepalive_expiry=IDLE_CONNECTION_SECONDS)
+    return httpx.AsyncClient(base_url=base_url.rstrip("/"), limits=limits, **options)
+
 
 CLOSE_KEY_REFUSED = 4401
 """The station WebSocket's close code for an unknown or revoked device key: never retried."""
@@ -107,9 +118,7 @@ class _Http:
     def __init__(
         self, base_url: str, *, headers: dict[str, str], timeout: float, retries: int
     ) -> None:
-        self._client = httpx.AsyncClient(
-            base_url=base_url.rstrip("/"), headers=headers, timeout=timeout
-        )
+        self._client = http_client(base_url, headers=headers, timeout=timeout)
         self._retries = retries
 
     async def request(

@@ -20,6 +20,11 @@ from app.access_log import AccessLog
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 """The checkout (or image) root: migrations/, templates/ and static/ live beside the packages."""
+KEEP_ALIVE_SECONDS = 75
+"""How long the server keeps an idle HTTP connection open (nginx's default). uvicorn's own 5 s is
+shorter than a participant's pause between two pages: each next page then opened a connection,
+and a request sent just as the server closed its idle one failed (bench/online.py's
+``ReadError``s)."""
 
 
 class Settings(BaseSettings):

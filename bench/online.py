@@ -2,9 +2,14 @@
 
 Each participant is ``trustlab bots --online``'s (app/bots_online.py): a browser of its own that
 joins from the platform's link, loads and submits every questionnaire page, starts each session in
-the room and answers the robot over the room's socket, pausing like a person (``--think`` seconds
-on average, an exponential draw) before each submission and each answer. All of a level's
-participants start together, so the load is theirs at once.
+the room and answers the robot over the room's socket, at a person's pace (exponential draws with
+these means): ``--per-item`` seconds for each questionnaire item (3: above the 2 s per item under
+which the study's data-quality rules flag speeding), ``--walk`` seconds to the next zone (5) and
+``--think`` seconds before each submission, start and answer (2). A level's participants arrive
+evenly over ``--arrivals`` seconds (60, as a platform's first wave does; 0: all in the same
+moment), and each stays for the whole study, so the level is the number in the study at once
+(reported as ``most_at_once``). ``--per-item 0 --walk 0 --arrivals 0`` is a stress load: every
+participant at a machine's pace but for ``--think``, all arriving together.
 
 Reported per level (participants at once): p50/p95/p99 of page loads (``all_pages``: the link's
 page, ``/online`` and the questionnaire pages, also each apart), of submissions (``form``), of
@@ -19,7 +24,8 @@ at which it first does is reported.
     .venv/bin/python -m bench.online --postgres postgresql+psycopg://postgres@127.0.0.1:5432/test
     .venv/bin/python -m bench.online --postgres URL --workers 4
     .venv/bin/python -m bench.online --postgres URL --nginx             # two servers, one nginx
-    .venv/bin/python -m bench.online --levels 20 --think 0.5            # a quick look
+    .venv/bin/python -m bench.online --per-item 0 --walk 0 --arrivals 0 # the stress load
+    .venv/bin/python -m bench.online --levels 20 --arrivals 5           # a quick look
 
 ``--nginx`` starts two ``trustlab serve``-like servers (``--workers`` each) sharing one
 PostgreSQL behind Debian's nginx, which sends each request to the next server in turn: every
@@ -56,7 +62,7 @@ from sqlalchemy import func, select  # noqa: E402
 
 from app import schema  # noqa: E402
 from app.bots import BotConfig  # noqa: E402
-from app.bots_online import run_online_bots  # noqa: E402
+from app.bots_online import HUMAN_PACE, Pace, run_online_bots  # noqa: E402
 from app.db import Database  # noqa: E402
 from app.protocol import default_protocol, parse_protocol  # noqa: E402
 from app.services import studies  # noqa: E402
@@ -252,7 +258,13 @@ def stored(url: str, study: str) -> dict[str, Any]:
 
 
 def level_figures(
-    url: str, base: str, level: int, think: float, seed: int, memory: MemorySampler
+    url: str,
+    base: str,
+    level: int,
+    pace: Pace,
+    arrivals: float,
+    seed: int,
+    memory: MemorySampler,
 ) -> dict[str, Any]:
     """Run one level (``level`` participants at once) and return its figures."""
     study = f"online-{level}"
@@ -274,7 +286,8 @@ def level_figures(
     summary = asyncio.run(
         run_online_bots(
             config,
-            think_seconds=think,
+            pace=pace,
+            arrivals_seconds=arrivals,
             record=lambda kind, seconds: latencies[kind].append(seconds),
         )
     )
@@ -284,6 +297,7 @@ def level_figures(
     answers = after["answers"] - answers_before
     figures: dict[str, Any] = {
         "participants": level,
+        "most_at_once": summary.most_at_once,
         "completed": summary.completed,
         "seconds": round(seconds, 1),
         "errors": len(summary.errors),
@@ -324,7 +338,30 @@ def main() -> None:
         default="200,400",
         help="participants at once, one level after another (default 200,400)",
     )
-    parser.add_argument("--think", type=float, default=2.0, help="mean pause, seconds (default 2)")
+    parser.add_argument(
+        "--think",
+        type=float,
+        default=HUMAN_PACE.action,
+        help=f"mean pause before an action, seconds (default {HUMAN_PACE.action:g})",
+    )
+    parser.add_argument(
+        "--per-item",
+        type=float,
+        default=HUMAN_PACE.per_item,
+        help=f"mean pause per questionnaire item, seconds (default {HUMAN_PACE.per_item:g})",
+    )
+    parser.add_argument(
+        "--walk",
+        type=float,
+        default=HUMAN_PACE.walk,
+        help=f"mean walk to a zone, seconds (default {HUMAN_PACE.walk:g})",
+    )
+    parser.add_argument(
+        "--arrivals",
+        type=float,
+        default=60.0,
+        help="a level's participants arrive evenly over this many seconds (default 60)",
+    )
     parser.add_argument("--sessions", type=int, default=2)
     parser.add_argument("--runs", type=int, default=1)
     parser.add_argument("--seed", type=int, default=2026)
@@ -338,6 +375,12 @@ def main() -> None:
             "error: --nginx shares one PostgreSQL between two servers: give --postgres"
         )
     workers = args.workers or (2 if args.postgres else 1)
+    try:
+        pace = Pace(action=args.think, per_item=args.per_item, walk=args.walk)
+    except ValueError as error:
+        raise SystemExit(f"error: {error}") from None
+    if args.arrivals < 0:
+        raise SystemExit("error: --arrivals is seconds ≥ 0")
     engine = "postgresql" if args.postgres else "sqlite"
     results: list[dict[str, Any]] = []
     first_over: int | None = None
@@ -364,7 +407,7 @@ def main() -> None:
         with MemorySampler(roots) as memory:
             for level in levels:
                 print(f"{level} participants at once…", file=sys.stderr)
-                figures = level_figures(url, base, level, args.think, args.seed, memory)
+                figures = level_figures(url, base, level, pace, args.arrivals, args.seed, memory)
                 results.append(figures)
                 print(json.dumps(figures), file=sys.stderr)
                 pages, answers = figures["all_pages"]["p95_ms"], figures["answer"]["p95_ms"]
@@ -377,7 +420,8 @@ def main() -> None:
         "workers_per_server": workers,
         "servers": 2 if args.nginx else 1,
         "behind_nginx": args.nginx,
-        "think_s": args.think,
+        "pace_s": {"action": pace.action, "per_item": pace.per_item, "walk": pace.walk},
+        "arrivals_s": args.arrivals,
         "schedule": {"sessions": args.sessions, "runs_per_session": args.runs},
         "levels": results,
         "first_level_over_1s_p95": first_over,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import httpx
 
+from app.settings import KEEP_ALIVE_SECONDS
 from tests.preloaded import ForkedServer, Preloaded
 
 FRESH_PROGRAMS = {
@@ -83,6 +84,8 @@ class ServerProcess:
             "warning",
             "--timeout-graceful-shutdown",  # as `trustlab serve` does: live streams never end
             "1",
+            "--timeout-keep-alive",  # as `trustlab serve` does
+            str(KEEP_ALIVE_SECONDS),
         ]
         if self.workers > 1:
             arguments += ["--workers", str(self.workers)]

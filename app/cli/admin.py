@@ -117,6 +117,7 @@ def serve(
 
     from app import access_log
     from app.demo import QuietWhileFilling, pending_demo, run_demo
+    from app.settings import KEEP_ALIVE_SECONDS
 
     settings = read_settings()
     database = open_database(settings)
@@ -150,6 +151,7 @@ def serve(
         log_config=access_log.log_config(settings.access_log),
         access_log=settings.access_log != access_log.AccessLog.OFF,
         timeout_graceful_shutdown=settings.shutdown_grace_seconds,
+        timeout_keep_alive=KEEP_ALIVE_SECONDS,
     )
 
 

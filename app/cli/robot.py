@@ -265,7 +265,24 @@ def bots(
     think_seconds: Annotated[
         float,
         typer.Option(
-            min=0.0, help="With --online: a participant's mean pause before each page and answer."
+            min=0.0,
+            help="With --online: a participant's mean pause before each submission and answer.",
+        ),
+    ] = 0.0,
+    seconds_per_item: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help="With --online: more pause on a questionnaire page, per item on it."
+        ),
+    ] = 0.0,
+    walk_seconds: Annotated[
+        float,
+        typer.Option(min=0.0, help="With --online: a mean walk to the next zone in the room."),
+    ] = 0.0,
+    arrivals_seconds: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help="With --online: participants arrive evenly over this many seconds."
         ),
     ] = 0.0,
     as_json: JsonFlag = False,
@@ -276,7 +293,7 @@ def bots(
     from tqdm import tqdm
 
     from app.bots import BotConfig, BotStationsBusy, run_bots
-    from app.bots_online import OnlineStudyClosed, run_online_bots
+    from app.bots_online import OnlineStudyClosed, Pace, run_online_bots
     from app.client import ApiError
 
     if not password_stdin:
@@ -299,7 +316,10 @@ def bots(
     with tqdm(desc="answers", unit="step", file=sys.stderr, disable=as_json) as bar:
         try:
             if online:
-                run = run_online_bots(config, think_seconds=think_seconds, tick=bar.update)
+                pace = Pace(action=think_seconds, per_item=seconds_per_item, walk=walk_seconds)
+                run = run_online_bots(
+                    config, pace=pace, arrivals_seconds=arrivals_seconds, tick=bar.update
+                )
             else:
                 run = run_bots(config, tick=lambda: bar.update(1))
             summary = asyncio.run(run)

@@ -195,41 +195,65 @@ def participation_of(request: Request, db: Session, secret: bytes) -> OnlinePart
 
 @router.get("/online")
 async def where_now(request: Request, settings: SettingsDep) -> Response:
-    """Send the participant where they should be now (the tablet home's online twin)."""
+    """Send the participant where they should be now (the tablet home's online twin).
 
-    def work(db: Session) -> Response:
-        participation = participation_of(request, db, settings.secret)
-        study = db.get(Study, participation.study_id)
-        assert study is not None
-        participant = (
-            db.get(Participant, participation.participant_id)
-            if participation.participant_id is not None
-            else None
+    Most visits change nothing (the same step, seen within ``SEEN_EVERY``): they are answered
+    from a read session, off SQLite's single writer and beside each other. A visit that changes
+    something (a new step, a sighting due, an expiry, the end) is looked at again as a write."""
+    database: Database = request.app.state.database
+
+    def visit(write: bool) -> Response | None:
+        with database.write_session() if write else database.read_session() as db:
+            return _visit(request, db, settings, write=write)
+
+    async with database.admission():
+        response = await database.run_unit_of_work(visit, False, write=False)
+        if response is None:
+            response = await database.run_unit_of_work(visit, True, write=True)
+    assert response is not None
+    return response
+
+
+def _visit(request: Request, db: Session, settings: Settings, *, write: bool) -> Response | None:
+    """Where the participant goes now, with what that changes written (commits); None, without
+    ``write``, when the visit has something to write."""
+    participation = participation_of(request, db, settings.secret)
+    study = db.get(Study, participation.study_id)
+    assert study is not None
+    participant = (
+        db.get(Participant, participation.participant_id)
+        if participation.participant_id is not None
+        else None
+    )
+    now = utcnow()
+    if online.status_due(participation, participant, at=now) != participation.status:
+        if not write:
+            return None
+        online.refresh(db, participation, at=now)
+    if participation.status != OnlineStatus.ACTIVE or participant is None:
+        return _message(
+            request,
+            study,
+            Outcome(participation.status),
+            participation=participation,
+            participant=participant,
         )
-        now = utcnow()
-        status = online.refresh(db, participation, at=now)
-        if status != OnlineStatus.ACTIVE or participant is None:
-            return _message(
-                request,
-                study,
-                Outcome(status),
-                participation=participation,
-                participant=participant,
-            )
-        protocol = languages.protocol_for(participant.language, protocol_of(study))
-        page = questionnaires.next_page(db, participant, protocol)
-        if page.kind == "done":
-            online.finish(db, participation, OnlineStatus.COMPLETED, at=now)
-            return _message(request, study, Outcome.COMPLETED, participant=participant)
-        if page.kind == "withdrawn":
-            online.finish(db, participation, OnlineStatus.ENDED, at=now)
-            return _message(request, study, Outcome.ENDED, participant=participant)
-        online.record_step(db, participation, step_of(page), at=now)
-        if page.kind != "wait":
-            return RedirectResponse(page.path, status_code=303)
-        return _room(request, db, participation, participant, study, settings)
-
-    return await _unit(request, work)
+    protocol = languages.protocol_for(participant.language, protocol_of(study))
+    page = questionnaires.next_page(db, participant, protocol)
+    if page.kind in ("done", "withdrawn"):
+        if not write:
+            return None
+        status = OnlineStatus.COMPLETED if page.kind == "done" else OnlineStatus.ENDED
+        online.finish(db, participation, status, at=now)
+        return _message(request, study, Outcome(status), participant=participant)
+    step = step_of(page)
+    if online.step_due(participation, step, at=now):
+        if not write:
+            return None
+        online.record_step(db, participation, step, at=now)
+    if page.kind != "wait":
+        return RedirectResponse(page.path, status_code=303)
+    return _room(request, db, participation, participant, study, settings)
 
 
 def _room(

@@ -407,21 +407,35 @@ def _returning(
     return Joined(outcome, participation)
 
 
-def refresh(db: Session, participation: OnlineParticipation, *, at: datetime) -> str:
-    """The participation's status now: an active one past its time limit expires, and one whose
-    participant staff withdrew or erased ends (their key revoked); commits a change."""
+def status_due(
+    participation: OnlineParticipation, participant: Participant | None, *, at: datetime
+) -> str:
+    """The status the participation should have at ``at`` (what :func:`refresh` makes it): an
+    active one past its time limit expires, and one whose participant staff withdrew or erased
+    ends. Changes nothing: a visit that would change nothing needs no write."""
     if participation.status != OnlineStatus.ACTIVE:
         return participation.status
+    if participant is None or participant.status == ParticipantStatus.WITHDRAWN:
+        return OnlineStatus.ENDED
+    if at >= participation.expires_at:
+        return OnlineStatus.EXPIRED
+    return OnlineStatus.ACTIVE
+
+
+def refresh(db: Session, participation: OnlineParticipation, *, at: datetime) -> str:
+    """The participation's status now (:func:`status_due`), made so: an expiry ends a running
+    session, and either end revokes their key; commits a change."""
     participant = (
         db.get(Participant, participation.participant_id)
         if participation.participant_id is not None
         else None
     )
-    if participant is None or participant.status == ParticipantStatus.WITHDRAWN:
-        finish(db, participation, OnlineStatus.ENDED, at=at)
-    elif at >= participation.expires_at:
+    status = status_due(participation, participant, at=at)
+    if status == participation.status:
+        return status
+    if status == OnlineStatus.EXPIRED:
         _end_running_session(db, participation)
-        finish(db, participation, OnlineStatus.EXPIRED, at=at)
+    finish(db, participation, OnlineStatus(status), at=at)
     return participation.status
 
 
@@ -485,13 +499,19 @@ looks two minutes back, and a write on every visit to ``/online`` made each one 
 transaction (a single SQLite writer's queue, at hundreds of participants: bench/online.py)."""
 
 
+def step_due(participation: OnlineParticipation, step: str, *, at: datetime) -> bool:
+    """Whether :func:`record_step` would write: a new step, or a sighting :data:`SEEN_EVERY`
+    after the last one written."""
+    return step[:80] != participation.step or at - participation.last_seen_at >= SEEN_EVERY
+
+
 def record_step(
     db: Session, participation: OnlineParticipation, step: str, *, at: datetime
 ) -> None:
-    """Note the page they are on and that they were seen; commits only a change (a new step,
-    or a sighting :data:`SEEN_EVERY` after the last one written)."""
+    """Note the page they are on and that they were seen; commits only a change
+    (:func:`step_due`)."""
     step = step[:80]
-    if step == participation.step and at - participation.last_seen_at < SEEN_EVERY:
+    if not step_due(participation, step, at=at):
         return
     participation.last_seen_at = at
     if step != participation.step:

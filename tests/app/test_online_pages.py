@@ -162,3 +162,36 @@ def test_pages_without_the_join_say_what_to_do(
     assert nobody.get(f"/join/{study_name}?PROLIFIC_PID=x").status_code == 404
     bad = nobody.post("/join/web", data={"query": "PROLIFIC_PID=has spaces", **DESKTOP})
     assert bad.status_code == 422 and "PROLIFIC_PID is missing or malformed" in bad.text
+
+
+@sqlite_only("which visits write, not the database's")
+def test_a_visit_that_changes_nothing_writes_nothing(
+    app: FastAPI, client: TestClient, web_study: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    database: Database = app.state.database
+    writes = []
+    write_session = database.write_session
+
+    def counted() -> Any:
+        writes.append(1)
+        return write_session()
+
+    monkeypatch.setattr(database, "write_session", counted)
+    browser = client_of(client)
+    assert joined(browser, "PID-QUIET").status_code == 303
+    writes.clear()
+    assert browser.get("/online", follow_redirects=False).headers["location"] == "/tablet/consent"
+    assert len(writes) == 1  # the first sight of the consent page is noted
+    for _ in range(3):  # a reload, and another: the same step, seen just now
+        assert browser.get("/online", follow_redirects=False).status_code == 303
+    assert len(writes) == 1
+    tablet = client_of(client, headers={"Authorization": f"Bearer {browser.cookies['tl_tablet']}"})
+    _answer_tablet_page(tablet)  # consent given: the next visit notes the new step
+    writes.clear()
+    assert browser.get("/online", follow_redirects=False).headers["location"] == (
+        "/tablet/q/demographics"
+    )
+    assert len(writes) == 1
+    with database.read_session() as db:
+        row = db.scalar(select(OnlineParticipation))
+        assert row is not None and row.step == "questionnaire:demographics"
