@@ -81,6 +81,7 @@ const room = {
   lastReport: 0,
   said: null, // the last caption said ({kind, text}): the browser tests' view of it
   speaking: null, // the robot's line being said (a promise, settled when it has been said)
+  saying: false, // whether that line is still being said
   switching: null, // the language switch under way, and the newest state waiting for it
   waiting: null,
 };
@@ -426,7 +427,13 @@ function say(kind, text, { speak, hint } = {}) {
   el("captions").dataset.kind = kind;
   room.presence.said = { kind, text: text.slice(0, 300) };
   room.said = { kind, text };
-  if (speak) room.speaking = room.voice.say(text);
+  if (!speak) return;
+  const line = room.voice.say(text);
+  room.speaking = line;
+  room.saying = true;
+  line.then(() => {
+    if (room.speaking === line) room.saying = false;
+  });
 }
 
 function hideCaption() {
@@ -929,6 +936,10 @@ window.trustlabRoom = {
   /** The last caption said ({kind, text}), shown or since cleared by a card in front of it. */
   get said() {
     return room.said ? { ...room.said } : null;
+  },
+  /** Whether the robot is still saying its last spoken line. */
+  get saying() {
+    return room.saying;
   },
   get frames() {
     return room.frames;

@@ -4,6 +4,7 @@ completion URL, with a reload mid-session and a return in a new browser after cl
 
 from __future__ import annotations
 
+import json
 import threading
 from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -23,6 +24,12 @@ from tests.e2e.room_driver import PAPER_ORDER, answer_by_rules, wait_question, w
 from tests.servers import ServerProcess
 
 PID = "5f0c1d2e3a4b5c6d7e8f9a0b"
+AS_IT_LEAVES = """() => addEventListener("beforeunload", () => {
+  const room = window.trustlabRoom;
+  const left = { said: room.said && room.said.kind, saying: room.saying };
+  sessionStorage.setItem("test:left", JSON.stringify(left));
+})"""
+"""Keep what the room was saying as the page is left (the next page of the tab reads it)."""
 ONE_SESSION = {
     "sessions = 4": "sessions = 1",
     "runs_per_session = 3": "runs_per_session = 1",
@@ -158,12 +165,19 @@ def test_an_online_participant_goes_from_the_platform_and_back(
     answer_by_rules(page, first, wait_question(page, first))
     page.reload()  # mid-session: the room comes back where it was, nothing asked twice
     wait_ready(page)
-    for number, (category, waypoints) in enumerate(rest, start=1):
+    for category, waypoints in rest[:-1]:
         walk(page, waypoints)
-        last = number == len(rest)
-        answer_by_rules(page, category, wait_question(page, category), then_leaves=last)
-    # The session's last answer: the room hands over to the session's questionnaire.
+        answer_by_rules(page, category, wait_question(page, category))
+    # The session's last answer: the room hands over to the session's questionnaire, once the
+    # robot has said its reply (what the room was doing as it left is kept in the tab's
+    # session storage, which the next page of the same tab still reads).
+    page.evaluate(AS_IT_LEAVES)
+    category, waypoints = rest[-1]
+    walk(page, waypoints)
+    answer_by_rules(page, category, wait_question(page, category), then_leaves=True)
     expect(page).to_have_url(f"{url}/tablet/q/trust/1")
+    left = json.loads(page.evaluate("() => sessionStorage.getItem('test:left')"))
+    assert left == {"said": "reply", "saying": False}
     page.screenshot(path=str(artifacts / "03-trust.png"))
     context.close()  # the participant closes the tab
 
