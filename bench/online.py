@@ -338,24 +338,15 @@ def main() -> None:
         default="200,400",
         help="participants at once, one level after another (default 200,400)",
     )
-    parser.add_argument(
-        "--think",
-        type=float,
-        default=HUMAN_PACE.action,
-        help=f"mean pause before an action, seconds (default {HUMAN_PACE.action:g})",
-    )
-    parser.add_argument(
-        "--per-item",
-        type=float,
-        default=HUMAN_PACE.per_item,
-        help=f"mean pause per questionnaire item, seconds (default {HUMAN_PACE.per_item:g})",
-    )
-    parser.add_argument(
-        "--walk",
-        type=float,
-        default=HUMAN_PACE.walk,
-        help=f"mean walk to a zone, seconds (default {HUMAN_PACE.walk:g})",
-    )
+    for option, field, what in (
+        ("--think", "action", "mean pause before an action"),
+        ("--per-item", "per_item", "mean pause per questionnaire item"),
+        ("--walk", "walk", "mean walk to a zone"),
+    ):
+        default = getattr(HUMAN_PACE, field)
+        parser.add_argument(
+            option, type=float, default=default, help=f"{what}, seconds (default {default:g})"
+        )
     parser.add_argument(
         "--arrivals",
         type=float,
